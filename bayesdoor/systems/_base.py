@@ -1,0 +1,120 @@
+"""The generic system interface: what inference, data generation and diagnosis may rely on.
+
+A system is a simulator (parameters -> sensor signals) with a parameter space, damage modes and a
+sensor layout. Nothing in this module knows about doors, wheels or rails.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from collections.abc import Mapping, Sequence
+
+import equinox as eqx
+import numpy as np
+
+from .._types import Array, Float, Int
+
+
+@dataclasses.dataclass(frozen=True)
+class ParameterSpec:
+    """One updatable parameter: name, unit, nominal value and bounds (inclusive)."""
+
+    name: str
+    unit: str
+    nominal: float
+    lower: float
+    upper: float
+    description: str = ""
+    integer: bool = False
+    reference_value: float | None = None
+
+    def check(self, value: float) -> None:
+        """Raise ``ValueError`` naming the value and the allowed range when out of bounds."""
+        v = float(value)
+        if not np.isfinite(v) or not self.lower <= v <= self.upper:
+            unit = f" {self.unit}" if self.unit and self.unit != "-" else ""
+            raise ValueError(
+                f"parameter {self.name}={v!r}{unit} is outside its allowed range "
+                f"[{self.lower}, {self.upper}]{unit} ({self.description})"
+            )
+        if self.integer and v != round(v):
+            raise ValueError(f"parameter {self.name}={v!r} must be an integer")
+
+
+@dataclasses.dataclass(frozen=True)
+class DamageSpec:
+    """A damage mode (or the healthy state) with its severity parameters and their priors.
+
+    ``severity`` maps each severity parameter to its (lower, upper) uniform prior range.
+    """
+
+    name: str
+    description: str
+    severity: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+
+
+class SimulationResult(eqx.Module):
+    """Sensor signals of one or more runs and the solver status of each.
+
+    ``status`` is 0 for a successful solve; any other value is a diffrax result code (for
+    example max_steps reached), in which case ``signals`` of that run are not meaningful.
+    """
+
+    signals: Float[Array, "*batch channel time"]
+    status: Int[Array, "*batch"]
+    time: Float[Array, " time"]
+
+    @property
+    def ok(self):
+        return self.status == 0
+
+
+class AbstractSystem(eqx.Module):
+    """Interface every simulated system implements."""
+
+    @property
+    @abc.abstractmethod
+    def name(self) -> str: ...
+
+    @property
+    @abc.abstractmethod
+    def parameters(self) -> Sequence[ParameterSpec]: ...
+
+    @property
+    @abc.abstractmethod
+    def states(self) -> Mapping[str, DamageSpec]: ...
+
+    @property
+    @abc.abstractmethod
+    def channels(self) -> tuple[str, ...]: ...
+
+    @property
+    @abc.abstractmethod
+    def sampling_rate_hz(self) -> float: ...
+
+    @abc.abstractmethod
+    def simulate(self, theta, damage, operating, **kwargs) -> SimulationResult: ...
+
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.parameters)
+
+    def nominal(self) -> dict[str, float]:
+        return {p.name: p.nominal for p in self.parameters}
+
+    def check_parameters(self, values: Mapping[str, float]) -> None:
+        """Raise ``ValueError`` for unknown names or out-of-bounds values."""
+        specs = {p.name: p for p in self.parameters}
+        for k, v in values.items():
+            if k not in specs:
+                raise ValueError(
+                    f"unknown parameter {k!r} for system {self.name}: allowed {', '.join(specs)}"
+                )
+            specs[k].check(v)
+
+    def check_state(self, state: str) -> DamageSpec:
+        if state not in self.states:
+            raise ValueError(
+                f"unknown state {state!r} for system {self.name}: allowed {', '.join(self.states)}"
+            )
+        return self.states[state]

@@ -1,0 +1,13 @@
+"""The reference elevator door: parameters, damage modes, equations and simulation."""
+
+from ._geometry import CHANNELS as CHANNELS
+from ._params import PARAMETERS as PARAMETERS
+from ._params import STATES as STATES
+from ._params import DoorDamage as DoorDamage
+from ._params import DoorParameters as DoorParameters
+from ._profile import commanded_motion as commanded_motion
+from ._profile import record_duration as record_duration
+from ._simulate import STATUS_MESSAGES as STATUS_MESSAGES
+from ._simulate import SolverConfig as SolverConfig
+from ._system import V_MAX_RANGE as V_MAX_RANGE
+from ._system import ElevatorDoor as ElevatorDoor

@@ -1,0 +1,151 @@
+"""Solving the door's equations with diffrax: one run, vmapped batches, failure as a status."""
+
+from __future__ import annotations
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..._types import Array, Float, Int
+from . import _geometry as g
+from ._model import N_DOF, N_LATCH, DoorArgs, rhs, sensor_signals, static_residual
+
+#: status codes of a solve (``SimulationResult.status``)
+STATUS_OK = 0
+STATUS_MAX_STEPS = 1
+STATUS_FAILED = 2
+STATUS_MESSAGES = {
+    STATUS_OK: "success",
+    STATUS_MAX_STEPS: (
+        "the solver reached max_steps: (a) parameters far outside the calibrated range make the "
+        "contact stiff, (b) max_steps is too small for the record length, (c) the tolerances are "
+        "too tight for float32"
+    ),
+    STATUS_FAILED: (
+        "the solve failed (non-finite state or step size collapsed): (a) parameters outside "
+        "their bounds, (b) a fixed step coarser than 1/2048 s, (c) float32 with tight tolerances"
+    ),
+}
+
+
+class SolverConfig(eqx.Module):
+    """How the equations are integrated.
+
+    Adaptive Tsit5 (rtol 1e-5, atol 1e-8) by default: the model is not stiff, and the implicit
+    solvers are over 30x slower (DESIGN.md section 4). ``dt`` switches to fixed steps, which is
+    what gradients against finite differences need (an adaptive step sequence changes with the
+    parameters); steps coarser than 1/2048 s are inaccurate.
+    """
+
+    rtol: float = eqx.field(static=True, default=1e-5)
+    atol: float = eqx.field(static=True, default=1e-8)
+    dt: float | None = eqx.field(static=True, default=None)
+    max_steps: int = eqx.field(static=True, default=100_000)
+    dtype: str = eqx.field(static=True, default="float64")
+
+    def __check_init__(self):
+        if self.dtype not in ("float64", "float32"):
+            raise ValueError(f"dtype must be 'float64' or 'float32', got {self.dtype!r}")
+        if self.dt is not None and not 0.0 < self.dt <= 1.0 / g.SAMPLING_RATE_HZ:
+            raise ValueError(
+                f"fixed step dt={self.dt!r} s must be in (0, {1.0 / g.SAMPLING_RATE_HZ:.6g}] "
+                "(coarser steps are wrong or blow up); use dt=None for adaptive steps"
+            )
+        if not (self.rtol > 0 and self.atol > 0):
+            raise ValueError(f"tolerances must be positive, got rtol={self.rtol}, atol={self.atol}")
+
+
+def static_equilibrium(args: DoorArgs, iterations: int = 30) -> Float[Array, " 7"]:
+    """Rest configuration with the drive at the closed position (Newton on the static forces)."""
+    dtype = args.k_contact.dtype
+    load = args.mass * g.GRAVITY / 2.0
+    indent = jnp.exp(jnp.log(load / args.k_contact) / args.n)
+    q0 = jnp.zeros(N_DOF, dtype=dtype).at[1].set(-indent)
+
+    def residual(q):
+        return static_residual(q, args, jnp)
+
+    def body(_, q):
+        jac = jax.jacfwd(residual)(q)
+        return q - jnp.linalg.solve(jac, residual(q))
+
+    return jax.lax.fori_loop(0, iterations, body, q0)
+
+
+def initial_state(args: DoorArgs) -> Float[Array, " 18"]:
+    """Static equilibrium, at rest, with every approach-velocity latch at its floor."""
+    q = static_equilibrium(args)
+    dtype = q.dtype
+    return jnp.concatenate([q, jnp.zeros(N_DOF, dtype), jnp.full((N_LATCH,), 0.05, dtype)])
+
+
+def sample_times(duration: float, fs: float = g.SAMPLING_RATE_HZ, dtype=jnp.float64):
+    """Sample instants 0, 1/fs, ... of a record of ``duration`` seconds."""
+    n = round(duration * fs)
+    return jnp.asarray(np.arange(n) / fs, dtype=dtype)
+
+
+def _status(result) -> Int[Array, ""]:
+    return jnp.where(
+        result == diffrax.RESULTS.successful,
+        STATUS_OK,
+        jnp.where(result == diffrax.RESULTS.max_steps_reached, STATUS_MAX_STEPS, STATUS_FAILED),
+    )
+
+
+_OUTPUTS = {
+    "sensors": lambda t, y, a: sensor_signals(t, y, a, jnp),
+    "states": lambda t, y, a: y,
+}
+
+
+@eqx.filter_jit
+def solve(
+    args: DoorArgs, ts: Float[Array, " time"], config: SolverConfig, output: str = "sensors"
+) -> tuple[Float[Array, "channel time"], Int[Array, ""]]:
+    """Integrate one run from rest and return its signals (channel, time) and status.
+
+    ``output="sensors"`` gives the four accelerometer channels, ``"states"`` the full state
+    (for reference comparisons). A failed solve never raises here: its signals are zeroed and
+    its status is non-zero, so batched and likelihood code can mask it (and gradients stay
+    finite).
+    """
+    if output not in _OUTPUTS:
+        raise ValueError(f"output must be one of {sorted(_OUTPUTS)}, got {output!r}")
+    y0 = initial_state(args)
+    term = diffrax.ODETerm(lambda t, y, a: rhs(t, y, a, jnp))
+    if config.dt is None:
+        controller = diffrax.PIDController(rtol=config.rtol, atol=config.atol)
+        dt0 = None
+    else:
+        controller = diffrax.ConstantStepSize()
+        dt0 = config.dt
+    sol = diffrax.diffeqsolve(
+        term,
+        diffrax.Tsit5(),
+        t0=ts[0],
+        t1=ts[-1],
+        dt0=dt0,
+        y0=y0,
+        args=args,
+        saveat=diffrax.SaveAt(ts=ts, fn=_OUTPUTS[output]),
+        stepsize_controller=controller,
+        max_steps=config.max_steps,
+        throw=False,
+    )
+    status = _status(sol.result)
+    ys = sol.ys
+    good = (status == STATUS_OK) & jnp.all(jnp.isfinite(ys))
+    status = jnp.where((status == STATUS_OK) & ~good, STATUS_FAILED, status)
+    signals = jnp.where(good, ys, 0.0).T
+    return signals, status
+
+
+@eqx.filter_jit
+def solve_batch(
+    args: DoorArgs, ts: Float[Array, " time"], config: SolverConfig
+) -> tuple[Float[Array, "batch channel time"], Int[Array, " batch"]]:
+    """:func:`solve` vmapped over a batch of arguments (leading axis of every leaf)."""
+    return jax.vmap(solve, in_axes=(0, None, None))(args, ts, config)

@@ -67,13 +67,15 @@ def latch_rate(d, d_dot, latch, tau=2e-3, width=PENETRATION_SMOOTHING, xp: Modul
     return apart * (d_dot - latch) / tau
 
 
-def stribeck_friction(speed2, normal, mu_s, mu_d, v_s=0.01, eps=1e-4, xp: ModuleType = jnp):
+def stribeck_friction(speed2, normal, mu_s, mu_d, v_s=0.01, eps=1e-3, xp: ModuleType = jnp):
     """Smoothed Coulomb-Stribeck friction, as the factor that multiplies the sliding velocity.
 
     For a sliding velocity vector v with squared norm ``speed2`` the friction force is
     ``stribeck_friction(|v|^2, ...) * v``: magnitude mu(|v|) N with
     mu(v) = mu_d + (mu_s - mu_d) exp(-(v / v_s)^2), direction -v / sqrt(|v|^2 + eps^2), so the
-    force is continuous through zero velocity (regularised Coulomb friction).
+    force is continuous through zero velocity (regularised Coulomb friction). ``eps`` = 1 mm/s
+    is ten times below v_s, so the Stribeck peak survives; a smaller ``eps`` makes sticking a
+    stiff viscous damper that forces an explicit solver into tiny steps.
     """
     mu = mu_d + (mu_s - mu_d) * xp.exp(-speed2 / (v_s * v_s))
     return -mu * normal / xp.sqrt(speed2 + eps * eps)

@@ -11,3 +11,13 @@ from ._simulate import STATUS_MESSAGES as STATUS_MESSAGES
 from ._simulate import SolverConfig as SolverConfig
 from ._system import V_MAX_RANGE as V_MAX_RANGE
 from ._system import ElevatorDoor as ElevatorDoor
+from ._model import STATE_SIZE as STATE_SIZE
+from ._model import DoorArgs as DoorArgs
+from ._model import DoorConstants as DoorConstants
+from ._model import contact_kinematics as contact_kinematics
+from ._model import make_args as make_args
+from ._model import rhs as rhs
+from ._simulate import initial_state as initial_state
+from ._simulate import sample_times as sample_times
+from ._simulate import solve as solve
+from ._simulate import static_equilibrium as static_equilibrium

@@ -48,7 +48,7 @@ STROKE = 0.8
 # D1 debris bumps and D2 wheel flat
 D1_POSITIONS = (0.25, 0.55)
 D1_BASE_WIDTH = 8e-3
-D2_SPAN_RAD = np.deg2rad(20.0)
+D2_SPAN_RAD = float(np.deg2rad(20.0))
 
 
 def rail_mode_shape(z, xp=np):

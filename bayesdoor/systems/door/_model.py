@@ -87,7 +87,7 @@ def make_args(
 
     n = f(params.n)
     # F = K [N/mm^n] (1000 d [m])^n = K 1000^n d^n
-    k_si = f(params.K) * jnp.exp(n * np.log(1000.0))
+    k_si = f(params.K) * jnp.exp(n * float(np.log(1000.0)))
     mass = g.PANEL_MASS * f(params.MF)
     omega = 2.0 * np.pi * jnp.asarray(g.FRAME_FREQUENCIES, dtype=dtype)
     frame_k = g.FRAME_MODAL_MASS * omega**2

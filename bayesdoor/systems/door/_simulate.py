@@ -103,18 +103,23 @@ _OUTPUTS = {
 
 @eqx.filter_jit
 def solve(
-    args: DoorArgs, ts: Float[Array, " time"], config: SolverConfig, output: str = "sensors"
+    args: DoorArgs,
+    ts: Float[Array, " time"],
+    config: SolverConfig,
+    output: str = "sensors",
+    y0: Float[Array, " 18"] | None = None,
 ) -> tuple[Float[Array, "channel time"], Int[Array, ""]]:
     """Integrate one run from rest and return its signals (channel, time) and status.
 
     ``output="sensors"`` gives the four accelerometer channels, ``"states"`` the full state
-    (for reference comparisons). A failed solve never raises here: its signals are zeroed and
+    (for reference comparisons). ``y0`` replaces the default start (static equilibrium at
+    rest). A failed solve never raises here: its signals are zeroed and
     its status is non-zero, so batched and likelihood code can mask it (and gradients stay
     finite).
     """
     if output not in _OUTPUTS:
         raise ValueError(f"output must be one of {sorted(_OUTPUTS)}, got {output!r}")
-    y0 = initial_state(args)
+    y0 = initial_state(args) if y0 is None else y0
     term = diffrax.ODETerm(lambda t, y, a: rhs(t, y, a, jnp))
     if config.dt is None:
         controller = diffrax.PIDController(rtol=config.rtol, atol=config.atol)

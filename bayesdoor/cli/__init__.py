@@ -1,0 +1,3 @@
+"""The ``bayesdoor`` command line."""
+
+from ._app import app as app

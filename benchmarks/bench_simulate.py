@@ -1,0 +1,134 @@
+"""Simulation speed: vmapped diffrax batches (float64, float32) against scipy's LSODA.
+
+All timings are taken in one process, so the ratios compare like with like on this machine.
+The scipy baseline integrates the *same equations* (the numpy branch of the door's right-hand
+side) with ``solve_ivp(method="LSODA")``.
+
+Usage: python benchmarks/bench_simulate.py [--batch 64] [--duration 3.5] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from bayesdoor.systems import DoorDamage, DoorParameters, SolverConfig
+from bayesdoor.systems.door import initial_state, make_args, rhs, sample_times, solve
+from bayesdoor.systems.door._simulate import solve_batch
+
+jax.config.update("jax_enable_x64", True)
+
+
+def _batch_args(batch: int, v_max: float, dtype):
+    rng = np.random.default_rng(0)
+    opt = {k: np.asarray(v) for k, v in DoorParameters.paper_optimum().to_dict().items()}
+    opt["K"] = rng.uniform(1600.0, 2100.0, batch)
+    opt["n"] = rng.uniform(1.7, 2.1, batch)
+    opt["C"] = rng.uniform(0.008, 0.02, batch)
+    params = DoorParameters(
+        **{k: jnp.broadcast_to(jnp.asarray(v), (batch,)) for k, v in opt.items()}
+    )
+    damage = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (batch,)), DoorDamage.healthy())
+    v = jnp.full((batch,), v_max)
+    return jax.vmap(lambda p, d, s: make_args(p, d, s, dtype=dtype))(params, damage, v)
+
+
+def time_batch(batch: int, duration: float, dtype: str, repeats: int = 2) -> dict:
+    jdtype = jnp.float32 if dtype == "float32" else jnp.float64
+    config = SolverConfig(dtype=dtype)
+    args = _batch_args(batch, 0.3, jdtype)
+    ts = sample_times(duration, dtype=jdtype)
+    t0 = time.perf_counter()
+    compiled = solve_batch.lower(args, ts, config).compile()
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        signals, status = compiled(args, ts, config)
+        signals.block_until_ready()
+        times.append(time.perf_counter() - t0)
+    return {
+        "dtype": dtype,
+        "batch": batch,
+        "compile_s": compile_s,
+        "ms_per_run": 1e3 * min(times) / batch,
+        "failed_runs": int(np.sum(np.asarray(status) != 0)),
+    }
+
+
+def time_scipy(duration: float) -> dict:
+    args = make_args(DoorParameters.paper_optimum(), DoorDamage.healthy(), 0.3)
+    y0 = np.asarray(initial_state(args))
+    args_np = jax.tree_util.tree_map(np.asarray, args)
+    ts = np.asarray(sample_times(duration))
+    t0 = time.perf_counter()
+    sol = solve_ivp(
+        lambda t, y: rhs(t, y, args_np, np),
+        (0.0, ts[-1]),
+        y0,
+        method="LSODA",
+        t_eval=ts,
+        rtol=1e-5,
+        atol=1e-8,
+    )
+    elapsed = time.perf_counter() - t0
+    return {
+        "method": "LSODA",
+        "ms_per_run": 1e3 * elapsed,
+        "nfev": int(sol.nfev),
+        "ok": bool(sol.success),
+    }
+
+
+def time_single(duration: float) -> dict:
+    args = make_args(DoorParameters.paper_optimum(), DoorDamage.healthy(), 0.3)
+    ts = sample_times(duration)
+    solve(args, ts, SolverConfig())[0].block_until_ready()
+    t0 = time.perf_counter()
+    solve(args, ts, SolverConfig())[0].block_until_ready()
+    return {"ms_per_run": 1e3 * (time.perf_counter() - t0)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=int, default=64)
+    parser.add_argument("--duration", type=float, default=3.5)
+    parser.add_argument("--json", action="store_true")
+    ns = parser.parse_args()
+    f64 = time_batch(ns.batch, ns.duration, "float64")
+    f32 = time_batch(ns.batch, ns.duration, "float32")
+    single = time_single(ns.duration)
+    ref = time_scipy(ns.duration)
+    result = {
+        "duration_s": ns.duration,
+        "batched_float64": f64,
+        "batched_float32": f32,
+        "single_float64": single,
+        "scipy": ref,
+        "speedup_float64_vs_scipy": ref["ms_per_run"] / f64["ms_per_run"],
+        "speedup_float32_vs_scipy": ref["ms_per_run"] / f32["ms_per_run"],
+        "devices": [str(d) for d in jax.devices()],
+    }
+    if ns.json:
+        print(json.dumps(result, indent=2))
+        return
+    print(f"per {ns.duration} s run, batch of {ns.batch}:")
+    for r in (f64, f32):
+        print(
+            f"  diffrax Tsit5 {r['dtype']}: {r['ms_per_run']:.1f} ms/run "
+            f"(compile {r['compile_s']:.1f} s, failed {r['failed_runs']})"
+        )
+    print(f"  diffrax single run float64: {single['ms_per_run']:.1f} ms")
+    print(f"  scipy LSODA, numpy rhs: {ref['ms_per_run']:.0f} ms/run ({ref['nfev']} rhs calls)")
+    print(f"  speed-up float64 batch vs scipy: {result['speedup_float64_vs_scipy']:.0f}x")
+    print(f"  speed-up float32 batch vs scipy: {result['speedup_float32_vs_scipy']:.0f}x")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,28 @@
+# The two commands of the README: `make demo` (the main job) and `make test`.
+# Both create the virtual environment and install bayesdoor on first use.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+
+$(BIN)/bayesdoor: pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	touch $(BIN)/bayesdoor
+
+.PHONY: install demo test lint bench
+install: $(BIN)/bayesdoor
+
+demo: install
+	$(BIN)/bayesdoor demo --out out/demo --force
+
+test: install
+	$(BIN)/python -m pytest -n 2 -q
+
+lint: install
+	$(BIN)/ruff check bayesdoor tests benchmarks
+	$(BIN)/ruff format --check bayesdoor tests benchmarks
+	$(BIN)/mypy
+
+bench: install
+	$(BIN)/python benchmarks/bench_simulate.py

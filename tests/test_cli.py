@@ -1,0 +1,74 @@
+"""The command line: JSON output, campaign files, refusals with a one-line reason."""
+
+import json
+
+import numpy as np
+import pytest
+import xarray as xr
+from typer.testing import CliRunner
+
+from bayesdoor.cli import app
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim") / "runs.nc"
+    args = ["simulate", "--state", "healthy", "--state", "D2", "--v-max", "0.5", "--seed", "3"]
+    result = runner.invoke(app, [*args, "--out", str(out), "--json"])
+    return out, result, args
+
+
+def test_simulate_writes_a_campaign_and_prints_json(simulated):
+    out, result, _ = simulated
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    assert payload["file"] == str(out)
+    assert payload["runs"] == 2
+    assert payload["channels"] == ["A1X", "A1Z", "A2X", "A2Z"]
+    ds = xr.load_dataset(out)
+    assert ds.acceleration.dims == ("run", "channel", "time")
+    assert list(ds.state.values) == ["healthy", "D2"]
+    assert ds.attrs["sampling_rate_hz"] == 2048.0
+    # the seed drew the D2 flat's depth from its prior (0.05-0.3 mm); the healthy run has none
+    assert 0.05e-3 <= float(ds.d2_depth.values[1]) <= 0.3e-3
+    assert float(ds.d2_depth.values[0]) == 0.0
+    assert np.all(np.isfinite(ds.acceleration.values))
+
+
+def test_same_seed_same_file(simulated, tmp_path):
+    out, _, args = simulated
+    again = tmp_path / "again.nc"
+    assert runner.invoke(app, [*args, "--out", str(again)]).exit_code == 0
+    a, b = xr.load_dataset(out), xr.load_dataset(again)
+    np.testing.assert_array_equal(a.acceleration.values, b.acceleration.values)
+    np.testing.assert_array_equal(a.d2_angle.values, b.d2_angle.values)
+
+
+def test_existing_output_is_not_overwritten(simulated):
+    out, _, args = simulated
+    before = out.read_bytes()
+    result = runner.invoke(app, [*args, "--out", str(out)])
+    assert result.exit_code != 0
+    assert "already exists" in result.stderr and "--force" in result.stderr
+    assert out.read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--state", "D3"], "unknown state 'D3'"),
+        (["--v-max", "0"], "--v-max 0.0 m/s is outside the allowed range"),
+        (["--v-max", "-0.2"], "outside the allowed range"),
+        (["--param", "K=9000"], "K=9000.0"),
+        (["--param", "K"], "NAME=VALUE"),
+        (["--dtype", "float16"], "float64 or float32"),
+    ],
+)
+def test_bad_input_exits_non_zero_with_a_reason(tmp_path, extra, message):
+    out = tmp_path / "x.nc"
+    result = runner.invoke(app, ["simulate", "--out", str(out), *extra])
+    assert result.exit_code != 0
+    assert message in result.stderr
+    assert not out.exists()

@@ -41,7 +41,7 @@ def simulate_campaign(states, v_max, *, seed: int, params: dict[str, float], dty
     except ValueError as err:
         raise fail(str(err)) from None
     rng = np.random.default_rng(seed)
-    severities = {"d1_height": [], "d2_depth": [], "d2_angle": []}
+    severities: dict[str, list[float]] = {"d1_height": [], "d2_depth": [], "d2_angle": []}
     for state in states:
         spec = STATES[state]
         for name in severities:
@@ -56,6 +56,7 @@ def simulate_campaign(states, v_max, *, seed: int, params: dict[str, float], dty
         bad = np.flatnonzero(status)
         raise fail(f"the solve failed for runs {bad.tolist()} (status {status[bad].tolist()})")
     t_start = np.full(len(states), 0.25)
+    extra: dict = {k: np.asarray(v) for k, v in severities.items()}
     return make_campaign(
         np.asarray(res.signals, dtype=float),
         channels=list(door.channels),
@@ -65,7 +66,7 @@ def simulate_campaign(states, v_max, *, seed: int, params: dict[str, float], dty
         t_start=t_start,
         t_stop=t_start + np.asarray(motion_duration(np.asarray(v_max, dtype=float))),
         system=door.name,
-        **{k: np.asarray(v) for k, v in severities.items()},
+        **extra,
     )
 
 

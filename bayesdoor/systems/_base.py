@@ -94,7 +94,10 @@ class AbstractSystem(eqx.Module):
     def sampling_rate_hz(self) -> float: ...
 
     @abc.abstractmethod
-    def simulate(self, theta, damage, operating, **kwargs) -> SimulationResult: ...
+    def simulate(
+        self, theta, damage, operating, *, duration: float | None = None
+    ) -> SimulationResult:
+        """One run for parameters ``theta``, a damage state and an operating condition."""
 
     def parameter_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.parameters)

@@ -131,6 +131,7 @@ def solve(
         raise ValueError(f"output must be one of {sorted(_OUTPUTS)}, got {output!r}")
     y0 = initial_state(args) if y0 is None else y0
     term = diffrax.ODETerm(lambda t, y, a: rhs(t, y, a, jnp))
+    controller: diffrax.AbstractStepSizeController
     if config.dt is None:
         controller = diffrax.PIDController(rtol=config.rtol, atol=config.absolute_tolerance)
         dt0 = None

@@ -14,6 +14,7 @@ from ._laws import LeeWang as LeeWang
 from ._laws import ZhiyingQishao as ZhiyingQishao
 from ._laws import get_law as get_law
 from ._laws import hysteresis_factor as hysteresis_factor
+from ._restitution import single_impact as single_impact
 from ._smooth import LATCH_FLOOR as LATCH_FLOOR
 from ._smooth import PENETRATION_SMOOTHING as PENETRATION_SMOOTHING
 from ._smooth import latch_rate as latch_rate

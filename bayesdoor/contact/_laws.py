@@ -1,4 +1,4 @@
-"""The nine hysteresis-damping contact laws of the paper's Table 1 (plus Hu and Guo).
+"""The nine hysteresis-damping contact laws: the eight of the paper's Table 1 plus Hu and Guo.
 
 All share F = K d^n + chi d^n d_dot with chi = xi(c_r) K / d_dot_minus; they differ only in the
 hysteresis factor xi(c_r). References are given per class; `docs/model.md` tabulates them.
@@ -7,10 +7,12 @@ hysteresis factor xi(c_r). References are given per class; `docs/model.md` tabul
 from __future__ import annotations
 
 import abc
+import numbers
 from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from .._types import Array, Float, Int
 
@@ -130,11 +132,14 @@ class LankaraniNikravesh(AbstractContactLaw):
 
 
 class ZhiyingQishao(AbstractContactLaw):
-    """Zhiying and Qishao (2006), Chinese J. Theor. Appl. Mech. 38(3) 348-354 (in Chinese)."""
+    """Qin Zhiying and Lu Qishao (2006), J. Dyn. Control 4(4) 294-298 (in Chinese).
+
+    Cited in the contact literature by the authors' given names, "Zhiying and Qishao".
+    """
 
     index: ClassVar[int] = 7
     name: ClassVar[str] = "zhiying_qishao"
-    reference: ClassVar[str] = "Zhiying & Qishao (2006), Chin. J. Theor. Appl. Mech. 38, 348-354"
+    reference: ClassVar[str] = "Zhiying & Qishao (2006), J. Dyn. Control 4(4), 294-298"
     formula: ClassVar[str] = "3 (1 - c_r^2) exp(2 (1 - c_r)) / 4"
 
     @staticmethod
@@ -156,11 +161,11 @@ class GonthierEtAl(AbstractContactLaw):
 
 
 class HuGuo(AbstractContactLaw):
-    """Hu and Guo (2015), Mech. Mach. Theory 85, 44-55."""
+    """Hu and Guo (2015), Multibody Syst. Dyn. 35(2) 131-151."""
 
     index: ClassVar[int] = 9
     name: ClassVar[str] = "hu_guo"
-    reference: ClassVar[str] = "Hu & Guo (2015), Mech. Mach. Theory 85, 44-55 (Flores-type form)"
+    reference: ClassVar[str] = "Hu & Guo (2015), Multibody Syst. Dyn. 35, 131-151"
     formula: ClassVar[str] = "3 (1 - c_r) / (2 c_r)"
 
     @staticmethod
@@ -182,8 +187,8 @@ CONTACT_LAWS: tuple[type[AbstractContactLaw], ...] = (
 LAW_NAMES: tuple[str, ...] = tuple(law.name for law in CONTACT_LAWS)
 
 
-def get_law(law: int | str | AbstractContactLaw) -> AbstractContactLaw:
-    """Return the contact law for a paper index (1-9), a name, or a law instance.
+def get_law(law: int | str | AbstractContactLaw | type[AbstractContactLaw]) -> AbstractContactLaw:
+    """Return the contact law for a paper index (1-9), a name, a law class or a law instance.
 
     Raises
     ------
@@ -192,15 +197,18 @@ def get_law(law: int | str | AbstractContactLaw) -> AbstractContactLaw:
     """
     if isinstance(law, AbstractContactLaw):
         return law
-    if isinstance(law, bool):
+    if isinstance(law, type) and law in CONTACT_LAWS:
+        return law()
+    if isinstance(law, bool | np.bool_):
         raise ValueError(f"contact law must be an index 1-9 or a name, got {law!r}")
-    if isinstance(law, int):
+    # numbers.Integral also admits numpy integers, e.g. an index read from an array
+    if isinstance(law, numbers.Integral):
         if not 1 <= law <= len(CONTACT_LAWS):
             raise ValueError(
                 f"contact law index {law} is out of range: allowed 1-{len(CONTACT_LAWS)} "
                 f"({', '.join(f'{i}={n}' for i, n in enumerate(LAW_NAMES, 1))})"
             )
-        return CONTACT_LAWS[law - 1]()
+        return CONTACT_LAWS[int(law) - 1]()
     if isinstance(law, str):
         key = law.strip().lower().replace("-", "_").replace(" ", "_")
         if key.isdigit():
@@ -208,7 +216,10 @@ def get_law(law: int | str | AbstractContactLaw) -> AbstractContactLaw:
         for cls in CONTACT_LAWS:
             if key == cls.name:
                 return cls()
-        raise ValueError(f"unknown contact law {law!r}: allowed names are {', '.join(LAW_NAMES)}")
+        raise ValueError(
+            f"unknown contact law {law!r}: allowed names are {', '.join(LAW_NAMES)} "
+            f"(or an index 1-{len(CONTACT_LAWS)})"
+        )
     raise ValueError(f"contact law must be an index 1-9 or a name, got {type(law).__name__}")
 
 
@@ -219,8 +230,12 @@ def hysteresis_factor(
 
     All nine factors are evaluated and one is selected, so the index can be a traced integer:
     this is what lets CMA-ES evaluate a population of mixed laws as one vmapped batch.
+    ``law_index`` and ``c_r`` broadcast against each other. A traced index cannot raise, so one
+    outside 1-9 is clipped to the nearest law; check concrete indices with :func:`get_law`.
     """
     c_r = jnp.asarray(c_r)
+    idx = jnp.clip(jnp.asarray(law_index) - 1, 0, len(CONTACT_LAWS) - 1).astype(jnp.int32)
+    shape = jnp.broadcast_shapes(idx.shape, c_r.shape)
+    c_r = jnp.broadcast_to(c_r, shape)
     all_xi = jnp.stack([law.hysteresis_factor(c_r) for law in CONTACT_LAWS], axis=0)
-    idx = jnp.clip(jnp.asarray(law_index) - 1, 0, len(CONTACT_LAWS) - 1)
-    return jnp.take_along_axis(all_xi, idx[None, ...].astype(jnp.int32), axis=0)[0]
+    return jnp.take_along_axis(all_xi, jnp.broadcast_to(idx, shape)[None], axis=0)[0]

@@ -20,8 +20,8 @@ test: install
 	$(BIN)/python -m pytest -n 2 -q
 
 lint: install
-	$(BIN)/ruff check bayesdoor tests benchmarks
-	$(BIN)/ruff format --check bayesdoor tests benchmarks
+	$(BIN)/ruff check bayesdoor tests benchmarks scripts
+	$(BIN)/ruff format --check bayesdoor tests benchmarks scripts
 	$(BIN)/mypy
 
 bench: install

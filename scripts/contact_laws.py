@@ -35,7 +35,7 @@ def main() -> None:
             "|---|---|---|" + "---|" * len(C_R),
         ]
         for law in CONTACT_LAWS:
-            delivered = [single_impact(law.index, c, n=n) for c in C_R]
+            delivered = [single_impact(law.index, c, 0.1, 1e9, n, 1.0) for c in C_R]
             cells = " | ".join(f"{e:.3f}" for e in delivered)
             lines.append(f"| {law.index} | {law.name} | {law.formula} | {cells} |")
         lines.append("")

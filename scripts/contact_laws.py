@@ -66,7 +66,7 @@ def main() -> None:
         "",
         f"At v_in = {V_DOOR} m/s (twice the {LATCH_FLOOR} m/s latch floor) the smoothed force",
         f"delivers the textbook values above: largest difference {max_smoothing_effect:.1e} over",
-        "all laws, c_r and n (the 1 um smoothing width is 1/300 to 1/600 of the peak",
+        "all laws, c_r and n (the 1 um smoothing width is 1/600 of the 0.6 mm peak",
         "indentation).",
         "",
         f"Below the floor the latch holds {LATCH_FLOOR} m/s instead of the impact speed, so the",

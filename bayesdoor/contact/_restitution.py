@@ -107,7 +107,7 @@ def single_impact(
             raise ValueError(f"single_impact: {name} must be finite and > 0, got {value!r}")
     if not (0.0 < c_r <= 1.0):
         raise ValueError(f"single_impact: c_r must be in (0, 1], got {c_r!r}")
-    xi = float(law.hysteresis_factor(np.float64(c_r)))
+    xi = float(law.hysteresis_factor(np.float64(c_r)))  # type: ignore[arg-type]
 
     # undamped Hertz peak indentation, and the time to cross it at the impact speed
     d_peak = ((n + 1.0) * mass * v_impact**2 / (2.0 * K)) ** (1.0 / (n + 1.0))
@@ -137,8 +137,8 @@ def single_impact(
     def separated(t, y):
         return y[0] - d_start
 
-    separated.terminal = True
-    separated.direction = -1.0
+    separated.terminal = True  # type: ignore[attr-defined]
+    separated.direction = -1.0  # type: ignore[attr-defined]
 
     # approach, return, and a restitution phase even at 1e-3 of the impact speed fit inside
     t_end = 2.0 * abs(d_start) / v_impact + 1e4 * t_scale

@@ -1,5 +1,15 @@
-"""Campaign files at the edge of the library: NetCDF through xarray."""
+"""Campaign files at the edge of the library: NetCDF through xarray, CSV, validation."""
 
 from ._campaign import load_campaign as load_campaign
 from ._campaign import make_campaign as make_campaign
 from ._campaign import save_campaign as save_campaign
+from ._csv import SIDECAR as SIDECAR
+from ._csv import from_csv as from_csv
+from ._csv import to_csv as to_csv
+from ._format import ACCELERATION_UNITS as ACCELERATION_UNITS
+from ._format import SPLIT_LABELS as SPLIT_LABELS
+from ._format import STATE_LABELS as STATE_LABELS
+from ._validate import CampaignError as CampaignError
+from ._validate import Problem as Problem
+from ._validate import check_campaign as check_campaign
+from ._validate import validate_campaign as validate_campaign

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
-STATES = ("healthy", "D1", "D2", "unknown")
+from ._format import SPLIT_LABELS, STATE_LABELS, atomic_write
+from ._validate import check_campaign
 
 
 def make_campaign(
@@ -26,21 +26,53 @@ def make_campaign(
     system: str = "elevator_door",
     **extra_run_coords,
 ) -> xr.Dataset:
-    """The one constructor of campaign datasets.
+    """Build a campaign dataset: the one constructor every producer of campaigns uses.
 
     Parameters
     ----------
     acceleration
-        Samples in m/s^2 with shape (run, channel, time).
-    channels, fs, state, v_max, split, t_start, t_stop, system
-        As in DESIGN.md section 5; per-run sequences have one entry per run.
+        Samples in m/s^2, shape (run, channel, time); the time coordinate is
+        ``arange(time) / fs``.
+    channels
+        Channel names, one per ``acceleration[:, i]``.
+    fs
+        Sampling rate in Hz.
+    state
+        Per run: ``healthy``, ``D1``, ``D2`` or ``unknown``.
+    v_max
+        Per run: commanded peak speed, m/s (NaN where unknown; :func:`validate_campaign`
+        reports it).
+    split
+        Per run, optional: ``calibration`` or ``test``.
+    t_start, t_stop
+        Per run, optional: when the motion starts and stops, s.
+    system
+        The system's name (attribute ``system``).
     **extra_run_coords
         Further per-run coordinates (for example damage severities), kept as given.
+
+    Returns
+    -------
+    campaign
+        Variable ``acceleration`` (run, channel, time) with units m/s^2; coordinates ``run``
+        (0, 1, ...), ``channel``, ``time`` (s) and the per-run ones; attributes
+        ``sampling_rate_hz``, ``system`` and ``units``.
 
     Raises
     ------
     ValueError
-        For a shape that does not match the channels or the per-run entries.
+        For a shape that does not match the channels or the runs, a non-positive ``fs``, or a
+        state or split label outside the allowed ones.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ds = make_campaign(
+    ...     np.zeros((2, 4, 1024)), channels=["A1X", "A1Z", "A2X", "A2Z"], fs=2048.0,
+    ...     state=["healthy", "D1"], v_max=[0.3, 0.4],
+    ... )
+    >>> dict(ds.sizes)
+    {'run': 2, 'channel': 4, 'time': 1024}
     """
     acc = np.asarray(acceleration, dtype=float)
     if acc.ndim != 3:
@@ -48,61 +80,108 @@ def make_campaign(
     runs = acc.shape[0]
     if acc.shape[1] != len(channels):
         raise ValueError(
-            f"acceleration has {acc.shape[1]} channels but {len(channels)} names were given"
+            f"acceleration has {acc.shape[1]} channels (shape {acc.shape}) but "
+            f"{len(channels)} names were given: {list(channels)}"
         )
+    if not (np.isfinite(fs) and fs > 0):
+        raise ValueError(f"fs must be a positive sampling rate in Hz, got {fs!r}")
     per_run = {"state": np.asarray(state, dtype=str), "v_max": np.asarray(v_max, dtype=float)}
-    for name, value in (("split", split), ("t_start", t_start), ("t_stop", t_stop)):
+    for name, value, dtype in (
+        ("split", split, str),
+        ("t_start", t_start, float),
+        ("t_stop", t_stop, float),
+    ):
         if value is not None:
-            per_run[name] = np.asarray(value)
+            per_run[name] = np.asarray(value, dtype=dtype)
     per_run.update({k: np.asarray(v) for k, v in extra_run_coords.items()})
     for name, value in per_run.items():
         if value.shape != (runs,):
             raise ValueError(f"{name} needs one entry per run ({runs}), got shape {value.shape}")
-    bad = sorted(set(per_run["state"]) - set(STATES))
-    if bad:
-        raise ValueError(f"unknown state labels {bad}: allowed {', '.join(STATES)}")
-    ds = xr.Dataset(
+    for name, allowed in (("state", STATE_LABELS), ("split", SPLIT_LABELS)):
+        bad = sorted(set(map(str, per_run.get(name, ()))) - set(allowed))
+        if bad:
+            raise ValueError(f"unknown {name} labels {bad}: allowed {', '.join(allowed)}")
+    return xr.Dataset(
         {"acceleration": (("run", "channel", "time"), acc, {"units": "m/s^2"})},
         coords={
             "run": np.arange(runs),
-            "channel": list(channels),
+            "channel": [str(c) for c in channels],
             "time": ("time", np.arange(acc.shape[2]) / float(fs), {"units": "s"}),
             **{k: ("run", v) for k, v in per_run.items()},
         },
         attrs={"sampling_rate_hz": float(fs), "system": system, "units": "m/s^2"},
     )
-    return ds
 
 
 def save_campaign(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-    """Write a campaign to NetCDF atomically (temporary file, then rename).
+    """Write a campaign to NetCDF (HDF5, through h5netcdf) atomically.
+
+    The file is written under a temporary name in the same folder and renamed into place,
+    so readers never see a partial file and a failed write leaves the old file as it was.
+    The dataset is written as given; :func:`load_campaign` checks it on the way back.
+
+    Parameters
+    ----------
+    ds
+        The campaign.
+    path
+        The file to write.
+    overwrite
+        Replace an existing file.
+
+    Returns
+    -------
+    path
+        The path written.
 
     Raises
     ------
     FileExistsError
         If ``path`` exists and ``overwrite`` is false; nothing is written then.
     """
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} already exists; pass overwrite=True to replace it")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        ds.to_netcdf(tmp, engine="h5netcdf")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-    return path
+    return atomic_write(
+        Path(path), lambda tmp: ds.to_netcdf(tmp, engine="h5netcdf"), overwrite=overwrite
+    )
 
 
-def load_campaign(path: str | os.PathLike) -> xr.Dataset:
-    """Read a campaign file fully into memory (the file is closed and left untouched)."""
+def load_campaign(path: str | os.PathLike, *, check: bool = True, **options) -> xr.Dataset:
+    """Read a campaign file fully into memory; the file is opened read-only and closed.
+
+    Times and attributes are read as stored (no CF time decoding), so the time coordinate
+    stays in seconds.
+
+    Parameters
+    ----------
+    path
+        A NetCDF file (NetCDF-4/HDF5, or NetCDF-3 through scipy).
+    check
+        Run :func:`check_campaign` on the result; pass ``False`` to load a campaign that
+        breaks the format, for example to list its problems with :func:`validate_campaign`.
+    **options
+        Keyword arguments of :func:`validate_campaign` for the check, for example
+        ``channels=["A1X", "A1Z", "A2X", "A2Z"], sampling_rate_hz=2048.0``.
+
+    Returns
+    -------
+    campaign
+        The dataset with every variable, coordinate and attribute of the file.
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no file at ``path``.
+    ValueError
+        If the file is not readable as NetCDF.
+    CampaignError
+        If ``check`` and the campaign breaks the format.
+    """
     path = Path(path)
-    if not path.exists():
+    if not path.is_file():
         raise FileNotFoundError(f"no campaign file at {path}")
     try:
-        return xr.load_dataset(path, engine="h5netcdf")
+        ds = xr.load_dataset(path, decode_times=False, decode_timedelta=False)
     except (OSError, ValueError) as err:
         raise ValueError(f"{path} is not a readable NetCDF campaign file: {err}") from None
+    if check:
+        check_campaign(ds, source=str(path), **options)
+    return ds

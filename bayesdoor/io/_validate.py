@@ -267,6 +267,15 @@ def _per_run(ds: xr.Dataset, name: str, runs: int) -> tuple[np.ndarray | None, P
     return np.asarray(var.values), None
 
 
+def _label_problems(labels, name: str, allowed) -> list[Problem]:
+    """One ``unknown_<name>`` problem per run whose label is not in ``allowed``."""
+    return [
+        Problem(f"unknown_{name}", f"run {r}: {name} {str(s)!r} is not one of {allowed}", r)
+        for r, s in enumerate(labels)
+        if str(s) not in allowed
+    ]
+
+
 def _run_problems(ds: xr.Dataset, fs: float | None, nperseg: int) -> list[Problem]:
     runs = ds.sizes["run"]
     problems: list[Problem] = []
@@ -283,15 +292,7 @@ def _run_problems(ds: xr.Dataset, fs: float | None, nperseg: int) -> list[Proble
             )
         )
     elif values["state"] is not None:
-        for r, s in enumerate(values["state"]):
-            if str(s) not in STATE_LABELS:
-                problems.append(
-                    Problem(
-                        "unknown_state",
-                        f"run {r}: state {str(s)!r} is not one of {STATE_LABELS}",
-                        r,
-                    )
-                )
+        problems += _label_problems(values["state"], "state", STATE_LABELS)
     if values["v_max"] is None and "v_max" not in ds:
         problems.append(
             Problem(
@@ -320,15 +321,7 @@ def _run_problems(ds: xr.Dataset, fs: float | None, nperseg: int) -> list[Proble
                 )
             )
     if values["split"] is not None:
-        for r, s in enumerate(values["split"]):
-            if str(s) not in SPLIT_LABELS:
-                problems.append(
-                    Problem(
-                        "unknown_split",
-                        f"run {r}: split {str(s)!r} is not one of {SPLIT_LABELS}",
-                        r,
-                    )
-                )
+        problems += _label_problems(values["split"], "split", SPLIT_LABELS)
     problems += _window_problems(ds, values["t_start"], values["t_stop"], fs, nperseg)
     return problems
 

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import contextlib
+import json as json_module
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -55,7 +56,7 @@ def simulate(
     """Simulate runs of the reduced door model (paper's optimum unless --param) to a campaign."""
     configure_jax()
     from ..io import save_campaign
-    from ..systems.door import STATES, V_MAX_RANGE
+    from ..systems.door import STATES, check_speed
     from ._simulate import simulate_campaign
 
     for s in state:
@@ -64,10 +65,10 @@ def simulate(
     if len(v_max) not in (1, len(state)):
         raise fail(f"give one --v-max or one per --state ({len(state)}), got {len(v_max)}")
     speeds = v_max * len(state) if len(v_max) == 1 else v_max
-    lo, hi = V_MAX_RANGE
-    for v in speeds:
-        if not lo <= v <= hi:
-            raise fail(f"--v-max {v} m/s is outside the allowed range [{lo}, {hi}] m/s")
+    try:
+        check_speed(speeds)
+    except ValueError as err:
+        raise fail(f"--v-max: {err}") from None
     if dtype not in ("float64", "float32"):
         raise fail(f"--dtype must be float64 or float32, got {dtype!r}")
     if out.suffix != ".nc":
@@ -109,10 +110,11 @@ def demo(
     """The main job (for now): simulate the healthy door, D1 and D2, and plot their PSDs."""
     configure_jax()
     from ..io import save_campaign
-    from ._simulate import plot_psds, simulate_campaign
+    from ..report import campaign_psds, plot_state_psds
+    from ._simulate import simulate_campaign
 
-    campaign, figure = out / "campaign.nc", out / "psd.png"
-    for path in (campaign, figure):
+    campaign, figure, full = out / "campaign.nc", out / "psd.png", out / "psd_full.png"
+    for path in (campaign, figure, full):
         check_output_path(path, force)
     stage = _progress(json)
     ds = simulate_campaign(
@@ -126,9 +128,75 @@ def demo(
     out.mkdir(parents=True, exist_ok=True)
     save_campaign(ds, campaign, overwrite=force)
     with stage("plotting PSDs"):
-        plot_psds(ds, figure)
-    result = {"campaign": str(campaign), "psd_plot": str(figure), "runs": int(ds.sizes["run"])}
+        psds = campaign_psds(ds)
+        title = "Simulated door (reduced model, paper's optimum), v_max = 0.4 m/s"
+        plot_state_psds(psds, figure, fmax=100.0, title=f"{title}, 0-100 Hz")
+        plot_state_psds(psds, full, title=f"{title}, full band")
+    result = {
+        "campaign": str(campaign),
+        "psd_plot": str(figure),
+        "psd_plot_full_band": str(full),
+        "runs": int(ds.sizes["run"]),
+    }
     if json:
         emit_json(result)
     else:
-        _err.print(f"campaign: {campaign}\nPSD plot: {figure}")
+        _err.print(f"campaign: {campaign}\nPSD plots: {figure}, {full}")
+
+
+@app.command()
+def inspect(
+    path: Annotated[Path, typer.Argument(help="campaign: a NetCDF file or a folder of CSV files")],
+    out: Annotated[
+        Path | None, typer.Option("--out", help="folder for the PSD plots and the summary")
+    ] = None,
+    force: Annotated[bool, typer.Option(help="overwrite previous plots in --out")] = False,
+    json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
+) -> None:
+    """Validate a campaign, summarise it and (with --out) plot its PSDs per channel and state.
+
+    Exits 1 when the campaign breaks the format (every problem on its own line), 0 otherwise
+    (warnings do not fail).
+    """
+    configure_jax()
+    from ..io import atomic_write, validate_campaign
+    from . import _inspect
+
+    ds, problems = _inspect.load(path)
+    warnings: list[str] = []
+    if ds is not None:
+        options, warnings = _inspect.expectations(ds)
+        problems = validate_campaign(ds, **options)
+        warnings += _inspect.speed_notes(ds)
+    info: dict[str, Any] = _inspect.summary(ds) if ds is not None else {"runs": 0}
+    written: list[Path] = []
+    if out is not None and ds is not None:
+        targets = [*_inspect.plot_paths(out, info["sampling_rate_hz"]), out / "inspect.json"]
+        for target in targets:
+            check_output_path(target, force)
+        out.mkdir(parents=True, exist_ok=True)
+        title = f"{path.name} ({info['system'] or 'no system'})"
+        written, notes = _inspect.plot(ds, problems, targets[:2], title)
+        warnings += notes
+    result = {
+        "file": str(path),
+        **info,
+        "valid": not problems,
+        "problems": [p.message for p in problems],
+        "problem_codes": [p.code for p in problems],
+        "warnings": warnings,
+        "plots": [str(p) for p in written],
+        "summary_file": None,
+    }
+    if out is not None and ds is not None:
+        result["summary_file"] = str(out / "inspect.json")
+        text = json_module.dumps(result, indent=2) + "\n"
+        atomic_write(out / "inspect.json", lambda tmp: tmp.write_text(text), overwrite=True)
+    if json:
+        emit_json(result)
+    elif ds is not None:
+        typer.echo(_inspect.render(result))
+    for message in result["problems"]:
+        typer.echo(f"problem: {message}", err=True)
+    if problems:
+        raise fail(f"{path} is not a valid campaign: {len(problems)} problem(s) found", code=1)

@@ -1,8 +1,6 @@
-"""``bayesdoor simulate`` and the interim ``bayesdoor demo`` (three states and their PSDs)."""
+"""``bayesdoor simulate`` and the interim ``bayesdoor demo``: runs of the reduced door model."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 
@@ -68,34 +66,3 @@ def simulate_campaign(states, v_max, *, seed: int, params: dict[str, float], dty
         system=door.name,
         **extra,
     )
-
-
-def plot_psds(ds, path: Path) -> None:
-    """PSD of every channel, one line per run coloured by state (the paper's Figures 3-4)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from scipy.signal import welch
-
-    colors = {"healthy": "tab:green", "D1": "tab:red", "D2": "tab:blue", "unknown": "0.5"}
-    fs = float(ds.attrs["sampling_rate_hz"])
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
-    for ax, ch in zip(axes.flat, ds.channel.values, strict=True):
-        for r in range(ds.sizes["run"]):
-            f, p = welch(ds.acceleration.isel(run=r).sel(channel=ch).values, fs=fs, nperseg=512)
-            state = str(ds.state.values[r])
-            label = f"{state} ({float(ds.v_max.values[r]):.2f} m/s)"
-            ax.semilogy(f, p, color=colors.get(state, "0.5"), lw=1.2, label=label)
-        ax.set_title(str(ch))
-        ax.set_xlim(0, 200)
-        ax.grid(True, which="both", alpha=0.3)
-    for ax in axes[1]:
-        ax.set_xlabel("frequency (Hz)")
-    for ax in axes[:, 0]:
-        ax.set_ylabel("PSD ((m/s$^2$)$^2$/Hz)")
-    axes[0, 0].legend(fontsize=8)
-    fig.suptitle("Acceleration PSDs of the simulated door (Welch, 512-sample segments)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -9,6 +9,7 @@ from ._csv import to_csv as to_csv
 from ._format import ACCELERATION_UNITS as ACCELERATION_UNITS
 from ._format import SPLIT_LABELS as SPLIT_LABELS
 from ._format import STATE_LABELS as STATE_LABELS
+from ._format import atomic_write as atomic_write
 from ._validate import CampaignError as CampaignError
 from ._validate import Problem as Problem
 from ._validate import check_campaign as check_campaign

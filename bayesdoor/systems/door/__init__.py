@@ -22,3 +22,4 @@ from ._simulate import solve as solve
 from ._simulate import static_equilibrium as static_equilibrium
 from ._system import V_MAX_RANGE as V_MAX_RANGE
 from ._system import ElevatorDoor as ElevatorDoor
+from ._system import check_speed as check_speed

@@ -1,0 +1,175 @@
+"""``bayesdoor inspect``: validate a campaign, summarise it and plot its PSDs per state."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from ._common import fail
+
+#: problems that leave no usable time axis or sampling rate: no PSD can be computed
+_BLOCKS_PSD = {
+    "no_acceleration",
+    "missing_sampling_rate",
+    "sampling_rate_mismatch",
+    "missing_time",
+    "non_monotonic_time",
+    "too_short",
+}
+#: problems of one run that make its PSD meaningless; the run is left out of the plots
+_BAD_RUN = {"non_finite", "flat", "clipped", "bad_motion_window", "window_too_short"}
+#: the bands of the two figures: the paper's 0-100 Hz and the full band up to Nyquist
+_LOW_BAND_HZ = 100.0
+
+
+def load(path: Path) -> tuple[xr.Dataset | None, list]:
+    """The campaign at ``path`` (NetCDF file or CSV folder), unchecked, or the problems that
+    stop it from being read as one."""
+    from ..io import CampaignError, from_csv, load_campaign
+
+    if not path.exists():
+        raise fail(f"no campaign at {path}: give a NetCDF file or a folder of CSV files")
+    try:
+        if path.is_dir():
+            return from_csv(path, check=False), []
+        return load_campaign(path, check=False), []
+    except CampaignError as err:
+        return None, err.problems
+    except (OSError, ValueError) as err:
+        raise fail(str(err).replace("\n", " ")) from None
+
+
+def expectations(ds: xr.Dataset) -> tuple[dict, list[str]]:
+    """Validation options from the campaign's ``system`` (its channels and sampling rate)."""
+    from ..systems import ElevatorDoor
+
+    systems = {"elevator_door": ElevatorDoor()}
+    name = str(ds.attrs.get("system", ""))
+    system = systems.get(name)
+    if system is None:
+        note = (
+            f"system {name!r} is not one bayesdoor simulates ({', '.join(systems)}): its channels "
+            "and sampling rate were checked for consistency only"
+        )
+        return {}, [note] if name else []
+    return {"channels": list(system.channels), "sampling_rate_hz": system.sampling_rate_hz}, []
+
+
+def speed_notes(ds: xr.Dataset) -> list[str]:
+    """Runs whose v_max the door model cannot simulate (fitting and training skip them)."""
+    from ..systems.door import check_speed
+
+    if str(ds.attrs.get("system", "")) != "elevator_door" or "v_max" not in ds:
+        return []
+    notes = []
+    for v in sorted({float(v) for v in np.atleast_1d(ds["v_max"].values) if np.isfinite(v)}):
+        try:
+            check_speed(v)
+        except ValueError as err:
+            notes.append(f"the door model cannot simulate runs at {v:g} m/s: {err}")
+    return notes
+
+
+def _speed_order(item: tuple[str, int]) -> tuple[bool, float]:
+    return item[0] == "unknown", 0.0 if item[0] == "unknown" else float(item[0])
+
+
+def summary(ds: xr.Dataset) -> dict:
+    """Runs per state and split, speeds, record length, channels, sampling rate, system."""
+    runs = int(ds.sizes.get("run", 0))
+
+    def per_run(name: str, default: str) -> list[str]:
+        values = ds[name].values if name in ds else None
+        if values is None or np.shape(values) != (runs,):
+            return [default] * runs
+        return [str(v) for v in values]
+
+    states, splits = per_run("state", "(none)"), per_run("split", "(none)")
+    table: dict[str, dict[str, int]] = {}
+    for state, split in zip(states, splits, strict=True):
+        table.setdefault(state, {}).setdefault(split, 0)
+        table[state][split] += 1
+    speeds = Counter(
+        f"{float(v):g}" if np.isfinite(v) else "unknown"
+        for v in np.ravel(np.asarray(ds["v_max"].values, dtype=float) if "v_max" in ds else [])
+    )
+    fs = ds.attrs.get("sampling_rate_hz")
+    fs = float(fs) if isinstance(fs, int | float | np.number) else None
+    n_time = int(ds.sizes.get("time", 0))
+    return {
+        "system": str(ds.attrs.get("system", "")),
+        "runs": runs,
+        "channels": [str(c) for c in ds["channel"].values] if "channel" in ds.coords else [],
+        "sampling_rate_hz": fs,
+        "record_samples": n_time,
+        "record_duration_s": n_time / fs if fs else None,
+        "states": dict(Counter(states)),
+        "splits": dict(Counter(splits)) if "split" in ds else {},
+        "runs_by_state_and_split": table,
+        "v_max": dict(sorted(speeds.items(), key=_speed_order)),
+        "motion_window": "t_start/t_stop" if "t_start" in ds and "t_stop" in ds else "detected",
+    }
+
+
+def plot_paths(out: Path, fs: float | None) -> list[Path]:
+    """The figures ``inspect --out`` writes: 0-100 Hz and the full band."""
+    full = f"{fs / 2:g}" if fs else "nyquist"
+    return [out / f"psd_0-{_LOW_BAND_HZ:g}Hz.png", out / f"psd_0-{full}Hz.png"]
+
+
+def plot(ds: xr.Dataset, problems: list, paths: list[Path], title: str) -> tuple[list, list]:
+    """Write the PSD figures of the runs without problems of their own.
+
+    Returns the paths written and notes (runs left out, windows detected, why nothing was
+    plotted).
+    """
+    from ..report import campaign_psds, motion_windows, plot_state_psds
+
+    blocking = sorted({p.code for p in problems if p.code in _BLOCKS_PSD})
+    if blocking:
+        return [], [f"no PSD plots: the campaign has no usable time axis ({', '.join(blocking)})"]
+    bad = sorted({p.run for p in problems if p.code in _BAD_RUN and p.run is not None})
+    good = [r for r in range(ds.sizes["run"]) if r not in bad]
+    notes = [f"runs {bad} are left out of the PSD plots (see their problems)"] if bad else []
+    if not good:
+        return [], [*notes, "no PSD plots: every run has a problem of its own"]
+    start, stop, window_notes = motion_windows(ds)
+    psds = campaign_psds(ds, runs=good, windows=(start, stop))
+    low, full = paths
+    title = f"{title}: mean log PSD per state and its spread over the runs"
+    plot_state_psds(psds, low, fmax=_LOW_BAND_HZ, title=f"{title}, 0-{_LOW_BAND_HZ:g} Hz")
+    plot_state_psds(psds, full, title=f"{title}, full band")
+    return [low, full], [*notes, *window_notes]
+
+
+def render(result: dict) -> str:
+    """The human-readable summary."""
+    lines = [
+        f"campaign  {result['file']}",
+        f"system    {result['system'] or '(none)'}",
+        f"runs      {result['runs']}",
+        f"channels  {', '.join(result['channels'])}",
+    ]
+    fs = result["sampling_rate_hz"]
+    if fs:
+        lines.append(f"sampling  {fs:g} Hz")
+    if result["record_duration_s"] is not None:
+        lines.append(
+            f"records   {result['record_samples']} samples ({result['record_duration_s']:.3f} s)"
+        )
+    speeds = ", ".join(f"{v} m/s x {n}" for v, n in result["v_max"].items())
+    lines.append(f"v_max     {speeds or '(none)'}")
+    lines.append(f"motion    {result['motion_window']}")
+    splits = sorted({s for row in result["runs_by_state_and_split"].values() for s in row})
+    width = max([len(s) for s in splits] + [5])
+    lines.append("runs by state and split:")
+    lines.append("  " + "state".ljust(10) + "".join(s.rjust(width + 2) for s in splits))
+    for state, row in result["runs_by_state_and_split"].items():
+        cells = "".join(str(row.get(s, 0)).rjust(width + 2) for s in splits)
+        lines.append("  " + state.ljust(10) + cells)
+    lines += [f"warning: {w}" for w in result["warnings"]]
+    lines += [f"plot: {p}" for p in result["plots"]]
+    return "\n".join(lines)

@@ -1,0 +1,7 @@
+"""Figures and summaries at the edge of the library, shared by the command-line tools."""
+
+from ._psd import STATE_COLORS as STATE_COLORS
+from ._psd import RunPSDs as RunPSDs
+from ._psd import campaign_psds as campaign_psds
+from ._psd import motion_windows as motion_windows
+from ._psd import plot_state_psds as plot_state_psds

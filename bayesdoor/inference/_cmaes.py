@@ -1,0 +1,452 @@
+"""CMA-ES (pycma) over box bounds with a batch objective, integer variables and IPOP restarts."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import cma
+import numpy as np
+from jaxtyping import Float, Int
+
+#: a batch objective: the whole population in, one value per candidate out
+BatchObjective = Callable[[Float[np.ndarray, "pop dim"]], Float[np.ndarray, " pop"]]
+
+
+@dataclasses.dataclass(frozen=True)
+class CMAESHistory:
+    """Convergence history of a CMA-ES run, one entry per iteration (all restarts in order).
+
+    Attributes
+    ----------
+    evaluations
+        Objective evaluations done so far (over all restarts) at the end of the iteration.
+    best_f
+        Best finite objective value found so far (``inf`` while none was finite).
+    median_f
+        Median of the iteration's finite values (``nan`` if none was finite).
+    sigma
+        pycma's overall step size after the iteration, relative to the box widths (the
+        per-coordinate step is ``sigma * (upper - lower)``).
+    restart
+        Index of the run (0 for the first, 1 for the first restart, ...).
+    popsize
+        Population size of the iteration.
+    failed
+        Number of candidates of the iteration whose objective value was not finite.
+    """
+
+    evaluations: Int[np.ndarray, " iteration"]
+    best_f: Float[np.ndarray, " iteration"]
+    median_f: Float[np.ndarray, " iteration"]
+    sigma: Float[np.ndarray, " iteration"]
+    restart: Int[np.ndarray, " iteration"]
+    popsize: Int[np.ndarray, " iteration"]
+    failed: Int[np.ndarray, " iteration"]
+
+
+@dataclasses.dataclass(frozen=True)
+class CMAESResult:
+    """Outcome of :func:`minimize_cmaes`.
+
+    Attributes
+    ----------
+    x_best
+        Best candidate evaluated (integer variables hold integral values); ``nan`` if no
+        evaluation was finite.
+    f_best
+        Its objective value (``inf`` if no evaluation was finite).
+    evaluations
+        Objective evaluations over all runs.
+    restarts
+        Restarts done after the first run.
+    failed
+        Evaluations whose value was not finite (treated as the worst of their population).
+    stop
+        pycma's termination reasons of each run, e.g. ``"tolfun=1e-11"``.
+    history
+        Per-iteration convergence record.
+    seed
+        The seed of the first run (restart ``r`` used ``seed + r``, as ``cma.fmin2`` does).
+    """
+
+    x_best: Float[np.ndarray, " dim"]
+    f_best: float
+    evaluations: int
+    restarts: int
+    failed: int
+    stop: tuple[str, ...]
+    history: CMAESHistory
+    seed: int
+
+    @property
+    def success(self) -> bool:
+        """Whether any evaluation returned a finite value."""
+        return bool(np.isfinite(self.f_best))
+
+
+def _check_inputs(
+    x0: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    integer_variables: Sequence[int],
+    sigma0: float,
+    seed: int,
+    max_evals: int,
+    restarts: int,
+) -> None:
+    if x0.ndim != 1 or lower.shape != x0.shape or upper.shape != x0.shape:
+        raise ValueError(
+            f"x0, lower and upper must be 1-d of the same length; got shapes {x0.shape}, "
+            f"{lower.shape}, {upper.shape}: pass one value per variable in each"
+        )
+    if not np.all(np.isfinite(lower) & np.isfinite(upper) & (lower < upper)):
+        raise ValueError(
+            f"bounds must be finite with lower < upper in every coordinate; got lower={lower}, "
+            f"upper={upper}: fix the offending coordinates"
+        )
+    if not np.all((lower <= x0) & (x0 <= upper)):
+        raise ValueError(
+            f"x0={x0} lies outside the bounds [{lower}, {upper}]: start inside the box"
+        )
+    for i in integer_variables:
+        if not 0 <= i < x0.size:
+            raise ValueError(
+                f"integer_variables holds index {i}, outside 0..{x0.size - 1}: "
+                "give 0-based coordinate indices"
+            )
+        if lower[i] != round(lower[i]) or upper[i] != round(upper[i]):
+            raise ValueError(
+                f"integer variable {i} has non-integral bounds [{lower[i]}, {upper[i]}]: "
+                "use integral bounds for integer variables"
+            )
+    if not sigma0 > 0:
+        raise ValueError(
+            f"sigma0={sigma0} must be positive (a fraction of the box width, e.g. 0.25)"
+        )
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 1:
+        raise ValueError(
+            f"seed={seed!r} must be a positive integer (pycma draws a time-based seed for 0); "
+            "pass e.g. seed=1"
+        )
+    if max_evals < 1:
+        raise ValueError(f"max_evals={max_evals} must be at least 1")
+    if restarts < 0:
+        raise ValueError(f"restarts={restarts} must be >= 0 (0: a single run)")
+
+
+def cmaes_options(
+    lower: Float[np.ndarray, " dim"],
+    upper: Float[np.ndarray, " dim"],
+    *,
+    seed: int,
+    max_evals: int,
+    integer_variables: Sequence[int] = (),
+    popsize: int | None = None,
+    extra: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The pycma options :func:`minimize_cmaes` passes to its first run.
+
+    Exposed so that a plain pycma run with exactly the same settings can be set up (the tests
+    compare the wrapper with ``cma.fmin2`` this way).
+
+    Parameters
+    ----------
+    lower, upper
+        Box bounds; the initial step size is scaled per coordinate by ``upper - lower``
+        (pycma's ``CMA_stds``) so that ``sigma0`` is a fraction of the box width.
+    seed
+        pycma's seed (positive).
+    max_evals
+        Total budget of objective evaluations over all runs (pycma's ``maxfevals``).
+    integer_variables
+        Indices of variables pycma keeps integral (``integer_variables``).
+    popsize
+        Population size of the first run; ``None`` for pycma's default ``4 + 3 ln(dim)``.
+    extra
+        Further pycma options (e.g. ``{"tolfun": 1e-12}``); they override these.
+
+    Returns
+    -------
+    options
+        A dict for ``cma.CMAEvolutionStrategy`` with display and file logging switched off.
+    """
+    lower = np.asarray(lower, dtype=np.float64)
+    upper = np.asarray(upper, dtype=np.float64)
+    options: dict[str, Any] = {
+        "bounds": [lower.tolist(), upper.tolist()],
+        "CMA_stds": (upper - lower).tolist(),
+        "seed": int(seed),
+        "maxfevals": int(max_evals),
+        "verbose": -9,
+        "verb_log": 0,
+        "verb_disp": 0,
+    }
+    if integer_variables:
+        options["integer_variables"] = [int(i) for i in integer_variables]
+    if popsize is not None:
+        options["popsize"] = int(popsize)
+    if extra:
+        options.update(extra)
+    return options
+
+
+def _penalised(values: np.ndarray) -> np.ndarray:
+    """Replace non-finite values by one worse than every finite value of the population.
+
+    Ranks are all CMA-ES uses, so failures only need to rank last; when the whole
+    population failed every candidate ties, which pycma treats as flat fitness.
+    """
+    ok = np.isfinite(values)
+    if ok.all():
+        return values
+    if not ok.any():
+        return np.zeros_like(values)
+    worst = float(np.max(values[ok]))
+    return np.where(ok, values, worst + max(1.0, abs(worst)))
+
+
+def minimize_cmaes(
+    objective: BatchObjective,
+    x0: Sequence[float] | Float[np.ndarray, " dim"],
+    *,
+    lower: Sequence[float] | Float[np.ndarray, " dim"],
+    upper: Sequence[float] | Float[np.ndarray, " dim"],
+    seed: int,
+    sigma0: float = 0.25,
+    integer_variables: Sequence[int] = (),
+    max_evals: int = 10_000,
+    restarts: int = 0,
+    popsize: int | None = None,
+    incpopsize: float = 2.0,
+    options: Mapping[str, Any] | None = None,
+    progress: bool = True,
+) -> CMAESResult:
+    """Minimise a batch objective over a box with CMA-ES (pycma), with IPOP restarts.
+
+    Each iteration asks pycma for a population, evaluates it with one call of
+    ``objective`` (so a caller can run the population as one vectorised simulation) and tells
+    pycma the values. Restarts follow ``cma.fmin2``'s IPOP scheme: each restart starts again
+    from ``x0`` with the population multiplied by ``incpopsize`` and the seed increased by
+    one, until ``restarts`` restarts are done, the budget ``max_evals`` is spent or an
+    ``ftarget`` option is reached. With the same options the sequence of candidates is
+    exactly that of ``cma.fmin2(None, x0, sigma0, options, parallel_objective=...,
+    restarts=..., incpopsize=..., eval_final_mean=False)``.
+
+    Parameters
+    ----------
+    objective
+        ``f(X) -> values`` for a population ``X``; values that are not finite (a failed
+        simulation) are treated as the worst of their population, never as an error.
+    x0
+        Start point, inside the bounds.
+    lower, upper
+        Box bounds (pycma's ``BoundTransform`` keeps every candidate inside).
+    seed
+        Positive integer seed; same seed and settings, same result.
+    sigma0
+        Initial step size as a fraction of each coordinate's box width.
+    integer_variables
+        Indices of integer variables: pycma rounds them in every candidate and keeps a
+        minimal step size so they keep moving (LB+IC-CMA-ES, Marty et al. 2024).
+    max_evals
+        Budget of objective evaluations over all runs; the last population may overshoot it
+        by less than one population.
+    restarts
+        Maximum number of restarts after the first run.
+    popsize
+        Population size of the first run (``None``: pycma's default ``4 + 3 ln(dim)``).
+    incpopsize
+        Population factor per restart.
+    options
+        Further pycma options, e.g. ``{"tolfun": 1e-12, "ftarget": 1e-8}``.
+    progress
+        Show a rich progress bar over the evaluation budget.
+
+    Returns
+    -------
+    result
+        Best point and value, counts, termination reasons and the convergence history.
+
+    Raises
+    ------
+    ValueError
+        If shapes, bounds, ``x0``, integer indices, ``sigma0``, ``seed``, ``max_evals`` or
+        ``restarts`` are invalid, or ``objective`` returns the wrong number of values.
+
+    References
+    ----------
+    N. Hansen, "The CMA Evolution Strategy: A Tutorial", arXiv:1604.00772 (2016).
+    A. Auger and N. Hansen, "A restart CMA evolution strategy with increasing population
+    size", IEEE CEC 2005.
+    """
+    x0 = np.asarray(x0, dtype=np.float64)
+    lower = np.asarray(lower, dtype=np.float64)
+    upper = np.asarray(upper, dtype=np.float64)
+    _check_inputs(x0, lower, upper, integer_variables, sigma0, seed, max_evals, restarts)
+    opts = cmaes_options(
+        lower,
+        upper,
+        seed=seed,
+        max_evals=max_evals,
+        integer_variables=integer_variables,
+        popsize=popsize,
+        extra=options,
+    )
+
+    rows: list[tuple[int, float, float, float, int, int, int]] = []
+    x_best = np.full(x0.shape, np.nan)
+    f_best = np.inf
+    failed = 0
+    stops: list[str] = []
+    evaluations = 0
+    with _progress_bar(progress, max_evals) as advance:
+        for run in range(restarts + 1):
+            es = cma.CMAEvolutionStrategy(x0, sigma0, opts)
+            while not es.stop():
+                population = es.ask()
+                values = np.asarray(objective(np.asarray(population)), dtype=np.float64)
+                if values.shape != (len(population),):
+                    raise ValueError(
+                        f"objective returned shape {values.shape} for a population of "
+                        f"{len(population)}: return one value per row of X"
+                    )
+                finite = np.isfinite(values)
+                failed += int(np.sum(~finite))
+                if finite.any():
+                    i = int(np.argmin(np.where(finite, values, np.inf)))
+                    if values[i] < f_best:
+                        f_best, x_best = float(values[i]), np.array(population[i])
+                es.tell(population, _penalised(values))
+                median = float(np.median(values[finite])) if finite.any() else np.nan
+                rows.append(
+                    (
+                        es.countevals,
+                        f_best,
+                        median,
+                        float(es.sigma),
+                        run,
+                        len(population),
+                        int(np.sum(~finite)),
+                    )
+                )
+                advance(es.countevals - evaluations, f_best, run)
+                evaluations = es.countevals
+            reasons = es.stop(check=False)
+            stops.append(", ".join(f"{k}={v}" for k, v in reasons.items()))
+            if "ftarget" in reasons or "maxfevals" in reasons or evaluations >= max_evals:
+                break
+            opts = dict(es.opts)
+            opts["verb_append"] = es.countevals
+            opts["popsize"] = incpopsize * es.sp.popsize
+            opts["seed"] = seed + run + 1
+
+    columns = list(zip(*rows, strict=True)) if rows else [()] * 7
+    history = CMAESHistory(
+        evaluations=np.asarray(columns[0], dtype=np.int64),
+        best_f=np.asarray(columns[1], dtype=np.float64),
+        median_f=np.asarray(columns[2], dtype=np.float64),
+        sigma=np.asarray(columns[3], dtype=np.float64),
+        restart=np.asarray(columns[4], dtype=np.int64),
+        popsize=np.asarray(columns[5], dtype=np.int64),
+        failed=np.asarray(columns[6], dtype=np.int64),
+    )
+    return CMAESResult(
+        x_best=x_best,
+        f_best=f_best,
+        evaluations=evaluations,
+        restarts=len(stops) - 1,
+        failed=failed,
+        stop=tuple(stops),
+        history=history,
+        seed=int(seed),
+    )
+
+
+class _progress_bar:
+    """A rich progress bar over the evaluation budget, or a no-op when switched off."""
+
+    def __init__(self, enabled: bool, total: int):
+        self._enabled = enabled
+        self._total = total
+
+    def __enter__(self) -> Callable[[int, float, int], None]:
+        if not self._enabled:
+            return lambda n, f, run: None
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+        self._bar = Progress(
+            "[progress.description]{task.description}",
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+        )
+        self._bar.__enter__()
+        task = self._bar.add_task("CMA-ES", total=self._total)
+
+        def advance(n: int, f: float, run: int) -> None:
+            self._bar.update(task, advance=n, description=f"CMA-ES run {run} best f {f:.4g}")
+
+        return advance
+
+    def __exit__(self, *exc: object) -> None:
+        if self._enabled:
+            self._bar.__exit__(*exc)
+
+
+def plot_cmaes_history(result: CMAESResult, path: str | Path, *, title: str = "CMA-ES") -> Path:
+    """Plot best-so-far and population-median f against evaluations (log scale) to a PNG.
+
+    Restarts are marked by vertical lines; the step size is drawn on a second axis.
+
+    Parameters
+    ----------
+    result
+        A :func:`minimize_cmaes` result.
+    path
+        The PNG file to write (its folder is created).
+    title
+        Figure title.
+
+    Returns
+    -------
+    path
+        The file written.
+
+    Raises
+    ------
+    ValueError
+        If the history is empty (the run did no iteration).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    h = result.history
+    if h.evaluations.size == 0:
+        raise ValueError("the CMA-ES history is empty: nothing to plot (the run did no iteration)")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # log scale needs positive values: plot the excess over the best value when f can be <= 0
+    shift = 0.0 if np.nanmin(h.best_f) > 0 else float(np.nanmin(h.best_f)) - 1e-12
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.plot(h.evaluations, h.best_f - shift, label="best so far")
+    ax.plot(h.evaluations, h.median_f - shift, alpha=0.6, label="population median")
+    for start in h.evaluations[:-1][np.diff(h.restart) > 0]:
+        ax.axvline(start, color="grey", linestyle=":", linewidth=1)
+    ax.set_yscale("log")
+    ax.set_xlabel("objective evaluations")
+    ax.set_ylabel("f" if shift == 0.0 else f"f - ({shift:.6g})")
+    twin = ax.twinx()
+    twin.plot(h.evaluations, h.sigma, color="tab:green", alpha=0.5, label="sigma")
+    twin.set_yscale("log")
+    twin.set_ylabel("sigma (fraction of box width)")
+    ax.legend(loc="upper right")
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

@@ -2,6 +2,7 @@
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -84,3 +85,17 @@ def test_bad_input_exits_non_zero_with_a_reason(tmp_path, extra, pattern):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and re.search(pattern, lines[0]), result.stderr
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_demo_writes_the_campaign_and_both_psd_figures(tmp_path):
+    out = tmp_path / "demo"
+    result = runner.invoke(app, ["demo", "--out", str(out), "--json"])
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    assert payload["runs"] == 3
+    for key in ("psd_plot", "psd_plot_full_band"):
+        assert Path(payload[key]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert list(xr.load_dataset(payload["campaign"]).state.values) == ["healthy", "D1", "D2"]
+    again = runner.invoke(app, ["demo", "--out", str(out)])
+    assert again.exit_code != 0 and "--force" in again.stderr

@@ -1,0 +1,39 @@
+"""Discrepancy diagnosis: where the model departs from measurements, and which cause fits.
+
+The layer is generic: a system supplies its catalogue of candidate causes as data
+(:class:`Catalogue` of :class:`Candidate` with signatures), the diagnosis finds the residual
+features and ranks the candidates.
+"""
+
+from ._coherence import CoherenceMap as CoherenceMap
+from ._coherence import PairCoherence as PairCoherence
+from ._coherence import coherence_map as coherence_map
+from ._features import Features as Features
+from ._features import find_features as find_features
+from ._rank import NONE as NONE
+from ._rank import Candidate as Candidate
+from ._rank import Catalogue as Catalogue
+from ._rank import CauseScore as CauseScore
+from ._rank import Ranking as Ranking
+from ._rank import rank_causes as rank_causes
+from ._residual import Region as Region
+from ._residual import ResidualMap as ResidualMap
+from ._residual import RunPeaks as RunPeaks
+from ._residual import SpeedFit as SpeedFit
+from ._residual import residual_map as residual_map
+from ._rest import LineAtRest as LineAtRest
+from ._rest import RestLines as RestLines
+from ._rest import rest_lines as rest_lines
+from ._rest import rest_segments as rest_segments
+from ._signatures import AbstractSignature as AbstractSignature
+from ._signatures import Check as Check
+from ._signatures import CrossAxisCoherence as CrossAxisCoherence
+from ._signatures import FixedFrequency as FixedFrequency
+from ._signatures import Match as Match
+from ._signatures import NoResidual as NoResidual
+from ._signatures import RestLine as RestLine
+from ._signatures import SpeedTracking as SpeedTracking
+from ._stats import benjamini_hochberg as benjamini_hochberg
+from ._welch_stats import log10_psd_variance as log10_psd_variance
+from ._welch_stats import welch_dof as welch_dof
+from ._welch_stats import windowed_log_psd as windowed_log_psd

@@ -1,0 +1,145 @@
+"""A system's catalogue of candidate causes, and ranking them against the residual features."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+
+import equinox as eqx
+
+from ._features import Features
+from ._signatures import AbstractSignature, Match, NoResidual
+
+#: the catalogue name of "the model explains the data"
+NONE = "none"
+#: the verdict is the top candidate only when it passes at least this share of its checks
+MIN_VERDICT_SCORE = 0.75
+
+
+class Candidate(eqx.Module):
+    """A candidate cause: a catalogue name, what it is, and its signature in the data."""
+
+    name: str = eqx.field(static=True)
+    description: str = eqx.field(static=True)
+    signature: AbstractSignature
+
+
+class Catalogue(eqx.Module):
+    """The causes a system knows; names are part of the API. Must hold ``none``."""
+
+    candidates: tuple[Candidate, ...]
+
+    def __check_init__(self):
+        names = [c.name for c in self.candidates]
+        if len(set(names)) != len(names):
+            raise ValueError(f"catalogue names must be unique, got {names}")
+        if NONE not in names:
+            raise ValueError(f"a catalogue must hold {NONE!r} (with NoResidual()), got {names}")
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.candidates)
+
+
+@dataclasses.dataclass(frozen=True)
+class CauseScore:
+    """How well one candidate's signature matches the features.
+
+    Attributes
+    ----------
+    name, description
+        The candidate.
+    score
+        Share of the signature's decidable checks passed by its best feature (0 when no
+        feature is of its kind).
+    strength
+        The best feature's combined statistic (tie-breaker).
+    evidence
+        The best feature and the outcome of every check, in words.
+    parameters
+        The parameter estimate the best feature implies.
+    """
+
+    name: str
+    description: str
+    score: float
+    strength: float
+    evidence: str
+    parameters: Mapping[str, float | str | tuple]
+
+
+@dataclasses.dataclass(frozen=True)
+class Ranking:
+    """Candidates ranked by signature score; the verdict and the features behind it.
+
+    Attributes
+    ----------
+    verdict
+        ``"none"`` when no significant residual exists; otherwise the top candidate when its
+        score reaches ``MIN_VERDICT_SCORE``; ``None`` when residuals exist that no signature
+        matches well (see ``causes`` and ``features``).
+    causes
+        Every candidate, best first.
+    features
+        The features they were scored on.
+    """
+
+    verdict: str | None
+    causes: tuple[CauseScore, ...]
+    features: Features
+
+    def cause(self, name: str) -> CauseScore:
+        for c in self.causes:
+            if c.name == name:
+                return c
+        raise KeyError(f"no candidate {name!r}; the candidates are {[c.name for c in self.causes]}")
+
+
+def rank_causes(features: Features, catalogue: Catalogue) -> Ranking:
+    """Score every candidate's signature on the features and rank them.
+
+    The rule (documented in ``docs/diagnosis.md``): each signature picks the feature that
+    passes the largest share of its checks (ties: the strongest); its score is that share.
+    Candidates are ranked by score, then strength. ``none`` scores 1 exactly when nothing is
+    significant, and then it is the verdict; otherwise the verdict is the top candidate if it
+    scores at least ``MIN_VERDICT_SCORE``, else ``None``.
+
+    Parameters
+    ----------
+    features
+        From :func:`find_features` (or assembled from the maps).
+    catalogue
+        The system's candidates.
+
+    Returns
+    -------
+    Ranking
+    """
+    scored = []
+    for candidate in catalogue.candidates:
+        match: Match | None = candidate.signature.match(features)
+        if match is None:
+            scored.append(
+                CauseScore(
+                    candidate.name, candidate.description, 0.0, 0.0, "no feature of this kind", {}
+                )
+            )
+            continue
+        scored.append(
+            CauseScore(
+                name=candidate.name,
+                description=candidate.description,
+                score=match.score,
+                strength=match.strength,
+                evidence=match.evidence(),
+                parameters=dict(match.parameters),
+            )
+        )
+    scored.sort(key=lambda c: (-c.score, -c.strength))
+    nothing = NoResidual().match(features)
+    if nothing is not None and nothing.score == 1.0:
+        verdict: str | None = NONE
+    else:
+        top = next(c for c in scored if c.name != NONE)
+        verdict = top.name if top.score >= MIN_VERDICT_SCORE else None
+    return Ranking(verdict=verdict, causes=tuple(scored), features=features)

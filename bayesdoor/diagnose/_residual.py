@@ -1,0 +1,477 @@
+"""Where the model is wrong: posterior-predictive spectral residuals, significant regions, speed."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+import scipy.stats
+
+from .._types import Bool, Float
+from ._stats import benjamini_hochberg, contiguous_runs, parabolic_offset
+
+#: a run counts as affected by a region when its own standardised residual there exceeds this
+#: (two-sided p of about 0.003 for one pre-located bin: a descriptor, not the tested statistic)
+RUN_Z = 3.0
+#: bins searched on either side of a region when locating each run's peak
+SEARCH_PAD_BINS = 2
+#: the rss of the losing speed model must exceed the winner's by this factor to decide
+SPEED_DECISION_RATIO = 10.0
+#: the smallest spread of speeds (max / min) that can tell a tracking from a fixed feature
+MIN_SPEED_SPREAD = 1.15
+
+FIXED = "fixed"
+TRACKING = "tracking"
+UNDETERMINED = "undetermined"
+FREQUENCY = "frequency"
+WAVENUMBER = "wavenumber"
+
+
+@dataclasses.dataclass(frozen=True)
+class RunPeaks:
+    """Where a residual feature peaks in each run (NaN where the run was not searched).
+
+    Attributes
+    ----------
+    frequency_hz
+        Peak frequency per run, refined between bins by a parabola through the excess (dB).
+    z
+        The run's standardised residual at its peak bin (signed towards the feature).
+    excess_db
+        Measured minus predicted ``10 log10`` PSD at the peak bin.
+    power
+        Excess band power ``sum (10^y - 10^mu) df`` over the peak bin and its two neighbours
+        on either side (the main lobe of a Hann-windowed tone), in signal units squared.
+    affected
+        Whether ``z >= RUN_Z``.
+    """
+
+    frequency_hz: Float[np.ndarray, " run"]
+    z: Float[np.ndarray, " run"]
+    excess_db: Float[np.ndarray, " run"]
+    power: Float[np.ndarray, " run"]
+    affected: Bool[np.ndarray, " run"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SpeedFit:
+    """``f = c`` (fixed) against ``f = a v`` (tracking) over the affected runs' peaks.
+
+    Both models are fitted by least squares in ``ln f`` (one parameter each, so their residual
+    sums compare directly). The preferred model is the one whose residual sum is at least
+    ``SPEED_DECISION_RATIO`` times smaller, provided the loser's RMS in ``ln f`` exceeds half
+    the relative bin width (otherwise the data cannot tell them apart); with fewer than three
+    affected runs or speeds spread by less than ``MIN_SPEED_SPREAD`` it is ``undetermined``.
+
+    Attributes
+    ----------
+    preferred
+        ``"fixed"``, ``"tracking"`` or ``"undetermined"``.
+    frequency_hz
+        The fixed model's frequency ``c`` (geometric mean of the peaks).
+    wavelength_m
+        The tracking model's ``1 / a``: the spatial period in metres when speeds are in m/s.
+    rss_fixed, rss_tracking
+        Residual sums of squares in ``ln f`` (NaN when undetermined for lack of runs).
+    n_runs
+        Affected runs used.
+    """
+
+    preferred: str
+    frequency_hz: float
+    wavelength_m: float
+    rss_fixed: float
+    rss_tracking: float
+    n_runs: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Region:
+    """A contiguous set of significant bins of one channel in one domain.
+
+    Attributes
+    ----------
+    domain
+        ``"frequency"`` (bins of fixed frequency combined over runs) or ``"wavenumber"`` (bins
+        of fixed ``f / v``, cycles per metre, combined over runs).
+    channel
+        The channel name.
+    low, high, peak
+        The region's extent and the bin of largest ``|Z|``, in Hz or 1/m by domain.
+    z
+        The combined statistic at the peak (signed: positive for excess).
+    excess_db
+        Mean over runs of measured minus predicted ``10 log10`` PSD at the aligned peak.
+    runs
+        Each run's peak near the region.
+    speed
+        The speed fit over the affected runs.
+    """
+
+    domain: str
+    channel: str
+    low: float
+    high: float
+    peak: float
+    z: float
+    excess_db: float
+    runs: RunPeaks
+    speed: SpeedFit
+
+    @property
+    def sign(self) -> int:
+        return 1 if self.z > 0 else -1
+
+    @property
+    def runs_affected(self) -> tuple[int, ...]:
+        return tuple(int(i) for i in np.flatnonzero(self.runs.affected))
+
+    @property
+    def frequency_hz(self) -> float:
+        """Mean peak frequency over the affected runs (over all searched runs if none is)."""
+        f = self.runs.frequency_hz
+        use = self.runs.affected if self.runs.affected.any() else np.isfinite(f)
+        return float(np.mean(f[use])) if use.any() else float("nan")
+
+    @property
+    def width_hz(self) -> float:
+        return float(self.high - self.low)
+
+    def describe(self) -> str:
+        unit = "Hz" if self.domain == FREQUENCY else "1/m"
+        return (
+            f"{self.channel} {self.low:.4g}-{self.high:.4g} {unit} ({self.domain}), peak "
+            f"{self.peak:.4g} {unit}, Z = {self.z:.1f}, {self.excess_db:+.1f} dB, "
+            f"runs {list(self.runs_affected)}, speed: {self.speed.preferred}"
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class ResidualMap:
+    """Posterior-predictive residuals per run, channel and frequency, and what is significant.
+
+    Attributes
+    ----------
+    freqs
+        The analysed bins, Hz.
+    channels
+        Channel names.
+    speeds
+        Each run's speed (``None`` when not given).
+    z
+        Standardised residual per run, channel and bin.
+    excess_db
+        Measured minus predicted ``10 log10`` PSD per run, channel and bin.
+    combined
+        The combined statistic over runs at fixed frequency, per channel and bin.
+    wavenumbers
+        The bins (1/m) of the fixed-wavenumber combination (empty without a speed spread).
+    combined_wavenumber
+        The combined statistic at fixed wavenumber, per channel and wavenumber bin.
+    significant, significant_wavenumber
+        Bins rejected by Benjamini-Hochberg over the pooled family of both maps.
+    q
+        The false discovery rate.
+    p_threshold
+        The largest p-value rejected (0 when nothing is).
+    n_tests
+        The size of the tested family.
+    regions
+        The significant regions, strongest first, duplicates across domains removed.
+    """
+
+    freqs: Float[np.ndarray, " freq"]
+    channels: tuple[str, ...]
+    speeds: Float[np.ndarray, " run"] | None
+    z: Float[np.ndarray, "run channel freq"]
+    excess_db: Float[np.ndarray, "run channel freq"]
+    combined: Float[np.ndarray, "channel freq"]
+    wavenumbers: Float[np.ndarray, " wavenumber"]
+    combined_wavenumber: Float[np.ndarray, "channel wavenumber"]
+    significant: Bool[np.ndarray, "channel freq"]
+    significant_wavenumber: Bool[np.ndarray, "channel wavenumber"]
+    q: float
+    p_threshold: float
+    n_tests: int
+    regions: tuple[Region, ...]
+
+    @property
+    def method(self) -> str:
+        return "Benjamini-Hochberg"
+
+    @property
+    def resolution_hz(self) -> float:
+        return float(self.freqs[1] - self.freqs[0])
+
+
+def _combine(
+    resid: np.ndarray, dev: np.ndarray, welch_share: np.ndarray
+) -> Float[np.ndarray, "channel bin"]:
+    """Sum of the runs' standardised residuals over the standard deviation of that sum.
+
+    The predictive draws share their parameters across runs, so the sum's variance is the
+    draws' variance of the summed deviations (which keeps those correlations) plus the
+    independent Welch scatter of every run.
+    """
+    total = resid.sum(axis=0)
+    var = welch_share.sum(axis=0)
+    if dev.shape[0] > 1:
+        var = var + dev.sum(axis=1).var(axis=0, ddof=1)
+    return total / np.sqrt(var)
+
+
+def _resample(values: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """Linear interpolation along the last axis at fractional bin positions ``index``."""
+    i0 = np.clip(np.floor(index).astype(int), 0, values.shape[-1] - 2)
+    w = index - i0
+    return values[..., i0] * (1.0 - w) + values[..., i0 + 1] * w
+
+
+def _check_inputs(freqs, measured, predictive, log_variance, channels, speeds):
+    f = np.asarray(freqs, dtype=float)
+    y = np.asarray(measured, dtype=float)
+    draws = np.asarray(predictive, dtype=float)
+    if y.ndim != 3:
+        raise ValueError(f"measured must have dims (run, channel, freq), got shape {y.shape}")
+    if f.shape != y.shape[-1:]:
+        raise ValueError(f"freqs has shape {f.shape}; measured has {y.shape[-1]} frequency bins")
+    if f.size < 3 or not np.allclose(np.diff(f), f[1] - f[0], rtol=1e-9, atol=0.0):
+        raise ValueError("freqs must be at least 3 equally spaced bins (a Welch grid)")
+    if draws.ndim != 4 or draws.shape[1:] != y.shape:
+        raise ValueError(
+            f"predictive must have dims (draw, run, channel, freq) = (draw, {y.shape}), got "
+            f"shape {draws.shape}: one set of predictive spectra per measured run"
+        )
+    var = np.asarray(log_variance, dtype=float)
+    if var.ndim == 1 and var.shape[0] == y.shape[0]:
+        var = var[:, None, None]
+    try:
+        var = np.broadcast_to(var, y.shape)
+    except ValueError:
+        raise ValueError(
+            f"log_variance must have shape (run,) or broadcast to (run, channel, freq) = "
+            f"{y.shape}, got {np.shape(log_variance)}"
+        ) from None
+    if not np.all(np.isfinite(var) & (var > 0)):
+        raise ValueError("log_variance must be positive and finite (see log10_psd_variance)")
+    if len(channels) != y.shape[1]:
+        raise ValueError(f"channels names {len(channels)} channels; measured has {y.shape[1]}")
+    v = None
+    if speeds is not None:
+        v = np.asarray(speeds, dtype=float)
+        if v.shape != y.shape[:1] or not np.all(np.isfinite(v) & (v > 0)):
+            raise ValueError(
+                f"speeds must hold one positive speed per run ({y.shape[0]}), got {speeds!r}"
+            )
+    return f, y, draws, var, v
+
+
+def residual_map(
+    freqs: Float[np.ndarray, " freq"],
+    measured: Float[np.ndarray, "run channel freq"],
+    predictive: Float[np.ndarray, "draw run channel freq"],
+    log_variance: Float[np.ndarray, " run"] | Float[np.ndarray, "run channel freq"],
+    *,
+    channels: Sequence[str],
+    speeds: Float[np.ndarray, " run"] | None = None,
+    band: tuple[float, float] | None = None,
+    q: float = 0.01,
+) -> ResidualMap:
+    """Posterior-predictive residual map of measured log PSDs, with significant regions.
+
+    Per run ``r``, channel and bin the standardised residual is
+    ``z = (y - mean_d y_d) / sqrt(var_d y_d + s_r^2)``: the measured ``log10`` PSD against the
+    predictive band of the draws widened by the Welch scatter ``s_r^2`` of the measured
+    estimate. Runs are combined (Stouffer) along two families of paths: at fixed frequency,
+    and, when the runs' speeds differ, at fixed wavenumber ``f / v`` (each run's residuals
+    interpolated to ``f = kappa v_r``), so that a feature that stays put and one that tracks
+    the speed each line up in one of them. The variance of each combined sum keeps the
+    correlation that shared posterior parameters induce between runs. Both maps are tested
+    two-sided in one Benjamini-Hochberg family at rate ``q``; contiguous significant bins
+    of one sign form regions; a region in one domain that shares most of its runs' peaks with
+    a stronger region of the other is dropped as the same feature.
+
+    Parameters
+    ----------
+    freqs
+        Equally spaced bin frequencies, Hz.
+    measured
+        The measured runs' ``log10`` PSDs.
+    predictive
+        Posterior-predictive draws of the same spectra, estimated with the same segmentation.
+    log_variance
+        Variance of each measured ``log10`` estimate (:func:`log10_psd_variance`), per run or
+        per run, channel and bin.
+    channels
+        Channel names.
+    speeds
+        Each run's speed (for the door its peak speed ``v_max``, m/s); enables the
+        wavenumber map and the speed fits.
+    band
+        Only bins with ``band[0] <= f <= band[1]`` are analysed; ``None`` drops only 0 Hz and
+        the Nyquist bin.
+    q
+        False discovery rate of the pooled family.
+
+    Returns
+    -------
+    ResidualMap
+
+    Raises
+    ------
+    ValueError
+        For inconsistent shapes, a non-uniform frequency grid, non-positive variances or
+        speeds, or a band holding fewer than three bins.
+
+    References
+    ----------
+    A. Gelman, X.-L. Meng and H. Stern (1996), posterior predictive assessment, Stat. Sinica
+    6(4); Y. Benjamini and Y. Hochberg (1995), J. R. Stat. Soc. B 57(1).
+    """
+    f, y, draws, var, v = _check_inputs(freqs, measured, predictive, log_variance, channels, speeds)
+    lo, hi = (f[1], f[-2]) if band is None else band
+    keep = (f >= lo) & (f <= hi)
+    if keep.sum() < 3:
+        raise ValueError(f"band={band!r} holds {int(keep.sum())} bins of the grid; widen it")
+    f, y, draws, var = f[keep], y[..., keep], draws[..., keep], var[..., keep]
+    df = float(f[1] - f[0])
+    mu = draws.mean(axis=0)
+    draw_var = draws.var(axis=0, ddof=1) if draws.shape[0] > 1 else np.zeros_like(mu)
+    sigma = np.sqrt(draw_var + var)
+    z = (y - mu) / sigma
+    dev = (draws - mu) / sigma
+    share = var / sigma**2
+    combined = _combine(z, dev, share)
+
+    spread = v is not None and v.max() / v.min() >= MIN_SPEED_SPREAD
+    if spread:
+        kappa = np.arange(f[0] / v.min(), f[-1] / v.max(), df / v.max())
+        index = (kappa[None, :] * v[:, None] - f[0]) / df
+        z_k = np.stack([_resample(z[r], index[r]) for r in range(len(v))])
+        dev_k = np.stack([_resample(dev[:, r], index[r]) for r in range(len(v))], axis=1)
+        share_k = np.stack([_resample(share[r], index[r]) for r in range(len(v))])
+        combined_k = _combine(z_k, dev_k, share_k)
+    else:
+        kappa = np.zeros(0)
+        combined_k = np.zeros((y.shape[1], 0))
+
+    p = 2.0 * scipy.stats.norm.sf(np.abs(np.concatenate([combined, combined_k], axis=1)))
+    rejected, threshold = benjamini_hochberg(p, q)
+    sig_f, sig_k = rejected[:, : f.size], rejected[:, f.size :]
+
+    excess_db = 10.0 * (y - mu)
+    regions = []
+    for c, name in enumerate(channels):
+        for domain, grid, stat, sig in (
+            (FREQUENCY, f, combined[c], sig_f[c]),
+            (WAVENUMBER, kappa, combined_k[c], sig_k[c]),
+        ):
+            for sign in (1, -1):
+                for a, b in contiguous_runs(sig & (np.sign(stat) == sign)):
+                    i = a + int(np.argmax(sign * stat[a : b + 1]))
+                    peaks = _run_peaks(f, y, mu, z, excess_db, c, domain, grid[a], grid[b], sign, v)
+                    at = grid[i] * (v if domain == WAVENUMBER else np.ones(y.shape[0]))
+                    index = np.clip(np.rint((at - f[0]) / df).astype(int), 0, f.size - 1)
+                    regions.append(
+                        Region(
+                            domain=domain,
+                            channel=name,
+                            low=float(grid[a]),
+                            high=float(grid[b]),
+                            peak=float(grid[i]),
+                            z=float(stat[i]),
+                            excess_db=float(np.mean(excess_db[np.arange(y.shape[0]), c, index])),
+                            runs=peaks,
+                            speed=_speed_fit(peaks, v, df),
+                        )
+                    )
+    return ResidualMap(
+        freqs=f,
+        channels=tuple(channels),
+        speeds=v,
+        z=z,
+        excess_db=excess_db,
+        combined=combined,
+        wavenumbers=kappa,
+        combined_wavenumber=combined_k,
+        significant=sig_f,
+        significant_wavenumber=sig_k,
+        q=float(q),
+        p_threshold=threshold,
+        n_tests=int(np.isfinite(p).sum()),
+        regions=_distinct(regions, df),
+    )
+
+
+def _run_peaks(f, y, mu, z, excess_db, c, domain, low, high, sign, v) -> RunPeaks:
+    """Each run's peak of ``sign z`` within the region (mapped to its frequencies), padded."""
+    n_runs = y.shape[0]
+    df = f[1] - f[0]
+    out = {k: np.full(n_runs, np.nan) for k in ("frequency_hz", "z", "excess_db", "power")}
+    for r in range(n_runs):
+        scale = v[r] if domain == WAVENUMBER else 1.0
+        inside = np.flatnonzero(
+            (f >= low * scale - SEARCH_PAD_BINS * df) & (f <= high * scale + SEARCH_PAD_BINS * df)
+        )
+        if inside.size == 0:
+            continue
+        i = int(inside[np.argmax(sign * z[r, c, inside])])
+        shift = 0.0
+        if 0 < i < f.size - 1:
+            e = sign * excess_db[r, c, i - 1 : i + 2]
+            shift = parabolic_offset(e[0], e[1], e[2])
+        lobe = slice(max(i - 2, 0), i + 3)
+        out["frequency_hz"][r] = f[i] + shift * df
+        out["z"][r] = sign * z[r, c, i]
+        out["excess_db"][r] = excess_db[r, c, i]
+        out["power"][r] = float(np.sum(10.0 ** y[r, c, lobe] - 10.0 ** mu[r, c, lobe]) * df)
+    affected = np.nan_to_num(out["z"], nan=-np.inf) >= RUN_Z
+    return RunPeaks(affected=affected, **out)
+
+
+def _speed_fit(peaks: RunPeaks, v, df: float) -> SpeedFit:
+    use = peaks.affected & np.isfinite(peaks.frequency_hz) & (peaks.frequency_hz > 0)
+    n = int(use.sum())
+    if n == 0:
+        return SpeedFit(UNDETERMINED, float("nan"), float("nan"), float("nan"), float("nan"), 0)
+    log_f = np.log(peaks.frequency_hz[use])
+    c = float(np.exp(log_f.mean()))
+    if v is None:
+        return SpeedFit(UNDETERMINED, c, float("nan"), float("nan"), float("nan"), n)
+    log_v = np.log(v[use])
+    log_a = float(np.mean(log_f - log_v))
+    wavelength = float(np.exp(-log_a))
+    if n < 3 or v[use].max() / v[use].min() < MIN_SPEED_SPREAD:
+        return SpeedFit(UNDETERMINED, c, wavelength, float("nan"), float("nan"), n)
+    rss_fixed = float(np.sum((log_f - log_f.mean()) ** 2))
+    rss_tracking = float(np.sum((log_f - log_v - log_a) ** 2))
+    resolvable = 0.5 * df / c
+    preferred = UNDETERMINED
+    if rss_tracking * SPEED_DECISION_RATIO <= rss_fixed and np.sqrt(rss_fixed / n) > resolvable:
+        preferred = TRACKING
+    elif (
+        rss_fixed * SPEED_DECISION_RATIO <= rss_tracking and np.sqrt(rss_tracking / n) > resolvable
+    ):
+        preferred = FIXED
+    return SpeedFit(preferred, c, wavelength, rss_fixed, rss_tracking, n)
+
+
+def _distinct(regions: list[Region], df: float) -> tuple[Region, ...]:
+    """Strongest first; drop a region whose affected runs mostly peak where a kept one does."""
+    kept: list[Region] = []
+    for region in sorted(regions, key=lambda r: -abs(r.z)):
+        mine = region.runs.affected
+        duplicate = False
+        for other in kept:
+            if other.channel != region.channel or other.sign != region.sign:
+                continue
+            both = mine & other.runs.affected
+            close = np.abs(region.runs.frequency_hz[both] - other.runs.frequency_hz[both])
+            shared = int(np.sum(close <= 1.5 * df))
+            if mine.any() and shared >= max(1, int(np.ceil(mine.sum() / 2))):
+                duplicate = True
+                break
+        if not duplicate:
+            kept.append(region)
+    return tuple(kept)

@@ -1,0 +1,392 @@
+"""Signatures: how each candidate cause shows in the residual features, and how well it fits.
+
+A signature is data (a frozen module with the system's numbers); :meth:`match` examines the
+features, picks the feature that fits the signature best and returns the checks it passes
+and the parameter estimate it implies. The score of a signature is the share of its checks
+that the best feature passes (checks that the data cannot decide, for example the rest when no
+rest segment was recorded, are left out of the share).
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from collections.abc import Mapping
+
+import equinox as eqx
+import numpy as np
+
+from ._features import Features
+from ._residual import FIXED, FREQUENCY, TRACKING, WAVENUMBER, Region
+
+#: a fixed-frequency line at rest has this tolerance in motion bins, on top of the rest bin
+LINE_TOLERANCE_BINS = 2.0
+#: a line's power at rest and in motion may differ by this much (dB) and count as constant
+CONSTANT_AMPLITUDE_DB = 6.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Check:
+    """One test of a signature on a feature: ``passed`` is ``None`` when the data cannot tell."""
+
+    name: str
+    passed: bool | None
+    detail: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Match:
+    """The best feature for a signature: its checks, the parameters it implies, its strength."""
+
+    feature: str
+    checks: tuple[Check, ...]
+    parameters: Mapping[str, float | str | tuple]
+    strength: float
+
+    @property
+    def score(self) -> float:
+        known = [c.passed for c in self.checks if c.passed is not None]
+        return float(np.mean(known)) if known else 0.0
+
+    def evidence(self) -> str:
+        parts = []
+        for c in self.checks:
+            mark = "n/a" if c.passed is None else ("yes" if c.passed else "no")
+            parts.append(f"{c.name}: {mark}" + (f" ({c.detail})" if c.detail else ""))
+        return f"{self.feature}; " + "; ".join(parts)
+
+
+def _best(matches: list[Match]) -> Match | None:
+    return max(matches, key=lambda m: (m.score, m.strength), default=None)
+
+
+def _in_most_runs(region: Region, n_runs: int) -> Check:
+    n = len(region.runs_affected)
+    return Check("in most runs", 2 * n >= n_runs, f"{n} of {n_runs}")
+
+
+def _rest_tolerance(features: Features) -> float:
+    rest = features.rest_before
+    res = features.residuals.resolution_hz
+    return LINE_TOLERANCE_BINS * res + (rest.resolution_hz if rest is not None else 0.0)
+
+
+def _absent_before_motion(features: Features, frequencies: np.ndarray) -> Check:
+    rest = features.rest_before
+    if rest is None:
+        return Check("absent at rest before the motion", None, "no rest recorded")
+    tol = _rest_tolerance(features)
+    found = [line for f in frequencies if np.isfinite(f) for line in rest.near(float(f), tol)]
+    detail = f"line at {found[0].frequency_hz:.2f} Hz" if found else ""
+    return Check("absent at rest before the motion", not found, detail)
+
+
+class AbstractSignature(eqx.Module):
+    """How a cause shows in the residual features."""
+
+    @abc.abstractmethod
+    def match(self, features: Features) -> Match | None:
+        """The best-matching feature, or ``None`` when no feature is of this kind at all."""
+
+
+class FixedFrequency(AbstractSignature):
+    """A resonance the model lacks: excess at a speed-independent frequency within ``band``.
+
+    Checks on each excess region of the fixed-frequency map with its peak in ``band``: its
+    peak frequency does not move with speed (the speed fit prefers ``f = const``); it is in
+    most runs; no line at that frequency at rest before the motion (a resonance needs
+    excitation and decays at rest); its channel has no broadband coherence excess (a line
+    carried over from another channel is a leak, not a mode). Parameters: ``frequency_hz``
+    (the mean peak over affected runs, averaged over the channels that show it),
+    ``excess_db`` and ``channels``.
+    """
+
+    band: tuple[float, float] = eqx.field(static=True)
+    max_coherent_fraction: float = eqx.field(static=True, default=0.1)
+
+    def __check_init__(self):
+        lo, hi = self.band
+        if not 0 <= lo < hi:
+            raise ValueError(f"band must be (low, high) Hz with 0 <= low < high, got {self.band}")
+
+    def match(self, features: Features) -> Match | None:
+        res = features.residuals
+        regions = [
+            r
+            for r in res.regions
+            if r.domain == FREQUENCY and r.sign > 0 and self.band[0] <= r.peak <= self.band[1]
+        ]
+        matches = []
+        for region in regions:
+            f = region.frequency_hz
+            same = [
+                r
+                for r in regions
+                if abs(r.frequency_hz - f) <= LINE_TOLERANCE_BINS * res.resolution_hz
+            ]
+            leak = None
+            if features.coherence is not None:
+                pairs = features.coherence.for_channel(region.channel)
+                fractions = [p.fraction_significant for p in pairs]
+                leak = max(fractions, default=0.0) >= self.max_coherent_fraction
+            checks = (
+                Check(
+                    "frequency independent of speed",
+                    region.speed.preferred == FIXED,
+                    region.speed.preferred,
+                ),
+                _in_most_runs(region, features.n_runs),
+                _absent_before_motion(features, np.array([f])),
+                Check("no broadband coherence excess", None if leak is None else not leak),
+            )
+            matches.append(
+                Match(
+                    feature=region.describe(),
+                    checks=checks,
+                    parameters={
+                        "frequency_hz": float(np.mean([r.frequency_hz for r in same])),
+                        "excess_db": region.excess_db,
+                        "channels": tuple(sorted({r.channel for r in same})),
+                    },
+                    strength=abs(region.z),
+                )
+            )
+        return _best(matches)
+
+
+class SpeedTracking(AbstractSignature):
+    """A tone whose frequency is the speed over a spatial period: ``f = v / wavelength``.
+
+    ``wavelengths`` lists the periods this cause produces (with ``labels``, for example the
+    harmonic numbers); ``excluded`` lists periods this cause cannot have (they belong to
+    another cause); a relative tolerance ``rel_tol`` decides a match. Checks on each excess
+    region of the wavenumber map (or of the frequency map whose speed fit prefers tracking):
+    the frequency follows the speed; it is in most runs; its wavelength is one of
+    ``wavelengths`` (when given) and none of ``excluded`` (when given); no line at rest
+    before the motion at its frequencies. Parameters: ``wavelength_m`` (of the speed fit),
+    and with ``wavelengths`` the matched ``label`` and every label found among the tracking
+    regions (``labels_found``).
+    """
+
+    wavelengths: tuple[float, ...] = eqx.field(static=True, default=())
+    excluded: tuple[float, ...] = eqx.field(static=True, default=())
+    labels: tuple[int | str, ...] = eqx.field(static=True, default=())
+    rel_tol: float = eqx.field(static=True, default=0.04)
+
+    def __check_init__(self):
+        if any(w <= 0 for w in self.wavelengths + self.excluded):
+            raise ValueError("wavelengths and excluded must be positive lengths")
+        if self.labels and len(self.labels) != len(self.wavelengths):
+            raise ValueError(
+                f"labels names {len(self.labels)} wavelengths, there are {len(self.wavelengths)}"
+            )
+        if not 0 < self.rel_tol < 0.5:
+            raise ValueError(f"rel_tol must lie in (0, 0.5), got {self.rel_tol}")
+
+    def _nearest(self, wavelength: float, table: tuple[float, ...]) -> int | None:
+        if not table or not np.isfinite(wavelength):
+            return None
+        errors = np.abs(np.asarray(table) / wavelength - 1.0)
+        i = int(np.argmin(errors))
+        return i if errors[i] <= self.rel_tol else None
+
+    def match(self, features: Features) -> Match | None:
+        res = features.residuals
+        regions = [
+            r
+            for r in res.regions
+            if r.sign > 0 and (r.domain == WAVENUMBER or r.speed.preferred == TRACKING)
+        ]
+        labels = self.labels or tuple(range(1, len(self.wavelengths) + 1))
+        found = sorted(
+            {
+                labels[i]
+                for r in regions
+                if r.speed.preferred == TRACKING
+                and (i := self._nearest(r.speed.wavelength_m, self.wavelengths)) is not None
+            },
+            key=str,
+        )
+        matches = []
+        for region in regions:
+            lam = region.speed.wavelength_m
+            checks = [
+                Check(
+                    "frequency proportional to speed",
+                    region.speed.preferred == TRACKING,
+                    region.speed.preferred,
+                ),
+                _in_most_runs(region, features.n_runs),
+            ]
+            params: dict[str, float | str | tuple] = {"wavelength_m": lam}
+            if self.wavelengths:
+                i = self._nearest(lam, self.wavelengths)
+                checks.append(
+                    Check("wavelength among the listed ones", i is not None, f"{lam:.4g} m")
+                )
+                if i is not None:
+                    params["label"] = labels[i]
+                    params["listed_wavelength_m"] = self.wavelengths[i]
+                params["labels_found"] = tuple(found)
+            if self.excluded:
+                j = self._nearest(lam, self.excluded)
+                checks.append(Check("wavelength not an excluded one", j is None, f"{lam:.4g} m"))
+            checks.append(_absent_before_motion(features, region.runs.frequency_hz))
+            matches.append(
+                Match(
+                    feature=region.describe(),
+                    checks=tuple(checks),
+                    parameters=params,
+                    strength=abs(region.z),
+                )
+            )
+        return _best(matches)
+
+
+class CrossAxisCoherence(AbstractSignature):
+    """One channel carries a fraction of another's signal: coherence the model lacks.
+
+    Checks on each listed pair with a significant coherence excess: the excess covers at
+    least ``min_fraction`` of the analysed bins (broadband, unlike a resonance); the change of
+    the transfer function in the best direction is flat (relative spread at most
+    ``max_spread``). Parameters: ``fraction`` (the leak, signed), ``receiver`` and
+    ``source``.
+    """
+
+    pairs: tuple[tuple[str, str], ...] = eqx.field(static=True)
+    min_fraction: float = eqx.field(static=True, default=0.1)
+    max_spread: float = eqx.field(static=True, default=0.5)
+
+    def match(self, features: Features) -> Match | None:
+        if features.coherence is None:
+            return None
+        wanted = {frozenset(p) for p in self.pairs}
+        matches = []
+        for pair in features.coherence.pairs:
+            if frozenset(pair.pair) not in wanted or not pair.significant.any():
+                continue
+            checks = (
+                Check(
+                    "broadband coherence excess",
+                    pair.fraction_significant >= self.min_fraction,
+                    f"{100 * pair.fraction_significant:.0f} % of bins",
+                ),
+                Check(
+                    "frequency-independent leak",
+                    pair.leak_spread <= self.max_spread,
+                    f"relative spread {pair.leak_spread:.2f}",
+                ),
+            )
+            matches.append(
+                Match(
+                    feature=f"coherence {pair.pair[0]}-{pair.pair[1]}, max Z = {pair.z.max():.1f}",
+                    checks=checks,
+                    parameters={
+                        "fraction": pair.leak,
+                        "receiver": pair.receiver,
+                        "source": pair.source,
+                    },
+                    strength=float(pair.z.max()),
+                )
+            )
+        return _best(matches)
+
+
+class RestLine(AbstractSignature):
+    """Interference at fixed frequencies: a line present while the system is at rest.
+
+    Checks on each line at rest before the motion that the simulated rest lacks: it lies
+    within ``tolerance_hz`` of a listed fundamental or one of its first ``harmonics``
+    multiples; it is also at rest after the motion; it is also in the motion spectra at the
+    same frequency (a fixed-frequency excess region); its power at rest and in motion agree
+    within ``CONSTANT_AMPLITUDE_DB`` (constant amplitude). Parameters: ``frequency_hz`` (the
+    matched fundamental), ``harmonic``, ``line_frequency_hz`` (measured, from the finer motion
+    spectrum where available).
+    """
+
+    fundamentals: tuple[float, ...] = eqx.field(static=True)
+    harmonics: int = eqx.field(static=True, default=3)
+    tolerance_hz: float = eqx.field(static=True, default=1.0)
+
+    def __check_init__(self):
+        if not self.fundamentals or any(f <= 0 for f in self.fundamentals):
+            raise ValueError(f"fundamentals must be positive frequencies, got {self.fundamentals}")
+        if self.harmonics < 1:
+            raise ValueError(f"harmonics must be at least 1, got {self.harmonics}")
+
+    def match(self, features: Features) -> Match | None:
+        rest = features.rest_before or features.rest_after
+        if rest is None:
+            return None
+        res = features.residuals
+        tol = _rest_tolerance(features)
+        matches = []
+        for line in rest.unexplained():
+            f = line.frequency_hz
+            options = [
+                (abs(f - m * f0), f0, m)
+                for f0 in self.fundamentals
+                for m in range(1, self.harmonics + 1)
+            ]
+            error, f0, m = min(options)
+            after = None
+            if features.rest_after is not None and features.rest_before is not None:
+                after = bool(features.rest_after.near(f, tol))
+            motion = [
+                r
+                for r in res.regions
+                if r.domain == FREQUENCY
+                and r.sign > 0
+                and r.speed.preferred != TRACKING
+                and r.channel == line.channel
+                and abs(r.frequency_hz - f) <= tol
+            ]
+            constant = None
+            line_f = f
+            if motion:
+                region = max(motion, key=lambda r: r.z)
+                line_f = region.frequency_hz
+                power = (
+                    np.nanmean(region.runs.power[region.runs.affected])
+                    if any(region.runs.affected)
+                    else np.nan
+                )
+                if np.isfinite(power) and power > 0 and line.power > 0:
+                    ratio_db = 10.0 * np.log10(line.power / power)
+                    constant = bool(abs(ratio_db) <= CONSTANT_AMPLITUDE_DB)
+            checks = (
+                Check(
+                    "at a listed frequency or harmonic",
+                    error <= self.tolerance_hz,
+                    f"{f:.2f} Hz vs {m} x {f0:g} Hz",
+                ),
+                Check("also at rest after the motion", after),
+                Check("also in the motion at the same frequency", bool(motion)),
+                Check("constant amplitude", constant),
+            )
+            matches.append(
+                Match(
+                    feature=f"line at rest {line.channel} {f:.2f} Hz, {line.level_db:.1f} dB",
+                    checks=checks,
+                    parameters={
+                        "frequency_hz": float(f0),
+                        "harmonic": int(m),
+                        "line_frequency_hz": float(line_f),
+                    },
+                    strength=line.z,
+                )
+            )
+        return _best(matches)
+
+
+class NoResidual(AbstractSignature):
+    """The model explains the data: no significant region, coherence excess or rest line."""
+
+    def match(self, features: Features) -> Match | None:
+        summary = features.summary()
+        return Match(
+            feature="no significant residual" if not summary else f"{len(summary)} features",
+            checks=(Check("no significant residual", not summary, "; ".join(summary[:3])),),
+            parameters={},
+            strength=0.0,
+        )

@@ -1,0 +1,96 @@
+"""Temperature scaling of an ensemble: one scalar T fitted by the NLL on held-out data."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import scipy.optimize
+import scipy.special
+from jaxtyping import ArrayLike, Float, Int
+
+#: the range searched for the temperature
+TEMPERATURE_BOUNDS = (1e-2, 1e2)
+
+
+def ensemble_nll(
+    member_logits: Float[ArrayLike, "member sample class"],
+    labels: Int[ArrayLike, " sample"],
+    temperature: float,
+) -> float:
+    """Mean NLL of the ensemble mixture ``mean_m softmax(z_m / T)`` at the true classes (nats).
+
+    Computed in log space (``logsumexp`` over members) so a confident wrong member does not
+    underflow to ``log 0``.
+    """
+    z = np.asarray(member_logits, dtype=np.float64)
+    y = np.asarray(labels)
+    log_p = scipy.special.log_softmax(z / temperature, axis=-1)[:, np.arange(len(y)), y]
+    log_mixture = scipy.special.logsumexp(log_p, axis=0) - np.log(z.shape[0])
+    return float(-np.mean(log_mixture))
+
+
+def fit_temperature(
+    member_logits: Float[ArrayLike, "member sample class"], labels: Int[ArrayLike, " sample"]
+) -> float:
+    """The temperature that minimises the ensemble's NLL on held-out data.
+
+    Every member's logits are divided by the same ``T`` and the tempered member probabilities
+    are averaged; ``T = 1`` is the uncalibrated ensemble, ``T > 1`` softens overconfident
+    predictions. The NLL is minimised over ``log T`` (bounded Brent search on
+    ``TEMPERATURE_BOUNDS``). Temperature scaling divides all logits of an input by the same
+    positive number, so each member's ranking of the classes is kept; for a single member the
+    predicted class never changes.
+
+    Parameters
+    ----------
+    member_logits
+        Logits of every member on the held-out (validation) inputs.
+    labels
+        True class indices of those inputs.
+
+    Returns
+    -------
+    temperature
+
+    Raises
+    ------
+    ValueError
+        For inconsistent shapes.
+
+    Warns
+    -----
+    UserWarning
+        When the optimum lies on a bound of ``TEMPERATURE_BOUNDS``; the bound is returned. Likely
+        causes: (a) a validation set the ensemble classifies perfectly with margin, so the NLL
+        keeps falling as ``T -> 0`` (use more or harder validation data); (b) an ensemble no
+        better than chance, so the NLL keeps falling as ``T -> infinity`` (check the training).
+
+    References
+    ----------
+    Guo, C., Pleiss, G., Sun, Y. and Weinberger, K. Q. (2017). On calibration of modern neural
+    networks. ICML.
+    """
+    z = np.asarray(member_logits, dtype=np.float64)
+    y = np.asarray(labels)
+    if z.ndim != 3 or y.shape != (z.shape[1],):
+        raise ValueError(
+            f"member_logits must have shape (member, sample, class) and labels (sample,), got "
+            f"{z.shape} and {y.shape}"
+        )
+    lo, hi = np.log(TEMPERATURE_BOUNDS)
+    result = scipy.optimize.minimize_scalar(
+        lambda log_t: ensemble_nll(z, y, float(np.exp(log_t))),
+        bounds=(lo, hi),
+        method="bounded",
+        options={"xatol": 1e-6},
+    )
+    if min(result.x - lo, hi - result.x) < 1e-3:
+        warnings.warn(
+            f"the NLL-optimal temperature lies at the bound {np.exp(result.x):.3g} of "
+            f"{TEMPERATURE_BOUNDS}: (a) the validation set may be classified perfectly with "
+            f"margin (use more or harder validation data) or (b) the ensemble may be no better "
+            f"than chance (check the training)",
+            stacklevel=2,
+        )
+    return float(np.exp(result.x))

@@ -1,0 +1,15 @@
+"""Simulated training data for the classifier: parameter sources, features, chunked generation."""
+
+from ._config import GenerationConfig as GenerationConfig
+from ._features import featurize as featurize
+from ._features import measured_features as measured_features
+from ._features import measured_windows as measured_windows
+from ._generate import FORMAT as FORMAT
+from ._generate import TrainingData as TrainingData
+from ._generate import describe_system as describe_system
+from ._generate import generate as generate
+from ._generate import load_training_data as load_training_data
+from ._sources import AbstractParameterSource as AbstractParameterSource
+from ._sources import GaussianScatter as GaussianScatter
+from ._sources import ModelErrorDraws as ModelErrorDraws
+from ._sources import PosteriorDraws as PosteriorDraws

@@ -1,0 +1,123 @@
+"""What a training-data generation makes: sizes, states, speeds, split, chunks, features."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import equinox as eqx
+
+from ..features import CNNInputSpec
+
+
+class GenerationConfig(eqx.Module):
+    """Sizes and settings of one training-data generation (the paper's by default).
+
+    Parameters
+    ----------
+    speeds
+        The operating speeds runs are drawn from (uniformly, with replacement), for example
+        the campaign's ``v_max`` values.
+    runs_per_state
+        Simulated runs of every state (the paper: 600, so 1800 for three states).
+    states
+        The states to simulate, keys of the system's ``states``; ``None`` means all of them.
+    validation_fraction
+        Fraction of every state's runs held out for validation (the paper: 0.3); the split
+        is stratified: exactly ``round(validation_fraction * runs_per_state)`` runs of each
+        state.
+    chunk_size
+        Runs simulated (as one vmapped batch) and saved together; a chunk holds runs of one
+        state. The last chunk of a state is padded to this size for the solve (one compiled
+        shape), and the padding runs are discarded.
+    duration
+        Record length (s); ``None`` means the system's ``record_duration`` of all ``speeds``.
+    spec
+        The classifier input (:class:`bayesdoor.features.CNNInputSpec`), computed over each
+        run's motion window.
+    on_failure
+        What to do with a run whose solve fails: ``"redraw"`` its parameters, severities and
+        speed with a key derived from the chunk's (deterministic, up to ``max_redraws``
+        times, then drop it) or ``"drop"`` it at once. Dropped runs are reported, never kept.
+    max_redraws
+        Redraw rounds per chunk before a still-failing run is dropped.
+    """
+
+    speeds: tuple[float, ...] = eqx.field(static=True)
+    runs_per_state: int = eqx.field(static=True, default=600)
+    states: tuple[str, ...] | None = eqx.field(static=True, default=None)
+    validation_fraction: float = eqx.field(static=True, default=0.3)
+    chunk_size: int = eqx.field(static=True, default=100)
+    duration: float | None = eqx.field(static=True, default=None)
+    spec: CNNInputSpec = eqx.field(static=True, default=CNNInputSpec())
+    on_failure: Literal["redraw", "drop"] = eqx.field(static=True, default="redraw")
+    max_redraws: int = eqx.field(static=True, default=5)
+
+    def __init__(
+        self,
+        speeds,
+        *,
+        runs_per_state: int = 600,
+        states=None,
+        validation_fraction: float = 0.3,
+        chunk_size: int = 100,
+        duration: float | None = None,
+        spec: CNNInputSpec | None = None,
+        on_failure: Literal["redraw", "drop"] = "redraw",
+        max_redraws: int = 5,
+    ):
+        self.speeds = tuple(float(v) for v in speeds)
+        self.runs_per_state = int(runs_per_state)
+        self.states = None if states is None else tuple(str(s) for s in states)
+        self.validation_fraction = float(validation_fraction)
+        self.chunk_size = int(chunk_size)
+        self.duration = None if duration is None else float(duration)
+        self.spec = CNNInputSpec() if spec is None else spec
+        self.on_failure = on_failure
+        self.max_redraws = int(max_redraws)
+
+    def __check_init__(self):
+        if not self.speeds:
+            raise ValueError("speeds is empty: give the operating speeds to draw runs at")
+        if self.runs_per_state < 1:
+            raise ValueError(f"runs_per_state must be at least 1, got {self.runs_per_state}")
+        if self.states is not None and (
+            not self.states or len(set(self.states)) < len(self.states)
+        ):
+            raise ValueError(f"states must be distinct and not empty, got {self.states}")
+        if not 0.0 <= self.validation_fraction < 1.0:
+            raise ValueError(
+                f"validation_fraction must lie in [0, 1), got {self.validation_fraction}"
+            )
+        if self.chunk_size < 1:
+            raise ValueError(f"chunk_size must be at least 1, got {self.chunk_size}")
+        if self.on_failure not in ("redraw", "drop"):
+            raise ValueError(f"on_failure must be 'redraw' or 'drop', got {self.on_failure!r}")
+        if self.max_redraws < 0:
+            raise ValueError(f"max_redraws must be >= 0, got {self.max_redraws}")
+
+    @property
+    def chunks_per_state(self) -> int:
+        return math.ceil(self.runs_per_state / self.chunk_size)
+
+    @property
+    def validation_per_state(self) -> int:
+        return round(self.validation_fraction * self.runs_per_state)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The settings as JSON-able values (for the manifest and the configuration hash)."""
+        return {
+            "speeds": list(self.speeds),
+            "runs_per_state": self.runs_per_state,
+            "states": None if self.states is None else list(self.states),
+            "validation_fraction": self.validation_fraction,
+            "chunk_size": self.chunk_size,
+            "duration": self.duration,
+            "spec": {
+                "fmax": self.spec.fmax,
+                "nperseg": self.spec.nperseg,
+                "log": self.spec.log,
+            },
+            "on_failure": self.on_failure,
+            "max_redraws": self.max_redraws,
+        }

@@ -1,0 +1,415 @@
+"""Chunked, resumable, reproducible generation of simulated training data, local or on Dask.
+
+Output folder layout::
+
+    OUT/manifest.json          provenance and the configuration hash (written first)
+    OUT/chunks/chunk-00000.npz one file per chunk, written atomically
+    OUT/summary.json           counts, dropped runs and timing (written last)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import json
+import time
+import warnings
+from collections.abc import Callable, Iterator, Mapping
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from .._types import Array
+from ..io import atomic_write
+from ..systems import AbstractSystem
+from ._chunks import Job, run_chunk
+from ._config import GenerationConfig
+from ._sources import AbstractParameterSource, ModelErrorDraws, _digest
+
+#: format tag of the manifest and the chunk files
+FORMAT = "bayesdoor.datagen/1"
+_VERSIONED = ("bayesdoor", "jax", "jaxlib", "diffrax", "equinox", "numpy")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainingData:
+    """Simulated runs with their features, labels, split and the draws that made them.
+
+    Runs are ordered by ``run_ids`` (state by state); runs dropped after failed solves are
+    missing and listed in ``dropped_run_ids``. ``features`` already include the model-error
+    offsets (kept separately in ``model_error``; zero without model-error draws). Severities
+    of a run are NaN for the severity parameters of other states.
+    """
+
+    features: np.ndarray
+    labels: np.ndarray
+    states: tuple[str, ...]
+    validation: np.ndarray
+    speeds: np.ndarray
+    t_start: np.ndarray
+    t_stop: np.ndarray
+    run_ids: np.ndarray
+    redraws: np.ndarray
+    model_error: np.ndarray
+    parameters: Mapping[str, np.ndarray]
+    severities: Mapping[str, np.ndarray]
+    channels: tuple[str, ...]
+    frequencies: np.ndarray
+    dropped_run_ids: np.ndarray
+    manifest: Mapping[str, Any]
+
+    def subset(self, which: str) -> TrainingData:
+        """The ``"train"`` or ``"validation"`` runs."""
+        if which not in ("train", "validation"):
+            raise ValueError(f"which must be 'train' or 'validation', got {which!r}")
+        keep = self.validation if which == "validation" else ~self.validation
+        per_run = {f.name for f in dataclasses.fields(self)} - {
+            "states",
+            "channels",
+            "frequencies",
+            "dropped_run_ids",
+            "manifest",
+            "parameters",
+            "severities",
+        }
+        return dataclasses.replace(
+            self,
+            **{name: getattr(self, name)[keep] for name in per_run},
+            parameters={k: v[keep] for k, v in self.parameters.items()},
+            severities={k: v[keep] for k, v in self.severities.items()},
+        )
+
+    def counts(self) -> dict[str, dict[str, int]]:
+        """Runs per state in the train and validation splits."""
+        return {
+            state: {
+                "train": int(np.sum((self.labels == i) & ~self.validation)),
+                "validation": int(np.sum((self.labels == i) & self.validation)),
+            }
+            for i, state in enumerate(self.states)
+        }
+
+
+def describe_system(system: AbstractSystem) -> dict[str, Any]:
+    """A JSON-able description of a system for provenance (its settings and array leaves)."""
+    leaves = jax.tree_util.tree_leaves(system)
+    return {
+        "name": system.name,
+        "repr": repr(system),
+        "leaves_sha256": _digest({str(i): np.asarray(v) for i, v in enumerate(leaves)}),
+        "channels": list(system.channels),
+        "sampling_rate_hz": float(system.sampling_rate_hz),
+        "parameters": [dataclasses.asdict(p) for p in system.parameters],
+        "states": {
+            k: {n: list(r) for n, r in s.severity.items()} for k, s in system.states.items()
+        },
+    }
+
+
+def _versions() -> dict[str, str]:
+    out = {}
+    for name in _VERSIONED:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def _manifest(job: Job) -> dict[str, Any]:
+    described = {
+        "format": FORMAT,
+        "config": job.config.to_dict(),
+        "states": list(job.states),
+        "n_chunks": job.n_chunks,
+        "duration": job.duration,
+        "system": describe_system(job.system),
+        "source": job.source.describe(),
+        "model_error": None if job.model_error is None else job.model_error.describe(),
+        "key": {
+            "impl": str(jax.random.key_impl(job.key)),
+            "data": np.asarray(jax.random.key_data(job.key)).tolist(),
+        },
+        "x64": job.x64,
+        "versions": _versions(),
+    }
+    text = json.dumps(described, sort_keys=True, default=str)
+    return {**described, "config_hash": hashlib.sha256(text.encode()).hexdigest()}
+
+
+def _differences(old: Any, new: Any, path: str = "") -> list[str]:
+    if isinstance(old, dict) and isinstance(new, dict):
+        out = []
+        for k in sorted(set(old) | set(new)):
+            out += _differences(old.get(k), new.get(k), f"{path}.{k}" if path else k)
+        return out
+    return [] if old == new else [f"{path}: {old!r} -> {new!r}"]
+
+
+def _chunk_path(out: Path, index: int) -> Path:
+    return out / "chunks" / f"chunk-{index:05d}.npz"
+
+
+def _save_chunk(out: Path, index: int, arrays: Mapping[str, np.ndarray], config_hash: str):
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            np.savez(f, index=np.asarray(index), config_hash=np.asarray(config_hash), **arrays)
+
+    atomic_write(_chunk_path(out, index), write, overwrite=False)
+
+
+def _load_chunk(out: Path, index: int, config_hash: str) -> dict[str, np.ndarray]:
+    path = _chunk_path(out, index)
+    with np.load(path, allow_pickle=False) as f:
+        arrays = {k: f[k] for k in f.files}
+    if str(arrays.pop("config_hash")) != config_hash or int(arrays.pop("index")) != index:
+        raise ValueError(
+            f"{path} belongs to another generation (configuration hash or chunk index differs "
+            f"from the manifest's {config_hash[:12]}): remove it or use a new output folder"
+        )
+    return arrays
+
+
+def _open_folder(out: Path, manifest: dict[str, Any]) -> None:
+    """Write the manifest of a new folder, or check that an existing one matches it."""
+    path = out / "manifest.json"
+    if path.exists():
+        old = json.loads(path.read_text())
+        if old.get("config_hash") != manifest["config_hash"]:
+            changed = _differences(
+                {k: v for k, v in old.items() if k not in ("config_hash", "created")},
+                {k: v for k, v in manifest.items() if k != "config_hash"},
+            )
+            raise ValueError(
+                f"{out} holds training data of a different configuration (hash "
+                f"{str(old.get('config_hash'))[:12]} vs {manifest['config_hash'][:12]}); "
+                f"refusing to mix chunks. Differences: {'; '.join(changed[:8]) or 'unknown'}. "
+                "Use a new output folder, delete this one, or restore the original settings "
+                "to resume"
+            )
+        return
+    if out.exists() and any(out.iterdir()):
+        raise ValueError(
+            f"{out} is not empty and has no manifest.json: it is not a training-data folder; "
+            "pass an empty or new folder"
+        )
+    created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    text = json.dumps({**manifest, "created": created}, indent=1)
+    atomic_write(path, lambda tmp: tmp.write_text(text), overwrite=False)
+
+
+@contextlib.contextmanager
+def _progress(enabled: bool, total: int, done: int) -> Iterator[Callable[[], None]]:
+    if not enabled:
+        yield lambda: None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+    ) as bar:
+        task = bar.add_task("training-data chunks", total=total, completed=done)
+        yield lambda: bar.advance(task)
+
+
+def _map_local(job: Job, pending: list[int]) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+    for index in pending:
+        yield run_chunk(job, index)
+
+
+def _map_dask(
+    job: Job, pending: list[int], scheduler: str, n_workers: int
+) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+    from distributed import Client, LocalCluster, as_completed
+
+    with contextlib.ExitStack() as stack:
+        if scheduler == "local":
+            cluster = stack.enter_context(
+                LocalCluster(
+                    n_workers=n_workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                )
+            )
+            client = stack.enter_context(Client(cluster))
+        else:
+            client = stack.enter_context(Client(scheduler))
+        shared = client.scatter(job, broadcast=True, hash=False)
+        futures = [client.submit(run_chunk, shared, i, pure=False) for i in pending]
+        for future in as_completed(futures):
+            yield future.result()
+
+
+def generate(
+    system: AbstractSystem,
+    source: AbstractParameterSource,
+    config: GenerationConfig,
+    out: str | Path,
+    *,
+    key: Array,
+    model_error: ModelErrorDraws | None = None,
+    scheduler: str | None = None,
+    n_workers: int = 2,
+    progress: bool = True,
+    on_chunk: Callable[[int], None] | None = None,
+) -> TrainingData:
+    """Simulate labelled training runs in chunks, save them under ``out`` and return them all.
+
+    For every state, ``config.runs_per_state`` runs: parameters from ``source``, severities
+    uniform over the state's ``DamageSpec.severity`` priors, a speed drawn from
+    ``config.speeds``; features from :func:`featurize` over each run's motion window, plus
+    model-error offsets when ``model_error`` is given. Chunk ``c`` uses the key
+    ``fold_in(k_chunks, c)`` with ``k_chunks, k_split = split(key)``, so the result depends
+    on ``key`` and the configuration only: not on the chunk order, the scheduler or on
+    interruptions. A folder that already holds chunks of the same configuration is resumed
+    (finished chunks are loaded, not recomputed); one of another configuration is refused.
+
+    Parameters
+    ----------
+    system
+        The simulated system (its ``simulate_values``, ``motion_window`` and
+        ``record_duration``).
+    source
+        Where the parameters come from (:class:`PosteriorDraws`, :class:`GaussianScatter`);
+        it must give exactly the system's parameter names.
+    config
+        Sizes, states, speeds, split and features.
+    out
+        Output folder (created; see the module docstring for its layout).
+    key
+        The PRNG key of the whole generation.
+    model_error
+        Optional model-error draws added to the features.
+    scheduler
+        ``None``: compute chunks in this process; ``"local"``: start a
+        ``distributed.LocalCluster`` of ``n_workers`` processes with one thread each;
+        ``"tcp://host:port"``: use that Dask scheduler. Every path gives identical data.
+    n_workers
+        Worker processes of the local cluster.
+    progress
+        Show a progress bar (rich).
+    on_chunk
+        Called with the chunk index after each chunk has been saved.
+
+    Returns
+    -------
+    data
+        All runs of all chunks (see :class:`TrainingData`).
+
+    Raises
+    ------
+    ValueError
+        For a source whose names differ from the system's parameters, unknown states, bad
+        speeds (through the system), draws outside the bounds, or an output folder of a
+        different configuration.
+    """
+    names = set(system.parameter_names())
+    if set(source.names) != names:
+        raise ValueError(
+            f"the parameter source gives {sorted(source.names)} but {system.name} needs exactly "
+            f"{sorted(names)}: missing {sorted(names - set(source.names))}, unknown "
+            f"{sorted(set(source.names) - names)}"
+        )
+    for state in config.states or ():
+        system.check_state(state)
+    job = Job(system, source, model_error, config, key, bool(jax.config.read("jax_enable_x64")))
+    system.motion_window(np.asarray(config.speeds), duration=job.duration)
+    out = Path(out)
+    manifest = _manifest(job)
+    _open_folder(out, manifest)
+    config_hash = manifest["config_hash"]
+    for index in range(job.n_chunks):
+        if _chunk_path(out, index).exists():
+            _load_chunk(out, index, config_hash)
+    pending = [i for i in range(job.n_chunks) if not _chunk_path(out, i).exists()]
+    new_runs = sum(job.chunk_runs(i)[1].size for i in pending)
+
+    start = time.perf_counter()
+    with _progress(progress, job.n_chunks, job.n_chunks - len(pending)) as advance:
+        chunks = (
+            _map_local(job, pending)
+            if scheduler is None
+            else _map_dask(job, pending, scheduler, n_workers)
+        )
+        with contextlib.closing(chunks):
+            for index, arrays in chunks:
+                _save_chunk(out, index, arrays, config_hash)
+                advance()
+                if on_chunk is not None:
+                    on_chunk(index)
+    seconds = time.perf_counter() - start
+
+    data = load_training_data(out)
+    summary = {
+        "runs": int(data.labels.size),
+        "counts": data.counts(),
+        "dropped_run_ids": data.dropped_run_ids.tolist(),
+        "redrawn_runs": int(np.sum(data.redraws > 0)),
+        "chunks_computed": len(pending),
+        "seconds": seconds,
+        "seconds_per_run": seconds / new_runs if new_runs else None,
+        "scheduler": scheduler,
+    }
+    text = json.dumps(summary, indent=1)
+    atomic_write(out / "summary.json", lambda tmp: tmp.write_text(text), overwrite=True)
+    if data.dropped_run_ids.size:
+        warnings.warn(
+            f"{data.dropped_run_ids.size} simulated runs were dropped after failed solves "
+            f"(run ids {data.dropped_run_ids.tolist()[:10]}); see {out / 'summary.json'}",
+            stacklevel=2,
+        )
+    return data
+
+
+def load_training_data(out: str | Path) -> TrainingData:
+    """Assemble the training data of a finished generation folder.
+
+    Raises
+    ------
+    ValueError
+        When the folder has no manifest or some chunks are missing (resume the generation).
+    """
+    out = Path(out)
+    path = out / "manifest.json"
+    if not path.exists():
+        raise ValueError(f"{out} has no manifest.json: not a training-data folder")
+    manifest = json.loads(path.read_text())
+    n_chunks = int(manifest["n_chunks"])
+    missing = [i for i in range(n_chunks) if not _chunk_path(out, i).exists()]
+    if missing:
+        raise ValueError(
+            f"{out} misses {len(missing)} of {n_chunks} chunks (first {missing[:5]}): the "
+            "generation was interrupted; call generate again with the same settings to resume"
+        )
+    chunks = [_load_chunk(out, i, manifest["config_hash"]) for i in range(n_chunks)]
+    joined = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
+    system = manifest["system"]
+    spec = manifest["config"]["spec"]
+    fs = system["sampling_rate_hz"]
+    n_bins = joined["features"].shape[-1]
+    return TrainingData(
+        features=joined["features"],
+        labels=joined["label"],
+        states=tuple(manifest["states"]),
+        validation=joined["validation"],
+        speeds=joined["speed"],
+        t_start=joined["t_start"],
+        t_stop=joined["t_stop"],
+        run_ids=joined["run_id"],
+        redraws=joined["redraws"],
+        model_error=joined["model_error"],
+        parameters={k.split("/", 1)[1]: v for k, v in joined.items() if k.startswith("parameter/")},
+        severities={k.split("/", 1)[1]: v for k, v in joined.items() if k.startswith("severity/")},
+        channels=tuple(system["channels"]),
+        frequencies=np.arange(n_bins) * (fs / spec["nperseg"]),
+        dropped_run_ids=joined["dropped_run_id"],
+        manifest=manifest,
+    )

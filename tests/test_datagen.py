@@ -1,0 +1,465 @@
+"""Training-data generation: sources, featurizer, chunks, resumption, Dask, the door end to end.
+
+Most tests use a small analytic system (tones whose frequencies and amplitudes follow the
+parameters, damage and speed) so that they exercise the generic layer in seconds; the door is
+used where the real simulator matters (the featurizer on door runs, a small and a
+realistic-size generation).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+import warnings
+
+import arviz as az
+import cloudpickle
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.signal
+
+from bayesdoor.datagen import (
+    GaussianScatter,
+    GenerationConfig,
+    ModelErrorDraws,
+    PosteriorDraws,
+    featurize,
+    generate,
+    load_training_data,
+    measured_features,
+)
+from bayesdoor.systems import AbstractSystem, DamageSpec, ElevatorDoor, ParameterSpec
+
+FS = 2048.0
+REST = 0.125
+DURATION = 0.75
+
+# the Dask workers unpickle the toy system: ship its class by value, not by module name
+cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
+class ToySystem(AbstractSystem):
+    """Two channels of tones during the 'motion' after REST s; fails for k > fail_above."""
+
+    fail_above: float = eqx.field(static=True, default=2.0)
+
+    @property
+    def name(self):
+        return "toy"
+
+    @property
+    def parameters(self):
+        return (
+            ParameterSpec("k", "-", 0.5, 0.0, 1.0, "tone frequency"),
+            ParameterSpec("m", "-", 1.0, 0.5, 2.0, "amplitude"),
+            ParameterSpec("law", "-", 2, 1, 3, "an integer index", integer=True),
+        )
+
+    @property
+    def states(self):
+        return {
+            "healthy": DamageSpec("healthy", "none"),
+            "D1": DamageSpec("D1", "a 48 Hz tone", {"a1": (0.5, 1.0)}),
+            "D2": DamageSpec("D2", "an 80 Hz tone", {"a2": (0.2, 0.4), "phase": (0.0, 6.28)}),
+        }
+
+    @property
+    def channels(self):
+        return ("X", "Z")
+
+    @property
+    def sampling_rate_hz(self):
+        return FS
+
+    def record_duration(self, operating):
+        return DURATION
+
+    def motion_window(self, operating, *, duration=None):
+        v = np.atleast_1d(np.asarray(operating, dtype=float))
+        stop = DURATION if duration is None else min(DURATION, duration)
+        return np.full(v.shape, REST), np.full(v.shape, stop)
+
+    def simulate(self, theta, damage, operating, *, duration=None):
+        return self.simulate_values(theta, operating, state=damage, duration=duration)
+
+    def simulate_values(
+        self, values, operating, *, state="healthy", severity=None, duration=None, check=True
+    ):
+        spec = self.check_state(state)
+        severity = dict(severity or {})
+        sev = {k: severity.get(k, 0.5 * (lo + hi)) for k, (lo, hi) in spec.severity.items()}
+        v = jnp.atleast_1d(jnp.asarray(operating, dtype=float))
+        k, m = (jnp.broadcast_to(jnp.asarray(values[n], dtype=float), v.shape) for n in "km")
+        t = jnp.arange(round((duration or DURATION) * FS)) / FS
+        on = (t >= REST).astype(float)
+        x = m[:, None] * v[:, None] * jnp.sin(2 * jnp.pi * (20.0 + 40.0 * k[:, None]) * t)
+        if "a1" in sev:
+            x = x + jnp.asarray(sev["a1"], dtype=float)[..., None] * jnp.sin(2 * jnp.pi * 48 * t)
+        if "a2" in sev:
+            a2, ph = (jnp.asarray(sev[n], dtype=float)[..., None] for n in ("a2", "phase"))
+            x = x + a2 * jnp.sin(2 * jnp.pi * 80 * t + ph)
+        signals = jnp.stack([x * on, 0.5 * x * on + 0.01 * jnp.cos(2 * jnp.pi * 30 * t)], axis=1)
+        status = jnp.where(k > self.fail_above, 1, 0)
+        signals = jnp.where(status[:, None, None] == 0, signals, 0.0)
+        return _Result(signals, status)
+
+
+class _Result(eqx.Module):
+    signals: jax.Array
+    status: jax.Array
+
+
+TOY = ToySystem()
+TOY_CENTER = {"k": 0.5, "m": 1.0, "law": 2.0}
+
+
+def toy_source(relative_sd=0.1):
+    return GaussianScatter.around(TOY, TOY_CENTER, relative_sd)
+
+
+def toy_config(**kw):
+    settings = dict(runs_per_state=5, chunk_size=2, validation_fraction=0.4)
+    settings.update(kw)
+    return GenerationConfig([0.3, 0.5], **settings)
+
+
+def assert_same_data(a, b):
+    for name in ("features", "labels", "validation", "speeds", "run_ids", "model_error"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    for group in ("parameters", "severities"):
+        x, y = getattr(a, group), getattr(b, group)
+        assert set(x) == set(y)
+        for k in x:
+            np.testing.assert_array_equal(x[k], y[k], err_msg=f"{group}/{k}")
+    np.testing.assert_array_equal(a.dropped_run_ids, b.dropped_run_ids)
+
+
+# ---------------------------------------------------------------------------------- sources
+
+
+def test_gaussian_scatter_statistics(key):
+    # wide bounds so that clipping does not bias the moments
+    src = GaussianScatter(
+        {"a": 10.0, "b": -2.0, "c": 3.0},
+        {"a": 0.01, "b": 0.10, "c": 0.0},
+        {"a": (0.0, 20.0), "b": (-4.0, 0.0), "c": (1.0, 5.0)},
+    )
+    n = 20_000
+    draws = src.sample(n, key=key)
+    for name, center, rel in (("a", 10.0, 0.01), ("b", -2.0, 0.10)):
+        x = np.asarray(draws[name])
+        sd = rel * abs(center)
+        # 4 standard errors: sd / sqrt(n) for the mean, sd / sqrt(2 n) for the sd (Gaussian)
+        assert abs(x.mean() - center) < 4 * sd / np.sqrt(n)
+        assert abs(x.std(ddof=1) / abs(center) - rel) < 4 * rel / np.sqrt(2 * n)
+    np.testing.assert_array_equal(draws["c"], 3.0)
+    # independent streams: the correlation of a and b is within sampling error of zero
+    assert abs(np.corrcoef(draws["a"], draws["b"])[0, 1]) < 4 / np.sqrt(n)
+
+
+def test_gaussian_scatter_clips_to_bounds_and_holds_integers(key):
+    door = ElevatorDoor()
+    optimum = {p.name: p.reference_value for p in door.parameters}
+    draws = GaussianScatter.around(door, optimum, 0.10).sample(5000, key=key)
+    for p in door.parameters:
+        x = np.asarray(draws[p.name])
+        assert x.min() >= p.lower and x.max() <= p.upper, p.name
+    np.testing.assert_array_equal(draws["I"], 6.0)
+    # n = 1.93 lies 2.8 sd below its upper bound 2.2: some draws are clipped onto it
+    assert np.any(np.asarray(draws["n"]) == 2.2)
+    with pytest.raises(ValueError, match="missing"):
+        GaussianScatter.around(door, {"K": 1863.0})
+    with pytest.raises(ValueError, match="relative_sd"):
+        GaussianScatter({"a": 1.0}, {"a": 1.5}, {"a": (0.0, 2.0)})
+
+
+def _posterior(key, chains=2, draws=50):
+    k1, k2 = jax.random.split(key)
+    k = np.asarray(jax.random.uniform(k1, (chains, draws)))
+    m = 0.5 + np.asarray(jax.random.uniform(k2, (chains, draws)))
+    sigma = 0.1 + 0.05 * k[..., None] * np.ones(2)
+    return az.from_dict(posterior={"k": k, "m": m, "sigma_model": sigma})
+
+
+def test_posterior_draws_only_posterior_values(key):
+    idata = _posterior(key)
+    src = PosteriorDraws.from_inference_data(idata, ["k", "m"], fixed={"law": 3})
+    assert src.n_samples == 100 and set(src.names) == {"k", "m", "law"}
+    draws = src.sample(1000, key=jax.random.fold_in(key, 1))
+    pairs = set(
+        zip(idata.posterior["k"].values.ravel(), idata.posterior["m"].values.ravel(), strict=True)
+    )
+    drawn = set(zip(np.asarray(draws["k"]), np.asarray(draws["m"]), strict=True))
+    # every draw is one posterior sample, jointly (k with its own m), not a recombination
+    assert drawn <= pairs
+    # with replacement, 1000 draws from 100 samples hit nearly all of them
+    assert len(drawn) > 90
+    np.testing.assert_array_equal(draws["law"], 3.0)
+    with pytest.raises(ValueError, match="no variable 'q'"):
+        PosteriorDraws.from_inference_data(idata, ["q"])
+    with pytest.raises(ValueError, match="not a scalar"):
+        PosteriorDraws.from_inference_data(idata, ["sigma_model"])
+    with pytest.raises(ValueError, match="both sampled and fixed"):
+        PosteriorDraws({"k": [0.1]}, fixed={"k": 0.2})
+
+
+def test_model_error_draws(key):
+    sigma = np.array([[0.1, 0.3]])  # one posterior sample, one scale per channel
+    err = ModelErrorDraws(jnp.asarray(sigma))
+    n = 20_000
+    offsets = np.asarray(err.sample(n, 2, 5, key=key))
+    assert offsets.shape == (n, 2, 5)
+    # one offset per channel, shared by its frequency bins
+    np.testing.assert_array_equal(offsets, offsets[..., :1].repeat(5, axis=-1))
+    # sd of a Gaussian sample: standard error sd / sqrt(2 n), 4 of them
+    np.testing.assert_allclose(
+        offsets[:, :, 0].std(axis=0), [0.1, 0.3], atol=4 * 0.3 / np.sqrt(2 * n)
+    )
+    per_bin = ModelErrorDraws(jnp.asarray(sigma), per_bin=True).sample(4, 2, 5, key=key)
+    assert np.all(np.std(np.asarray(per_bin), axis=-1) > 0)
+    from_idata = ModelErrorDraws.from_inference_data(_posterior(key))
+    assert from_idata.sigma.shape == (100, 2)
+    with pytest.raises(ValueError, match="does not fit"):
+        err.sample(3, 4, 5, key=key)
+
+
+# ------------------------------------------------------------------------------- featurizer
+
+
+def test_featurize_matches_scipy_welch_over_the_window():
+    # independent reference: scipy.signal.welch on the samples of the window only
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((2, 3, 4096))
+    t_start = np.array([0.25, 0.5])
+    t_stop = np.array([1.5, 1.99])
+    got = np.asarray(featurize(x, FS, t_start, t_stop))
+    assert got.shape == (2, 3, 25)
+    for i in range(2):
+        first = int(np.ceil(t_start[i] * FS))
+        last = int(np.floor(t_stop[i] * FS))
+        # the featurizer keeps whole 512-sample segments on the 256-sample grid of the record
+        a = -(-first // 256) * 256
+        n_seg = (last + 1 - a - 256) // 256
+        seg = x[i, :, a : a + 256 * (n_seg + 1)]
+        _, psd = scipy.signal.welch(seg, FS, nperseg=512)
+        # float64 FFT round-off only
+        np.testing.assert_allclose(got[i], np.log10(psd[:, :25]), rtol=1e-10)
+
+
+def test_measured_features_use_given_or_detected_window():
+    speeds = np.array([0.3, 0.5])
+    signals = np.asarray(TOY.simulate_values(TOY.nominal(), speeds, state="D1").signals)
+    t = np.arange(signals.shape[-1]) / FS
+    start, stop = TOY.motion_window(speeds)
+    given = measured_features(t, signals, FS, start, stop)
+    np.testing.assert_array_equal(given, featurize(signals, FS, start, stop))
+    # the toy's motion starts abruptly at REST and lasts to the end: the envelope finds it
+    # within one 20 ms RMS window, which moves no 256-sample segment boundary here
+    detected = measured_features(t, signals, FS, rest_duration=0.1)
+    np.testing.assert_array_equal(detected, given)
+    half = measured_features(t, signals, FS, t_start=np.array([np.nan, 0.25]), rest_duration=0.1)
+    np.testing.assert_array_equal(half[0], given[0])
+    assert not np.array_equal(half[1], given[1])
+
+
+# ------------------------------------------------------------------------------- generation
+
+
+def test_reproducible_and_seed_dependent(tmp_path, key):
+    a = generate(TOY, toy_source(), toy_config(), tmp_path / "a", key=key, progress=False)
+    b = generate(TOY, toy_source(), toy_config(), tmp_path / "b", key=key, progress=False)
+    assert_same_data(a, b)
+    c = generate(
+        TOY, toy_source(), toy_config(), tmp_path / "c", key=jax.random.key(7), progress=False
+    )
+    assert not np.array_equal(a.features, c.features)
+    assert not np.array_equal(a.parameters["k"], c.parameters["k"])
+    assert a.features.shape == (15, 2, 25) and np.all(np.isfinite(a.features))
+    manifest = json.loads((tmp_path / "a" / "manifest.json").read_text())
+    assert manifest["source"]["kind"] == "GaussianScatter"
+    assert {"jax", "diffrax", "numpy"} <= set(manifest["versions"])
+    assert manifest["key"]["data"] == np.asarray(jax.random.key_data(key)).tolist()
+
+
+def test_resume_equals_uninterrupted(tmp_path, key):
+    whole = generate(TOY, toy_source(), toy_config(), tmp_path / "whole", key=key, progress=False)
+    done = []
+
+    def interrupt(index):
+        done.append(index)
+        if len(done) == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        generate(
+            TOY,
+            toy_source(),
+            toy_config(),
+            tmp_path / "r",
+            key=key,
+            on_chunk=interrupt,
+            progress=False,
+        )
+    assert len(list((tmp_path / "r" / "chunks").glob("*.npz"))) == 3
+    with pytest.raises(ValueError, match="interrupted"):
+        load_training_data(tmp_path / "r")
+    resumed = generate(TOY, toy_source(), toy_config(), tmp_path / "r", key=key, progress=False)
+    assert_same_data(resumed, whole)
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert summary["chunks_computed"] == 9 - 3
+
+
+def test_config_change_refused_on_resume(tmp_path, key):
+    def stop(index):
+        raise KeyboardInterrupt
+
+    out = tmp_path / "g"
+    with pytest.raises(KeyboardInterrupt):
+        generate(TOY, toy_source(), toy_config(), out, key=key, on_chunk=stop, progress=False)
+    before = sorted(p.name for p in (out / "chunks").iterdir())
+    for source, config, k in (
+        (toy_source(0.05), toy_config(), key),
+        (toy_source(), toy_config(runs_per_state=6), key),
+        (toy_source(), toy_config(), jax.random.key(1)),
+    ):
+        with pytest.raises(ValueError, match="different configuration"):
+            generate(TOY, source, config, out, key=k, progress=False)
+    assert sorted(p.name for p in (out / "chunks").iterdir()) == before
+
+
+def test_class_balance_split_and_severity_priors(tmp_path, key):
+    config = toy_config(runs_per_state=10, chunk_size=4, validation_fraction=0.3)
+    data = generate(TOY, toy_source(), config, tmp_path, key=key, progress=False)
+    assert data.states == ("healthy", "D1", "D2")
+    assert data.counts() == {s: {"train": 7, "validation": 3} for s in data.states}
+    np.testing.assert_array_equal(data.run_ids, np.arange(30))
+    train, val = data.subset("train"), data.subset("validation")
+    assert train.labels.size == 21 and val.labels.size == 9
+    assert set(data.speeds) <= {0.3, 0.5}
+    for i, state in enumerate(data.states):
+        runs = data.labels == i
+        for name, values in data.severities.items():
+            prior = TOY.states[state].severity.get(name)
+            if prior is None:
+                assert np.all(np.isnan(values[runs])), (state, name)
+            else:
+                assert np.all((values[runs] >= prior[0]) & (values[runs] <= prior[1]))
+    # the severities enter the simulation: D1's 48 Hz bin (index 12) stands above healthy's
+    assert (
+        data.features[data.labels == 1, 0, 12].min() > data.features[data.labels == 0, 0, 12].max()
+    )
+
+
+def test_failed_solves_are_redrawn_or_dropped(tmp_path, key):
+    # k ~ N(0.5, 0.1 * 0.5): 16 % of draws exceed 0.55 and fail, so 40 runs hold some
+    failing = ToySystem(fail_above=0.55)
+    config = toy_config(runs_per_state=40, chunk_size=40, states=("healthy",))
+    data = generate(failing, toy_source(), config, tmp_path / "redraw", key=key, progress=False)
+    assert data.labels.size == 40 and data.dropped_run_ids.size == 0
+    assert data.redraws.max() > 0 and data.parameters["k"].max() <= 0.55
+    with pytest.warns(UserWarning, match="dropped after failed solves"):
+        dropped = generate(
+            failing,
+            toy_source(),
+            toy_config(runs_per_state=40, chunk_size=40, states=("healthy",), on_failure="drop"),
+            tmp_path / "drop",
+            key=key,
+            progress=False,
+        )
+    assert dropped.dropped_run_ids.size > 0
+    assert dropped.labels.size + dropped.dropped_run_ids.size == 40
+    assert dropped.parameters["k"].max() <= 0.55
+    summary = json.loads((tmp_path / "drop" / "summary.json").read_text())
+    assert summary["dropped_run_ids"] == dropped.dropped_run_ids.tolist()
+
+
+def test_bad_inputs_name_the_problem(tmp_path, key):
+    with pytest.raises(ValueError, match="missing \\['m'\\]"):
+        generate(
+            TOY,
+            GaussianScatter(
+                {"k": 0.5, "law": 2}, {"k": 0.1, "law": 0}, {"k": (0, 1), "law": (1, 3)}
+            ),
+            toy_config(),
+            tmp_path / "x",
+            key=key,
+        )
+    with pytest.raises(ValueError, match="unknown state 'D9'"):
+        generate(TOY, toy_source(), toy_config(states=("D9",)), tmp_path / "y", key=key)
+    outside = PosteriorDraws({"k": [1.5, 1.5], "m": [1.0, 1.0]}, fixed={"law": 2})
+    with pytest.raises(ValueError, match=r"drew k=1\.5"):
+        generate(TOY, outside, toy_config(), tmp_path / "z", key=key, progress=False)
+    (tmp_path / "w").mkdir()
+    (tmp_path / "w" / "other.txt").write_text("not ours")
+    with pytest.raises(ValueError, match="no manifest"):
+        generate(TOY, toy_source(), toy_config(), tmp_path / "w", key=key)
+
+
+def test_model_error_offsets_are_added(tmp_path, key):
+    err = ModelErrorDraws(jnp.asarray([[0.2, 0.4]]))
+    plain = generate(TOY, toy_source(), toy_config(), tmp_path / "p", key=key, progress=False)
+    noisy = generate(
+        TOY, toy_source(), toy_config(), tmp_path / "n", key=key, model_error=err, progress=False
+    )
+    np.testing.assert_array_equal(noisy.features - noisy.model_error, plain.features)
+    assert np.all(noisy.model_error.std(axis=-1) == 0) and noisy.model_error.std() > 0
+
+
+def test_dask_local_cluster_equals_local(tmp_path, key):
+    local = generate(TOY, toy_source(), toy_config(), tmp_path / "l", key=key, progress=False)
+    dask = generate(
+        TOY,
+        toy_source(),
+        toy_config(),
+        tmp_path / "d",
+        key=key,
+        scheduler="local",
+        progress=False,
+    )
+    assert_same_data(dask, local)
+    assert dask.features.dtype == np.float64
+
+
+# --------------------------------------------------------------------------------- the door
+
+
+def test_door_generation_small(tmp_path, key):
+    door = ElevatorDoor()
+    optimum = {p.name: p.reference_value for p in door.parameters}
+    config = GenerationConfig([0.3, 0.5], runs_per_state=2, chunk_size=2, duration=1.0)
+    data = generate(
+        door, GaussianScatter.around(door, optimum), config, tmp_path, key=key, progress=False
+    )
+    assert data.features.shape == (6, 4, 25) and np.all(np.isfinite(data.features))
+    assert data.channels == door.channels
+    np.testing.assert_allclose(data.frequencies, np.arange(25) * 4.0)
+    # the features are those of the stored draws: simulate the two D2 runs again from them
+    d2 = data.labels == 2
+    assert np.all(np.isnan(data.severities["d1_height"][d2]))
+    values = {k: v[d2] for k, v in data.parameters.items()}
+    severity = {k: data.severities[k][d2] for k in ("d2_depth", "d2_angle")}
+    res = door.simulate_values(values, data.speeds[d2], state="D2", severity=severity, duration=1.0)
+    again = featurize(res.signals, FS, data.t_start[d2], data.t_stop[d2])
+    # the same compiled solve on the same inputs: equal up to float64 round-off at most
+    np.testing.assert_allclose(again, data.features[d2], rtol=1e-12)
+
+
+@pytest.mark.slow
+def test_door_generation_realistic_size(tmp_path, key):
+    door = ElevatorDoor()
+    optimum = {p.name: p.reference_value for p in door.parameters}
+    config = GenerationConfig([0.25, 0.3, 0.35, 0.4, 0.45, 0.5], runs_per_state=100)
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        data = generate(
+            door, GaussianScatter.around(door, optimum), config, tmp_path, key=key, progress=False
+        )
+    seconds = time.perf_counter() - start
+    print(f"\n300 door runs: {seconds:.1f} s, {seconds / 300 * 1e3:.1f} ms per run")
+    assert data.counts() == {s: {"train": 70, "validation": 30} for s in data.states}
+    assert np.all(np.isfinite(data.features))

@@ -1,7 +1,9 @@
 """``bayesdoor inspect``: validation, summary, JSON, PSD figures, refusals; the report helpers."""
 
+import doctest
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -243,3 +245,23 @@ def test_plot_state_psds_refuses_bad_arguments(tmp_path):
     with pytest.raises(ValueError, match="fewer than two bins"):
         plot_state_psds(psds, tmp_path / "x.png", fmax=2.0)
     assert not (tmp_path / "x.png").exists()
+
+
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+
+
+@pytest.mark.parametrize("page", ["features.md", "data.md"])
+def test_documentation_examples_run_and_print_what_they_show(page, tmp_path, monkeypatch):
+    """Every ```python block of the page, in order, in one namespace, as doctests."""
+    text = (DOCS / page).read_text(encoding="utf-8")
+    blocks = re.findall(r"^```python\n(.*?)^```", text, flags=re.S | re.M)
+    assert blocks, f"{page} has no python examples"
+    monkeypatch.chdir(tmp_path)  # examples that write files write them here
+    parser = doctest.DocTestParser()
+    test = parser.get_doctest("\n".join(blocks), {}, page, str(DOCS / page), 0)
+    flags = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
+    runner = doctest.DocTestRunner(optionflags=flags)
+    output: list[str] = []
+    runner.run(test, out=output.append)
+    assert runner.failures == 0, "".join(output)
+    assert runner.tries >= len(blocks)

@@ -79,18 +79,23 @@ def fit_temperature(
             f"{z.shape} and {y.shape}"
         )
     lo, hi = np.log(TEMPERATURE_BOUNDS)
+
+    def objective(log_t: float) -> float:
+        return ensemble_nll(z, y, float(np.exp(log_t)))
+
     result = scipy.optimize.minimize_scalar(
-        lambda log_t: ensemble_nll(z, y, float(np.exp(log_t))),
-        bounds=(lo, hi),
-        method="bounded",
-        options={"xatol": 1e-6},
+        objective, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6}
     )
-    if min(result.x - lo, hi - result.x) < 1e-3:
+    # Brent's bounded search never evaluates the bounds themselves and stops on a flat NLL
+    # (one that underflows to 0 as T -> 0), so compare with the bounds explicitly
+    bound = min((lo, hi), key=objective)
+    if objective(bound) <= result.fun:
         warnings.warn(
-            f"the NLL-optimal temperature lies at the bound {np.exp(result.x):.3g} of "
+            f"the NLL-optimal temperature lies at the bound {np.exp(bound):.3g} of "
             f"{TEMPERATURE_BOUNDS}: (a) the validation set may be classified perfectly with "
             f"margin (use more or harder validation data) or (b) the ensemble may be no better "
             f"than chance (check the training)",
             stacklevel=2,
         )
+        return float(np.exp(bound))
     return float(np.exp(result.x))

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Literal, NamedTuple
 
 import numpy as np
+import scipy.stats
 from jaxtyping import ArrayLike, Float, Int
 
 Binning = Literal["width", "mass"]
@@ -122,9 +123,11 @@ def reliability_bins(
         Number of bins.
     binning
         ``"width"``: bin ``floor(confidence * n_bins)`` of equal-width bins over [0, 1] (a
-        confidence of exactly 1 goes to the last bin). ``"mass"``: the samples sorted by
-        confidence (stable sort) and cut into ``n_bins`` consecutive groups whose sizes differ by
-        at most one (``numpy.array_split``); needs at least ``n_bins`` samples.
+        confidence of exactly 1 goes to the last bin). ``"mass"``: bin ``floor(r * n_bins / N)``
+        with ``r`` the rank (from 0) of the confidence among the ``N`` samples: consecutive bins
+        whose sizes differ by at most one, except that tied confidences share the lowest rank and
+        so a bin (the result does not depend on the order of the samples); needs at least
+        ``n_bins`` samples.
 
     Returns
     -------
@@ -151,9 +154,11 @@ def reliability_bins(
                 f"equal-mass binning needs at least n_bins={n_bins} samples, got {len(y)}: use "
                 f"fewer bins or binning='width'"
             )
-        groups = np.array_split(np.argsort(confidence, kind="stable"), n_bins)
-        lower = np.array([confidence[g].min() for g in groups])
-        upper = np.array([confidence[g].max() for g in groups])
+        rank = scipy.stats.rankdata(confidence, method="min") - 1
+        index = rank * n_bins // len(y)
+        groups = [np.flatnonzero(index == b) for b in range(n_bins)]
+        lower = np.array([confidence[g].min() if len(g) else np.nan for g in groups])
+        upper = np.array([confidence[g].max() if len(g) else np.nan for g in groups])
     else:
         raise ValueError(f"binning must be 'width' or 'mass', got {binning!r}")
     counts = np.array([len(g) for g in groups], dtype=np.int64)

@@ -129,9 +129,12 @@ def _epoch(params, opt_state, keys, x, y, static, learning_rate, batch_size):
     Module level and jitted once per (shapes, architecture, rate, batch size), so a second
     training with the same settings does not compile again.
     """
-    return eqx.filter_vmap(
-        lambda p, s, k: _member_epoch(p, s, k, x, y, static, learning_rate, batch_size)
-    )(params, opt_state, keys)
+    # optax's Adam bias correction raises a float to its int32 step count, which JAX's strict
+    # dtype promotion refuses; standard promotion is confined to this trace
+    with jax.numpy_dtype_promotion("standard"):
+        return eqx.filter_vmap(
+            lambda p, s, k: _member_epoch(p, s, k, x, y, static, learning_rate, batch_size)
+        )(params, opt_state, keys)
 
 
 def train_ensemble(

@@ -1,0 +1,186 @@
+"""The CNN ensemble: architecture, training, prediction, OOD flag and model files."""
+
+import json
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bayesdoor.classify import (
+    FORMAT_VERSION,
+    ConvNet,
+    Ensemble,
+    NetworkConfig,
+    TrainConfig,
+    entropy,
+    fit_classifier,
+    load_ensemble,
+    parameter_count,
+    predict,
+    read_header,
+    save_ensemble,
+    train_ensemble,
+)
+
+CLASSES = ("zero", "peak", "ripple")
+FREQ = np.linspace(0.0, 1.0, 25)
+#: per-class patterns added to a common sloped baseline: nothing, a peak, an alternating ripple
+PATTERNS = np.stack(
+    [
+        np.zeros((4, 25)),
+        0.8 * np.exp(-(((FREQ - 0.3) / 0.08) ** 2)) * np.ones((4, 1)),
+        0.5 * np.sin(6 * np.pi * FREQ)[None, :] * np.array([1, -1, 1, -1])[:, None],
+    ]
+)
+
+
+def synthetic(n, seed):
+    """A separable 3-class problem of 4 x 25 inputs (log-PSD-like levels, noise sd 0.4).
+
+    The closest pair of class patterns (none and peak) is about 2.5 apart in Euclidean norm,
+    6 noise standard deviations, so the Bayes-optimal accuracy is about 99.9 %.
+    """
+    rng = np.random.default_rng(seed)
+    y = rng.integers(0, 3, size=n)
+    x = -6.0 + 2.0 * FREQ + PATTERNS[y] + 0.4 * rng.standard_normal((n, 4, 25))
+    return x, y
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    """The paper's training settings (10 members, 80 epochs, batch 100) on 1260 + 540 inputs."""
+    x_train, y_train = synthetic(1260, 0)
+    x_val, y_val = synthetic(540, 1)
+    return fit_classifier(
+        x_train, y_train, x_val, y_val, CLASSES, key=jax.random.key(7), progress="none"
+    ).ensemble
+
+
+def test_table3_network_has_233_parameters(key):
+    # Table 3 of the paper: Conv1D 4 * 3 * 5 + 5 = 65, dense 55 * 3 + 3 = 168
+    net = ConvNet(NetworkConfig(), key=key)
+    assert parameter_count(net) == 233
+    assert net(jnp.zeros((4, 25), jnp.float32)).shape == (3,)
+
+
+def test_network_is_configurable(key):
+    # conv 2 * 5 * 8 + 8 = 88; (40 - 5 + 1) // 2 = 18 positions -> 144 features;
+    # dense 144 * 16 + 16 = 2320 and 16 * 4 + 4 = 68: 2476 in all
+    config = NetworkConfig(in_channels=2, n_bins=40, n_classes=4, filters=8, width=5, hidden=(16,))
+    net = ConvNet(config, dtype=jnp.float64, key=key)
+    assert parameter_count(net) == 2476
+    assert net(jnp.zeros((2, 40))).shape == (4,)
+    with pytest.raises(ValueError, match="leave no output"):
+        NetworkConfig(width=30)
+    with pytest.raises(ValueError, match="filters must be a positive integer"):
+        NetworkConfig(filters=0)
+
+
+def test_ensemble_learns_a_separable_problem(fitted):
+    # Bayes accuracy about 99.9 % (see `synthetic`); 0.97 fails a network that did not learn
+    # (chance is 1/3) yet leaves room for a shallow CNN being below Bayes-optimal
+    x, y = synthetic(600, 2)
+    pred = predict(fitted, jnp.asarray(x))
+    assert np.mean(np.asarray(pred.predicted) == y) >= 0.97
+    assert fitted.n_members == 10
+    assert 0.05 < float(fitted.temperature) < 20
+
+
+def test_prediction_is_consistent(fitted):
+    x, _ = synthetic(50, 3)
+    pred = predict(fitted, jnp.asarray(x))
+    assert pred.member_probabilities.shape == (10, 50, 3)
+    np.testing.assert_allclose(np.sum(pred.probabilities, axis=-1), 1.0, atol=1e-6)  # float32
+    np.testing.assert_allclose(pred.entropy, entropy(pred.probabilities), atol=1e-6)
+    np.testing.assert_allclose(
+        pred.entropy, pred.expected_entropy + pred.mutual_information, atol=1e-6
+    )
+    assert float(jnp.min(pred.mutual_information)) >= -1e-6
+    # the members were initialised and shuffled differently: they disagree a little
+    assert float(jnp.max(pred.mutual_information)) > 0
+
+
+def test_ood_flags_far_inputs_and_few_in_distribution(fitted):
+    x, _ = synthetic(400, 4)
+    in_dist = predict(fitted, jnp.asarray(x))
+    # the threshold is the 99th percentile on the validation inputs: about 1 % of fresh
+    # in-distribution inputs exceed it; 5 % is far in the binomial tail (n = 400, p = 0.01)
+    assert np.mean(np.asarray(in_dist.ood)) <= 0.05
+    louder = predict(fitted, jnp.asarray(x + 3.0))  # every bin 3 decades up
+    assert np.all(np.asarray(louder.ood))
+    # an unseen pattern (a narrow peak at another frequency) on the normal baseline
+    new_peak = x + 2.0 * np.exp(-(((FREQ - 0.75) / 0.04) ** 2))
+    assert np.all(np.asarray(predict(fitted, jnp.asarray(new_peak)).ood))
+
+
+def test_save_load_round_trip_gives_identical_predictions(fitted, tmp_path):
+    path = save_ensemble(tmp_path / "model.eqx", fitted)
+    loaded = load_ensemble(path)
+    x, _ = synthetic(64, 5)
+    a, b = predict(fitted, jnp.asarray(x)), predict(loaded, jnp.asarray(x))
+    for name in ("member_probabilities", "probabilities", "mutual_information", "ood_score"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert loaded.class_names == CLASSES and loaded.train_config == TrainConfig()
+    header = read_header(path)
+    assert header["format_version"] == FORMAT_VERSION
+    assert header["architecture"]["filters"] == 5
+    assert header["temperature"] == float(fitted.temperature)
+    with pytest.raises(FileExistsError):
+        save_ensemble(path, fitted)
+
+
+def test_wrong_format_version_is_refused(fitted, tmp_path):
+    path = save_ensemble(tmp_path / "model.eqx", fitted)
+    first, rest = path.read_bytes().split(b"\n", 1)
+    header = json.loads(first)
+    header["format_version"] = FORMAT_VERSION + 98
+    path.write_bytes(json.dumps(header).encode() + b"\n" + rest)
+    with pytest.raises(ValueError, match=f"format version {FORMAT_VERSION + 98}.*retrain"):
+        load_ensemble(path)
+    other = tmp_path / "not_a_model.eqx"
+    other.write_bytes(b"\x93NUMPY not json\n")
+    with pytest.raises(ValueError, match="not a bayesdoor ensemble file"):
+        load_ensemble(other)
+
+
+def _weights(ensemble: Ensemble) -> list[np.ndarray]:
+    return [np.asarray(v) for v in jax.tree_util.tree_leaves(eqx.filter(ensemble, eqx.is_array))]
+
+
+def test_same_seed_same_weights():
+    x, y = synthetic(230, 6)  # 230: the last batch of 50 is partial (weight-padded)
+    config = TrainConfig(members=3, epochs=3, batch_size=50)
+    a = train_ensemble(x, y, CLASSES, key=jax.random.key(1), config=config, progress="none")
+    b = train_ensemble(x, y, CLASSES, key=jax.random.key(1), config=config, progress="none")
+    c = train_ensemble(x, y, CLASSES, key=jax.random.key(2), config=config, progress="none")
+    for wa, wb in zip(_weights(a.ensemble), _weights(b.ensemble), strict=True):
+        np.testing.assert_array_equal(wa, wb)
+    np.testing.assert_array_equal(a.loss, b.loss)
+    assert a.loss.shape == (3, 3)
+    assert not np.array_equal(_weights(a.ensemble)[0], _weights(c.ensemble)[0])
+    # every member its own initialisation
+    w = _weights(a.ensemble)[0].reshape(3, -1)
+    assert len({row.tobytes() for row in w}) == 3
+
+
+@pytest.mark.parametrize("progress", ["rich", "tqdm"])
+def test_progress_bars(progress):
+    x, y = synthetic(230, 6)
+    config = TrainConfig(members=3, epochs=2, batch_size=50)
+    train_ensemble(x, y, CLASSES, key=jax.random.key(1), config=config, progress=progress)
+
+
+def test_bad_inputs_are_refused_with_the_fix(fitted):
+    x, y = synthetic(20, 7)
+    with pytest.raises(ValueError, match="add a leading axis"):
+        predict(fitted, jnp.asarray(x[0]))
+    with pytest.raises(ValueError, match="labels must be integer indices"):
+        train_ensemble(x, y + 3, CLASSES, key=jax.random.key(0), progress="none")
+    with pytest.raises(ValueError, match="progress must be"):
+        train_ensemble(x, y, CLASSES, key=jax.random.key(0), progress="bar")
+    with pytest.raises(ValueError, match="non-finite"):
+        train_ensemble(np.full_like(x, np.nan), y, CLASSES, key=jax.random.key(0))
+    with pytest.raises(ValueError, match="class names"):
+        train_ensemble(x, y, ("a", "b", "c", "d"), key=jax.random.key(0), network=NetworkConfig())

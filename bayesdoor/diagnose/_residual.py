@@ -14,6 +14,8 @@ from ._stats import benjamini_hochberg, contiguous_runs, parabolic_offset
 #: a run counts as affected by a region when its own standardised residual there exceeds this
 #: (two-sided p of about 0.003 for one pre-located bin: a descriptor, not the tested statistic)
 RUN_Z = 3.0
+#: bins on either side of a run's peak whose median residual is its local background
+PROMINENCE_HALF_WIDTH = 15
 #: bins searched on either side of a region when locating each run's peak
 SEARCH_PAD_BINS = 2
 #: the rss of the losing speed model must exceed the winner's by this factor to decide
@@ -38,17 +40,22 @@ class RunPeaks:
         Peak frequency per run, refined between bins by a parabola through the excess (dB).
     z
         The run's standardised residual at its peak bin (signed towards the feature).
+    prominence
+        ``z`` less the median ``z`` of the bins around the peak (``PROMINENCE_HALF_WIDTH``
+        on either side, the main lobe left out): large for a peak, small inside a broadband
+        excess.
     excess_db
         Measured minus predicted ``10 log10`` PSD at the peak bin.
     power
         Excess band power ``sum (10^y - 10^mu) df`` over the peak bin and its two neighbours
         on either side (the main lobe of a Hann-windowed tone), in signal units squared.
     affected
-        Whether ``z >= RUN_Z``.
+        Whether both ``z`` and ``prominence`` reach ``RUN_Z``: the run has a peak there.
     """
 
     frequency_hz: Float[np.ndarray, " run"]
     z: Float[np.ndarray, " run"]
+    prominence: Float[np.ndarray, " run"]
     excess_db: Float[np.ndarray, " run"]
     power: Float[np.ndarray, " run"]
     affected: Bool[np.ndarray, " run"]
@@ -59,10 +66,17 @@ class SpeedFit:
     """``f = c`` (fixed) against ``f = a v`` (tracking) over the affected runs' peaks.
 
     Both models are fitted by least squares in ``ln f`` (one parameter each, so their residual
-    sums compare directly). The preferred model is the one whose residual sum is at least
+    sums compare directly). Each run's peak is searched where the region's own domain puts it,
+    which favours that domain's model for a feature without a real peak (a broadband excess
+    fills any window), so a second, window-free check counts the runs that are "lit"
+    (standardised residual at least ``RUN_Z`` within one bin) at each model's predicted
+    frequencies, among the runs where the two predictions lie more than two bins apart (the
+    others cannot tell). The preferred model is the one whose residual sum is at least
     ``SPEED_DECISION_RATIO`` times smaller, provided the loser's RMS in ``ln f`` exceeds half
-    the relative bin width (otherwise the data cannot tell them apart); with fewer than three
-    affected runs or speeds spread by less than ``MIN_SPEED_SPREAD`` it is ``undetermined``.
+    the relative bin width (otherwise the data cannot tell them apart) and the loser lights
+    at most half as many runs (none, when the winner lights one or none); with fewer than
+    three affected runs or speeds spread by less
+    than ``MIN_SPEED_SPREAD`` it is ``undetermined``.
 
     Attributes
     ----------
@@ -76,6 +90,8 @@ class SpeedFit:
         Residual sums of squares in ``ln f`` (NaN when undetermined for lack of runs).
     n_runs
         Affected runs used.
+    lit_fixed, lit_tracking
+        Runs lit at ``f = c`` and at ``f = v / wavelength``, among those that can tell.
     """
 
     preferred: str
@@ -84,6 +100,8 @@ class SpeedFit:
     rss_fixed: float
     rss_tracking: float
     n_runs: int
+    lit_fixed: int
+    lit_tracking: int
 
 
 @dataclasses.dataclass(frozen=True)
@@ -383,7 +401,7 @@ def residual_map(
                             z=float(stat[i]),
                             excess_db=float(np.mean(excess_db[np.arange(y.shape[0]), c, index])),
                             runs=peaks,
-                            speed=_speed_fit(peaks, v, df),
+                            speed=_speed_fit(peaks, v, f, sign * z[:, c]),
                         )
                     )
     return ResidualMap(
@@ -408,7 +426,8 @@ def _run_peaks(f, y, mu, z, excess_db, c, domain, low, high, sign, v) -> RunPeak
     """Each run's peak of ``sign z`` within the region (mapped to its frequencies), padded."""
     n_runs = y.shape[0]
     df = f[1] - f[0]
-    out = {k: np.full(n_runs, np.nan) for k in ("frequency_hz", "z", "excess_db", "power")}
+    keys = ("frequency_hz", "z", "prominence", "excess_db", "power")
+    out = {k: np.full(n_runs, np.nan) for k in keys}
     for r in range(n_runs):
         scale = v[r] if domain == WAVENUMBER else 1.0
         inside = np.flatnonzero(
@@ -424,37 +443,65 @@ def _run_peaks(f, y, mu, z, excess_db, c, domain, low, high, sign, v) -> RunPeak
         lobe = slice(max(i - 2, 0), i + 3)
         out["frequency_hz"][r] = f[i] + shift * df
         out["z"][r] = sign * z[r, c, i]
+        around = np.r_[
+            max(i - PROMINENCE_HALF_WIDTH, 0) : max(i - 2, 0),
+            min(i + 3, f.size) : min(i + PROMINENCE_HALF_WIDTH + 1, f.size),
+        ]
+        out["prominence"][r] = sign * (z[r, c, i] - np.median(z[r, c, around]))
         out["excess_db"][r] = excess_db[r, c, i]
         out["power"][r] = float(np.sum(10.0 ** y[r, c, lobe] - 10.0 ** mu[r, c, lobe]) * df)
-    affected = np.nan_to_num(out["z"], nan=-np.inf) >= RUN_Z
+    affected = (np.nan_to_num(out["z"], nan=-np.inf) >= RUN_Z) & (
+        np.nan_to_num(out["prominence"], nan=-np.inf) >= RUN_Z
+    )
     return RunPeaks(affected=affected, **out)
 
 
-def _speed_fit(peaks: RunPeaks, v, df: float) -> SpeedFit:
+def _lit(f: np.ndarray, signed_z: np.ndarray, at: np.ndarray, runs: np.ndarray) -> int:
+    """How many of ``runs`` show ``signed_z >= RUN_Z`` within one bin of frequency ``at``."""
+    df = f[1] - f[0]
+    hits = 0
+    for r in np.flatnonzero(runs):
+        near = np.abs(f - at[r]) <= df
+        hits += bool(near.any() and np.max(signed_z[r, near]) >= RUN_Z)
+    return hits
+
+
+def _speed_fit(peaks: RunPeaks, v, f: np.ndarray, signed_z: np.ndarray) -> SpeedFit:
+    nan = float("nan")
     use = peaks.affected & np.isfinite(peaks.frequency_hz) & (peaks.frequency_hz > 0)
     n = int(use.sum())
     if n == 0:
-        return SpeedFit(UNDETERMINED, float("nan"), float("nan"), float("nan"), float("nan"), 0)
+        return SpeedFit(UNDETERMINED, nan, nan, nan, nan, 0, 0, 0)
     log_f = np.log(peaks.frequency_hz[use])
     c = float(np.exp(log_f.mean()))
     if v is None:
-        return SpeedFit(UNDETERMINED, c, float("nan"), float("nan"), float("nan"), n)
+        return SpeedFit(UNDETERMINED, c, nan, nan, nan, n, 0, 0)
     log_v = np.log(v[use])
     log_a = float(np.mean(log_f - log_v))
     wavelength = float(np.exp(-log_a))
     if n < 3 or v[use].max() / v[use].min() < MIN_SPEED_SPREAD:
-        return SpeedFit(UNDETERMINED, c, wavelength, float("nan"), float("nan"), n)
+        return SpeedFit(UNDETERMINED, c, wavelength, nan, nan, n, 0, 0)
     rss_fixed = float(np.sum((log_f - log_f.mean()) ** 2))
     rss_tracking = float(np.sum((log_f - log_v - log_a) ** 2))
-    resolvable = 0.5 * df / c
+    at_fixed, at_tracking = np.full(v.shape, c), v / wavelength
+    telling = np.abs(at_fixed - at_tracking) > 2.0 * (f[1] - f[0])
+    lit_fixed = _lit(f, signed_z, at_fixed, telling)
+    lit_tracking = _lit(f, signed_z, at_tracking, telling)
+    resolvable = 0.5 * (f[1] - f[0]) / c
     preferred = UNDETERMINED
-    if rss_tracking * SPEED_DECISION_RATIO <= rss_fixed and np.sqrt(rss_fixed / n) > resolvable:
+    if (
+        rss_tracking * SPEED_DECISION_RATIO <= rss_fixed
+        and np.sqrt(rss_fixed / n) > resolvable
+        and 2 * lit_fixed <= max(lit_tracking, 1)
+    ):
         preferred = TRACKING
     elif (
-        rss_fixed * SPEED_DECISION_RATIO <= rss_tracking and np.sqrt(rss_tracking / n) > resolvable
+        rss_fixed * SPEED_DECISION_RATIO <= rss_tracking
+        and np.sqrt(rss_tracking / n) > resolvable
+        and 2 * lit_tracking <= max(lit_fixed, 1)
     ):
         preferred = FIXED
-    return SpeedFit(preferred, c, wavelength, rss_fixed, rss_tracking, n)
+    return SpeedFit(preferred, c, wavelength, rss_fixed, rss_tracking, n, lit_fixed, lit_tracking)
 
 
 def _distinct(regions: list[Region], df: float) -> tuple[Region, ...]:

@@ -58,6 +58,8 @@ class RestLines:
 
     Attributes
     ----------
+    channels
+        Channel names.
     freqs
         Bins, Hz.
     psd, floor
@@ -75,6 +77,7 @@ class RestLines:
         The false discovery rate.
     """
 
+    channels: tuple[str, ...]
     freqs: Float[np.ndarray, " freq"]
     psd: Float[np.ndarray, "channel freq"]
     floor: Float[np.ndarray, "channel freq"]
@@ -87,6 +90,12 @@ class RestLines:
     @property
     def resolution_hz(self) -> float:
         return float(self.freqs[1] - self.freqs[0])
+
+    def at(self, channel: str, frequency_hz: float) -> tuple[float, float]:
+        """The PSD and its floor at the bin nearest ``frequency_hz`` of ``channel``."""
+        c = self.channels.index(channel)
+        i = int(np.argmin(np.abs(self.freqs - frequency_hz)))
+        return float(self.psd[c, i]), float(self.floor[c, i])
 
     def unexplained(self) -> tuple[LineAtRest, ...]:
         """The lines the simulated rest does not hold."""
@@ -246,6 +255,7 @@ def rest_lines(
             )
     lines.sort(key=lambda line: -line.z)
     return RestLines(
+        channels=tuple(channels),
         freqs=freqs[keep],
         psd=psd[:, keep],
         floor=floor_full[:, keep],

@@ -1,0 +1,338 @@
+"""Tests of the discrepancy diagnosis on synthetic records where the truth is known.
+
+The records are made with numpy, not with the door model: each run is filtered noise whose
+level follows a trapezoidal speed profile (rest, acceleration, cruise, deceleration, rest)
+plus white sensor noise; the posterior-predictive draws come from the same generator with
+their own noise and a shared random gain per channel (the posterior's uncertainty). One
+effect, its parameters drawn from the test's seed, is added to the measured runs only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.signal
+import scipy.stats
+
+from bayesdoor.diagnose import (
+    NONE,
+    benjamini_hochberg,
+    find_features,
+    log10_psd_variance,
+    rank_causes,
+    residual_map,
+    welch_dof,
+)
+from bayesdoor.systems.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE
+
+FS = 2048.0
+CHANNELS = ("A1X", "A1Z", "A2X", "A2Z")
+PAIRS = (("A1X", "A1Z"), ("A2X", "A2Z"))
+REST_S = 0.25
+STROKE = 0.8
+ACCELERATION = 0.8
+#: the base spectrum: a low-pass floor and three resonances (Hz, damping ratio)
+BASE_MODES = ((25.0, 0.03), (58.0, 0.03), (95.0, 0.03))
+#: the Z channels are this much louder than the X channels (so a Z-to-X leak shows)
+Z_GAIN = 10.0
+SENSOR_NOISE = 0.02
+POSTERIOR_GAIN_SD = 0.05
+EFFECTS = ("frame_mode", "rail_waviness", "wheel_eccentricity", "sensor_cross_axis", "mains_hum")
+
+
+def speed_profile(v_max: float, n_time: int) -> tuple[np.ndarray, float, float]:
+    """Trapezoidal speed (m/s) per sample, the start and the stop of the motion (s)."""
+    t_acc = v_max / ACCELERATION
+    t_cruise = (STROKE - v_max * t_acc) / v_max
+    t = np.arange(n_time) / FS - REST_S
+    v = np.clip(np.minimum(t, 2 * t_acc + t_cruise - t) * ACCELERATION, 0.0, v_max)
+    return v, REST_S, REST_S + 2 * t_acc + t_cruise
+
+
+def record_length(speeds: np.ndarray) -> int:
+    v = float(np.min(speeds))
+    return int(np.ceil((2 * REST_S + v / ACCELERATION + STROKE / v) * FS))
+
+
+def _resonator(f0: float, zeta: float):
+    """A second-order band-pass resonance as a digital filter (bilinear transform)."""
+    w0 = 2 * np.pi * f0
+    return scipy.signal.bilinear([w0 * w0], [1.0, 2 * zeta * w0, w0 * w0], fs=FS)
+
+
+def _base_filters():
+    lowpass = scipy.signal.butter(2, 200.0, fs=FS)
+    return [lowpass] + [_resonator(f, z) for f, z in BASE_MODES]
+
+
+def base_signals(
+    rng: np.random.Generator, speeds: np.ndarray, n_time: int, gain: np.ndarray
+) -> np.ndarray:
+    """The model's part of every run: (run, channel, time), independent between channels."""
+    out = np.empty((len(speeds), len(CHANNELS), n_time))
+    filters = _base_filters()
+    for r, v_max in enumerate(speeds):
+        v, _, _ = speed_profile(v_max, n_time)
+        envelope = v / v_max
+        for c, name in enumerate(CHANNELS):
+            e = rng.standard_normal(n_time) * envelope
+            x = sum(scipy.signal.lfilter(b, a, e) for b, a in filters)
+            scale = Z_GAIN if name.endswith("Z") else 1.0
+            out[r, c] = gain[c] * scale * x + SENSOR_NOISE * rng.standard_normal(n_time)
+    return out
+
+
+def tone(v: np.ndarray, wavelength: float, amplitude: float, phase: float) -> np.ndarray:
+    """A tone at v / wavelength whose amplitude grows with the speed (a rolling excitation)."""
+    travelled = np.cumsum(v) / FS
+    return amplitude * (v / v.max()) * np.sin(2 * np.pi * travelled / wavelength + phase)
+
+
+def make_case(effect: str, seed: int, n_runs: int = 6, n_draws: int = 6):
+    """Measured runs with ``effect`` hidden in them, predictive draws, and the truth."""
+    rng = np.random.default_rng(seed)
+    speeds = rng.uniform(0.25, 0.5, n_runs)
+    n_time = record_length(speeds)
+    gains = np.exp(POSTERIOR_GAIN_SD * rng.standard_normal((n_draws + 1, len(CHANNELS))))
+    measured = base_signals(rng, speeds, n_time, gains[0])
+    draws = np.stack([base_signals(rng, speeds, n_time, g) for g in gains[1:]])
+    profiles = [speed_profile(v, n_time) for v in speeds]
+    t_start = np.array([p[1] for p in profiles])
+    t_stop = np.array([p[2] for p in profiles])
+    rms = np.sqrt(np.mean(measured[:, :, int(0.5 * FS) : int(1.5 * FS)] ** 2, axis=(0, 2)))
+    truth: dict = {}
+    if effect == "frame_mode":
+        f0 = rng.uniform(15.0, 250.0)
+        zeta = rng.uniform(0.01, 0.03)
+        channels = rng.choice(len(CHANNELS), size=2, replace=False)
+        level = rng.uniform(0.5, 1.0)
+        b, a = _resonator(f0, zeta)
+        for r in range(n_runs):
+            envelope = profiles[r][0] / speeds[r]
+            for c in channels:
+                e = rng.standard_normal(n_time) * envelope
+                x = scipy.signal.lfilter(b, a, e)
+                measured[r, c] += level * rms[c] * x / np.sqrt(np.mean(x[x != 0] ** 2))
+        truth = {"frequency_hz": f0}
+    elif effect in ("rail_waviness", "wheel_eccentricity"):
+        if effect == "rail_waviness":
+            wheel = WHEEL_CIRCUMFERENCE / np.arange(1, 9)
+            while True:
+                lam = rng.uniform(0.015, 0.06)
+                if np.all(np.abs(wheel / lam - 1.0) > 0.08):
+                    break
+            wavelengths = [lam]
+            truth = {"wavelength_m": lam}
+        else:
+            first = int(rng.integers(3, 7))
+            harmonics = np.array([first, int(rng.integers(first + 2, 9))])
+            wavelengths = list(WHEEL_CIRCUMFERENCE / harmonics)
+            truth = {"harmonics": tuple(int(k) for k in harmonics)}
+        for lam in wavelengths:
+            level = rng.uniform(0.2, 0.5)
+            for r in range(n_runs):
+                for c in (0, 1):
+                    phase = rng.uniform(0, 2 * np.pi)
+                    measured[r, c] += tone(profiles[r][0], lam, level * rms[c], phase)
+    elif effect == "sensor_cross_axis":
+        sensor = int(rng.integers(2))
+        fraction = rng.uniform(0.05, 0.15) * rng.choice([-1.0, 1.0])
+        x, z = 2 * sensor, 2 * sensor + 1
+        measured[:, x] += fraction * measured[:, z]
+        truth = {"fraction": fraction, "receiver": CHANNELS[x], "source": CHANNELS[z]}
+    elif effect == "mains_hum":
+        f_mains = float(rng.choice([50.0, 60.0]))
+        level_db = rng.uniform(15.0, 25.0)
+        # amplitude whose Hann line stands level_db above the sensor noise at 512-sample bins
+        amplitude = SENSOR_NOISE * np.sqrt(6.0 * 10.0 ** (level_db / 10.0) / 512)
+        t = np.arange(n_time) / FS
+        measured += amplitude * np.sin(2 * np.pi * f_mains * t + rng.uniform(0, 2 * np.pi))
+        truth = {"frequency_hz": f_mains}
+    elif effect != NONE:
+        raise ValueError(f"unknown effect {effect!r}")
+    return dict(
+        measured=measured,
+        predictive=draws,
+        speeds=speeds,
+        t_start=t_start,
+        t_stop=t_stop,
+        truth=truth,
+    )
+
+
+def diagnose_case(case, band=(2.0, 400.0)):
+    features = find_features(
+        case["measured"],
+        case["predictive"],
+        FS,
+        channels=CHANNELS,
+        t_start=case["t_start"],
+        t_stop=case["t_stop"],
+        speeds=case["speeds"],
+        pairs=PAIRS,
+        band=band,
+    )
+    return rank_causes(features, DOOR_CATALOGUE)
+
+
+# ---------------------------------------------------------------------------------------------
+# statistics against independent references
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 5, 10, 40])
+def test_welch_dof_hann_half_overlap_matches_percival_walden(k):
+    # Percival and Walden (1993) eq. 292b closed form for Hann with 50 % overlap; the only
+    # difference is the discrete window's overlap sum, 1/6 up to O(1/nperseg^2)
+    assert welch_dof(k, 2048) == pytest.approx(36 * k**2 / (19 * k - 1), rel=1e-5)
+
+
+def test_welch_dof_without_overlap_is_twice_the_segments():
+    assert welch_dof(7, 256, noverlap=0) == pytest.approx(14.0, rel=1e-12)
+
+
+def test_log_variance_matches_monte_carlo_welch_of_white_noise():
+    rng = np.random.default_rng(3)
+    nperseg, k = 256, 4
+    x = rng.standard_normal((200, (k + 1) * nperseg // 2))
+    _, psd = scipy.signal.welch(x, 1.0, nperseg=nperseg)
+    sample = np.log10(psd[:, 1:-1])
+    # 200 x 127 correlated-but-many values: the sampling error of the variance is ~2 %;
+    # the chi-square approximation of overlapped segments adds a few % more: 8 %
+    assert np.var(sample) == pytest.approx(log10_psd_variance(welch_dof(k, nperseg)), rel=0.08)
+
+
+def test_benjamini_hochberg_matches_scipy():
+    rng = np.random.default_rng(4)
+    p = np.concatenate([rng.uniform(size=900), rng.uniform(0, 1e-4, size=100)])
+    rejected, threshold = benjamini_hochberg(p, 0.05)
+    expected = scipy.stats.false_discovery_control(p) <= 0.05
+    np.testing.assert_array_equal(rejected, expected)
+    assert threshold == pytest.approx(p[expected].max())
+
+
+def test_benjamini_hochberg_rejects_nothing_under_the_null_and_checks_q():
+    p = np.random.default_rng(5).uniform(size=5000)
+    rejected, threshold = benjamini_hochberg(p, 0.001)
+    assert not rejected.any() and threshold == 0.0
+    with pytest.raises(ValueError, match="q must lie in"):
+        benjamini_hochberg(p, 1.5)
+
+
+def test_residual_map_z_is_standard_normal_under_the_model():
+    # measured log PSD = predictive mean + Welch scatter, drawn exactly as the model assumes
+    rng = np.random.default_rng(6)
+    n_runs, n_ch, n_f, n_d = 8, 2, 300, 40
+    freqs = np.arange(n_f, dtype=float)
+    truth = rng.normal(-3.0, 1.0, (n_runs, n_ch, n_f))
+    welch_var = np.full(n_runs, 0.04)
+    draws = truth + rng.normal(0, 0.1, (n_d, n_runs, n_ch, n_f))
+    measured = truth + rng.normal(0, 0.1, truth.shape) + rng.normal(0, 0.2, truth.shape)
+    res = residual_map(freqs, measured, draws, welch_var, channels=("a", "b"))
+    # 8 x 2 x 298 z-values: mean within 4 standard errors of 0, sd within 5 % of 1 (40 draws
+    # estimate the predictive variance with ~11 % error per bin, averaging over bins)
+    assert abs(res.z.mean()) < 4 / np.sqrt(res.z.size)
+    assert res.z.std() == pytest.approx(1.0, rel=0.05)
+    assert res.regions == ()
+    assert not res.significant.any()
+
+
+def test_residual_map_refuses_bad_shapes():
+    freqs = np.arange(10.0)
+    y = np.zeros((2, 1, 10))
+    with pytest.raises(ValueError, match="predictive must have dims"):
+        residual_map(freqs, y, np.zeros((3, 2, 1, 9)), np.ones(2), channels=("a",))
+    with pytest.raises(ValueError, match="log_variance"):
+        residual_map(freqs, y, np.zeros((3, 2, 1, 10)), np.ones(3), channels=("a",))
+    with pytest.raises(ValueError, match="speeds"):
+        residual_map(
+            freqs, y, np.zeros((3, 2, 1, 10)), np.ones(2), channels=("a",), speeds=[1.0, -1.0]
+        )
+
+
+def test_coherence_is_scipys():
+    case = make_case("sensor_cross_axis", 0, n_runs=3, n_draws=2)
+    features = find_features(
+        case["measured"],
+        case["predictive"],
+        FS,
+        channels=CHANNELS,
+        t_start=case["t_start"],
+        t_stop=case["t_stop"],
+        pairs=PAIRS,
+    )
+    a, b = int(np.ceil(case["t_start"][1] * FS)), int(np.floor(case["t_stop"][1] * FS)) + 1
+    f, c = scipy.signal.coherence(
+        case["measured"][1, 0, a:b], case["measured"][1, 1, a:b], FS, nperseg=int(FS) // 4
+    )
+    keep = (f > 0) & (f < FS / 2)
+    np.testing.assert_allclose(features.coherence.pairs[0].measured[1], c[keep], rtol=1e-10)
+
+
+# ---------------------------------------------------------------------------------------------
+# hidden effects: named, with their key parameter
+
+#: seeds of the default suite; the slow test runs more
+SEEDS = (0, 1, 2)
+SLOW_SEEDS = tuple(range(3, 13))
+
+
+def check_named_with_parameter(effect: str, seed: int) -> None:
+    case = make_case(effect, seed)
+    ranking = diagnose_case(case)
+    truth = case["truth"]
+    assert ranking.verdict == effect, (ranking.verdict, ranking.features.summary())
+    params = ranking.cause(effect).parameters
+    if effect == "frame_mode":
+        # one bin of the 1 Hz grid: the peak of a damped mode under Welch scatter
+        assert params["frequency_hz"] == pytest.approx(truth["frequency_hz"], abs=1.0)
+    elif effect == "rail_waviness":
+        # 3 %: the peaks' refined frequencies scatter by ~0.1-0.2 Hz at 4-30 Hz
+        assert params["wavelength_m"] == pytest.approx(truth["wavelength_m"], rel=0.03)
+    elif effect == "wheel_eccentricity":
+        assert params["label"] in truth["harmonics"]
+        assert set(params["labels_found"]) <= set(truth["harmonics"])
+        expected = WHEEL_CIRCUMFERENCE / params["label"]
+        assert params["wavelength_m"] == pytest.approx(expected, rel=0.03)
+    elif effect == "sensor_cross_axis":
+        assert (params["receiver"], params["source"]) == (truth["receiver"], truth["source"])
+        # 10 %: the median transfer change over ~100 bins of six runs
+        assert params["fraction"] == pytest.approx(truth["fraction"], rel=0.10)
+    elif effect == "mains_hum":
+        assert params["frequency_hz"] == truth["frequency_hz"]
+        # the rest spectra have 4 Hz bins; a parabola through the log PSD locates a line to
+        # a quarter bin
+        assert params["line_frequency_hz"] == pytest.approx(truth["frequency_hz"], abs=1.0)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+@pytest.mark.parametrize("effect", EFFECTS)
+def test_hidden_effect_is_named_with_its_parameter(effect, seed):
+    check_named_with_parameter(effect, seed)
+
+
+@pytest.mark.parametrize("seed", (*SEEDS, 100, 101))
+def test_nothing_hidden_gives_none(seed):
+    ranking = diagnose_case(make_case(NONE, seed))
+    assert ranking.verdict == NONE, ranking.features.summary()
+    assert ranking.causes[0].name == NONE
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", SLOW_SEEDS)
+@pytest.mark.parametrize("effect", (*EFFECTS, NONE))
+def test_hidden_effect_many_seeds(effect, seed):
+    if effect == NONE:
+        assert diagnose_case(make_case(NONE, seed)).verdict == NONE
+    else:
+        check_named_with_parameter(effect, seed)
+
+
+def test_catalogue_holds_the_design_names():
+    assert DOOR_CATALOGUE.names == (
+        "frame_mode",
+        "wheel_eccentricity",
+        "rail_waviness",
+        "sensor_cross_axis",
+        "mains_hum",
+        "none",
+    )

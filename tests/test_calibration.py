@@ -218,3 +218,16 @@ def test_ledoit_wolf_shortcut_matches_the_definition():
     # many samples of a non-spherical covariance: little shrinkage
     _, small = ledoit_wolf(rng.normal(size=(20000, 6)) * np.array([1, 2, 0.5, 1, 3, 1]))
     assert small < 0.01
+
+
+def test_reliability_diagram_is_written(tmp_path):
+    from bayesdoor.report import plot_reliability
+
+    rng = np.random.default_rng(5)
+    logits, y = _overconfident_logits(3.0, rng, n=300)
+    before = scipy.special.softmax(logits, axis=-1).mean(axis=0)
+    after = scipy.special.softmax(logits / 3.0, axis=-1).mean(axis=0)
+    path = plot_reliability(after, y, tmp_path / "reliability.png", uncalibrated=before)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(ValueError, match="at least n_bins=15 samples"):
+        plot_reliability(after[:10], y[:10], tmp_path / "small.png")

@@ -14,6 +14,7 @@ from ._ensemble import predict as predict
 from ._fit import calibrate as calibrate
 from ._fit import fit_classifier as fit_classifier
 from ._fit import fit_ood as fit_ood
+from ._metrics import Binning as Binning
 from ._metrics import ReliabilityBins as ReliabilityBins
 from ._metrics import accuracy as accuracy
 from ._metrics import brier_score as brier_score

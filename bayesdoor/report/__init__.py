@@ -1,5 +1,6 @@
 """Figures and summaries at the edge of the library, shared by the command-line tools."""
 
+from ._calibration import plot_reliability as plot_reliability
 from ._psd import STATE_COLORS as STATE_COLORS
 from ._psd import RunPSDs as RunPSDs
 from ._psd import campaign_psds as campaign_psds

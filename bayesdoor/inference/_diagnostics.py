@@ -1,0 +1,256 @@
+"""Convergence gates on a posterior: R-hat, bulk and tail ESS, divergences, E-BFMI."""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import arviz as az
+import numpy as np
+import xarray as xr
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+
+class SamplingGateWarning(UserWarning):
+    """Issued when a posterior fails the convergence gates of :func:`diagnose_sampling`."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SamplingDiagnostics:
+    """Outcome of :func:`diagnose_sampling`.
+
+    Attributes
+    ----------
+    rhat_max, rhat_worst
+        Largest rank-normalised split R-hat and the variable (with index) where it occurs.
+    ess_bulk_min, ess_bulk_worst
+        Smallest bulk effective sample size and its variable.
+    ess_tail_min, ess_tail_worst
+        Smallest tail effective sample size (5 % and 95 % quantiles) and its variable.
+    divergences
+        Divergent transitions after warm-up (``None`` for samplers without them, e.g. emcee).
+    draws
+        Total draws over all chains.
+    ebfmi
+        Energy Bayesian fraction of missing information per chain (``None`` without energy).
+    passed
+        Whether every gate passed.
+    messages
+        One line per failed gate: what failed, by how much, and what to do.
+    thresholds
+        The gate thresholds used.
+    """
+
+    rhat_max: float
+    rhat_worst: str
+    ess_bulk_min: float
+    ess_bulk_worst: str
+    ess_tail_min: float
+    ess_tail_worst: str
+    divergences: int | None
+    draws: int
+    ebfmi: tuple[float, ...] | None
+    passed: bool
+    messages: tuple[str, ...]
+    thresholds: dict[str, float]
+
+    def __str__(self) -> str:
+        head = "sampling gates PASSED" if self.passed else "SAMPLING GATES FAILED"
+        lines = [
+            head,
+            f"  max R-hat      {self.rhat_max:.4f} ({self.rhat_worst})",
+            f"  min bulk ESS   {self.ess_bulk_min:.0f} ({self.ess_bulk_worst})",
+            f"  min tail ESS   {self.ess_tail_min:.0f} ({self.ess_tail_worst})",
+        ]
+        if self.divergences is not None:
+            lines.append(f"  divergences    {self.divergences} of {self.draws} draws")
+        if self.ebfmi is not None:
+            lines.append("  E-BFMI         " + ", ".join(f"{e:.2f}" for e in self.ebfmi))
+        lines += [f"  ! {m}" for m in self.messages]
+        return "\n".join(lines)
+
+
+def _extreme(ds: xr.Dataset, *, largest: bool) -> tuple[float, str]:
+    """The largest (or smallest) value over all variables and elements, and where it is."""
+    best_value, best_name = (-np.inf if largest else np.inf), ""
+    for name, da in ds.data_vars.items():
+        values = np.asarray(da.values, dtype=np.float64).reshape(-1)
+        # a NaN diagnostic (e.g. a constant chain) counts as the worst possible value
+        values = np.where(np.isnan(values), np.inf if largest else -np.inf, values)
+        i = int(np.argmax(values) if largest else np.argmin(values))
+        if (values[i] > best_value) if largest else (values[i] < best_value):
+            index = np.unravel_index(i, da.shape) if da.ndim else ()
+            label = f"{name}[{', '.join(str(j) for j in index)}]" if index else str(name)
+            best_value, best_name = float(values[i]), label
+    return best_value, best_name
+
+
+def diagnose_sampling(
+    idata: az.InferenceData,
+    *,
+    rhat_max: float = 1.01,
+    ess_bulk_min: float = 400.0,
+    ess_tail_min: float | None = None,
+    max_divergences: int = 0,
+    ebfmi_min: float = 0.3,
+    var_names: Sequence[str] | None = None,
+    warn: bool = True,
+) -> SamplingDiagnostics:
+    """Check a posterior against convergence gates and explain every failure.
+
+    Gates (Vehtari et al. 2021; Betancourt 2017): max R-hat at most ``rhat_max``, min bulk
+    ESS at least ``ess_bulk_min``, min tail ESS at least ``ess_tail_min`` (when given), at
+    most ``max_divergences`` divergent transitions, and E-BFMI at least ``ebfmi_min`` in every
+    chain. Divergences and E-BFMI are checked only when ``sample_stats`` holds ``diverging``
+    and ``energy`` (NUTS). A failed gate issues a :class:`SamplingGateWarning` (unless
+    ``warn`` is false) so that a failing run cannot pass silently.
+
+    Parameters
+    ----------
+    idata
+        A posterior with ``posterior`` and ``sample_stats`` groups.
+    rhat_max
+        Largest acceptable rank-normalised split R-hat.
+    ess_bulk_min
+        Smallest acceptable bulk effective sample size.
+    ess_tail_min
+        Smallest acceptable tail effective sample size; ``None`` reports it without gating.
+    max_divergences
+        Largest acceptable number of divergent transitions.
+    ebfmi_min
+        Smallest acceptable E-BFMI per chain.
+    var_names
+        Variables to check (default: every posterior variable).
+    warn
+        Issue a :class:`SamplingGateWarning` when a gate fails.
+
+    Returns
+    -------
+    diagnostics
+        The figures, ``passed`` and a message per failed gate.
+
+    Raises
+    ------
+    ValueError
+        If ``idata`` has no ``posterior`` group.
+
+    References
+    ----------
+    A. Vehtari, A. Gelman, D. Simpson, B. Carpenter and P.-C. Bürkner, "Rank-normalization,
+    folding, and localization: an improved R-hat for assessing convergence of MCMC",
+    Bayesian Analysis 16 (2021). M. Betancourt, "A conceptual introduction to Hamiltonian
+    Monte Carlo", arXiv:1701.02434 (2017).
+    """
+    if "posterior" not in idata.groups():
+        raise ValueError(
+            f"idata has no posterior group (groups: {list(idata.groups())}); pass the output "
+            "of sample_nuts or sample_emcee"
+        )
+    names = list(var_names) if var_names is not None else None
+    posterior = idata.posterior if names is None else idata.posterior[names]
+    rhat, rhat_at = _extreme(az.rhat(posterior), largest=True)
+    bulk, bulk_at = _extreme(az.ess(posterior, method="bulk"), largest=False)
+    tail, tail_at = _extreme(az.ess(posterior, method="tail"), largest=False)
+    chains, draws = posterior.sizes["chain"], posterior.sizes["draw"]
+
+    messages = []
+    if not rhat <= rhat_max:
+        messages.append(
+            f"R-hat {rhat:.3f} > {rhat_max} for {rhat_at}: the chains disagree; run longer "
+            "chains (more warm-up and samples), start them from a better point, or "
+            "reparameterise"
+        )
+    if not bulk >= ess_bulk_min:
+        messages.append(
+            f"bulk ESS {bulk:.0f} < {ess_bulk_min:.0f} for {bulk_at} ({chains} chains x "
+            f"{draws} draws): draw more samples or chains, or reparameterise to reduce "
+            "autocorrelation"
+        )
+    if ess_tail_min is not None and not tail >= ess_tail_min:
+        messages.append(
+            f"tail ESS {tail:.0f} < {ess_tail_min:.0f} for {tail_at}: the 5 %/95 % quantiles "
+            "are poorly resolved; draw more samples"
+        )
+
+    stats = idata.sample_stats if "sample_stats" in idata.groups() else xr.Dataset()
+    divergences = None
+    if "diverging" in stats:
+        divergences = int(np.asarray(stats["diverging"]).sum())
+        if divergences > max_divergences:
+            messages.append(
+                f"{divergences} divergent transitions ({100 * divergences / (chains * draws):.1f}"
+                f" % of draws) > {max_divergences}: the sampler cannot follow the posterior's "
+                "curvature; raise target_accept (e.g. 0.95), or reparameterise (a non-centred "
+                "form for hierarchical scales, standardised parameters)"
+            )
+    ebfmi = None
+    if "energy" in stats:
+        ebfmi = tuple(float(e) for e in az.bfmi(idata))
+        low = [(c, e) for c, e in enumerate(ebfmi) if not e >= ebfmi_min]
+        if low:
+            listed = ", ".join(f"chain {c}: {e:.2f}" for c, e in low)
+            messages.append(
+                f"E-BFMI below {ebfmi_min} ({listed}): the momentum resampling explores the "
+                "energy levels poorly, typical of heavy tails or funnels; reparameterise"
+            )
+
+    thresholds = {
+        "rhat_max": rhat_max,
+        "ess_bulk_min": ess_bulk_min,
+        "ess_tail_min": np.nan if ess_tail_min is None else ess_tail_min,
+        "max_divergences": max_divergences,
+        "ebfmi_min": ebfmi_min,
+    }
+    result = SamplingDiagnostics(
+        rhat_max=rhat,
+        rhat_worst=rhat_at,
+        ess_bulk_min=bulk,
+        ess_bulk_worst=bulk_at,
+        ess_tail_min=tail,
+        ess_tail_worst=tail_at,
+        divergences=divergences,
+        draws=chains * draws,
+        ebfmi=ebfmi,
+        passed=not messages,
+        messages=tuple(messages),
+        thresholds=thresholds,
+    )
+    if messages and warn:
+        warnings.warn(
+            "posterior FAILED the sampling gates:\n" + "\n".join(messages),
+            SamplingGateWarning,
+            stacklevel=2,
+        )
+    return result
+
+
+def summary_table(
+    idata: az.InferenceData,
+    *,
+    var_names: Sequence[str] | None = None,
+    hdi_prob: float = 0.9,
+) -> pd.DataFrame:
+    """Posterior summary per parameter (``arviz.summary``): mean, sd, HDI, MCSE, ESS, R-hat.
+
+    Parameters
+    ----------
+    idata
+        A posterior.
+    var_names
+        Variables to include (default: all posterior variables).
+    hdi_prob
+        Probability mass of the highest-density interval columns (0.9: ``hdi_5%``,
+        ``hdi_95%``).
+
+    Returns
+    -------
+    table
+        One row per scalar parameter; ``print(table.to_string())`` shows it.
+    """
+    return az.summary(
+        idata, var_names=list(var_names) if var_names is not None else None, hdi_prob=hdi_prob
+    )

@@ -1,0 +1,321 @@
+"""Posterior sampling of one numpyro model with NUTS (numpyro) or the affine-invariant ensemble
+sampler (emcee), both returning the same ArviZ layout."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Mapping
+from typing import Any, TypeVar, cast
+
+import arviz as az
+import emcee
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.flatten_util import ravel_pytree
+from numpyro.infer import MCMC, NUTS, init_to_median, init_to_value
+from numpyro.infer.util import initialize_model
+
+from ._posterior import model_sites, to_inference_data
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+_NUTS_FIELDS = (
+    "diverging",
+    "energy",
+    "num_steps",
+    "adapt_state.step_size",
+    "potential_energy",
+    "accept_prob",
+)
+
+
+def _standard_promotion(sampler: _F) -> _F:
+    """Run a sampler under JAX's standard dtype promotion.
+
+    numpyro's kernels mix integer and float arrays (e.g. the mean acceptance over a tree's
+    proposals), which the strict promotion the tests enable refuses; the setting is confined
+    to the sampler's own calls.
+    """
+
+    @functools.wraps(sampler)
+    def wrapped(*args: Any, **kwargs: Any) -> Any:
+        with jax.numpy_dtype_promotion("standard"):
+            return sampler(*args, **kwargs)
+
+    return cast(_F, wrapped)
+
+
+def _init_strategy(
+    model: Callable[..., Any], model_kwargs: Mapping[str, Any], init_values: Mapping | None
+):
+    """``init_to_value`` for the given sites (checked against the model), else the median."""
+    if init_values is None:
+        return init_to_median()
+    latent = [n for n, s in model_sites(model, model_kwargs).items() if not s["is_observed"]]
+    unknown = sorted(set(init_values) - set(latent))
+    if unknown:
+        # numpyro would silently start such sites elsewhere
+        raise ValueError(
+            f"init_values names {unknown}, which are not latent sample sites of the model; "
+            f"its latent sites are {latent}"
+        )
+    return init_to_value(values={name: jnp.asarray(v) for name, v in init_values.items()})
+
+
+def _positive(name: str, value: int, minimum: int = 1) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
+        raise ValueError(f"{name}={value!r} must be an integer >= {minimum}")
+
+
+@_standard_promotion
+def sample_nuts(
+    model: Callable[..., Any],
+    *,
+    key: jax.Array,
+    model_kwargs: Mapping[str, Any] | None = None,
+    init_values: Mapping[str, Any] | None = None,
+    num_warmup: int = 1000,
+    num_samples: int = 1000,
+    num_chains: int = 4,
+    dense_mass: bool = False,
+    target_accept: float = 0.8,
+    max_tree_depth: int = 10,
+    chain_method: str = "vectorized",
+    progress: bool = True,
+) -> az.InferenceData:
+    """Sample a numpyro model's posterior with NUTS.
+
+    Parameters
+    ----------
+    model
+        A numpyro model (priors and an observed likelihood), called as
+        ``model(**model_kwargs)``.
+    key
+        PRNG key (``jax.random.key(seed)``).
+    model_kwargs
+        Keyword arguments of the model (data, static configuration).
+    init_values
+        Constrained start values by site, e.g. a CMA-ES optimum (``init_to_value``; every
+        chain starts there and warm-up separates them). ``None``: the prior median.
+    num_warmup, num_samples
+        Warm-up (adaptation) and kept iterations per chain.
+    num_chains
+        Number of chains.
+    dense_mass
+        Adapt a dense mass matrix (for strongly correlated parameters) instead of a diagonal.
+    target_accept
+        Target acceptance probability of the step-size adaptation; raise it (e.g. 0.95) when
+        there are divergences.
+    max_tree_depth
+        Maximum tree depth (at most ``2**max_tree_depth - 1`` leapfrog steps per draw).
+    chain_method
+        ``"vectorized"`` (chains vmapped in one program) or ``"sequential"``.
+    progress
+        Show numpyro's progress bar.
+
+    Returns
+    -------
+    idata
+        ``posterior``, ``sample_stats`` (``diverging``, ``energy``, ``tree_depth``,
+        ``step_size``, ``lp``, ``n_steps``, ``acceptance_rate``), ``log_likelihood``,
+        ``observed_data`` and provenance attributes.
+
+    Raises
+    ------
+    ValueError
+        If a count, ``target_accept`` or ``chain_method`` is invalid.
+
+    References
+    ----------
+    M. D. Hoffman and A. Gelman, "The No-U-Turn Sampler", JMLR 15 (2014).
+    """
+    for name, value in (("num_samples", num_samples), ("num_chains", num_chains)):
+        _positive(name, value)
+    _positive("num_warmup", num_warmup, 0)
+    _positive("max_tree_depth", max_tree_depth)
+    if not 0.0 < target_accept < 1.0:
+        raise ValueError(f"target_accept={target_accept} must lie in (0, 1), e.g. 0.8 or 0.95")
+    if chain_method not in ("vectorized", "sequential"):
+        raise ValueError(
+            f"chain_method={chain_method!r}: use 'vectorized' or 'sequential' (one CPU device)"
+        )
+    model_kwargs = dict(model_kwargs or {})
+    kernel = NUTS(
+        model,
+        init_strategy=_init_strategy(model, model_kwargs, init_values),
+        dense_mass=dense_mass,
+        target_accept_prob=target_accept,
+        max_tree_depth=max_tree_depth,
+    )
+    mcmc = MCMC(
+        kernel,
+        num_warmup=num_warmup,
+        num_samples=num_samples,
+        num_chains=num_chains,
+        chain_method=chain_method,
+        progress_bar=progress,
+    )
+    mcmc.run(key, extra_fields=_NUTS_FIELDS, **model_kwargs)
+    fields = {k: np.asarray(v) for k, v in mcmc.get_extra_fields(group_by_chain=True).items()}
+    stats = {
+        "diverging": fields["diverging"].astype(bool),
+        "energy": fields["energy"],
+        # a full tree of depth d takes 2**d - 1 leapfrog steps
+        "tree_depth": np.floor(np.log2(np.maximum(fields["num_steps"], 1))).astype(int) + 1,
+        "n_steps": fields["num_steps"],
+        "step_size": fields["adapt_state.step_size"],
+        "lp": -fields["potential_energy"],
+        "acceptance_rate": fields["accept_prob"],
+    }
+    settings = {
+        "num_warmup": num_warmup,
+        "num_samples": num_samples,
+        "num_chains": num_chains,
+        "dense_mass": dense_mass,
+        "target_accept": target_accept,
+        "max_tree_depth": max_tree_depth,
+        "chain_method": chain_method,
+        "init_values": dict(init_values) if init_values is not None else None,
+    }
+    return to_inference_data(
+        model,
+        samples=mcmc.get_samples(group_by_chain=True),
+        sample_stats=stats,
+        model_kwargs=model_kwargs,
+        sampler="nuts",
+        settings=settings,
+        key=key,
+    )
+
+
+@_standard_promotion
+def sample_emcee(
+    model: Callable[..., Any],
+    *,
+    key: jax.Array,
+    model_kwargs: Mapping[str, Any] | None = None,
+    init_values: Mapping[str, Any] | None = None,
+    n_walkers: int = 32,
+    n_steps: int = 3000,
+    burn: int = 1000,
+    thin: int = 1,
+    init_scale: float = 1e-2,
+    progress: bool = True,
+) -> az.InferenceData:
+    """Sample a numpyro model's posterior with emcee's ensemble sampler, walkers vmapped.
+
+    The sampler runs on the model's unconstrained space: the log density is numpyro's
+    ``-potential_fn`` (priors, likelihood and the Jacobians of the transforms), jitted and
+    vmapped over walkers (emcee's ``vectorize=True``); the draws are mapped back to
+    constrained values (with deterministic sites) by numpyro's ``postprocess_fn``. A log
+    density that is NaN (a failed simulation) is treated as ``-inf``, a rejected proposal.
+
+    Parameters
+    ----------
+    model
+        A numpyro model, called as ``model(**model_kwargs)``.
+    key
+        PRNG key (``jax.random.key(seed)``); it seeds the start ball and emcee's generator.
+    model_kwargs
+        Keyword arguments of the model.
+    init_values
+        Constrained values around which the walkers start, e.g. a CMA-ES optimum;
+        ``None``: the prior median.
+    n_walkers
+        Number of walkers (at least twice the number of unconstrained dimensions); in the
+        output each walker is a ``chain``, as in ``arviz.from_emcee``.
+    n_steps
+        Ensemble steps, including the burn-in.
+    burn
+        Steps discarded at the start.
+    thin
+        Keep every ``thin``-th step after the burn-in.
+    init_scale
+        Standard deviation of the start ball in unconstrained coordinates.
+    progress
+        Show emcee's progress bar.
+
+    Returns
+    -------
+    idata
+        ``posterior`` (walkers as chains), ``sample_stats`` (``lp`` per draw and
+        ``acceptance_fraction`` per walker), ``log_likelihood``, ``observed_data`` and
+        provenance attributes.
+
+    Raises
+    ------
+    ValueError
+        If a count is invalid, there are too few walkers, or a walker of the start ball has a
+        non-finite log density (start closer to the posterior, or shrink ``init_scale``).
+
+    References
+    ----------
+    D. Foreman-Mackey, D. W. Hogg, D. Lang and J. Goodman, "emcee: The MCMC Hammer",
+    PASP 125 (2013); J. Goodman and J. Weare, "Ensemble samplers with affine invariance",
+    CAMCoS 5 (2010).
+    """
+    _positive("n_steps", n_steps)
+    _positive("burn", burn, 0)
+    _positive("thin", thin)
+    if burn >= n_steps:
+        raise ValueError(f"burn={burn} must be smaller than n_steps={n_steps}")
+    if not init_scale > 0:
+        raise ValueError(f"init_scale={init_scale} must be positive, e.g. 1e-2")
+    model_kwargs = dict(model_kwargs or {})
+    key_init, key_ball, key_numpy = jax.random.split(key, 3)
+    info = initialize_model(
+        key_init,
+        model,
+        init_strategy=_init_strategy(model, model_kwargs, init_values),
+        model_kwargs=model_kwargs,
+    )
+    z0, unravel = ravel_pytree(info.param_info.z)
+    ndim = z0.size
+    _positive("n_walkers", n_walkers, 2 * ndim)
+
+    batched = jax.jit(jax.vmap(lambda z: -info.potential_fn(unravel(z))))
+
+    def log_prob(walkers: np.ndarray) -> np.ndarray:
+        lp = np.asarray(batched(jnp.asarray(walkers, dtype=z0.dtype)), dtype=np.float64)
+        return np.where(np.isnan(lp), -np.inf, lp)
+
+    ball = np.asarray(z0 + init_scale * jax.random.normal(key_ball, (n_walkers, ndim), z0.dtype))
+    lp0 = log_prob(ball)
+    if not np.all(np.isfinite(lp0)):
+        raise ValueError(
+            f"{int(np.sum(~np.isfinite(lp0)))} of {n_walkers} walkers start with a non-finite "
+            f"log density (init_scale={init_scale}): (a) start closer to the posterior mode "
+            "(e.g. a CMA-ES optimum), (b) shrink init_scale, (c) check the model at init_values"
+        )
+    seed = int(jax.random.randint(key_numpy, (), 0, np.iinfo(np.int32).max))
+    sampler = emcee.EnsembleSampler(n_walkers, ndim, log_prob, vectorize=True)
+    start = emcee.State(ball, log_prob=lp0, random_state=np.random.RandomState(seed).get_state())
+    sampler.run_mcmc(start, n_steps, progress=progress)
+
+    chain = sampler.get_chain(discard=burn, thin=thin)  # (draw, walker, ndim)
+    draws = chain.shape[0]
+    flat = jnp.asarray(np.swapaxes(chain, 0, 1).reshape(n_walkers * draws, ndim), z0.dtype)
+    constrained = jax.vmap(lambda z: info.postprocess_fn(unravel(z)))(flat)
+    samples = {
+        name: np.asarray(v).reshape((n_walkers, draws, *v.shape[1:]))
+        for name, v in constrained.items()
+    }
+    settings = {
+        "n_walkers": n_walkers,
+        "n_steps": n_steps,
+        "burn": burn,
+        "thin": thin,
+        "init_scale": init_scale,
+        "init_values": dict(init_values) if init_values is not None else None,
+    }
+    return to_inference_data(
+        model,
+        samples=samples,
+        sample_stats={"lp": sampler.get_log_prob(discard=burn, thin=thin).T},
+        model_kwargs=model_kwargs,
+        sampler="emcee",
+        settings=settings,
+        key=key,
+        per_chain_stats={"acceptance_fraction": sampler.acceptance_fraction},
+    )

@@ -1,0 +1,342 @@
+"""NUTS and emcee on a target with known moments (and wrong targets), gates, ArviZ output, files."""
+
+import json
+import warnings
+
+import arviz as az
+import jax
+import jax.numpy as jnp
+import numpy as np
+import numpyro
+import numpyro.distributions as dist
+import pytest
+
+from bayesdoor.inference import (
+    POSTERIOR_GROUPS,
+    SamplingGateWarning,
+    configuration_hash,
+    diagnose_sampling,
+    load_posterior,
+    sample_emcee,
+    sample_nuts,
+    save_posterior,
+    summary_table,
+)
+
+# --- the target: a conjugate model whose posterior is known in closed form -------------------
+# theta ~ N(MU0, S0), y_i ~ N(theta, SY) (i = 1..10): a correlated 3-d Gaussian posterior;
+# lam ~ Gamma(A, B), c_k ~ Poisson(lam): a Gamma posterior on a positive (transformed) site.
+MU0 = np.array([0.5, -0.5, 1.0])
+S0 = np.diag([4.0, 4.0, 4.0])
+SY = np.array([[1.0, 0.8, 0.3], [0.8, 1.0, 0.5], [0.3, 0.5, 1.0]])
+A, B = 2.0, 1.0
+COUNTS = np.array([3, 4, 5, 2, 6])
+Y = np.asarray(
+    jax.random.multivariate_normal(jax.random.key(1), jnp.array([1.0, 0.0, -1.0]), SY, (10,))
+)
+
+
+def conjugate_model(y, counts):
+    theta = numpyro.sample("theta", dist.MultivariateNormal(jnp.asarray(MU0), jnp.asarray(S0)))
+    lam = numpyro.sample("lam", dist.Gamma(A, B))
+    with numpyro.plate("obs", y.shape[0]):
+        numpyro.sample("y", dist.MultivariateNormal(theta, jnp.asarray(SY)), obs=y)
+    with numpyro.plate("count", counts.shape[0]):
+        numpyro.sample("c", dist.Poisson(lam), obs=counts)
+
+
+KWARGS = {"y": jnp.asarray(Y), "counts": jnp.asarray(COUNTS)}
+
+
+def exact_posterior():
+    """Closed-form posterior moments (Gaussian-Gaussian and Gamma-Poisson conjugacy)."""
+    precision = np.linalg.inv(S0) + len(Y) * np.linalg.inv(SY)
+    cov = np.linalg.inv(precision)
+    mean = cov @ (np.linalg.solve(S0, MU0) + np.linalg.solve(SY, Y.sum(axis=0)))
+    shape, rate = A + COUNTS.sum(), B + len(COUNTS)
+    return mean, cov, shape / rate, shape / rate**2
+
+
+# --- the comparison rule -----------------------------------------------------------------------
+Z_MAX = 4.0
+
+
+def moment_errors(idata, mean, cov, lam_mean, lam_var):
+    """Standardised errors of every checked moment, as {name: |estimate - truth| / MCSE}.
+
+    Each moment is the posterior average of a function g of the draws (theta_i for the means,
+    (theta_i - mean_i)(theta_j - mean_j) for the covariances, likewise for lam), so its
+    Monte-Carlo error is approximately normal with the standard error arviz estimates from
+    g's effective sample size. The rule: every |error| < Z_MAX = 4 MCSE. With a correct sampler
+    each of the 11 moments exceeds 4 MCSE with probability 6e-5 (< 1e-3 for all of them).
+    """
+    theta = idata.posterior["theta"].values
+    lam = idata.posterior["lam"].values
+    functions = {f"mean theta[{i}]": (theta[..., i], mean[i]) for i in range(3)}
+    for i in range(3):
+        for j in range(i, 3):
+            g = (theta[..., i] - mean[i]) * (theta[..., j] - mean[j])
+            functions[f"cov theta[{i},{j}]"] = (g, cov[i, j])
+    functions["mean lam"] = (lam, lam_mean)
+    functions["var lam"] = ((lam - lam_mean) ** 2, lam_var)
+    return {
+        name: abs(g.mean() - truth) / float(az.mcse(g, method="mean"))
+        for name, (g, truth) in functions.items()
+    }
+
+
+@pytest.fixture(scope="module")
+def nuts_idata():
+    return sample_nuts(
+        conjugate_model,
+        key=jax.random.key(3),
+        model_kwargs=KWARGS,
+        num_warmup=300,
+        num_samples=500,
+        num_chains=4,
+        progress=False,
+    )
+
+
+@pytest.fixture(scope="module")
+def emcee_idata():
+    return sample_emcee(
+        conjugate_model,
+        key=jax.random.key(4),
+        model_kwargs=KWARGS,
+        init_values={"theta": MU0, "lam": 2.0},
+        n_walkers=16,
+        n_steps=3000,
+        burn=500,
+        progress=False,
+    )
+
+
+@pytest.mark.parametrize("sampler", ["nuts_idata", "emcee_idata"])
+def test_reproduces_the_known_posterior_moments(sampler, request):
+    idata = request.getfixturevalue(sampler)
+    errors = moment_errors(idata, *exact_posterior())
+    assert len(errors) == 11
+    bad = {k: round(v, 2) for k, v in errors.items() if not v < Z_MAX}
+    assert not bad, f"moments off by more than {Z_MAX} MCSE: {bad}"
+
+
+@pytest.mark.parametrize("sampler", ["nuts_idata", "emcee_idata"])
+def test_the_same_rule_rejects_wrong_targets(sampler, request):
+    """The comparison can fail: the same draws against wrong references are rejected."""
+    idata = request.getfixturevalue(sampler)
+    mean, cov, lam_mean, lam_var = exact_posterior()
+    sd = np.sqrt(np.diag(cov))
+    # (a) the mean shifted by half a posterior standard deviation along theta[0]
+    shifted = moment_errors(idata, mean + np.array([0.5 * sd[0], 0, 0]), cov, lam_mean, lam_var)
+    assert shifted["mean theta[0]"] > Z_MAX
+    # (b) the right variances with the correlations of the opposite sign
+    flipped = cov * (2 * np.eye(3) - 1)
+    anti = moment_errors(idata, mean, flipped, lam_mean, lam_var)
+    assert all(anti[f"cov theta[{i},{j}]"] > Z_MAX for i, j in [(0, 1), (0, 2), (1, 2)])
+    # (c) the Gamma posterior of a model that forgot one count (rate B + 4)
+    shape = A + COUNTS.sum()
+    assert (
+        moment_errors(idata, mean, cov, shape / (B + 4), shape / (B + 4) ** 2)["mean lam"] > Z_MAX
+    )
+
+
+def test_nuts_output_layout_and_provenance(nuts_idata):
+    for group in POSTERIOR_GROUPS:
+        assert group in nuts_idata.groups()
+    post = nuts_idata.posterior
+    assert post["theta"].shape == (4, 500, 3) and post["lam"].shape == (4, 500)
+    assert np.all(post["lam"].values > 0)
+    stats = nuts_idata.sample_stats
+    for name in ("diverging", "energy", "tree_depth", "step_size", "lp"):
+        assert stats[name].shape == (4, 500), name
+    assert stats["diverging"].dtype == bool
+    assert np.all(stats["tree_depth"] >= 1) and np.all(stats["tree_depth"] <= 10)
+    assert nuts_idata.log_likelihood["y"].shape == (4, 500, 10)
+    assert nuts_idata.log_likelihood["c"].shape == (4, 500, 5)
+    np.testing.assert_array_equal(nuts_idata.observed_data["y"].values, Y)
+    attrs = nuts_idata.posterior.attrs
+    assert attrs["sampler"] == "nuts"
+    assert json.loads(attrs["library_versions"])["numpyro"] == numpyro.__version__
+    assert json.loads(attrs["settings"])["num_samples"] == 500
+    assert len(attrs["configuration_hash"]) == 64
+    assert json.loads(attrs["seed"]) == np.asarray(jax.random.key_data(jax.random.key(3))).tolist()
+
+
+def test_pointwise_log_likelihood_matches_scipy_and_psis_loo_runs(nuts_idata):
+    from scipy.stats import multivariate_normal
+
+    theta = nuts_idata.posterior["theta"].values[1, 7]
+    expected = multivariate_normal(theta, SY).logpdf(Y)
+    np.testing.assert_allclose(nuts_idata.log_likelihood["y"].values[1, 7], expected, rtol=1e-10)
+    loo = az.loo(nuts_idata, var_name="y")
+    assert np.isfinite(loo.elpd_loo)
+    assert np.all(loo.pareto_k.values < 0.7)
+
+
+def test_emcee_output_layout(emcee_idata):
+    for group in POSTERIOR_GROUPS:
+        assert group in emcee_idata.groups()
+    assert emcee_idata.posterior["theta"].shape == (16, 2500, 3)
+    stats = emcee_idata.sample_stats
+    assert stats["lp"].shape == (16, 2500)
+    # the stretch move's acceptance on a 4-d Gaussian-like target is typically 0.4 to 0.7
+    assert stats["acceptance_fraction"].shape == (16,)
+    assert np.all((stats["acceptance_fraction"] > 0.2) & (stats["acceptance_fraction"] < 0.9))
+    assert emcee_idata.posterior.attrs["sampler"] == "emcee"
+    assert emcee_idata.log_likelihood["c"].shape == (16, 2500, 5)
+
+
+@pytest.mark.filterwarnings("ignore:More chains")
+def test_emcee_starts_in_a_small_ball_around_init_values():
+    init = {"theta": np.array([5.0, -5.0, 5.0]), "lam": 10.0}
+    idata = sample_emcee(
+        conjugate_model,
+        key=jax.random.key(0),
+        model_kwargs=KWARGS,
+        init_values=init,
+        n_walkers=10,
+        n_steps=1,
+        burn=0,
+        init_scale=1e-3,
+        progress=False,
+    )
+    # one stretch move from a ball of radius ~1e-3 in unconstrained space (log lam for lam)
+    theta = idata.posterior["theta"].values[:, 0]
+    np.testing.assert_allclose(theta, np.broadcast_to(init["theta"], theta.shape), atol=0.02)
+    np.testing.assert_allclose(idata.posterior["lam"].values[:, 0], 10.0, rtol=0.02)
+
+
+def test_emcee_same_key_same_draws_other_key_differs():
+    kw = dict(model_kwargs=KWARGS, n_walkers=10, n_steps=40, burn=10, progress=False)
+    a = sample_emcee(conjugate_model, key=jax.random.key(5), **kw).posterior["theta"].values
+    b = sample_emcee(conjugate_model, key=jax.random.key(5), **kw).posterior["theta"].values
+    c = sample_emcee(conjugate_model, key=jax.random.key(6), **kw).posterior["theta"].values
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_unknown_init_site_is_named():
+    with pytest.raises(ValueError, match=r"\['thetta'\]"):
+        sample_emcee(
+            conjugate_model, key=jax.random.key(0), model_kwargs=KWARGS, init_values={"thetta": 0}
+        )
+
+
+def test_too_few_walkers_is_named():
+    with pytest.raises(ValueError, match="n_walkers=4"):
+        sample_emcee(conjugate_model, key=jax.random.key(0), model_kwargs=KWARGS, n_walkers=4)
+
+
+# --- gates -------------------------------------------------------------------------------------
+
+
+def test_good_run_passes_the_gates(nuts_idata):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SamplingGateWarning)
+        diag = diagnose_sampling(nuts_idata)
+    assert diag.passed and not diag.messages
+    assert diag.rhat_max <= 1.01 and diag.ess_bulk_min >= 400
+    assert diag.divergences == 0 and len(diag.ebfmi) == 4
+    assert "PASSED" in str(diag)
+
+
+def test_thirty_draws_fail_the_ess_gate_loudly(nuts_idata):
+    short = nuts_idata.isel(draw=slice(0, 30))
+    with pytest.warns(SamplingGateWarning, match="bulk ESS"):
+        diag = diagnose_sampling(short)
+    assert not diag.passed
+    assert diag.ess_bulk_min < 400
+    assert any("draw more samples" in m for m in diag.messages)
+    assert "SAMPLING GATES FAILED" in str(diag)
+
+
+def test_rhat_gate_names_the_variable(nuts_idata):
+    # chains 0-1 of theta[2] moved by two posterior sds: the chains no longer agree
+    bad = nuts_idata.copy()
+    theta = bad.posterior["theta"].values.copy()
+    theta[:2, :, 2] += 2 * theta[..., 2].std()
+    bad.posterior["theta"] = (("chain", "draw", "theta_dim_0"), theta)
+    diag = diagnose_sampling(bad, warn=False)
+    assert diag.rhat_max > 1.1 and diag.rhat_worst == "theta[2]"
+    assert any(m.startswith("R-hat") and "theta[2]" in m for m in diag.messages)
+
+
+def centred_funnel():
+    v = numpyro.sample("v", dist.Normal(0.0, 3.0))
+    numpyro.sample("x", dist.Normal(jnp.zeros(4), jnp.exp(v / 2)))
+
+
+def test_neals_funnel_in_centred_form_fails_with_divergences():
+    idata = sample_nuts(
+        centred_funnel,
+        key=jax.random.key(0),
+        num_warmup=200,
+        num_samples=200,
+        num_chains=2,
+        progress=False,
+    )
+    with pytest.warns(SamplingGateWarning, match="divergent"):
+        diag = diagnose_sampling(idata)
+    assert not diag.passed
+    assert diag.divergences > 0
+    assert any("raise target_accept" in m for m in diag.messages)
+    assert diagnose_sampling(idata, warn=False).divergences == diag.divergences
+
+
+def test_emcee_diagnostics_skip_hmc_checks(emcee_idata):
+    diag = diagnose_sampling(emcee_idata, warn=False)
+    assert diag.divergences is None and diag.ebfmi is None
+    assert np.isfinite(diag.rhat_max) and diag.ess_bulk_min > 0
+
+
+def test_summary_table(nuts_idata):
+    table = summary_table(nuts_idata)
+    assert list(table.index) == ["lam", "theta[0]", "theta[1]", "theta[2]"]
+    assert {"mean", "sd", "hdi_5%", "hdi_95%", "ess_bulk", "ess_tail", "r_hat"} <= set(table)
+    # arviz rounds to 3 decimals
+    assert table.loc["lam", "mean"] == pytest.approx(
+        float(nuts_idata.posterior["lam"].mean()), abs=5e-4
+    )
+
+
+# --- files -------------------------------------------------------------------------------------
+
+
+def test_save_load_round_trip_and_no_silent_overwrite(nuts_idata, tmp_path):
+    path = save_posterior(nuts_idata, tmp_path / "post" / "posterior.nc")
+    loaded = load_posterior(path)
+    for group in POSTERIOR_GROUPS:
+        assert group in loaded.groups()
+    np.testing.assert_array_equal(loaded.posterior["theta"].values, nuts_idata.posterior["theta"])
+    assert (
+        loaded.posterior.attrs["configuration_hash"]
+        == (nuts_idata.posterior.attrs["configuration_hash"])
+    )
+    before = path.read_bytes()
+    with pytest.raises(FileExistsError, match="overwrite=True"):
+        save_posterior(nuts_idata.isel(draw=slice(0, 10)), path)
+    assert path.read_bytes() == before
+    save_posterior(nuts_idata.isel(draw=slice(0, 10)), path, overwrite=True)
+    assert load_posterior(path).posterior.sizes["draw"] == 10
+    assert [p.name for p in path.parent.iterdir()] == ["posterior.nc"]
+
+
+def test_load_rejects_a_file_without_the_groups(nuts_idata, tmp_path):
+    partial = az.InferenceData(posterior=nuts_idata.posterior)
+    partial.to_netcdf(str(tmp_path / "partial.nc"))
+    with pytest.raises(ValueError, match="sample_stats"):
+        load_posterior(tmp_path / "partial.nc")
+    with pytest.raises(ValueError, match="lacks the group"):
+        save_posterior(partial, tmp_path / "other.nc")
+    with pytest.raises(FileNotFoundError):
+        load_posterior(tmp_path / "missing.nc")
+
+
+def test_configuration_hash_tracks_data_and_settings():
+    h = configuration_hash(conjugate_model, "nuts", {"num_samples": 10}, KWARGS)
+    assert h == configuration_hash(conjugate_model, "nuts", {"num_samples": 10}, dict(KWARGS))
+    other_data = {**KWARGS, "counts": KWARGS["counts"] + 1}
+    assert h != configuration_hash(conjugate_model, "nuts", {"num_samples": 10}, other_data)
+    assert h != configuration_hash(conjugate_model, "nuts", {"num_samples": 11}, KWARGS)
+    assert h != configuration_hash(conjugate_model, "emcee", {"num_samples": 10}, KWARGS)

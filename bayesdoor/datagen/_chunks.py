@@ -88,7 +88,7 @@ def check_draws(job: Job, parameters: dict[str, np.ndarray]) -> None:
             bad |= v != np.round(v)
         if bad.any():
             raise ValueError(
-                f"the parameter source drew {spec.name}={v[bad][0]!r} ({int(bad.sum())} of "
+                f"the parameter source drew {spec.name}={float(v[bad][0])!r} ({int(bad.sum())} of "
                 f"{v.size} draws) outside [{spec.lower}, {spec.upper}]"
                 f"{' or not an integer' if spec.integer else ''}: (a) the posterior samples lie "
                 "outside the system's bounds (a different parameterisation?), (b) a fixed value "

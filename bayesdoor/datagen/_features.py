@@ -26,8 +26,8 @@ def _windowed_input(signals, t_start, t_stop, fs: float, spec: CNNInputSpec, t0:
 def featurize(
     signals: Float[Array, "*batch channel time"],
     fs: float,
-    t_start: float | Float[Array, "*batch"],
-    t_stop: float | Float[Array, "*batch"],
+    t_start: float | Float[Array, "*batch"] | Float[np.ndarray, "*batch"],
+    t_stop: float | Float[Array, "*batch"] | Float[np.ndarray, "*batch"],
     *,
     spec: CNNInputSpec | None = None,
     t0: float = 0.0,

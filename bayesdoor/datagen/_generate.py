@@ -15,7 +15,7 @@ import hashlib
 import json
 import time
 import warnings
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Generator, Iterator, Mapping
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -156,8 +156,13 @@ def _chunk_path(out: Path, index: int) -> Path:
 
 def _save_chunk(out: Path, index: int, arrays: Mapping[str, np.ndarray], config_hash: str):
     def write(tmp: Path) -> None:
+        payload: dict[str, Any] = {
+            "index": np.asarray(index),
+            "config_hash": np.asarray(config_hash),
+            **arrays,
+        }
         with open(tmp, "wb") as f:
-            np.savez(f, index=np.asarray(index), config_hash=np.asarray(config_hash), **arrays)
+            np.savez(f, **payload)
 
     atomic_write(_chunk_path(out, index), write, overwrite=False)
 
@@ -219,14 +224,15 @@ def _progress(enabled: bool, total: int, done: int) -> Iterator[Callable[[], Non
         yield lambda: bar.advance(task)
 
 
-def _map_local(job: Job, pending: list[int]) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+_Chunks = Generator[tuple[int, dict[str, np.ndarray]], None, None]
+
+
+def _map_local(job: Job, pending: list[int]) -> _Chunks:
     for index in pending:
         yield run_chunk(job, index)
 
 
-def _map_dask(
-    job: Job, pending: list[int], scheduler: str, n_workers: int
-) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+def _map_dask(job: Job, pending: list[int], scheduler: str, n_workers: int) -> _Chunks:
     from distributed import Client, LocalCluster, as_completed
 
     with contextlib.ExitStack() as stack:

@@ -27,11 +27,13 @@ from bayesdoor.datagen import (
     GenerationConfig,
     ModelErrorDraws,
     PosteriorDraws,
+    campaign_features,
     featurize,
     generate,
     load_training_data,
     measured_features,
 )
+from bayesdoor.io import make_campaign
 from bayesdoor.systems import AbstractSystem, DamageSpec, ElevatorDoor, ParameterSpec
 
 FS = 2048.0
@@ -270,6 +272,19 @@ def test_measured_features_use_given_or_detected_window():
     half = measured_features(t, signals, FS, t_start=np.array([np.nan, 0.25]), rest_duration=0.08)
     np.testing.assert_array_equal(half[0], given[0])
     assert not np.array_equal(half[1], given[1])
+    campaign = make_campaign(
+        signals,
+        channels=TOY.channels,
+        fs=FS,
+        state=["D1", "D1"],
+        v_max=speeds,
+        t_start=[np.nan, 0.25],
+        t_stop=stop,
+        system="toy",
+    )
+    np.testing.assert_array_equal(campaign_features(campaign, rest_duration=0.08), half)
+    with pytest.raises(ValueError, match="sampling_rate_hz"):
+        campaign_features(campaign.drop_attrs())
 
 
 # ------------------------------------------------------------------------------- generation

@@ -1,6 +1,7 @@
 """Simulated training data for the classifier: parameter sources, features, chunked generation."""
 
 from ._config import GenerationConfig as GenerationConfig
+from ._features import campaign_features as campaign_features
 from ._features import featurize as featurize
 from ._features import measured_features as measured_features
 from ._features import measured_windows as measured_windows

@@ -126,3 +126,39 @@ def measured_features(
     starts, stops = measured_windows(time, signals, t_start, t_stop, **detect)
     t = np.asarray(time, dtype=float)
     return featurize(signals, fs, starts, stops, spec=spec, t0=float(t[0]))
+
+
+def campaign_features(
+    campaign, *, spec: CNNInputSpec | None = None, **detect
+) -> Float[np.ndarray, "run channel freq"]:
+    """:func:`measured_features` of every run of a campaign dataset (DESIGN.md section 5).
+
+    Uses the ``acceleration`` variable, the ``time`` coordinate, the ``sampling_rate_hz``
+    attribute and, where present, the per-run ``t_start`` / ``t_stop`` coordinates (NaN for
+    a run means "detect its window").
+
+    Raises
+    ------
+    ValueError
+        For a dataset without ``acceleration`` (run, channel, time) or ``sampling_rate_hz``.
+    """
+    if "acceleration" not in campaign or "sampling_rate_hz" not in campaign.attrs:
+        raise ValueError(
+            "campaign must hold an 'acceleration' variable and a 'sampling_rate_hz' attribute "
+            "(load it with bayesdoor.io.load_campaign)"
+        )
+    acc = campaign["acceleration"].transpose("run", "channel", "time")
+    windows = [
+        np.asarray(campaign[name].values, dtype=float) if name in campaign.coords else None
+        for name in ("t_start", "t_stop")
+    ]
+    return np.asarray(
+        measured_features(
+            np.asarray(campaign["time"].values, dtype=float),
+            np.asarray(acc.values, dtype=float),
+            float(campaign.attrs["sampling_rate_hz"]),
+            *windows,
+            spec=spec,
+            **detect,
+        )
+    )

@@ -451,6 +451,26 @@ def test_dask_local_cluster_equals_local(tmp_path, key, monkeypatch):
     assert dask.features.dtype == np.float64
 
 
+@pytest.mark.slow
+def test_dask_scheduler_address_equals_local(tmp_path, key, monkeypatch):
+    from distributed import LocalCluster
+
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", jax.config.jax_compilation_cache_dir)
+    local = generate(TOY, toy_source(), toy_config(), tmp_path / "l", key=key, progress=False)
+    with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster:
+        remote = generate(
+            TOY,
+            toy_source(),
+            toy_config(),
+            tmp_path / "d",
+            key=key,
+            scheduler=cluster.scheduler_address,
+            progress=False,
+        )
+    assert cluster.scheduler_address.startswith("tcp://")
+    assert_same_data(remote, local)
+
+
 # --------------------------------------------------------------------------------- the door
 
 

@@ -24,7 +24,7 @@ def _windowed_input(signals, t_start, t_stop, fs: float, spec: CNNInputSpec, t0:
 
 
 def featurize(
-    signals: Float[Array, "*batch channel time"],
+    signals: Float[Array, "*batch channel time"] | Float[np.ndarray, "*batch channel time"],
     fs: float,
     t_start: float | Float[Array, "*batch"] | Float[np.ndarray, "*batch"],
     t_stop: float | Float[Array, "*batch"] | Float[np.ndarray, "*batch"],
@@ -77,10 +77,10 @@ def featurize(
 
 
 def measured_windows(
-    time: Float[Array, " time"],
-    signals: Float[Array, "run channel time"],
-    t_start: Float[Array, " run"] | None = None,
-    t_stop: Float[Array, " run"] | None = None,
+    time: Float[Array, " time"] | Float[np.ndarray, " time"],
+    signals: Float[Array, "run channel time"] | Float[np.ndarray, "run channel time"],
+    t_start: Float[Array, " run"] | Float[np.ndarray, " run"] | None = None,
+    t_stop: Float[Array, " run"] | Float[np.ndarray, " run"] | None = None,
     **detect,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Motion windows of measured runs: the given ``t_start`` / ``t_stop``, else detected.
@@ -108,11 +108,11 @@ def measured_windows(
 
 
 def measured_features(
-    time: Float[Array, " time"],
-    signals: Float[Array, "run channel time"],
+    time: Float[Array, " time"] | Float[np.ndarray, " time"],
+    signals: Float[Array, "run channel time"] | Float[np.ndarray, "run channel time"],
     fs: float,
-    t_start: Float[Array, " run"] | None = None,
-    t_stop: Float[Array, " run"] | None = None,
+    t_start: Float[Array, " run"] | Float[np.ndarray, " run"] | None = None,
+    t_stop: Float[Array, " run"] | Float[np.ndarray, " run"] | None = None,
     *,
     spec: CNNInputSpec | None = None,
     **detect,

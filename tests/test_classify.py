@@ -65,6 +65,20 @@ def test_table3_network_has_233_parameters(key):
     assert net(jnp.zeros((4, 25), jnp.float32)).shape == (3,)
 
 
+@pytest.mark.parametrize(
+    "config", [NetworkConfig(), NetworkConfig(n_bins=26, width=4, pool=3, hidden=(7, 5))]
+)
+def test_network_matches_equinox_layers(config, key):
+    # the reference: XLA's convolution and reduce-window through equinox's own layers; float64
+    # so that only the order of the sums differs (1e-12 relative)
+    net = ConvNet(config, dtype=jnp.float64, key=key)
+    x = jax.random.normal(jax.random.key(3), config.input_shape)
+    h = eqx.nn.MaxPool1d(config.pool, stride=config.pool)(jax.nn.elu(net.conv(x))).reshape(-1)
+    for layer in net.dense[:-1]:
+        h = jax.nn.elu(layer(h))
+    np.testing.assert_allclose(net(x), net.dense[-1](h), rtol=1e-12, atol=1e-12)
+
+
 def test_network_is_configurable(key):
     # conv 2 * 5 * 8 + 8 = 88; (40 - 5 + 1) // 2 = 18 positions -> 144 features;
     # dense 144 * 16 + 16 = 2320 and 16 * 4 + 4 = 68: 2476 in all

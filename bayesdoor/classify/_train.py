@@ -112,12 +112,17 @@ def _member_epoch(params, opt_state, key, x, y, static, learning_rate, batch_siz
 
     def step(carry, batch):
         params, opt_state = carry
-        idx, w = batch
-        loss, grads = eqx.filter_value_and_grad(_loss)(params, static, x[idx], y[idx], w)
+        xb, yb, w = batch
+        loss, grads = eqx.filter_value_and_grad(_loss)(params, static, xb, yb, w)
         updates, opt_state = optimiser.update(grads, opt_state, params)
         return (eqx.apply_updates(params, updates), opt_state), loss * jnp.sum(w)
 
-    batches = (order.reshape(n_batches, batch_size), weight.reshape(n_batches, batch_size))
+    # one gather per epoch rather than one per step
+    batches = (
+        x[order].reshape(n_batches, batch_size, *x.shape[1:]),
+        y[order].reshape(n_batches, batch_size),
+        weight.reshape(n_batches, batch_size),
+    )
     (params, opt_state), losses = jax.lax.scan(step, (params, opt_state), batches)
     return params, opt_state, jnp.sum(losses) / n
 

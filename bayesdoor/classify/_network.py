@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, cast
 
 import equinox as eqx
 import jax
@@ -129,7 +129,8 @@ class ConvNet(eqx.Module):
         c = self.config
         length = c.n_bins - c.width + 1
         windows = x[:, np.arange(length)[:, None] + np.arange(c.width)[None, :]]
-        h = jnp.einsum("clw,fcw->fl", windows, self.conv.weight) + self.conv.bias
+        bias = cast(Array, self.conv.bias)  # always built with use_bias=True
+        h = jnp.einsum("clw,fcw->fl", windows, self.conv.weight) + bias
         h = jax.nn.elu(h[:, : c.pooled_length * c.pool])
         h = jnp.max(h.reshape(c.filters, c.pooled_length, c.pool), axis=-1).reshape(-1)
         for layer in self.dense[:-1]:

@@ -284,10 +284,18 @@ def test_neals_funnel_in_centred_form_fails_with_divergences():
     assert diagnose_sampling(idata, warn=False).divergences == diag.divergences
 
 
-def test_emcee_diagnostics_skip_hmc_checks(emcee_idata):
-    diag = diagnose_sampling(emcee_idata, warn=False)
+def test_emcee_diagnostics_skip_hmc_checks_and_report_autocorrelation(emcee_idata):
+    diag = diagnose_sampling(emcee_idata, warn=False, min_autocorr_lengths=1)
     assert diag.divergences is None and diag.ebfmi is None
-    assert np.isfinite(diag.rhat_max) and diag.ess_bulk_min > 0
+    assert not any("autocorrelation" in m for m in diag.messages)
+    tau = json.loads(emcee_idata.sample_stats.attrs["autocorr_time"])
+    assert len(tau) == 4
+    assert diag.autocorr_lengths == pytest.approx(2500 / max(tau))
+    # two independent estimators of the same thing: arviz's bulk ESS over walkers and
+    # walkers x kept steps / emcee's tau; both are noisy estimates, so agree within 2x
+    assert 0.5 < diag.ess_bulk_min / (16 * 2500 / max(tau)) < 2.0
+    strict = diagnose_sampling(emcee_idata, warn=False, min_autocorr_lengths=1000)
+    assert any("autocorrelation times" in m and "after burn-in" in m for m in strict.messages)
 
 
 def test_summary_table(nuts_idata):

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -365,35 +366,22 @@ def minimize_cmaes(
     )
 
 
-class _progress_bar:
+@contextlib.contextmanager
+def _progress_bar(enabled: bool, total: int) -> Iterator[Callable[[int, float, int], None]]:
     """A rich progress bar over the evaluation budget, or a no-op when switched off."""
+    if not enabled:
+        yield lambda n, f, run: None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
-    def __init__(self, enabled: bool, total: int):
-        self._enabled = enabled
-        self._total = total
-
-    def __enter__(self) -> Callable[[int, float, int], None]:
-        if not self._enabled:
-            return lambda n, f, run: None
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
-
-        self._bar = Progress(
-            "[progress.description]{task.description}",
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-        )
-        self._bar.__enter__()
-        task = self._bar.add_task("CMA-ES", total=self._total)
+    columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn())
+    with Progress(*columns, TimeElapsedColumn()) as bar:
+        task = bar.add_task("CMA-ES", total=total)
 
         def advance(n: int, f: float, run: int) -> None:
-            self._bar.update(task, advance=n, description=f"CMA-ES run {run} best f {f:.4g}")
+            bar.update(task, advance=n, description=f"CMA-ES run {run} best f {f:.4g}")
 
-        return advance
-
-    def __exit__(self, *exc: object) -> None:
-        if self._enabled:
-            self._bar.__exit__(*exc)
+        yield advance
 
 
 def plot_cmaes_history(result: CMAESResult, path: str | Path, *, title: str = "CMA-ES") -> Path:

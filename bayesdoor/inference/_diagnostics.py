@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import warnings
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
@@ -37,6 +38,9 @@ class SamplingDiagnostics:
         Total draws over all chains.
     ebfmi
         Energy Bayesian fraction of missing information per chain (``None`` without energy).
+    autocorr_lengths
+        emcee only: kept steps divided by the largest integrated autocorrelation time
+        (``None`` for other samplers).
     passed
         Whether every gate passed.
     messages
@@ -54,6 +58,7 @@ class SamplingDiagnostics:
     divergences: int | None
     draws: int
     ebfmi: tuple[float, ...] | None
+    autocorr_lengths: float | None
     passed: bool
     messages: tuple[str, ...]
     thresholds: dict[str, float]
@@ -70,6 +75,8 @@ class SamplingDiagnostics:
             lines.append(f"  divergences    {self.divergences} of {self.draws} draws")
         if self.ebfmi is not None:
             lines.append("  E-BFMI         " + ", ".join(f"{e:.2f}" for e in self.ebfmi))
+        if self.autocorr_lengths is not None:
+            lines.append(f"  run length     {self.autocorr_lengths:.1f} autocorrelation times")
         lines += [f"  ! {m}" for m in self.messages]
         return "\n".join(lines)
 
@@ -97,6 +104,7 @@ def diagnose_sampling(
     ess_tail_min: float | None = None,
     max_divergences: int = 0,
     ebfmi_min: float = 0.3,
+    min_autocorr_lengths: float = 50.0,
     var_names: Sequence[str] | None = None,
     warn: bool = True,
 ) -> SamplingDiagnostics:
@@ -104,10 +112,12 @@ def diagnose_sampling(
 
     Gates (Vehtari et al. 2021; Betancourt 2017): max R-hat at most ``rhat_max``, min bulk
     ESS at least ``ess_bulk_min``, min tail ESS at least ``ess_tail_min`` (when given), at
-    most ``max_divergences`` divergent transitions, and E-BFMI at least ``ebfmi_min`` in every
-    chain. Divergences and E-BFMI are checked only when ``sample_stats`` holds ``diverging``
-    and ``energy`` (NUTS). A failed gate issues a :class:`SamplingGateWarning` (unless
-    ``warn`` is false) so that a failing run cannot pass silently.
+    most ``max_divergences`` divergent transitions, E-BFMI at least ``ebfmi_min`` in every
+    chain, and (emcee) at least ``min_autocorr_lengths`` integrated autocorrelation times
+    kept. Divergences and E-BFMI are checked only when ``sample_stats`` holds ``diverging``
+    and ``energy`` (NUTS), the run length only when its attributes hold emcee's
+    ``autocorr_time``. A failed gate issues a :class:`SamplingGateWarning` (unless ``warn`` is
+    false) so that a failing run cannot pass silently.
 
     Parameters
     ----------
@@ -123,6 +133,9 @@ def diagnose_sampling(
         Largest acceptable number of divergent transitions.
     ebfmi_min
         Smallest acceptable E-BFMI per chain.
+    min_autocorr_lengths
+        Smallest acceptable emcee run length after burn-in, in autocorrelation times (emcee's
+        documentation recommends 50).
     var_names
         Variables to check (default: every posterior variable).
     warn
@@ -151,7 +164,7 @@ def diagnose_sampling(
             "of sample_nuts or sample_emcee"
         )
     names = list(var_names) if var_names is not None else None
-    posterior = idata.posterior if names is None else idata.posterior[names]
+    posterior = idata["posterior"] if names is None else idata["posterior"][names]
     rhat, rhat_at = _extreme(az.rhat(posterior), largest=True)
     bulk, bulk_at = _extreme(az.ess(posterior, method="bulk"), largest=False)
     tail, tail_at = _extreme(az.ess(posterior, method="tail"), largest=False)
@@ -176,7 +189,7 @@ def diagnose_sampling(
             "are poorly resolved; draw more samples"
         )
 
-    stats = idata.sample_stats if "sample_stats" in idata.groups() else xr.Dataset()
+    stats = idata["sample_stats"] if "sample_stats" in idata.groups() else xr.Dataset()
     divergences = None
     if "diverging" in stats:
         divergences = int(np.asarray(stats["diverging"]).sum())
@@ -198,12 +211,30 @@ def diagnose_sampling(
                 "energy levels poorly, typical of heavy tails or funnels; reparameterise"
             )
 
+    autocorr_lengths = None
+    if "autocorr_time" in stats.attrs:
+        tau = float(np.max(json.loads(stats.attrs["autocorr_time"])))
+        kept = int(stats.attrs["kept_steps"])
+        autocorr_lengths = kept / tau
+        if not np.isfinite(tau):
+            messages.append(
+                f"emcee's autocorrelation time could not be estimated from {kept} kept steps: "
+                f"run at least {min_autocorr_lengths:.0f} times longer than it is likely to be"
+            )
+        elif not autocorr_lengths >= min_autocorr_lengths:
+            messages.append(
+                f"emcee kept {kept} steps = {autocorr_lengths:.1f} autocorrelation times "
+                f"(largest tau {tau:.0f} steps) < {min_autocorr_lengths:.0f}: run about "
+                f"{int(np.ceil(min_autocorr_lengths * tau))} steps after burn-in, or use NUTS"
+            )
+
     thresholds = {
         "rhat_max": rhat_max,
         "ess_bulk_min": ess_bulk_min,
         "ess_tail_min": np.nan if ess_tail_min is None else ess_tail_min,
         "max_divergences": max_divergences,
         "ebfmi_min": ebfmi_min,
+        "min_autocorr_lengths": min_autocorr_lengths,
     }
     result = SamplingDiagnostics(
         rhat_max=rhat,
@@ -215,6 +246,7 @@ def diagnose_sampling(
         divergences=divergences,
         draws=chains * draws,
         ebfmi=ebfmi,
+        autocorr_lengths=autocorr_lengths,
         passed=not messages,
         messages=tuple(messages),
         thresholds=thresholds,

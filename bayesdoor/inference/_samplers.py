@@ -4,6 +4,7 @@ sampler (emcee), both returning the same ArviZ layout."""
 from __future__ import annotations
 
 import functools
+import json
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar, cast
 
@@ -239,9 +240,10 @@ def sample_emcee(
     Returns
     -------
     idata
-        ``posterior`` (walkers as chains), ``sample_stats`` (``lp`` per draw and
-        ``acceptance_fraction`` per walker), ``log_likelihood``, ``observed_data`` and
-        provenance attributes.
+        ``posterior`` (walkers as chains), ``sample_stats`` (``lp`` per draw,
+        ``acceptance_fraction`` per walker, and the attributes ``autocorr_time``, emcee's
+        integrated autocorrelation time per unconstrained coordinate as JSON, and
+        ``kept_steps``), ``log_likelihood``, ``observed_data`` and provenance attributes.
 
     Raises
     ------
@@ -309,7 +311,7 @@ def sample_emcee(
         "init_scale": init_scale,
         "init_values": dict(init_values) if init_values is not None else None,
     }
-    return to_inference_data(
+    idata = to_inference_data(
         model,
         samples=samples,
         sample_stats={"lp": sampler.get_log_prob(discard=burn, thin=thin).T},
@@ -319,3 +321,10 @@ def sample_emcee(
         key=key,
         per_chain_stats={"acceptance_fraction": sampler.acceptance_fraction},
     )
+    # emcee's own convergence measure (Goodman and Weare 2010; emcee's docs ask for runs of
+    # at least 50 autocorrelation times), per unconstrained coordinate, in steps
+    with np.errstate(invalid="ignore", divide="ignore"):  # NaN for too short runs
+        tau = sampler.get_autocorr_time(discard=burn, quiet=True)
+    idata["sample_stats"].attrs["autocorr_time"] = json.dumps(np.asarray(tau).tolist())
+    idata["sample_stats"].attrs["kept_steps"] = n_steps - burn
+    return idata

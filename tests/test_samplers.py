@@ -187,6 +187,32 @@ def test_emcee_output_layout(emcee_idata):
     assert emcee_idata.log_likelihood["c"].shape == (16, 2500, 5)
 
 
+def two_modes():
+    x = numpyro.sample("x", dist.Normal(0.0, 20.0))
+    modes = jnp.array([-10.0, 10.0])
+    numpyro.factor("modes", jax.scipy.special.logsumexp(dist.Normal(modes, 0.5).log_prob(x)))
+
+
+def test_nuts_starts_at_init_values():
+    # two modes 40 sds apart: a chain stays in the mode it starts in, so the draws tell
+    # where it started; from the default start (the prior median 0, between the modes) both
+    # chains of this key fall into the mode at -10, so the test fails if init_values is ignored
+    idata = sample_nuts(
+        two_modes,
+        key=jax.random.key(8),
+        init_values={"x": 10.0},
+        num_warmup=100,
+        num_samples=100,
+        num_chains=2,
+        chain_method="sequential",
+        progress=False,
+    )
+    x = idata.posterior["x"].values
+    assert x.shape == (2, 100)
+    assert np.all(np.abs(x - 10.0) < 5.0)
+    assert json.loads(idata.posterior.attrs["settings"])["init_values"] == {"x": 10.0}
+
+
 @pytest.mark.filterwarnings("ignore:More chains")
 def test_emcee_starts_in_a_small_ball_around_init_values():
     init = {"theta": np.array([5.0, -5.0, 5.0]), "lam": 10.0}

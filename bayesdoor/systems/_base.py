@@ -99,6 +99,60 @@ class AbstractSystem(eqx.Module):
     ) -> SimulationResult:
         """One run for parameters ``theta``, a damage state and an operating condition."""
 
+    @abc.abstractmethod
+    def record_duration(self, operating) -> float:
+        """Record length (s) that holds whole runs at every one of these operating conditions."""
+
+    @abc.abstractmethod
+    def motion_window(
+        self, operating, *, duration: float | None = None
+    ) -> tuple[Float[np.ndarray, " run"], Float[np.ndarray, " run"]]:
+        """Start and stop (s) of the motion in simulated runs at these operating conditions.
+
+        The window in which the system is excited (for example the stroke of a drive), in the
+        time of the simulated record; with ``duration`` given, the stop is clipped to it.
+        """
+
+    @abc.abstractmethod
+    def simulate_values(
+        self,
+        values: Mapping[str, Float[Array, "*batch"] | float],
+        operating: Float[Array, " batch"] | float,
+        *,
+        state: str = "healthy",
+        severity: Mapping[str, Float[Array, "*batch"] | float] | None = None,
+        duration: float | None = None,
+        check: bool = True,
+    ) -> SimulationResult:
+        """A batch of runs from plain arrays, as one vmapped solve.
+
+        This is the entry point of the generic layers (inference, data generation): they know
+        the parameters only by the names of :attr:`parameters` and the damage by the names of
+        :attr:`states` and their severities.
+
+        Parameters
+        ----------
+        values
+            Every parameter of :attr:`parameters` by name; scalars or arrays that broadcast to
+            the batch.
+        operating
+            The operating condition of each run (for example a speed).
+        state
+            The damage state, a key of :attr:`states`.
+        severity
+            Its severity parameters by name (missing ones: the middle of their prior range).
+        duration
+            Record length (s); default :meth:`record_duration` of ``operating``.
+        check
+            Check names and bounds on the host (``False`` inside jitted likelihoods).
+
+        Returns
+        -------
+        result
+            Signals (batch, channel, time) and a status per run; a failed solve does not raise:
+            its status is non-zero and its signals are zero.
+        """
+
     def parameter_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.parameters)
 

@@ -13,7 +13,7 @@ from .._base import AbstractSystem, DamageSpec, ParameterSpec, SimulationResult
 from . import _geometry as g
 from ._model import make_args
 from ._params import PARAMETERS, STATES, DoorDamage, DoorParameters, check_parameter_values
-from ._profile import max_speed_limit, record_duration
+from ._profile import max_speed_limit, motion_duration, record_duration
 from ._simulate import STATUS_MESSAGES, STATUS_OK, SolverConfig, sample_times, solve, solve_batch
 
 V_MAX_RANGE = (0.1, round(max_speed_limit(), 3))
@@ -138,3 +138,63 @@ class ElevatorDoor(AbstractSystem):
         )
         signals, status = solve_batch(args, ts, self.config)
         return SimulationResult(signals=signals, status=status, time=ts)
+
+    def motion_window(
+        self, operating, *, duration: float | None = None
+    ) -> tuple[Float[np.ndarray, " run"], Float[np.ndarray, " run"]]:
+        """The commanded stroke of each run: from the end of the initial rest to its stop.
+
+        The start is the end of the 0.25 s rest, the stop the end of the S-curve at this peak
+        speed (the same window ``bayesdoor simulate`` writes as ``t_start``/``t_stop``),
+        clipped to ``duration`` when given.
+        """
+        v = np.atleast_1d(np.asarray(operating, dtype=float))
+        check_speed(v)
+        t_start = np.full(v.shape, g.REST_S)
+        t_stop = g.REST_S + np.asarray(motion_duration(v), dtype=float)
+        if duration is not None:
+            t_stop = np.minimum(t_stop, float(duration))
+            if np.any(t_stop <= t_start):
+                raise ValueError(
+                    f"duration={duration} s ends before the motion starts at {g.REST_S} s: "
+                    "pass a longer duration"
+                )
+        return t_start, t_stop
+
+    def simulate_values(
+        self,
+        values,
+        operating,
+        *,
+        state: str = "healthy",
+        severity=None,
+        duration: float | None = None,
+        check: bool = True,
+    ) -> SimulationResult:
+        """A batch of runs from the Table 2 values by name (see :meth:`simulate_batch`)."""
+        names = self.parameter_names()
+        missing = [k for k in names if k not in values]
+        unknown = [k for k in values if k not in names]
+        if missing or unknown:
+            raise ValueError(
+                f"values must name every parameter of {self.name} ({', '.join(names)}); "
+                f"missing {missing or 'none'}, unknown {unknown or 'none'}"
+            )
+        spec = self.check_state(state)
+        severity = {} if severity is None else dict(severity)
+        extra = [k for k in severity if k not in spec.severity]
+        if extra:
+            raise ValueError(
+                f"state {state} takes severities {list(spec.severity) or 'none'}, got {extra}"
+            )
+        levels = {k: severity.get(k, 0.5 * (lo + hi)) for k, (lo, hi) in spec.severity.items()}
+        damage = DoorDamage(
+            **{k: jnp.asarray(levels.get(k, 0.0)) for k in ("d1_height", "d2_depth", "d2_angle")}
+        )
+        theta = DoorParameters(
+            **{
+                p.name: jnp.asarray(values[p.name]).astype(jnp.int32 if p.integer else float)
+                for p in self.parameters
+            }
+        )
+        return self.simulate_batch(theta, damage, operating, duration=duration, check=check)

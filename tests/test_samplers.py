@@ -277,6 +277,22 @@ def test_thirty_draws_fail_the_ess_gate_loudly(nuts_idata):
     assert "SAMPLING GATES FAILED" in str(diag)
 
 
+def test_a_deterministic_constant_is_not_a_gate_failure_but_a_stuck_chain_is(nuts_idata):
+    # arviz gives NaN R-hat and ESS for an element that never moves
+    with_constant = nuts_idata.copy()
+    with_constant.posterior["n_obs"] = (("chain", "draw"), np.full((4, 500), 10.0))
+    diag = diagnose_sampling(with_constant, warn=False)
+    assert diag.passed and diag.rhat_max == pytest.approx(
+        diagnose_sampling(nuts_idata, warn=False).rhat_max
+    )
+    stuck = nuts_idata.copy()
+    lam = stuck.posterior["lam"].values.copy()
+    lam[0] = lam[0, 0]
+    stuck.posterior["lam"] = (("chain", "draw"), lam)
+    diag = diagnose_sampling(stuck, warn=False)
+    assert not diag.passed and diag.rhat_worst == "lam"
+
+
 def test_rhat_gate_names_the_variable(nuts_idata):
     # chains 0-1 of theta[2] moved by two posterior sds: the chains no longer agree
     bad = nuts_idata.copy()

@@ -81,13 +81,19 @@ class SamplingDiagnostics:
         return "\n".join(lines)
 
 
-def _extreme(ds: xr.Dataset, *, largest: bool) -> tuple[float, str]:
-    """The largest (or smallest) value over all variables and elements, and where it is."""
-    best_value, best_name = (-np.inf if largest else np.inf), ""
+def _extreme(ds: xr.Dataset, *, largest: bool, constant: xr.Dataset) -> tuple[float, str]:
+    """The largest (or smallest) value over all variables and elements, and where it is.
+
+    arviz gives NaN for an element that never changes. Where the element is the same in every
+    draw of every chain (a deterministic site fixed by the data) there is nothing to check;
+    any other NaN (a stuck chain) counts as the worst possible value.
+    """
+    ignored, worst = (-np.inf, np.inf) if largest else (np.inf, -np.inf)
+    best_value, best_name = ignored, ""
     for name, da in ds.data_vars.items():
         values = np.asarray(da.values, dtype=np.float64).reshape(-1)
-        # a NaN diagnostic (e.g. a constant chain) counts as the worst possible value
-        values = np.where(np.isnan(values), np.inf if largest else -np.inf, values)
+        fixed = np.asarray(constant[name].values).reshape(-1)
+        values = np.where(np.isnan(values), np.where(fixed, ignored, worst), values)
         i = int(np.argmax(values) if largest else np.argmin(values))
         if (values[i] > best_value) if largest else (values[i] < best_value):
             index = np.unravel_index(i, da.shape) if da.ndim else ()
@@ -165,9 +171,14 @@ def diagnose_sampling(
         )
     names = list(var_names) if var_names is not None else None
     posterior = idata["posterior"] if names is None else idata["posterior"][names]
-    rhat, rhat_at = _extreme(az.rhat(posterior), largest=True)
-    bulk, bulk_at = _extreme(az.ess(posterior, method="bulk"), largest=False)
-    tail, tail_at = _extreme(az.ess(posterior, method="tail"), largest=False)
+    constant = posterior.max(("chain", "draw")) == posterior.min(("chain", "draw"))
+    with np.errstate(invalid="ignore", divide="ignore"):  # constant elements give NaN
+        rhat_ds = az.rhat(posterior)
+        bulk_ds = az.ess(posterior, method="bulk")
+        tail_ds = az.ess(posterior, method="tail")
+    rhat, rhat_at = _extreme(rhat_ds, largest=True, constant=constant)
+    bulk, bulk_at = _extreme(bulk_ds, largest=False, constant=constant)
+    tail, tail_at = _extreme(tail_ds, largest=False, constant=constant)
     chains, draws = posterior.sizes["chain"], posterior.sizes["draw"]
 
     messages = []

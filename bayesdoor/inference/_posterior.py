@@ -100,6 +100,13 @@ def _observed(model: Callable[..., Any], model_kwargs: Mapping) -> dict[str, np.
     return {name: np.asarray(s["value"]) for name, s in sites.items() if s["is_observed"]}
 
 
+def _key_data(key: jax.Array) -> np.ndarray:
+    """The integers behind a typed key (``jax.random.key``) or a raw one (``PRNGKey``)."""
+    if jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
+        return np.asarray(jax.random.key_data(key))
+    return np.asarray(key)
+
+
 def to_inference_data(
     model: Callable[..., Any],
     *,
@@ -151,7 +158,7 @@ def to_inference_data(
     attrs = {
         "sampler": sampler,
         "settings": json.dumps(_digest(dict(settings)), sort_keys=True),
-        "seed": json.dumps(np.asarray(jax.random.key_data(key)).tolist()),
+        "seed": json.dumps(_key_data(key).tolist()),
         "configuration_hash": configuration_hash(model, sampler, settings, model_kwargs),
         "model": f"{getattr(model, '__module__', '?')}.{getattr(model, '__qualname__', model)}",
         "library_versions": json.dumps(_library_versions(), sort_keys=True),

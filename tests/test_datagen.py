@@ -332,6 +332,12 @@ def test_resume_equals_uninterrupted(tmp_path, key):
     assert_same_data(resumed, whole)
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())
     assert summary["chunks_computed"] == 9 - 3
+    # a finished folder is only reloaded, even with a Dask scheduler named
+    again = generate(
+        TOY, toy_source(), toy_config(), tmp_path / "r", key=key, scheduler="local", progress=False
+    )
+    assert_same_data(again, whole)
+    assert json.loads((tmp_path / "r" / "summary.json").read_text())["chunks_computed"] == 0
 
 
 def test_config_change_refused_on_resume(tmp_path, key):

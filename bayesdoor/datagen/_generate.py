@@ -340,9 +340,10 @@ def generate(
 
     start = time.perf_counter()
     with _progress(progress, job.n_chunks, job.n_chunks - len(pending)) as advance:
+        # a finished folder needs no cluster
         chunks = (
             _map_local(job, pending)
-            if scheduler is None
+            if scheduler is None or not pending
             else _map_dask(job, pending, scheduler, n_workers)
         )
         with contextlib.closing(chunks):

@@ -26,6 +26,7 @@ from bayesdoor.classify import (
     negative_log_likelihood,
     predictive_entropy,
     reliability_bins,
+    tempered_log_probabilities,
 )
 
 # five predictions of three classes; confidences 0.95, 0.95, 0.65, 0.45, 0.82
@@ -123,6 +124,12 @@ def test_classification_metrics_bundle():
     assert np.isnan(m["ece_mass"])  # 5 samples, 15 bins
 
 
+def _pooled(logits, t=1.0):
+    """Calibrated ensemble probabilities written out: (mean_m softmax(z_m))^(1/T), normalised."""
+    q = scipy.special.softmax(logits, axis=-1).mean(axis=0) ** (1.0 / t)
+    return q / q.sum(axis=-1, keepdims=True)
+
+
 def _overconfident_logits(factor, rng, n=4000, members=5, noise=0.1):
     """Logits ``factor * log p_true`` (plus small member noise) for labels drawn from p_true."""
     p_true = rng.dirichlet(np.full(3, 0.7), size=n)
@@ -147,8 +154,7 @@ def test_temperature_lowers_nll_and_keeps_accuracy_of_an_overconfident_model():
     rng = np.random.default_rng(5)
     logits, y = _overconfident_logits(4.0, rng, n=2000)
     t = fit_temperature(logits, y)
-    before = scipy.special.softmax(logits, axis=-1).mean(axis=0)
-    after = scipy.special.softmax(logits / t, axis=-1).mean(axis=0)
+    before, after = _pooled(logits), _pooled(logits, t)
     assert negative_log_likelihood(after, y) < negative_log_likelihood(before, y)
     assert accuracy(after, y) == accuracy(before, y)
     assert expected_calibration_error(after, y) < expected_calibration_error(before, y)
@@ -168,9 +174,23 @@ def test_ensemble_nll_matches_the_direct_formula():
     logits = rng.normal(size=(3, 50, 4))
     y = rng.integers(0, 4, size=50)
     t = 1.7
-    mixture = scipy.special.softmax(logits / t, axis=-1).mean(axis=0)
-    direct = -np.mean(np.log(mixture[np.arange(50), y]))
+    direct = -np.mean(np.log(_pooled(logits, t)[np.arange(50), y]))
     assert ensemble_nll(logits, y, t) == pytest.approx(direct, rel=1e-12)
+    np.testing.assert_allclose(
+        np.exp(tempered_log_probabilities(logits, t)), _pooled(logits, t), rtol=1e-12
+    )
+
+
+def test_temperature_never_changes_the_predicted_class():
+    # members that disagree (independent random logits): the calibrated ensemble's top class is
+    # the plain ensemble's for any temperature
+    rng = np.random.default_rng(6)
+    logits = 3 * rng.normal(size=(5, 400, 3))
+    top = _pooled(logits).argmax(axis=1)
+    for t in (0.05, 0.3, 1.0, 4.0, 50.0):
+        np.testing.assert_array_equal(
+            np.argmax(tempered_log_probabilities(logits, t), axis=1), top, err_msg=f"T={t}"
+        )
 
 
 def test_temperature_on_a_perfectly_separated_set_warns():
@@ -225,8 +245,7 @@ def test_reliability_diagram_is_written(tmp_path):
 
     rng = np.random.default_rng(5)
     logits, y = _overconfident_logits(3.0, rng, n=300)
-    before = scipy.special.softmax(logits, axis=-1).mean(axis=0)
-    after = scipy.special.softmax(logits / 3.0, axis=-1).mean(axis=0)
+    before, after = _pooled(logits), _pooled(logits, 3.0)
     path = plot_reliability(after, y, tmp_path / "reliability.png", uncalibrated=before)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(ValueError, match="at least n_bins=15 samples"):

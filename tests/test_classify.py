@@ -15,10 +15,12 @@ from bayesdoor.classify import (
     NetworkConfig,
     TrainConfig,
     entropy,
+    expected_entropy,
     fit_classifier,
     load_ensemble,
     parameter_count,
     predict,
+    predictive_entropy,
     read_header,
     save_ensemble,
     train_ensemble,
@@ -105,11 +107,17 @@ def test_ensemble_learns_a_separable_problem(fitted):
 def test_prediction_is_consistent(fitted):
     x, _ = synthetic(50, 3)
     pred = predict(fitted, jnp.asarray(x))
-    assert pred.member_probabilities.shape == (10, 50, 3)
-    np.testing.assert_allclose(np.sum(pred.probabilities, axis=-1), 1.0, atol=1e-6)  # float32
+    members = np.asarray(pred.member_probabilities, dtype=np.float64)
+    assert members.shape == (10, 50, 3)
+    # the calibrated probabilities written out: (mean_m p_m)^(1/T), normalised; float32 inputs
+    pooled = members.mean(axis=0) ** (1 / float(fitted.temperature))
+    np.testing.assert_allclose(pred.probabilities, pooled / pooled.sum(1, keepdims=True), atol=1e-5)
+    np.testing.assert_array_equal(pred.predicted, members.mean(axis=0).argmax(axis=1))
     np.testing.assert_allclose(pred.entropy, entropy(pred.probabilities), atol=1e-6)
     np.testing.assert_allclose(
-        pred.entropy, pred.expected_entropy + pred.mutual_information, atol=1e-6
+        pred.mutual_information,
+        predictive_entropy(members) - expected_entropy(members),
+        atol=1e-6,
     )
     assert float(jnp.min(pred.mutual_information)) >= -1e-6
     # the members were initialised and shuffled differently: they disagree a little

@@ -7,6 +7,7 @@ class names.
 from ._calibration import TEMPERATURE_BOUNDS as TEMPERATURE_BOUNDS
 from ._calibration import ensemble_nll as ensemble_nll
 from ._calibration import fit_temperature as fit_temperature
+from ._calibration import tempered_log_probabilities as tempered_log_probabilities
 from ._config import TrainConfig as TrainConfig
 from ._ensemble import Ensemble as Ensemble
 from ._ensemble import Prediction as Prediction

@@ -2,15 +2,37 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
-import scipy.special
 from jaxtyping import ArrayLike, Float, Int
+
+from .._types import Array, ScalarLike
 
 #: the range searched for the temperature
 TEMPERATURE_BOUNDS = (1e-2, 1e2)
+
+
+def tempered_log_probabilities(
+    member_logits: Float[ArrayLike, "member *batch class"], temperature: ScalarLike
+) -> Float[Array, "*batch class"]:
+    """Log of the calibrated ensemble probabilities ``softmax(log(mean_m p_m) / T)``.
+
+    ``p_m = softmax(z_m)`` are the members' probabilities; their mean (the ensemble's mixture)
+    is raised to the power ``1 / T`` and renormalised ("pool, then calibrate"). ``T = 1`` is the
+    plain ensemble, and since ``x -> x / T`` is increasing the most probable class never
+    changes. Computed in log space (``logsumexp`` over members) so a confident wrong member does
+    not underflow to ``log 0``.
+    """
+    z = jnp.asarray(member_logits)
+    log_mean = jax.scipy.special.logsumexp(jax.nn.log_softmax(z, axis=-1), axis=0) - math.log(
+        z.shape[0]
+    )
+    return jax.nn.log_softmax(log_mean / temperature, axis=-1)
 
 
 def ensemble_nll(
@@ -18,16 +40,14 @@ def ensemble_nll(
     labels: Int[ArrayLike, " sample"],
     temperature: float,
 ) -> float:
-    """Mean NLL of the ensemble mixture ``mean_m softmax(z_m / T)`` at the true classes (nats).
+    """Mean NLL (nats) at the true classes of the calibrated ensemble probabilities.
 
-    Computed in log space (``logsumexp`` over members) so a confident wrong member does not
-    underflow to ``log 0``.
+    See :func:`tempered_log_probabilities`; float64.
     """
     z = np.asarray(member_logits, dtype=np.float64)
     y = np.asarray(labels)
-    log_p = scipy.special.log_softmax(z / temperature, axis=-1)[:, np.arange(len(y)), y]
-    log_mixture = scipy.special.logsumexp(log_p, axis=0) - np.log(z.shape[0])
-    return float(-np.mean(log_mixture))
+    log_q = np.asarray(tempered_log_probabilities(z, temperature), dtype=np.float64)
+    return float(-np.mean(log_q[np.arange(len(y)), y]))
 
 
 def fit_temperature(
@@ -35,12 +55,11 @@ def fit_temperature(
 ) -> float:
     """The temperature that minimises the ensemble's NLL on held-out data.
 
-    Every member's logits are divided by the same ``T`` and the tempered member probabilities
-    are averaged; ``T = 1`` is the uncalibrated ensemble, ``T > 1`` softens overconfident
-    predictions. The NLL is minimised over ``log T`` (bounded Brent search on
-    ``TEMPERATURE_BOUNDS``). Temperature scaling divides all logits of an input by the same
-    positive number, so each member's ranking of the classes is kept; for a single member the
-    predicted class never changes.
+    The calibrated probabilities are ``softmax(log(mean_m p_m) / T)`` (see
+    :func:`tempered_log_probabilities`): ``T = 1`` is the uncalibrated ensemble, ``T > 1``
+    softens overconfident predictions, ``T < 1`` sharpens underconfident ones, and the predicted
+    class never changes, so neither does the accuracy. The NLL is minimised over ``log T``
+    (bounded Brent search on ``TEMPERATURE_BOUNDS``).
 
     Parameters
     ----------
@@ -69,7 +88,8 @@ def fit_temperature(
     References
     ----------
     Guo, C., Pleiss, G., Sun, Y. and Weinberger, K. Q. (2017). On calibration of modern neural
-    networks. ICML.
+    networks. ICML. Rahaman, R. and Thiery, A. H. (2021). Uncertainty quantification and deep
+    ensembles. NeurIPS (calibrating the pooled ensemble rather than its members).
     """
     z = np.asarray(member_logits, dtype=np.float64)
     y = np.asarray(labels)

@@ -8,10 +8,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._types import Array, Bool, Float, Int
+from ._calibration import tempered_log_probabilities
 from ._config import TrainConfig
 from ._network import ConvNet, NetworkConfig
 from ._ood import MahalanobisOOD
-from ._uncertainty import expected_entropy, mutual_information, predictive_entropy
+from ._uncertainty import entropy, expected_entropy, mutual_information
 
 
 class Ensemble(eqx.Module):
@@ -28,7 +29,7 @@ class Ensemble(eqx.Module):
         Per (channel, bin) mean and standard deviation of the training inputs: the networks see
         ``(x - mean) / scale``.
     temperature
-        Divides every member's logits before the softmax (1: uncalibrated).
+        Calibrates the pooled probabilities, ``softmax(log(mean_m p_m) / T)`` (1: uncalibrated).
     class_names
         Name of each class index.
     ood
@@ -104,15 +105,18 @@ class Prediction(eqx.Module):
     Attributes
     ----------
     probabilities
-        Calibrated predictive probabilities: the mean of the members' tempered softmax.
+        Calibrated predictive probabilities ``softmax(log(mean_m p_m) / T)``; their most
+        probable class is that of the plain ensemble mean.
     member_probabilities
-        Each member's tempered softmax.
+        Each member's softmax ``p_m`` (before the temperature).
     entropy
-        Predictive entropy (nats) of ``probabilities``: the total uncertainty.
+        Entropy (nats) of ``probabilities``: the calibrated total uncertainty.
     expected_entropy
-        Mean entropy of the members (nats).
+        Mean entropy of the members (nats): what each member is unsure of on its own.
     mutual_information
-        ``entropy - expected_entropy`` (nats): the members' disagreement.
+        ``H(mean_m p_m) - expected_entropy`` (nats): the members' disagreement, >= 0. At
+        ``T = 1`` it equals ``entropy - expected_entropy``; the temperature rescales the
+        ensemble's overall confidence, not the disagreement between its members.
     ood_score
         The out-of-distribution score, ``None`` without a detector.
     ood
@@ -149,16 +153,17 @@ def predict(ensemble: Ensemble, x: Float[Array, "batch channel freq"]) -> Predic
     Prediction
     """
     logits = ensemble.member_logits(x)
-    member_p = jax.nn.softmax(logits / ensemble.temperature, axis=-1)
+    member_p = jax.nn.softmax(logits, axis=-1)
+    probabilities = jnp.exp(tempered_log_probabilities(logits, ensemble.temperature))
     if ensemble.ood is None:
         score, flag = None, None
     else:
         z = ensemble.standardise(x)
         score, flag = ensemble.ood.score(z), ensemble.ood.flag(z)
     return Prediction(
-        probabilities=jnp.mean(member_p, axis=0),
+        probabilities=probabilities,
         member_probabilities=member_p,
-        entropy=predictive_entropy(member_p),
+        entropy=entropy(probabilities),
         expected_entropy=expected_entropy(member_p),
         mutual_information=mutual_information(member_p),
         ood_score=score,

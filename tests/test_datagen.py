@@ -490,6 +490,10 @@ def test_door_generation_small(tmp_path, key):
     assert data.features.shape == (6, 4, 25) and np.all(np.isfinite(data.features))
     assert data.channels == door.channels
     np.testing.assert_allclose(data.frequencies, np.arange(25) * 4.0)
+    for i, state in enumerate(data.states):
+        for name, (lo, hi) in door.states[state].severity.items():
+            values = data.severities[name][data.labels == i]
+            assert np.all((values >= lo) & (values <= hi)), (state, name)
     # the features are those of the stored draws: simulate the two D2 runs again from them
     d2 = data.labels == 2
     assert np.all(np.isnan(data.severities["d1_height"][d2]))

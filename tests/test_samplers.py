@@ -211,6 +211,9 @@ def test_nuts_starts_at_init_values():
     assert x.shape == (2, 100)
     assert np.all(np.abs(x - 10.0) < 5.0)
     assert json.loads(idata.posterior.attrs["settings"])["init_values"] == {"x": 10.0}
+    # a numpyro.factor term is not data: no observed_data or log_likelihood entry for it
+    for group in ("log_likelihood", "observed_data"):
+        assert group not in idata.groups() or "modes" not in idata[group]
 
 
 @pytest.mark.filterwarnings("ignore:More chains")
@@ -390,3 +393,7 @@ def test_configuration_hash_tracks_data_and_settings():
     assert h != configuration_hash(conjugate_model, "nuts", {"num_samples": 10}, other_data)
     assert h != configuration_hash(conjugate_model, "nuts", {"num_samples": 11}, KWARGS)
     assert h != configuration_hash(conjugate_model, "emcee", {"num_samples": 10}, KWARGS)
+    # data captured by a closure reaches the hash through the observed values
+    assert configuration_hash(conjugate_model, "nuts", {}, {}, {"y": Y}) != configuration_hash(
+        conjugate_model, "nuts", {}, {}, {"y": Y + 1}
+    )

@@ -16,6 +16,7 @@ import arviz as az
 import jax
 import numpy as np
 import numpyro
+import numpyro.distributions as dist
 from numpyro.infer import init_to_sample
 
 #: groups every posterior written by bayesdoor holds (DESIGN.md section 5)
@@ -53,13 +54,19 @@ def _digest(value: Any) -> Any:
 
 
 def configuration_hash(
-    model: Callable[..., Any], sampler: str, settings: Mapping[str, Any], model_kwargs: Mapping
+    model: Callable[..., Any],
+    sampler: str,
+    settings: Mapping[str, Any],
+    model_kwargs: Mapping,
+    observed: Mapping[str, Any] | None = None,
 ) -> str:
     """SHA-256 of what determines a posterior apart from the seed.
 
     The model is identified by its qualified name, the data by a content hash of every array
-    argument, the sampler by its name and settings. Two runs with the same hash and the same
-    seed (stored next to it) give the same samples on the same library versions.
+    argument and of every observed value (so data captured in a closure counts too), the
+    sampler by its name and settings. Other constants a closure captures are covered only
+    through the model's name. Two runs with the same hash and the same seed (stored next to
+    it) give the same samples on the same library versions.
 
     Parameters
     ----------
@@ -71,6 +78,8 @@ def configuration_hash(
         The sampler's settings (JSON-able values).
     model_kwargs
         The model's keyword arguments (data and static configuration).
+    observed
+        The values of the model's observed sites.
 
     Returns
     -------
@@ -82,6 +91,7 @@ def configuration_hash(
         "sampler": sampler,
         "settings": _digest(dict(settings)),
         "model_kwargs": _digest(dict(model_kwargs)),
+        "observed": _digest(dict(observed or {})),
     }
     return hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()
 
@@ -96,8 +106,12 @@ def model_sites(model: Callable[..., Any], model_kwargs: Mapping) -> dict[str, A
 
 
 def _observed(model: Callable[..., Any], model_kwargs: Mapping) -> dict[str, np.ndarray]:
-    sites = model_sites(model, model_kwargs)
-    return {name: np.asarray(s["value"]) for name, s in sites.items() if s["is_observed"]}
+    """The observed data by site; ``numpyro.factor`` terms (``Unit`` sites) are not data."""
+    return {
+        name: np.asarray(s["value"])
+        for name, s in model_sites(model, model_kwargs).items()
+        if s["is_observed"] and not isinstance(s["fn"], dist.Unit)
+    }
 
 
 def _key_data(key: jax.Array) -> np.ndarray:
@@ -151,15 +165,18 @@ def to_inference_data(
     samples = {name: np.asarray(v) for name, v in samples.items()}
     chains, draws = next(iter(samples.values())).shape[:2]
     flat = {name: v.reshape((chains * draws, *v.shape[2:])) for name, v in samples.items()}
+    observed = _observed(model, model_kwargs)
     pointwise = numpyro.infer.log_likelihood(model, flat, **model_kwargs)
     log_likelihood = {
-        name: np.asarray(v).reshape((chains, draws, *v.shape[1:])) for name, v in pointwise.items()
+        name: np.asarray(v).reshape((chains, draws, *v.shape[1:]))
+        for name, v in pointwise.items()
+        if name in observed
     }
     attrs = {
         "sampler": sampler,
         "settings": json.dumps(_digest(dict(settings)), sort_keys=True),
         "seed": json.dumps(_key_data(key).tolist()),
-        "configuration_hash": configuration_hash(model, sampler, settings, model_kwargs),
+        "configuration_hash": configuration_hash(model, sampler, settings, model_kwargs, observed),
         "model": f"{getattr(model, '__module__', '?')}.{getattr(model, '__qualname__', model)}",
         "library_versions": json.dumps(_library_versions(), sort_keys=True),
         "inference_library": "numpyro" if sampler == "nuts" else sampler,
@@ -168,7 +185,7 @@ def to_inference_data(
         posterior=samples,
         sample_stats={name: np.asarray(v) for name, v in sample_stats.items()},
         log_likelihood=log_likelihood,
-        observed_data=_observed(model, model_kwargs),
+        observed_data=observed,
     )
     for name, value in (per_chain_stats or {}).items():
         idata.sample_stats[name] = ("chain", np.asarray(value))

@@ -25,6 +25,7 @@ import numpyro
 import numpyro.distributions as dist
 
 from .._types import Array, Bool, Float, Int
+from ..features import segment_weights
 from ..systems import AbstractSystem
 from ._features import FeatureSpec, run_features, welch_log10_variance
 from ._parameterisation import SamplingTransform
@@ -214,13 +215,18 @@ class CalibrationData(eqx.Module):
                 f"run; got signals {signals.shape}, operating {op.shape}, t_start "
                 f"{starts.shape}, t_stop {stops.shape}"
             )
-        features, n_segments = run_features(signals, fs, starts, stops, spec)
-        short = np.flatnonzero(np.asarray(n_segments) < 1)
+        inside = segment_weights(
+            signals.shape[-1], fs, starts, stops, spec.nperseg, spec.noverlap
+        ).sum(axis=-1)
+        short = np.flatnonzero(np.asarray(inside) < 1)
         if short.size:
             raise ValueError(
                 f"runs {short.tolist()} hold no whole Welch segment of {spec.nperseg} samples in "
-                "their motion window: (a) t_start/t_stop are wrong, (b) nperseg is too large"
+                f"their motion window (t_start {starts[short].tolist()} s, t_stop "
+                f"{stops[short].tolist()} s): (a) t_start/t_stop are wrong, (b) nperseg is too "
+                "large for the window"
             )
+        features, n_segments = run_features(signals, fs, starts, stops, spec)
         unique, index = np.unique(op, return_inverse=True)
         return cls(
             y=features,

@@ -429,8 +429,9 @@ def test_bad_inputs_name_the_problem(tmp_path, key):
 def test_model_error_offsets_are_added(tmp_path, key):
     err = ModelErrorDraws(jnp.asarray([[0.2, 0.4]]))
     plain = generate(TOY, toy_source(), toy_config(), tmp_path / "p", key=key, progress=False)
+    # this one also runs the progress bar (the other tests switch it off)
     noisy = generate(
-        TOY, toy_source(), toy_config(), tmp_path / "n", key=key, model_error=err, progress=False
+        TOY, toy_source(), toy_config(), tmp_path / "n", key=key, model_error=err, progress=True
     )
     # (features + offset) - offset rounds in the last bit of a value of order 10
     np.testing.assert_allclose(noisy.features - noisy.model_error, plain.features, atol=1e-13)

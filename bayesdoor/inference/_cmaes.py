@@ -246,7 +246,8 @@ def minimize_cmaes(
     lower, upper
         Box bounds (pycma's ``BoundTransform`` keeps every candidate inside).
     seed
-        Positive integer seed; same seed and settings, same result.
+        Positive integer seed; same seed and settings, same result. (pycma seeds NumPy's
+        global generator with it.)
     sigma0
         Initial step size as a fraction of each coordinate's box width.
     integer_variables
@@ -387,7 +388,8 @@ def _progress_bar(enabled: bool, total: int) -> Iterator[Callable[[int, float, i
 def plot_cmaes_history(result: CMAESResult, path: str | Path, *, title: str = "CMA-ES") -> Path:
     """Plot best-so-far and population-median f against evaluations (log scale) to a PNG.
 
-    Restarts are marked by vertical lines; the step size is drawn on a second axis.
+    Restarts are marked by vertical lines; the step size is drawn on a second axis. When
+    the best value is not positive, the excess over it is plotted instead.
 
     Parameters
     ----------
@@ -408,10 +410,7 @@ def plot_cmaes_history(result: CMAESResult, path: str | Path, *, title: str = "C
     ValueError
         If the history is empty (the run did no iteration).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: the caller's backend stays as it is
 
     h = result.history
     if h.evaluations.size == 0:
@@ -420,7 +419,8 @@ def plot_cmaes_history(result: CMAESResult, path: str | Path, *, title: str = "C
     path.parent.mkdir(parents=True, exist_ok=True)
     # log scale needs positive values: plot the excess over the best value when f can be <= 0
     shift = 0.0 if np.nanmin(h.best_f) > 0 else float(np.nanmin(h.best_f)) - 1e-12
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = Figure(figsize=(7, 4))
+    ax = fig.subplots()
     ax.plot(h.evaluations, h.best_f - shift, label="best so far")
     ax.plot(h.evaluations, h.median_f - shift, alpha=0.6, label="population median")
     for start in h.evaluations[:-1][np.diff(h.restart) > 0]:
@@ -432,9 +432,9 @@ def plot_cmaes_history(result: CMAESResult, path: str | Path, *, title: str = "C
     twin.plot(h.evaluations, h.sigma, color="tab:green", alpha=0.5, label="sigma")
     twin.set_yscale("log")
     twin.set_ylabel("sigma (fraction of box width)")
-    ax.legend(loc="upper right")
+    handles = ax.get_legend_handles_labels()[0] + twin.get_legend_handles_labels()[0]
+    ax.legend(handles=handles, loc="upper right")
     ax.set_title(title)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path

@@ -184,6 +184,8 @@ def test_emcee_output_layout(emcee_idata):
     assert stats["acceptance_fraction"].shape == (16,)
     assert np.all((stats["acceptance_fraction"] > 0.2) & (stats["acceptance_fraction"] < 0.9))
     assert emcee_idata.posterior.attrs["sampler"] == "emcee"
+    settings = json.loads(emcee_idata.posterior.attrs["settings"])
+    assert settings["init_values"] == {"theta": MU0.tolist(), "lam": 2.0}
     assert emcee_idata.log_likelihood["c"].shape == (16, 2500, 5)
 
 

@@ -22,6 +22,9 @@ from numpyro.infer import init_to_sample
 #: groups every posterior written by bayesdoor holds (DESIGN.md section 5)
 POSTERIOR_GROUPS = ("posterior", "sample_stats", "log_likelihood", "observed_data")
 
+#: arrays up to this size are recorded by value in the provenance attributes
+_LISTED_SIZE = 64
+
 _LIBRARIES = ("bayesdoor", "jax", "numpyro", "arviz", "emcee", "cma", "numpy", "xarray")
 
 
@@ -36,7 +39,11 @@ def _library_versions() -> dict[str, str]:
 
 
 def _digest(value: Any) -> Any:
-    """A JSON-able stand-in for a model argument: arrays by shape, dtype and content hash."""
+    """A JSON-able stand-in for a setting or model argument.
+
+    Small arrays (e.g. start values) are listed; larger ones (data) are represented by shape,
+    dtype and content hash.
+    """
     if isinstance(value, Mapping):
         return {str(k): _digest(v) for k, v in sorted(value.items(), key=lambda kv: str(kv[0]))}
     if isinstance(value, list | tuple):
@@ -45,6 +52,8 @@ def _digest(value: Any) -> Any:
         return value
     if hasattr(value, "shape") and hasattr(value, "dtype"):
         array = np.ascontiguousarray(np.asarray(value))
+        if array.size <= _LISTED_SIZE:
+            return array.tolist()
         return {
             "shape": list(array.shape),
             "dtype": str(array.dtype),

@@ -507,6 +507,27 @@ def test_door_generation_small(tmp_path, key):
 
 
 @pytest.mark.slow
+def test_door_dask_equals_local(tmp_path, key):
+    # the adaptive door solve in worker processes: any round-off difference would change steps
+    door = ElevatorDoor()
+    optimum = {p.name: p.reference_value for p in door.parameters}
+    config = GenerationConfig([0.3, 0.5], runs_per_state=2, chunk_size=2, duration=1.0)
+    runs = [
+        generate(
+            door,
+            GaussianScatter.around(door, optimum),
+            config,
+            tmp_path / str(scheduler),
+            key=key,
+            scheduler=scheduler,
+            progress=False,
+        )
+        for scheduler in (None, "local")
+    ]
+    assert_same_data(*runs)
+
+
+@pytest.mark.slow
 def test_door_generation_realistic_size(tmp_path, key):
     door = ElevatorDoor()
     optimum = {p.name: p.reference_value for p in door.parameters}

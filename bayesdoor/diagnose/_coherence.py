@@ -200,7 +200,7 @@ def coherence_map(
     lo, hi = (freqs[1], freqs[-2]) if band is None else band
     keep = (freqs >= lo) & (freqs <= hi)
     freqs = freqs[keep]
-    z_all = []
+    z_rows = []
     for c_m, c_s, _, _, counts in stats:
         n_eff = np.array([welch_dof(int(k), nperseg) / 2.0 for k in counts])
         var = 1.0 / (2.0 * np.maximum(n_eff - 1.0, 0.5))
@@ -208,8 +208,8 @@ def coherence_map(
             np.sqrt(np.clip(c_s, 0, 1 - 1e-12))
         )
         d = fisher[:, keep] / np.sqrt(2.0 * var)[:, None]
-        z_all.append(d.sum(axis=0) / np.sqrt(d.shape[0]))
-    z_all = np.array(z_all)
+        z_rows.append(d.sum(axis=0) / np.sqrt(d.shape[0]))
+    z_all = np.array(z_rows)
     rejected, threshold = benjamini_hochberg(scipy.stats.norm.sf(z_all), q)
     out = []
     for (a_name, b_name), (c_m, c_s, dba, dab, _), z, sig in zip(

@@ -135,10 +135,9 @@ def find_features(
     )
     coherence = None
     if pairs:
-        first = [int(np.ceil(a * fs)) for a in t0]
-        last = [int(np.floor(b * fs)) + 1 for b in t1]
-        cut = zip(first, last, strict=True)
-        windows = [(a, b) for a, b in cut]
+        windows = [
+            (int(np.ceil(a * fs)), int(np.floor(b * fs)) + 1) for a, b in zip(t0, t1, strict=True)
+        ]
         coherence = coherence_map(
             [x[r, :, a:b] for r, (a, b) in enumerate(windows)],
             [sims[0, r, :, a:b] for r, (a, b) in enumerate(windows)],
@@ -150,11 +149,12 @@ def find_features(
             q=q,
         )
     before, after = rest_segments(x, fs, t0, t1)
-    sim_before, sim_after = rest_segments(sims[0], fs, t0, t1)
+    sim_rest = [rest_segments(s, fs, t0, t1) for s in sims]
+    sim_before, sim_after = [s[0] for s in sim_rest], [s[1] for s in sim_rest]
     if rest_nperseg is None:
         shortest = min(b.shape[-1] for b in before)
         rest_nperseg = min(int(fs) // 4, 2 ** int(np.floor(np.log2(max(shortest, 2)))))
-    rests = []
+    rests: list[RestLines | None] = []
     for meas_rest, sim_rest in ((before, sim_before), (after, sim_after)):
         if max(s.shape[-1] for s in meas_rest) < rest_nperseg:
             rests.append(None)

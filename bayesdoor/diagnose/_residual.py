@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from collections.abc import Sequence
 
 import numpy as np
@@ -10,6 +11,7 @@ import scipy.stats
 
 from .._types import Bool, Float
 from ._stats import benjamini_hochberg, contiguous_runs, parabolic_offset
+from ._welch_stats import dof_from_log10_variance, log_chi2_normal_scores
 
 #: a run counts as affected by a region when its own standardised residual there exceeds this
 #: (two-sided p of about 0.003 for one pre-located bin: a descriptor, not the tested statistic)
@@ -20,6 +22,10 @@ PROMINENCE_HALF_WIDTH = 15
 SEARCH_PAD_BINS = 2
 #: the rss of the losing speed model must exceed the winner's by this factor to decide
 SPEED_DECISION_RATIO = 10.0
+#: a region this many times stronger than the other domain's map over its span decides speed
+CONTRAST_DECISION = 2.0
+#: a run shows a feature when its residual reaches this at the aligned peak (one-sided p 0.023)
+PRESENT_Z = 2.0
 #: the smallest spread of speeds (max / min) that can tell a tracking from a fixed feature
 MIN_SPEED_SPREAD = 1.15
 
@@ -50,7 +56,9 @@ class RunPeaks:
         Excess band power ``sum (10^y - 10^mu) df`` over the peak bin and its two neighbours
         on either side (the main lobe of a Hann-windowed tone), in signal units squared.
     affected
-        Whether both ``z`` and ``prominence`` reach ``RUN_Z``: the run has a peak there.
+        Whether both ``z`` and ``prominence`` reach ``RUN_Z``: the run has a peak there. A run
+        whose largest value in the window sits on the window's edge, below its outer
+        neighbour, has its peak outside and is not searched (NaN).
     """
 
     frequency_hz: Float[np.ndarray, " run"]
@@ -66,17 +74,23 @@ class SpeedFit:
     """``f = c`` (fixed) against ``f = a v`` (tracking) over the affected runs' peaks.
 
     Both models are fitted by least squares in ``ln f`` (one parameter each, so their residual
-    sums compare directly). Each run's peak is searched where the region's own domain puts it,
-    which favours that domain's model for a feature without a real peak (a broadband excess
-    fills any window), so a second, window-free check counts the runs that are "lit"
-    (standardised residual at least ``RUN_Z`` within one bin) at each model's predicted
-    frequencies, among the runs where the two predictions lie more than two bins apart (the
-    others cannot tell). The preferred model is the one whose residual sum is at least
-    ``SPEED_DECISION_RATIO`` times smaller, provided the loser's RMS in ``ln f`` exceeds half
-    the relative bin width (otherwise the data cannot tell them apart) and the loser lights
-    at most half as many runs (none, when the winner lights one or none); with fewer than
-    three affected runs or speeds spread by less
-    than ``MIN_SPEED_SPREAD`` it is ``undetermined``.
+    sums compare directly) to the peaks of the affected runs. A run's peak is searched where
+    the region's own domain puts it, which would favour that domain's model for a feature
+    without a real peak (a broadband excess fills any window); hence a run counts only with a
+    prominent local maximum inside the window (see :class:`RunPeaks`), and a window-free check
+    counts the runs that are "lit" (standardised residual at least ``RUN_Z`` within one bin)
+    at each model's predicted frequencies, among the runs where the two predictions lie more
+    than two bins apart (the others cannot tell).
+
+    The preferred model is the one whose residual sum is at least ``SPEED_DECISION_RATIO``
+    times smaller, provided the loser's RMS in ``ln f`` exceeds half the relative bin width
+    (otherwise the data cannot tell them apart) and the loser lights no more runs than the
+    winner. With fewer than three affected runs, speeds spread by less than
+    ``MIN_SPEED_SPREAD``, or peaks that do not decide, the domain contrast does: a region whose
+    combined statistic is at least ``CONTRAST_DECISION`` times the other domain's largest
+    over the same span belongs to its own domain (fixed for frequency, tracking for
+    wavenumber); otherwise ``undetermined``. Weak features, significant only when the runs are
+    combined, are decided this way.
 
     Attributes
     ----------
@@ -92,6 +106,10 @@ class SpeedFit:
         Affected runs used.
     lit_fixed, lit_tracking
         Runs lit at ``f = c`` and at ``f = v / wavelength``, among those that can tell.
+    contrast
+        The region's combined statistic over the largest one of the other domain's map where
+        the region maps to (NaN without a wavenumber map): about ``R`` for a feature of
+        ``R`` equally affected runs in its own domain, about 1 for a broadband excess.
     """
 
     preferred: str
@@ -102,6 +120,7 @@ class SpeedFit:
     n_runs: int
     lit_fixed: int
     lit_tracking: int
+    contrast: float
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,6 +144,13 @@ class Region:
         Each run's peak near the region.
     speed
         The speed fit over the affected runs.
+    runs_present
+        Runs whose own residual reaches ``PRESENT_Z`` within one bin of the region's peak
+        (mapped to the run's frequency): a feature of most runs, not of one.
+    centroid_hz, half_power_width_hz
+        Frequency domain only (else NaN): the centroid and width of the half-power band of
+        the run-averaged excess power, a resonance's frequency and bandwidth (the width
+        includes the Hann main lobe, about 1.5 bins).
     """
 
     domain: str
@@ -136,6 +162,9 @@ class Region:
     excess_db: float
     runs: RunPeaks
     speed: SpeedFit
+    runs_present: int
+    centroid_hz: float
+    half_power_width_hz: float
 
     @property
     def sign(self) -> int:
@@ -298,10 +327,13 @@ def residual_map(
 ) -> ResidualMap:
     """Posterior-predictive residual map of measured log PSDs, with significant regions.
 
-    Per run ``r``, channel and bin the standardised residual is
-    ``z = (y - mean_d y_d) / sqrt(var_d y_d + s_r^2)``: the measured ``log10`` PSD against the
-    predictive band of the draws widened by the Welch scatter ``s_r^2`` of the measured
-    estimate. Runs are combined (Stouffer) along two families of paths: at fixed frequency,
+    Per run ``r``, channel and bin the standardised residual ``z`` is the normal score of
+    ``y - mean_d y_d``, the measured ``log10`` PSD against the predictive band of the draws
+    widened by the Welch scatter of the measured estimate: a normal spread with the draws'
+    variance plus the centred ``log10`` of a chi-square with the degrees of freedom whose
+    variance is ``log_variance`` (:func:`log_chi2_normal_scores`; its long lower tail would
+    make ``(y - mu) / sd`` raise false deficits several times too often). Runs are combined
+    (Stouffer) along two families of paths: at fixed frequency,
     and, when the runs' speeds differ, at fixed wavenumber ``f / v`` (each run's residuals
     interpolated to ``f = kappa v_r``), so that a feature that stays put and one that tracks
     the speed each line up in one of them. The variance of each combined sum keeps the
@@ -357,7 +389,7 @@ def residual_map(
     mu = draws.mean(axis=0)
     draw_var = draws.var(axis=0, ddof=1) if draws.shape[0] > 1 else np.zeros_like(mu)
     sigma = np.sqrt(draw_var + var)
-    z = (y - mu) / sigma
+    z = log_chi2_normal_scores(y - mu, draw_var, dof_from_log10_variance(var))
     dev = (draws - mu) / sigma
     share = var / sigma**2
     combined = _combine(z, dev, share)
@@ -379,18 +411,23 @@ def residual_map(
     sig_f, sig_k = rejected[:, : f.size], rejected[:, f.size :]
 
     excess_db = 10.0 * (y - mu)
+    maps = {FREQUENCY: (f, combined), WAVENUMBER: (kappa, combined_k)}
     regions = []
     for c, name in enumerate(channels):
-        for domain, grid, stat, sig in (
-            (FREQUENCY, f, combined[c], sig_f[c]),
-            (WAVENUMBER, kappa, combined_k[c], sig_k[c]),
-        ):
+        for domain, sig in ((FREQUENCY, sig_f[c]), (WAVENUMBER, sig_k[c])):
+            grid, stat = maps[domain][0], maps[domain][1][c]
             for sign in (1, -1):
-                for a, b in contiguous_runs(sig & (np.sign(stat) == sign)):
+                for a, b in _split(sign * stat, contiguous_runs(sig & (np.sign(stat) == sign))):
                     i = a + int(np.argmax(sign * stat[a : b + 1]))
+                    other = WAVENUMBER if domain == FREQUENCY else FREQUENCY
+                    scale = (1.0 / v if domain == FREQUENCY else v) if spread else None
+                    contrast = _contrast(
+                        sign * stat[i], grid[a], grid[b], scale, *maps[other], c, sign
+                    )
                     peaks = _run_peaks(f, y, mu, z, excess_db, c, domain, grid[a], grid[b], sign, v)
                     at = grid[i] * (v if domain == WAVENUMBER else np.ones(y.shape[0]))
                     index = np.clip(np.rint((at - f[0]) / df).astype(int), 0, f.size - 1)
+                    centroid, width = _resonance(f, y, mu, c, grid[a], grid[b], domain)
                     regions.append(
                         Region(
                             domain=domain,
@@ -401,7 +438,10 @@ def residual_map(
                             z=float(stat[i]),
                             excess_db=float(np.mean(excess_db[np.arange(y.shape[0]), c, index])),
                             runs=peaks,
-                            speed=_speed_fit(peaks, v, f, sign * z[:, c]),
+                            speed=_speed_fit(peaks, v, f, sign * z[:, c], domain, contrast),
+                            runs_present=_present(f, sign * z[:, c], at),
+                            centroid_hz=centroid,
+                            half_power_width_hz=width,
                         )
                     )
     return ResidualMap(
@@ -422,6 +462,84 @@ def residual_map(
     )
 
 
+def _split(values: np.ndarray, spans: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """Split each span at the deepest dip between two peaks that falls below half the lower.
+
+    Two features whose significant bins touch (two close harmonics, say) stay two regions.
+    """
+    out = []
+    todo = list(spans)
+    while todo:
+        a, b = todo.pop()
+        x = values[a : b + 1]
+        peaks = [
+            i
+            for i in range(len(x))
+            if (i == 0 or x[i] >= x[i - 1]) and (i == len(x) - 1 or x[i] >= x[i + 1])
+        ]
+        best = None
+        for p, q in itertools.pairwise(peaks):
+            m = p + int(np.argmin(x[p : q + 1]))
+            depth = min(x[p], x[q]) - x[m]
+            if x[m] < 0.5 * min(x[p], x[q]) and (best is None or depth > best[1]):
+                best = (m, depth)
+        if best is None:
+            out.append((a, b))
+        else:
+            todo += [(a, a + best[0] - 1), (a + best[0] + 1, b)] if best[0] > 0 else [(a + 1, b)]
+    return sorted(out)
+
+
+def _present(f: np.ndarray, signed_z: np.ndarray, at: np.ndarray) -> int:
+    """Runs whose residual reaches ``PRESENT_Z`` within one bin of their aligned peak ``at``."""
+    df = f[1] - f[0]
+    count = 0
+    for r, target in enumerate(at):
+        near = np.abs(f - target) <= df
+        count += bool(near.any() and np.max(signed_z[r, near]) >= PRESENT_Z)
+    return count
+
+
+def _contrast(strength, low, high, scale, grid, stat, c, sign) -> float:
+    """The region's statistic over the other domain's largest one where the region maps to.
+
+    ``scale`` maps this domain's values to the other's per run (``1 / v`` from frequency to
+    wavenumber, ``v`` back); NaN without a wavenumber map.
+    """
+    if scale is None or grid.size == 0:
+        return float("nan")
+    inside = (grid >= low * scale.min()) & (grid <= high * scale.max())
+    largest = float(np.max(sign * stat[c, inside])) if inside.any() else 0.0
+    return float(strength / max(largest, 1.0))
+
+
+def _resonance(f, y, mu, c, low, high, domain) -> tuple[float, float]:
+    """Centroid and width of the half-power band of the run-averaged excess power.
+
+    Only for the frequency domain (NaN otherwise): the excess PSD ``10^y - 10^mu`` averaged
+    over runs, its largest bin within the region (padded), the contiguous bins around it above
+    half that value. The width includes the Hann window's main lobe (about 1.5 bins).
+    """
+    nan = float("nan")
+    if domain != FREQUENCY:
+        return nan, nan
+    df = f[1] - f[0]
+    excess = np.mean(10.0 ** y[:, c] - 10.0 ** mu[:, c], axis=0)
+    inside = np.flatnonzero((f >= low - SEARCH_PAD_BINS * df) & (f <= high + SEARCH_PAD_BINS * df))
+    m = int(inside[np.argmax(excess[inside])])
+    if excess[m] <= 0:
+        return nan, nan
+    lo = m
+    while lo > 0 and excess[lo - 1] >= excess[m] / 2:
+        lo -= 1
+    hi = m
+    while hi < f.size - 1 and excess[hi + 1] >= excess[m] / 2:
+        hi += 1
+    band = slice(lo, hi + 1)
+    centroid = float(np.sum(f[band] * excess[band]) / np.sum(excess[band]))
+    return centroid, float((hi - lo + 1) * df)
+
+
 def _run_peaks(f, y, mu, z, excess_db, c, domain, low, high, sign, v) -> RunPeaks:
     """Each run's peak of ``sign z`` within the region (mapped to its frequencies), padded."""
     n_runs = y.shape[0]
@@ -436,6 +554,10 @@ def _run_peaks(f, y, mu, z, excess_db, c, domain, low, high, sign, v) -> RunPeak
         if inside.size == 0:
             continue
         i = int(inside[np.argmax(sign * z[r, c, inside])])
+        if (i > 0 and sign * z[r, c, i - 1] > sign * z[r, c, i]) or (
+            i < f.size - 1 and sign * z[r, c, i + 1] > sign * z[r, c, i]
+        ):
+            continue  # the largest value sits on the window's edge: the run's peak lies outside
         shift = 0.0
         if 0 < i < f.size - 1:
             e = sign * excess_db[r, c, i - 1 : i + 2]
@@ -466,21 +588,26 @@ def _lit(f: np.ndarray, signed_z: np.ndarray, at: np.ndarray, runs: np.ndarray) 
     return hits
 
 
-def _speed_fit(peaks: RunPeaks, v, f: np.ndarray, signed_z: np.ndarray) -> SpeedFit:
+def _speed_fit(
+    peaks: RunPeaks, v, f: np.ndarray, signed_z: np.ndarray, domain: str, contrast: float
+) -> SpeedFit:
     nan = float("nan")
     use = peaks.affected & np.isfinite(peaks.frequency_hz) & (peaks.frequency_hz > 0)
     n = int(use.sum())
+    fallback = UNDETERMINED
+    if np.isfinite(contrast) and contrast >= CONTRAST_DECISION:
+        fallback = FIXED if domain == FREQUENCY else TRACKING
     if n == 0:
-        return SpeedFit(UNDETERMINED, nan, nan, nan, nan, 0, 0, 0)
+        return SpeedFit(fallback, nan, nan, nan, nan, 0, 0, 0, contrast)
     log_f = np.log(peaks.frequency_hz[use])
     c = float(np.exp(log_f.mean()))
     if v is None:
-        return SpeedFit(UNDETERMINED, c, nan, nan, nan, n, 0, 0)
+        return SpeedFit(fallback, c, nan, nan, nan, n, 0, 0, contrast)
     log_v = np.log(v[use])
     log_a = float(np.mean(log_f - log_v))
     wavelength = float(np.exp(-log_a))
     if n < 3 or v[use].max() / v[use].min() < MIN_SPEED_SPREAD:
-        return SpeedFit(UNDETERMINED, c, wavelength, nan, nan, n, 0, 0)
+        return SpeedFit(fallback, c, wavelength, nan, nan, n, 0, 0, contrast)
     rss_fixed = float(np.sum((log_f - log_f.mean()) ** 2))
     rss_tracking = float(np.sum((log_f - log_v - log_a) ** 2))
     at_fixed, at_tracking = np.full(v.shape, c), v / wavelength
@@ -488,20 +615,22 @@ def _speed_fit(peaks: RunPeaks, v, f: np.ndarray, signed_z: np.ndarray) -> Speed
     lit_fixed = _lit(f, signed_z, at_fixed, telling)
     lit_tracking = _lit(f, signed_z, at_tracking, telling)
     resolvable = 0.5 * (f[1] - f[0]) / c
-    preferred = UNDETERMINED
+    preferred = fallback
     if (
         rss_tracking * SPEED_DECISION_RATIO <= rss_fixed
         and np.sqrt(rss_fixed / n) > resolvable
-        and 2 * lit_fixed <= max(lit_tracking, 1)
+        and lit_fixed <= lit_tracking
     ):
         preferred = TRACKING
     elif (
         rss_fixed * SPEED_DECISION_RATIO <= rss_tracking
         and np.sqrt(rss_tracking / n) > resolvable
-        and 2 * lit_tracking <= max(lit_fixed, 1)
+        and lit_tracking <= lit_fixed
     ):
         preferred = FIXED
-    return SpeedFit(preferred, c, wavelength, rss_fixed, rss_tracking, n, lit_fixed, lit_tracking)
+    return SpeedFit(
+        preferred, c, wavelength, rss_fixed, rss_tracking, n, lit_fixed, lit_tracking, contrast
+    )
 
 
 def _distinct(regions: list[Region], df: float) -> tuple[Region, ...]:

@@ -66,7 +66,7 @@ class RestLines:
         Measured pooled PSD per channel and its local floor (the running median scaled to a
         mean).
     simulated
-        The simulated pooled PSD (NaN when none was given).
+        The largest over the draws of the simulated pooled PSD (NaN when none was given).
     dof
         Equivalent degrees of freedom of the pooled estimate.
     significant
@@ -101,11 +101,12 @@ class RestLines:
         """The lines the simulated rest does not hold."""
         return tuple(line for line in self.lines if not line.in_simulated)
 
-    def near(self, frequency_hz: float, tol_hz: float) -> tuple[LineAtRest, ...]:
-        """The unexplained lines within ``tol_hz`` of ``frequency_hz``."""
-        return tuple(
-            line for line in self.unexplained() if abs(line.frequency_hz - frequency_hz) <= tol_hz
-        )
+    def near(
+        self, frequency_hz: float, tol_hz: float, *, explained: bool = False
+    ) -> tuple[LineAtRest, ...]:
+        """The unexplained lines (all lines with ``explained``) within ``tol_hz``."""
+        lines = self.lines if explained else self.unexplained()
+        return tuple(line for line in lines if abs(line.frequency_hz - frequency_hz) <= tol_hz)
 
 
 def rest_segments(
@@ -174,7 +175,7 @@ def rest_lines(
     *,
     channels: Sequence[str],
     nperseg: int,
-    simulated: Sequence[Float[np.ndarray, "channel time"]] | None = None,
+    simulated: Sequence[Sequence[Float[np.ndarray, "channel time"]]] | None = None,
     band: tuple[float, float] | None = None,
     q: float = 0.01,
 ) -> RestLines:
@@ -199,7 +200,10 @@ def rest_lines(
     nperseg
         Samples per Welch segment (rest segments are short: for 0.25 s at 2048 Hz, 512).
     simulated
-        The simulated rest segments, to tell lines the model already has.
+        Per predictive draw, the simulated rest segments of every run, to tell lines the
+        model already has: a line is simulated when the largest of the draws' pooled PSDs
+        reaches within ``SIMULATED_WITHIN_DB`` of the measured one at its peak (a ring-down
+        after the motion varies from draw to draw).
     band
         Analysed range, Hz; ``None`` drops only 0 Hz and Nyquist.
     q
@@ -221,7 +225,8 @@ def rest_lines(
         )
     sim = np.full_like(psd, np.nan)
     if simulated is not None:
-        _, sim, _ = _pooled_psd(simulated, fs, nperseg, "simulated")
+        draws = [_pooled_psd(runs, fs, nperseg, "simulated")[1] for runs in simulated]
+        sim = np.max(draws, axis=0)
     lo, hi = (freqs[1], freqs[-2]) if band is None else band
     keep = (freqs >= lo) & (freqs <= hi)
     median_factor = scipy.stats.chi2.median(dof) / dof

@@ -61,7 +61,7 @@ def _best(matches: list[Match]) -> Match | None:
 
 
 def _in_most_runs(region: Region, n_runs: int) -> Check:
-    n = len(region.runs_affected)
+    n = region.runs_present
     return Check("in most runs", 2 * n >= n_runs, f"{n} of {n_runs}")
 
 
@@ -97,7 +97,9 @@ class FixedFrequency(AbstractSignature):
     most runs; no line at that frequency at rest before the motion (a resonance needs
     excitation and decays at rest); its channel has no broadband coherence excess (a line
     carried over from another channel is a leak, not a mode). Parameters: ``frequency_hz``
-    (the mean peak over affected runs, averaged over the channels that show it),
+    (the centroid of the half-power band of the run-averaged excess power, averaged over the
+    channels that show it), ``damping_ratio`` (half-power width over twice the frequency; an
+    upper bound near the resolution, since the width includes the window's main lobe),
     ``excess_db`` and ``channels``.
     """
 
@@ -122,7 +124,8 @@ class FixedFrequency(AbstractSignature):
             same = [
                 r
                 for r in regions
-                if abs(r.frequency_hz - f) <= LINE_TOLERANCE_BINS * res.resolution_hz
+                if abs(r.centroid_hz - region.centroid_hz)
+                <= max(LINE_TOLERANCE_BINS * res.resolution_hz, region.half_power_width_hz)
             ]
             leak = None
             if features.coherence is not None:
@@ -144,7 +147,10 @@ class FixedFrequency(AbstractSignature):
                     feature=region.describe(),
                     checks=checks,
                     parameters={
-                        "frequency_hz": float(np.mean([r.frequency_hz for r in same])),
+                        "frequency_hz": float(np.nanmean([r.centroid_hz for r in same])),
+                        "damping_ratio": float(
+                            np.nanmean([r.half_power_width_hz / (2 * r.centroid_hz) for r in same])
+                        ),
                         "excess_db": region.excess_db,
                         "channels": tuple(sorted({r.channel for r in same})),
                     },
@@ -297,8 +303,9 @@ class RestLine(AbstractSignature):
 
     Checks on each line at rest before the motion that the simulated rest lacks: it lies
     within ``tolerance_hz`` of a listed fundamental or one of its first ``harmonics``
-    multiples; it is also at rest after the motion (not decidable where the floor after the
-    motion, raised by the structure's ring-down, reaches the line's level); where the motion
+    multiples; it is also at rest after the motion (not decidable where a line the simulated
+    ring-down also has lies there, or where the PSD after the motion is within
+    ``CONSTANT_AMPLITUDE_DB`` of the line's without a line standing out); where the motion
     spectra show an excess region at the same frequency, its power there and at rest agree within
     ``CONSTANT_AMPLITUDE_DB`` (constant amplitude; not decidable when the line is hidden under
     the motion's vibration). Parameters: ``frequency_hz`` (the
@@ -335,8 +342,11 @@ class RestLine(AbstractSignature):
             if features.rest_after is not None and features.rest_before is not None:
                 after = bool(features.rest_after.near(f, tol))
                 line_psd, _ = features.rest_before.at(line.channel, f)
-                _, floor_after = features.rest_after.at(line.channel, f)
-                if not after and floor_after >= line_psd:
+                psd_after, _ = features.rest_after.at(line.channel, f)
+                masked = features.rest_after.near(f, tol, explained=True) or (
+                    psd_after * 10.0 ** (CONSTANT_AMPLITUDE_DB / 10.0) >= line_psd
+                )
+                if not after and masked:
                     after = None
             motion = [
                 r

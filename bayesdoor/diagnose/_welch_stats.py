@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 import scipy.signal
 import scipy.special
+import scipy.stats
 
-from .._types import Array, Float
+from .._types import Float
 from ..features import log_psd, segment_weights, welch_psd
 
 
@@ -100,7 +102,7 @@ def log10_psd_variance(dof: float | Float[np.ndarray, "*batch"]) -> Float[np.nda
 
 
 def windowed_log_psd(
-    signals: Float[Array, "run channel time"],
+    signals: Float[np.ndarray, "run channel time"],
     fs: float,
     t_start: Float[np.ndarray, " run"],
     t_stop: Float[np.ndarray, " run"],
@@ -147,7 +149,9 @@ def windowed_log_psd(
         raise ValueError(f"signals must have dims (run, channel, time), got shape {x.shape}")
     t0 = np.broadcast_to(np.asarray(t_start, dtype=float), x.shape[:1])
     t1 = np.broadcast_to(np.asarray(t_stop, dtype=float), x.shape[:1])
-    weights = np.asarray(segment_weights(x.shape[-1], fs, t0, t1, nperseg, noverlap))
+    weights = np.asarray(
+        segment_weights(x.shape[-1], fs, jnp.asarray(t0), jnp.asarray(t1), nperseg, noverlap)
+    )
     counts = weights.sum(axis=-1)
     if np.any(counts < 1):
         bad = int(np.argmin(counts))
@@ -156,7 +160,87 @@ def windowed_log_psd(
             f"segment of nperseg={nperseg} samples at fs={fs} Hz: pass a smaller nperseg"
         )
     freqs, psd = welch_psd(
-        x, fs, nperseg=nperseg, noverlap=noverlap, segment_weights=weights[:, None]
+        jnp.asarray(x),
+        fs,
+        nperseg=nperseg,
+        noverlap=noverlap,
+        segment_weights=jnp.asarray(weights[:, None]),
     )
     dof = np.array([welch_dof(int(c), nperseg, noverlap) for c in counts])
     return np.asarray(freqs), np.asarray(log_psd(psd)), log10_psd_variance(dof)
+
+
+def dof_from_log10_variance(
+    variance: float | Float[np.ndarray, "*batch"],
+) -> Float[np.ndarray, "*batch"]:
+    """The degrees of freedom whose ``log10`` chi-square variance is ``variance``.
+
+    The inverse of :func:`log10_psd_variance` (trigamma decreases monotonically), by Newton
+    iterations on ``ln(nu)`` from the large-``nu`` approximation ``psi'(nu / 2) ~ 2 / nu``.
+
+    Raises
+    ------
+    ValueError
+        For a non-positive or non-finite variance.
+    """
+    v = np.asarray(variance, dtype=float) * np.log(10.0) ** 2
+    if not np.all(np.isfinite(v) & (v > 0)):
+        raise ValueError(f"variance must be positive and finite, got {variance!r}")
+    log_nu = np.log(2.0 / v + 1.0)
+    for _ in range(60):
+        nu = np.exp(log_nu)
+        f = scipy.special.polygamma(1, nu / 2.0) - v
+        slope = scipy.special.polygamma(2, nu / 2.0) * nu / 2.0
+        log_nu = log_nu - np.clip(f / slope, -2.0, 2.0)
+    return np.exp(log_nu)
+
+
+#: Gauss-Hermite nodes for the expectation over the predictive draws' normal spread
+_HERMITE_X, _HERMITE_W = np.polynomial.hermite_e.hermegauss(40)
+_HERMITE_W = _HERMITE_W / _HERMITE_W.sum()
+
+
+def log_chi2_normal_scores(
+    difference: Float[np.ndarray, "*batch"],
+    draw_variance: Float[np.ndarray, "*batch"],
+    dof: Float[np.ndarray, "*batch"],
+) -> Float[np.ndarray, "*batch"]:
+    """Normal scores of measured-minus-predicted ``log10`` PSDs under the Welch scatter.
+
+    The difference is modelled as ``W + N``: ``W`` the centred ``log10`` of a chi-square
+    with ``dof`` degrees of freedom over ``dof`` (the measured estimate's scatter, skewed: a
+    long lower tail), ``N`` normal with the draws' variance. Its distribution function is
+    the expectation over ``N`` (Gauss-Hermite, 40 nodes) of the regularised incomplete gamma
+    function; the score is ``Phi^-1`` of it (taken from the nearer tail for precision). Where
+    a tail probability underflows, the normal approximation ``difference / sd`` is used
+    instead: such bins are extreme either way.
+
+    Parameters
+    ----------
+    difference
+        Measured minus mean predicted ``log10`` PSD.
+    draw_variance
+        Variance of the predictive draws (0 allowed).
+    dof
+        Equivalent degrees of freedom of the measured estimate.
+
+    Returns
+    -------
+    z
+        Standard normal scores.
+    """
+    d, s2, nu = np.broadcast_arrays(
+        np.asarray(difference, dtype=float),
+        np.asarray(draw_variance, dtype=float),
+        np.asarray(dof, dtype=float),
+    )
+    half = nu / 2.0
+    mean_log = (scipy.special.digamma(half) - np.log(half)) / np.log(10.0)
+    w = d[..., None] - np.sqrt(s2)[..., None] * _HERMITE_X + mean_log[..., None]
+    x = half[..., None] * 10.0 ** np.clip(w, -300.0, 300.0)
+    lower = np.sum(_HERMITE_W * scipy.special.gammainc(half[..., None], x), axis=-1)
+    upper = np.sum(_HERMITE_W * scipy.special.gammaincc(half[..., None], x), axis=-1)
+    z = np.where(lower < upper, scipy.stats.norm.ppf(lower), scipy.stats.norm.isf(upper))
+    approx = d / np.sqrt(s2 + scipy.special.polygamma(1, half) / np.log(10.0) ** 2)
+    usable = (np.minimum(lower, upper) > 1e-280) & np.isfinite(z)
+    return np.where(usable, z, approx)

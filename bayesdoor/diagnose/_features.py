@@ -149,8 +149,8 @@ def find_features(
             q=q,
         )
     before, after = rest_segments(x, fs, t0, t1)
-    sim_rest = [rest_segments(s, fs, t0, t1) for s in sims]
-    sim_before, sim_after = [s[0] for s in sim_rest], [s[1] for s in sim_rest]
+    split_draws = [rest_segments(s, fs, t0, t1) for s in sims]
+    sim_before, sim_after = [s[0] for s in split_draws], [s[1] for s in split_draws]
     if rest_nperseg is None:
         shortest = min(b.shape[-1] for b in before)
         rest_nperseg = min(int(fs) // 4, 2 ** int(np.floor(np.log2(max(shortest, 2)))))

@@ -270,6 +270,9 @@ def test_good_run_passes_the_gates(nuts_idata):
     assert diag.rhat_max <= 1.01 and diag.ess_bulk_min >= 400
     assert diag.divergences == 0 and len(diag.ebfmi) == 4
     assert "PASSED" in str(diag)
+    record = json.loads(json.dumps(diag.to_json(), allow_nan=False))
+    assert record["passed"] is True and record["rhat_max"] == diag.rhat_max
+    assert record["thresholds"]["ess_tail_min"] is None and record["autocorr_lengths"] is None
 
 
 def test_thirty_draws_fail_the_ess_gate_loudly(nuts_idata):

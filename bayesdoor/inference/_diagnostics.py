@@ -6,7 +6,7 @@ import dataclasses
 import json
 import warnings
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import arviz as az
 import numpy as np
@@ -62,6 +62,20 @@ class SamplingDiagnostics:
     passed: bool
     messages: tuple[str, ...]
     thresholds: dict[str, float]
+
+    def to_json(self) -> dict[str, Any]:
+        """The diagnostics as plain JSON values (non-finite numbers become ``None``)."""
+
+        def clean(value: Any) -> Any:
+            if isinstance(value, dict):
+                return {k: clean(v) for k, v in value.items()}
+            if isinstance(value, list | tuple):
+                return [clean(v) for v in value]
+            if isinstance(value, float) and not np.isfinite(value):
+                return None
+            return value
+
+        return clean(dataclasses.asdict(self))
 
     def __str__(self) -> str:
         head = "sampling gates PASSED" if self.passed else "SAMPLING GATES FAILED"

@@ -67,6 +67,17 @@ def test_reproduces_plain_pycma_and_reaches_the_optimum(f, dim, optimum, restart
     np.testing.assert_allclose(ours.x_best, optimum, atol=1e-3)
 
 
+def test_ftarget_and_budget_stop_the_restarts():
+    kw = dict(lower=-np.ones(3), upper=np.ones(3), seed=2, restarts=3, progress=False)
+    hit = minimize_cmaes(sphere, np.zeros(3), options={"ftarget": 1e-3}, **kw)
+    assert hit.restarts == 0 and hit.stop[0].startswith("ftarget")
+    assert hit.f_best <= 1e-3
+    budget = minimize_cmaes(sphere, np.zeros(3), max_evals=200, **kw)
+    # pycma checks the budget between iterations: at most one population over it
+    assert 200 <= budget.evaluations < 200 + budget.history.popsize[-1]
+    assert "maxfevals" in budget.stop[-1]
+
+
 def test_history_is_consistent():
     r = minimize_cmaes(
         sphere, np.zeros(3), lower=-np.ones(3), upper=np.ones(3), seed=2, progress=False

@@ -138,6 +138,17 @@ class ConvNet(eqx.Module):
         return self.dense[-1](h)
 
 
+@eqx.filter_jit
+def stacked_members(config: NetworkConfig, n_members: int, dtype: Any, key: Array) -> ConvNet:
+    """``n_members`` networks stacked along a leading axis, each from its own split of ``key``.
+
+    Jitted: built op by op, the vmapped initialisation spends seconds compiling each random op.
+    """
+    return eqx.filter_vmap(lambda k: ConvNet(config, dtype=dtype, key=k))(
+        jax.random.split(key, n_members)
+    )
+
+
 def parameter_count(model: eqx.Module) -> int:
     """Number of trainable scalars (inexact array leaves) in ``model``."""
     leaves = jax.tree_util.tree_leaves(eqx.filter(model, eqx.is_inexact_array))

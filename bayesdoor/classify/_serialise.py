@@ -19,7 +19,7 @@ from .. import __version__
 from ..io import atomic_write
 from ._config import TrainConfig
 from ._ensemble import Ensemble
-from ._network import ConvNet, NetworkConfig
+from ._network import NetworkConfig, stacked_members
 from ._ood import MahalanobisOOD
 
 #: the ``format`` field of the header
@@ -142,8 +142,9 @@ def load_ensemble(path: str | Path) -> Ensemble:
         header = _check_header(path, f.readline())
         dtype = jnp.dtype(header["dtype"])
         network = NetworkConfig.from_json(header["architecture"])
-        members = eqx.filter_vmap(lambda k: ConvNet(network, dtype=dtype, key=k))(
-            jax.random.split(jax.random.key(0), header["members"])
+        # shapes and types only: the values come from the file
+        members = eqx.filter_eval_shape(
+            stacked_members, network, header["members"], dtype, jax.random.key(0)
         )
         ood = header["ood"]
         if ood is None:
@@ -152,8 +153,8 @@ def load_ensemble(path: str | Path) -> Ensemble:
             d = ood["features"]
             like = (
                 members,
-                jnp.zeros((network.n_classes, d), dtype),
-                jnp.zeros((d, d), dtype),
+                jax.ShapeDtypeStruct((network.n_classes, d), dtype),
+                jax.ShapeDtypeStruct((d, d), dtype),
             )
         leaves = eqx.tree_deserialise_leaves(f, like)
     norm = header["normalisation"]

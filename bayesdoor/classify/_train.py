@@ -15,7 +15,7 @@ import optax
 from .._types import Array, Float, Int
 from ._config import TrainConfig
 from ._ensemble import Ensemble
-from ._network import ConvNet, NetworkConfig
+from ._network import NetworkConfig, stacked_members
 
 Progress = Literal["rich", "tqdm", "none"]
 
@@ -209,9 +209,7 @@ def train_ensemble(
     y = jnp.asarray(y_np, dtype=jnp.int32)
 
     init_key, shuffle_key = jax.random.split(key)
-    members = eqx.filter_vmap(lambda k: ConvNet(network, dtype=dtype, key=k))(
-        jax.random.split(init_key, config.members)
-    )
+    members = stacked_members(network, config.members, dtype, init_key)
     params, static = eqx.partition(members, eqx.is_inexact_array)
     opt_state = eqx.filter_vmap(optax.adam(config.learning_rate).init)(params)
     member_keys = jax.random.split(shuffle_key, config.members)

@@ -339,6 +339,7 @@ def generate(
     new_runs = sum(job.chunk_runs(i)[1].size for i in pending)
 
     start = time.perf_counter()
+    arrivals = [start]
     with _progress(progress, job.n_chunks, job.n_chunks - len(pending)) as advance:
         # a finished folder needs no cluster
         chunks = (
@@ -349,6 +350,7 @@ def generate(
         with contextlib.closing(chunks):
             for index, arrays in chunks:
                 _save_chunk(out, index, arrays, config_hash)
+                arrivals.append(time.perf_counter())
                 advance()
                 if on_chunk is not None:
                     on_chunk(index)
@@ -361,6 +363,8 @@ def generate(
         "dropped_run_ids": data.dropped_run_ids.tolist(),
         "redrawn_runs": int(np.sum(data.redraws > 0)),
         "chunks_computed": len(pending),
+        # time between saved chunks: the first includes compilation (and cluster start-up)
+        "chunk_seconds": np.diff(arrivals).tolist(),
         "seconds": seconds,
         "seconds_per_run": seconds / new_runs if new_runs else None,
         "scheduler": scheduler,

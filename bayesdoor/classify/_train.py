@@ -80,7 +80,7 @@ def _progress_bar(kind: Progress, epochs: int) -> Iterator[Callable[[float], Non
                 bar.update(1)
 
             yield advance
-    elif kind == "rich":
+    else:
         from rich.progress import Progress as RichProgress
 
         with RichProgress(transient=True) as bar:
@@ -90,8 +90,6 @@ def _progress_bar(kind: Progress, epochs: int) -> Iterator[Callable[[float], Non
                 bar.update(task, advance=1, description=f"training ensemble (loss {loss:.4f})")
 
             yield advance
-    else:
-        raise ValueError(f"progress must be 'rich', 'tqdm' or 'none', got {kind!r}")
 
 
 def _loss(params, static, x, y, weight):
@@ -128,8 +126,10 @@ def _member_epoch(params, opt_state, key, x, y, static, learning_rate, batch_siz
 
 
 @eqx.filter_jit
-def _epoch(params, opt_state, keys, x, y, static, learning_rate, batch_size):
+def _epoch(params, opt_state, member_keys, epoch, x, y, static, learning_rate, batch_size):
     """One epoch of every member: ``eqx.filter_vmap`` over the members of :func:`_member_epoch`.
+
+    Each member shuffles with its own key folded with the epoch number.
 
     Module level and jitted once per (shapes, architecture, rate, batch size), so a second
     training with the same settings does not compile again.
@@ -138,8 +138,10 @@ def _epoch(params, opt_state, keys, x, y, static, learning_rate, batch_size):
     # dtype promotion refuses; standard promotion is confined to this trace
     with jax.numpy_dtype_promotion("standard"):
         return eqx.filter_vmap(
-            lambda p, s, k: _member_epoch(p, s, k, x, y, static, learning_rate, batch_size)
-        )(params, opt_state, keys)
+            lambda p, s, k: _member_epoch(
+                p, s, jax.random.fold_in(k, epoch), x, y, static, learning_rate, batch_size
+            )
+        )(params, opt_state, member_keys)
 
 
 def train_ensemble(
@@ -191,6 +193,8 @@ def train_ensemble(
     Lakshminarayanan, B., Pritzel, A. and Blundell, C. (2017). Simple and scalable predictive
     uncertainty estimation using deep ensembles. NeurIPS.
     """
+    if progress not in ("rich", "tqdm", "none"):
+        raise ValueError(f"progress must be 'rich', 'tqdm' or 'none', got {progress!r}")
     class_names = tuple(class_names)
     x_np, y_np = _check_data(x, labels, class_names)
     config = TrainConfig() if config is None else config
@@ -217,9 +221,16 @@ def train_ensemble(
     history = []
     with _progress_bar(progress, config.epochs) as advance:
         for e in range(config.epochs):
-            keys = jax.vmap(lambda k, e=e: jax.random.fold_in(k, e))(member_keys)
             params, opt_state, loss = _epoch(
-                params, opt_state, keys, z, y, static, config.learning_rate, config.batch_size
+                params,
+                opt_state,
+                member_keys,
+                jnp.asarray(e, dtype=jnp.int32),
+                z,
+                y,
+                static,
+                config.learning_rate,
+                config.batch_size,
             )
             history.append(np.asarray(loss))
             advance(float(history[-1].mean()))

@@ -189,6 +189,30 @@ def test_csv_folder(tmp_path):
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
 
 
+def test_csv_files_that_do_not_form_a_campaign(tmp_path):
+    folder = tmp_path / "csv"
+    to_csv(synthetic(), folder)
+    (folder / "campaign.json").unlink()
+    run = folder / "run_0001.csv"
+    run.write_text(run.read_text().replace("A2Z", "B2Z", 1))
+    result = invoke(folder, "--json", "--out", tmp_path / "out")
+    assert result.exit_code == 1
+    payload = json.loads(result.stdout)
+    assert payload["runs"] == 0 and payload["channels"] == [] and payload["plots"] == []
+    assert payload["problem_codes"] == ["missing_channels"]
+    assert "run_0001.csv: channels" in payload["problems"][0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_out_must_be_a_folder(valid, tmp_path):
+    out = tmp_path / "taken"
+    out.write_text("a file")
+    result = invoke(valid, "--out", out)
+    assert result.exit_code == 2
+    assert "--out" in result.stderr and "is a file" in result.stderr
+    assert out.read_text() == "a file"
+
+
 def test_unreadable_or_missing_file_fails_with_one_line(tmp_path):
     bogus = tmp_path / "bogus.nc"
     bogus.write_text("not netcdf")

@@ -6,7 +6,7 @@ import contextlib
 import json as json_module
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.console import Console
@@ -168,8 +168,10 @@ def inspect(
         options, warnings = _inspect.expectations(ds)
         problems = validate_campaign(ds, **options)
         warnings += _inspect.speed_notes(ds)
-    info: dict[str, Any] = _inspect.summary(ds) if ds is not None else {"runs": 0}
+    info = _inspect.summary(ds)
     written: list[Path] = []
+    if out is not None and out.exists() and not out.is_dir():
+        raise fail(f"--out {out} is a file: give a folder for the plots")
     if out is not None and ds is not None:
         targets = [*_inspect.plot_paths(out, info["sampling_rate_hz"]), out / "inspect.json"]
         for target in targets:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import xarray as xr
@@ -77,8 +78,13 @@ def _speed_order(item: tuple[str, int]) -> tuple[bool, float]:
     return item[0] == "unknown", 0.0 if item[0] == "unknown" else float(item[0])
 
 
-def summary(ds: xr.Dataset) -> dict:
-    """Runs per state and split, speeds, record length, channels, sampling rate, system."""
+def summary(ds: xr.Dataset | None) -> dict[str, Any]:
+    """Runs per state and split, speeds, record length, channels, sampling rate, system.
+
+    ``None`` (files that could not be assembled into a campaign) gives the same keys, empty.
+    """
+    if ds is None:
+        ds = xr.Dataset()
     runs = int(ds.sizes.get("run", 0))
 
     def per_run(name: str, default: str) -> list[str]:
@@ -99,6 +105,7 @@ def summary(ds: xr.Dataset) -> dict:
     fs = ds.attrs.get("sampling_rate_hz")
     fs = float(fs) if isinstance(fs, int | float | np.number) else None
     n_time = int(ds.sizes.get("time", 0))
+    windows = "t_start/t_stop" if "t_start" in ds and "t_stop" in ds else "detected"
     return {
         "system": str(ds.attrs.get("system", "")),
         "runs": runs,
@@ -110,7 +117,7 @@ def summary(ds: xr.Dataset) -> dict:
         "splits": dict(Counter(splits)) if "split" in ds else {},
         "runs_by_state_and_split": table,
         "v_max": dict(sorted(speeds.items(), key=_speed_order)),
-        "motion_window": "t_start/t_stop" if "t_start" in ds and "t_stop" in ds else "detected",
+        "motion_window": windows if runs else None,
     }
 
 

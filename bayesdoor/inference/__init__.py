@@ -30,5 +30,6 @@ from ._samplers import sample_emcee as sample_emcee
 from ._samplers import sample_nuts as sample_nuts
 from ._surrogate import QuadraticSurrogate as QuadraticSurrogate
 from ._surrogate import box_around as box_around
+from ._surrogate import box_from_samples as box_from_samples
 from ._surrogate import fit_surrogate as fit_surrogate
 from ._surrogate import simulate_design as simulate_design

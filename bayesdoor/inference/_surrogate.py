@@ -123,6 +123,25 @@ def _batched(forward: AbstractForward, thetas: Float[Array, "design param"]) -> 
     return jax.vmap(forward)(thetas)
 
 
+def box_from_samples(
+    theta: Float[Array, "sample param"],
+    lower: Float[Array, " param"],
+    upper: Float[Array, " param"],
+    *,
+    n_sd: float = 5.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A box of ``n_sd`` posterior standard deviations around the posterior mean, clipped.
+
+    The second stage of a two-stage fit: a surrogate on a wide box gives a first posterior;
+    a surrogate refitted on this smaller box is accurate where the posterior lives (a quadratic
+    that must span a resonance moving through a band is not).
+    """
+    theta = np.asarray(theta, dtype=float)
+    mean, sd = theta.mean(axis=0), theta.std(axis=0)
+    lo, hi = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+    return np.maximum(lo, mean - n_sd * sd), np.minimum(hi, mean + n_sd * sd)
+
+
 def simulate_design(
     forward: AbstractForward, thetas: Float[Array, "design param"], *, chunk: int = 32
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -162,6 +162,13 @@ def test_ood_flags_far_inputs_and_few_in_distribution(fitted):
     # an unseen pattern (a narrow peak at another frequency) on the normal baseline
     new_peak = x + 2.0 * np.exp(-(((FREQ - 0.75) / 0.04) ** 2))
     assert np.all(np.asarray(predict(fitted, jnp.asarray(new_peak)).ood))
+    # a corrupted input (a non-finite bin) is flagged, and does not disturb the others
+    broken = x[:3].copy()
+    broken[1, 2, 7] = np.nan
+    pred = predict(fitted, jnp.asarray(broken))
+    assert bool(pred.ood[1])
+    np.testing.assert_array_equal(np.asarray(pred.ood)[[0, 2]], np.asarray(in_dist.ood)[[0, 2]])
+    assert np.all(np.isfinite(np.asarray(pred.probabilities)[[0, 2]]))
 
 
 def test_save_load_round_trip_gives_identical_predictions(fitted, tmp_path):

@@ -120,7 +120,8 @@ class Prediction(eqx.Module):
     ood_score
         The out-of-distribution score, ``None`` without a detector.
     ood
-        True where ``ood_score`` exceeds the detector's threshold, ``None`` without a detector.
+        True where ``ood_score`` exceeds the detector's threshold or is NaN (an input with
+        non-finite values), ``None`` without a detector.
     """
 
     probabilities: Float[Array, "batch class"]

@@ -46,8 +46,8 @@ class MahalanobisOOD(eqx.Module):
         return jnp.sqrt(jnp.min(d2, axis=-1))
 
     def flag(self, z: Float[Array, "batch channel freq"]) -> Array:
-        """True where the score exceeds the threshold."""
-        return self.score(z) > self.threshold
+        """True where the score exceeds the threshold or is not a number (a corrupted input)."""
+        return ~(self.score(z) <= self.threshold)
 
 
 def ledoit_wolf(residuals: np.ndarray) -> tuple[np.ndarray, float]:

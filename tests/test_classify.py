@@ -221,6 +221,24 @@ def test_same_seed_same_weights():
     assert len({row.tobytes() for row in w}) == 3
 
 
+def test_second_training_does_not_compile():
+    x, y = synthetic(230, 6)
+    config = TrainConfig(members=3, epochs=3, batch_size=50)
+    train_ensemble(x, y, CLASSES, key=jax.random.key(1), config=config, progress="none")
+    compiles = []
+
+    def listener(name, duration, **kwargs):
+        if name == "/jax/core/compile/backend_compile_duration":
+            compiles.append(duration)
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        train_ensemble(x, y, CLASSES, key=jax.random.key(5), config=config, progress="none")
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    assert compiles == []
+
+
 @pytest.mark.parametrize("progress", ["rich", "tqdm"])
 def test_progress_bars(progress):
     x, y = synthetic(230, 6)

@@ -9,5 +9,6 @@ from ._effects import RailWaviness as RailWaviness
 from ._effects import SensorCrossAxis as SensorCrossAxis
 from ._effects import WheelEccentricity as WheelEccentricity
 from ._rig import Recording as Recording
+from ._rig import RestState as RestState
 from ._rig import RigConfig as RigConfig
 from ._rig import VirtualRig as VirtualRig

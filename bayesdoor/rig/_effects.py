@@ -17,6 +17,9 @@ from ._door import WHEEL_RADIUS
 CHANNELS = ("A1X", "A1Z", "A2X", "A2Z")
 SENSORS = ("A1", "A2")
 WHEELS = ("left", "right")
+#: most radius harmonics of :class:`WheelEccentricity` (fewer are padded with zeros, so every
+#: rig shares one compiled solve)
+MAX_HARMONICS = 8
 
 
 def _check_range(owner: str, name: str, value: float, lo: float, hi: float) -> None:
@@ -40,7 +43,7 @@ class FrameMode(eqx.Module):
     frequency_hz: float
     damping_ratio: float
     rail_lift: float
-    participation: tuple[float, float, float, float]
+    participation: tuple[float, ...]
 
     def __check_init__(self):
         _check_range("FrameMode", "frequency_hz", self.frequency_hz, 5.0, 400.0)
@@ -82,10 +85,14 @@ class WheelEccentricity(eqx.Module):
     def __check_init__(self):
         if self.wheel not in WHEELS:
             raise ValueError(f"WheelEccentricity.wheel={self.wheel!r}: allowed {WHEELS}")
-        if len(self.amplitudes) != len(self.phases) or not self.amplitudes:
+        if (
+            len(self.amplitudes) != len(self.phases)
+            or not 1 <= len(self.amplitudes) <= MAX_HARMONICS
+        ):
             raise ValueError(
-                "WheelEccentricity needs one phase per harmonic amplitude, got "
-                f"{len(self.amplitudes)} amplitudes and {len(self.phases)} phases"
+                f"WheelEccentricity needs 1 to {MAX_HARMONICS} harmonic amplitudes and one "
+                f"phase per amplitude, got {len(self.amplitudes)} amplitudes and "
+                f"{len(self.phases)} phases"
             )
         for k, amp in enumerate(self.amplitudes, 1):
             _check_range("WheelEccentricity", f"amplitudes[{k - 1}] (m)", amp, 0.0, 0.2e-3)
@@ -182,7 +189,7 @@ class MainsHum(eqx.Module):
     frequency_hz: float
     amplitude: float
     harmonic_ratios: tuple[float, ...] = ()
-    gains: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
+    gains: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
 
     def __check_init__(self):
         if self.frequency_hz not in (50.0, 60.0):

@@ -18,7 +18,7 @@ from ..io import make_campaign
 from ..systems import door
 from . import _door as d
 from ._daq import anti_alias_decimate, apply_cross_axis, mains_signal, quantise
-from ._effects import CHANNELS, WHEELS, Effects
+from ._effects import CHANNELS, MAX_HARMONICS, WHEELS, Effects
 from ._integrate import integrate
 
 #: per-run parameters the rig scatters (relative standard deviation in :class:`RigConfig`)
@@ -50,7 +50,7 @@ class RigConfig(eqx.Module):
         Rest recorded after the slowest stroke of a campaign.
     chunk_size
         Runs integrated together (one vmapped solve); the last chunk is padded to this size
-        so every chunk reuses one compilation.
+        (or to the number of runs, if smaller) so every chunk reuses one compilation.
     """
 
     sampling_rate_hz: float = eqx.field(static=True, default=2048.0)
@@ -113,6 +113,21 @@ class Recording:
 
     campaign: xr.Dataset
     truth: dict
+
+
+@dataclasses.dataclass(frozen=True)
+class RestState:
+    """The rig's door at rest with the drive at the closed position.
+
+    ``indentation_m``: the four contact gaps (left wheel, right wheel, +X and -X groove wall;
+    positive = indentation, negative = clearance). ``frequencies_hz`` and ``damping_ratios``:
+    the oscillatory modes of the equations linearised there (friction acts as its
+    regularised viscous slope at rest), sorted by frequency.
+    """
+
+    indentation_m: np.ndarray
+    frequencies_hz: np.ndarray
+    damping_ratios: np.ndarray
 
 
 def _severities(states, severities, keys) -> dict[str, np.ndarray]:
@@ -282,7 +297,7 @@ class VirtualRig(eqx.Module):
         n_out = math.ceil(round(duration * cfg.sampling_rate_hz, 6))
 
         acc = np.empty((runs, len(CHANNELS), n_out))
-        size = cfg.chunk_size
+        size = min(cfg.chunk_size, runs)
         for start in range(0, runs, size):
             idx = np.arange(start, min(start + size, runs))
             padded = np.concatenate([idx, np.full(size - idx.size, idx[-1])])
@@ -292,7 +307,6 @@ class VirtualRig(eqx.Module):
             if progress is not None:
                 progress(int(idx[-1]) + 1)
 
-        extra = {} if split is None else {"split": list(split)}
         campaign = make_campaign(
             acc,
             channels=CHANNELS,
@@ -301,7 +315,7 @@ class VirtualRig(eqx.Module):
             v_max=speeds,
             t_start=np.full(runs, d.REST_S),
             t_stop=d.REST_S + strokes,
-            **extra,
+            split=None if split is None else list(split),
         )
         campaign.attrs["source"] = "bayesdoor virtual rig"
         campaign.attrs["effects"] = ", ".join(self.effects.names()) or "none"
@@ -315,6 +329,41 @@ class VirtualRig(eqx.Module):
             ],
         }
         return Recording(campaign=campaign, truth=truth)
+
+    def rest_state(self) -> RestState:
+        """Static indentations and the modes of the door at rest (true, unscattered values).
+
+        Examples
+        --------
+        >>> rest = VirtualRig().rest_state()
+        >>> bool(rest.indentation_m[0] > 0)  # the wheels sit in the rail
+        True
+        """
+        names = {*SCATTERED, "v_actual", "d1_height", "d2_depth", "d2_angle"}
+        args = self._run_args({k: np.atleast_1d(self._true_value(k)) for k in names})
+        one = jax.tree_util.tree_map(lambda x: x[0], args)
+        q0 = d.static_equilibrium(one)
+        latch = jnp.full(d.N_CONTACT, d.LATCH_FLOOR)
+
+        def flow(x):
+            q, qd = x[: d.N_DOF], x[d.N_DOF :]
+            return jnp.concatenate([qd, d.dynamics(0.0, q, qd, latch, one)[0]])
+
+        x0 = jnp.concatenate([q0, jnp.zeros_like(q0)])
+        eig = np.linalg.eigvals(np.asarray(jax.jacfwd(flow)(x0)))
+        eig = eig[eig.imag > 1e-6]
+        order = np.argsort(eig.imag)
+        gaps = d.contact_coordinates(q0, one)[: d.N_CONTACT]
+        return RestState(
+            indentation_m=np.asarray(gaps),
+            frequencies_hz=eig.imag[order] / (2.0 * np.pi),
+            damping_ratios=-eig.real[order] / np.abs(eig[order]),
+        )
+
+    def _true_value(self, name: str) -> float:
+        if name in SCATTERED:
+            return float(getattr(self.truth, name))
+        return 0.4 if name == "v_actual" else 0.0
 
     def _run_args(self, per_run: Mapping[str, np.ndarray]) -> d.RunArgs:
         """Equation arguments of a batch of runs (SI units)."""
@@ -336,13 +385,12 @@ class VirtualRig(eqx.Module):
         w_extra = 2.0 * np.pi * (50.0 if fm is None else fm.frequency_hz)
         zeta_extra = 0.01 if fm is None else fm.damping_ratio
         ecc = self.effects.wheel_eccentricity
-        harmonics = 1 if ecc is None else len(ecc.amplitudes)
-        ecc_amp = np.zeros((2, harmonics))
-        ecc_phase = np.zeros((2, harmonics))
+        ecc_amp = np.zeros((2, MAX_HARMONICS))
+        ecc_phase = np.zeros((2, MAX_HARMONICS))
         if ecc is not None:
-            side = WHEELS.index(ecc.wheel)
-            ecc_amp[side] = ecc.amplitudes
-            ecc_phase[side] = ecc.phases
+            side, count = WHEELS.index(ecc.wheel), len(ecc.amplitudes)
+            ecc_amp[side, :count] = ecc.amplitudes
+            ecc_phase[side, :count] = ecc.phases
         wav = self.effects.rail_waviness
         return d.RunArgs(
             k_contact=col(per_run["K"] * 1000.0**n),

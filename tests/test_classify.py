@@ -221,6 +221,21 @@ def test_same_seed_same_weights():
     assert len({row.tobytes() for row in w}) == 3
 
 
+def test_ensemble_without_detector_predicts_and_round_trips(tmp_path):
+    x, y = synthetic(230, 6)
+    config = TrainConfig(members=3, epochs=3, batch_size=50)
+    ensemble = train_ensemble(
+        x, y, CLASSES, key=jax.random.key(1), config=config, progress="none"
+    ).ensemble
+    pred = predict(ensemble, jnp.asarray(x[:5]))
+    assert pred.ood is None and pred.ood_score is None
+    loaded = load_ensemble(save_ensemble(tmp_path / "plain.eqx", ensemble))
+    assert loaded.ood is None and read_header(tmp_path / "plain.eqx")["ood"] is None
+    np.testing.assert_array_equal(
+        predict(loaded, jnp.asarray(x[:5])).probabilities, pred.probabilities
+    )
+
+
 def test_second_training_does_not_compile():
     x, y = synthetic(230, 6)
     config = TrainConfig(members=3, epochs=3, batch_size=50)

@@ -173,7 +173,7 @@ def run_features(
         window=spec.window,
         segment_weights=weights[..., None, :],
     )
-    return band_features(freqs, psd, edges), jnp.sum(weights, axis=-1)
+    return band_features(freqs, psd, edges.tolist()), jnp.sum(weights, axis=-1)
 
 
 def _correlation_table(spec: FeatureSpec, fs: float) -> np.ndarray:

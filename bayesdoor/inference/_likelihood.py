@@ -138,7 +138,7 @@ class SimulatorForward(AbstractForward):
         )
 
     def __call__(self, theta: Float[Array, " param"]) -> ForwardOutput:
-        values = {name: theta[i] for i, name in enumerate(self.names)}
+        values: dict[str, Array | float] = {n: theta[i] for i, n in enumerate(self.names)}
         values.update(dict(self.fixed))
         result = self.system.simulate_values(
             values, self.operating, duration=self.duration, check=False
@@ -216,7 +216,12 @@ class CalibrationData(eqx.Module):
                 f"{starts.shape}, t_stop {stops.shape}"
             )
         inside = segment_weights(
-            signals.shape[-1], fs, starts, stops, spec.nperseg, spec.noverlap
+            signals.shape[-1],
+            fs,
+            jnp.asarray(starts),
+            jnp.asarray(stops),
+            spec.nperseg,
+            spec.noverlap,
         ).sum(axis=-1)
         short = np.flatnonzero(np.asarray(inside) < 1)
         if short.size:
@@ -226,7 +231,9 @@ class CalibrationData(eqx.Module):
                 f"{stops[short].tolist()} s): (a) t_start/t_stop are wrong, (b) nperseg is too "
                 "large for the window"
             )
-        features, n_segments = run_features(signals, fs, starts, stops, spec)
+        features, n_segments = run_features(
+            signals, fs, jnp.asarray(starts), jnp.asarray(stops), spec
+        )
         unique, index = np.unique(op, return_inverse=True)
         return cls(
             y=features,

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import numpyro.distributions as dist
 from jax.scipy.linalg import solve_triangular
+from jax.scipy.optimize import minimize
 from numpyro.distributions import transforms
 
 from .._types import Array, Float
@@ -224,9 +225,7 @@ class SamplingTransform(eqx.Module):
             return -(log_density(self.constrained(u)) + self.log_jacobian(u))
 
         u0 = self.unconstrained(jnp.asarray(theta_start, dtype=self.lower.dtype))
-        found = jax.scipy.optimize.minimize(
-            negative, u0, method="BFGS", options={"maxiter": max_iterations}
-        )
+        found = minimize(negative, u0, method="BFGS", options={"maxiter": max_iterations})
         precision = np.asarray(jax.hessian(negative)(found.x))
         if not (np.isfinite(float(found.fun)) and np.all(np.isfinite(precision))):
             raise ValueError(

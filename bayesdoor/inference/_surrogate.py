@@ -85,11 +85,11 @@ class QuadraticSurrogate(AbstractForward):
         surrogate on a larger box around the posterior. ``bounds`` are the parameters' own
         (lower, upper) bounds, whose faces count as genuine.
         """
-        theta = np.asarray(theta)
+        draws = np.asarray(theta)
         lo, hi = np.asarray(self.lower), np.asarray(self.upper)
         width = hi - lo
-        near_lo = (theta - lo < 0.02 * width) & (lo > np.asarray(bounds[0]) + 1e-12 * width)
-        near_hi = (hi - theta < 0.02 * width) & (hi < np.asarray(bounds[1]) - 1e-12 * width)
+        near_lo = (draws - lo < 0.02 * width) & (lo > np.asarray(bounds[0]) + 1e-12 * width)
+        near_hi = (hi - draws < 0.02 * width) & (hi < np.asarray(bounds[1]) - 1e-12 * width)
         return np.mean(near_lo | near_hi, axis=0)
 
 
@@ -136,8 +136,8 @@ def box_from_samples(
     a surrogate refitted on this smaller box is accurate where the posterior lives (a quadratic
     that must span a resonance moving through a band is not).
     """
-    theta = np.asarray(theta, dtype=float)
-    mean, sd = theta.mean(axis=0), theta.std(axis=0)
+    draws = np.asarray(theta, dtype=float)
+    mean, sd = draws.mean(axis=0), draws.std(axis=0)
     lo, hi = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
     return np.maximum(lo, mean - n_sd * sd), np.minimum(hi, mean + n_sd * sd)
 
@@ -154,10 +154,10 @@ def simulate_design(
     ok
         Whether each simulation succeeded.
     """
-    thetas = np.asarray(thetas, dtype=float)
+    points = np.asarray(thetas, dtype=float)
     features, ok = [], []
-    for start in range(0, len(thetas), chunk):
-        block = thetas[start : start + chunk]
+    for start in range(0, len(points), chunk):
+        block = points[start : start + chunk]
         padded = np.concatenate([block, np.repeat(block[-1:], chunk - len(block), axis=0)])
         out = _batched(forward, jnp.asarray(padded))
         features.append(np.asarray(out.features)[: len(block)])
@@ -251,7 +251,7 @@ def fit_surrogate(
             f"a quadratic in {d} parameters has {n_terms} terms: pass n_train >= {2 * n_terms} "
             f"(got {n_train}) and n_test >= 8 (got {n_test})"
         )
-    ridges = np.logspace(-8, 2, 21) if ridges is None else np.asarray(ridges, dtype=float)
+    penalties = np.logspace(-8, 2, 21) if ridges is None else np.asarray(ridges, dtype=float)
     train_key, test_key = jax.random.split(key)
     seed_train, seed_test = (
         int(jax.random.randint(k, (), 0, 2**31 - 1)) for k in (train_key, test_key)
@@ -272,7 +272,7 @@ def fit_surrogate(
     flat = features.reshape(len(design), n_op, -1)
     coefs, lams, errors = [], [], []
     for o in range(n_op):
-        coef, lam, _ = _ridge_fit(phi[train & ok], flat[train & ok, o], ridges)
+        coef, lam, _ = _ridge_fit(phi[train & ok], flat[train & ok, o], penalties)
         pred = phi[~train & ok] @ coef
         errors.append(np.mean((pred - flat[~train & ok, o]) ** 2, axis=0))
         coefs.append(coef)

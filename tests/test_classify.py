@@ -195,6 +195,10 @@ def test_wrong_format_version_is_refused(fitted, tmp_path):
     path.write_bytes(json.dumps(header).encode() + b"\n" + rest)
     with pytest.raises(ValueError, match=f"format version {FORMAT_VERSION + 98}.*retrain"):
         load_ensemble(path)
+    truncated = tmp_path / "truncated.eqx"
+    truncated.write_bytes(save_ensemble(tmp_path / "whole.eqx", fitted).read_bytes()[:-100])
+    with pytest.raises(ValueError, match="truncated or corrupted"):
+        load_ensemble(truncated)
     other = tmp_path / "not_a_model.eqx"
     other.write_bytes(b"\x93NUMPY not json\n")
     with pytest.raises(ValueError, match="not a bayesdoor ensemble file"):

@@ -135,7 +135,8 @@ def load_ensemble(path: str | Path) -> Ensemble:
     Raises
     ------
     ValueError
-        When the file is not an ensemble file, or was written in another format version.
+        When the file is not an ensemble file, was written in another format version, or its
+        weights are truncated or corrupted.
     """
     path = Path(path)
     with open(path, "rb") as f:
@@ -156,7 +157,13 @@ def load_ensemble(path: str | Path) -> Ensemble:
                 jax.ShapeDtypeStruct((network.n_classes, d), dtype),
                 jax.ShapeDtypeStruct((d, d), dtype),
             )
-        leaves = eqx.tree_deserialise_leaves(f, like)
+        try:
+            leaves = eqx.tree_deserialise_leaves(f, like)
+        except Exception as err:  # equinox raises its own error type for a bad leaf
+            raise ValueError(
+                f"{path}: the weights after the header cannot be read ({err}): the file is "
+                f"truncated or corrupted; save the ensemble again"
+            ) from err
     norm = header["normalisation"]
     return Ensemble(
         members=leaves[0],

@@ -1,0 +1,285 @@
+"""The stages after the training data: train and calibrate, classify runs, write the report."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import xarray as xr
+
+from ..classify import (
+    Ensemble,
+    TrainConfig,
+    classification_metrics,
+    fit_classifier,
+    load_ensemble,
+    predict,
+    save_ensemble,
+)
+from ..datagen import TrainingData, campaign_features
+from ..features import CNNInputSpec
+from ..io import atomic_write
+from ..report import write_damage_report
+from ._bands import PredictiveBands
+from ._fit import FitSummary
+
+ENSEMBLE = "ensemble.eqx"
+BANDS = "bands.npz"
+
+
+def _write_json(path: Path, payload: Any) -> None:
+    text = json.dumps(payload, indent=1, default=float, allow_nan=False) + "\n"
+    atomic_write(path, lambda tmp: tmp.write_text(text), overwrite=True)
+
+
+def _clean(value: float) -> float | None:
+    """A float for JSON: NaN and infinities become ``None``."""
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _metrics(probabilities: np.ndarray, labels: np.ndarray) -> dict[str, Any]:
+    metrics = classification_metrics(probabilities, labels)
+    return {k: (v if isinstance(v, list) else _clean(v)) for k, v in metrics.items()} | {
+        "runs": int(labels.size)
+    }
+
+
+def train_stage(
+    data: TrainingData,
+    folder: Path,
+    *,
+    key,
+    config: TrainConfig,
+    ood_quantile: float,
+    progress: bool,
+) -> None:
+    """Train the ensemble on the training split, calibrate it and fit its OOD detector.
+
+    Writes ``ensemble.eqx``, ``training.json`` (counts, temperature, OOD threshold, loss
+    history, simulated validation metrics before and after the temperature) and ``bands.npz``
+    (the posterior-predictive bands of the features).
+    """
+    train, val = data.subset("train"), data.subset("validation")
+    if val.labels.size == 0:
+        raise ValueError(
+            "the training data has no validation runs: the temperature and the OOD threshold "
+            "need held-out simulated runs; use a validation_fraction > 0"
+        )
+    training = fit_classifier(
+        train.features,
+        train.labels,
+        val.features,
+        val.labels,
+        data.states,
+        key=key,
+        config=config,
+        ood_quantile=ood_quantile,
+        progress="rich" if progress else "none",
+    )
+    ensemble = training.ensemble
+    save_ensemble(folder / ENSEMBLE, ensemble)
+    calibrated = np.asarray(predict(ensemble, val.features).probabilities)
+    raw = np.asarray(predict(_with_temperature(ensemble, 1.0), val.features).probabilities)
+    PredictiveBands.from_training_data(data).save(folder / BANDS)
+    _write_json(
+        folder / "training.json",
+        {
+            "states": list(data.states),
+            "counts": data.counts(),
+            "temperature": float(ensemble.temperature),
+            "ood_threshold": None if ensemble.ood is None else float(ensemble.ood.threshold),
+            "ood_quantile": ood_quantile,
+            "train_config": config.to_json(),
+            "final_loss": np.asarray(training.loss[-1], dtype=float).tolist(),
+            "validation": {
+                "uncalibrated": _metrics(raw, val.labels),
+                "calibrated": _metrics(calibrated, val.labels),
+                "probabilities": calibrated.tolist(),
+                "labels": val.labels.tolist(),
+            },
+        },
+    )
+
+
+def _with_temperature(ensemble: Ensemble, temperature: float) -> Ensemble:
+    """The ensemble with another temperature (1 shows the uncalibrated probabilities)."""
+    return eqx.tree_at(
+        lambda e: e.temperature, ensemble, jnp.asarray(temperature, dtype=ensemble.dtype)
+    )
+
+
+def model_file(model: Path) -> Path:
+    """The ensemble of a model folder: ``model/ensemble.eqx`` or ``model/train/ensemble.eqx``.
+
+    Raises
+    ------
+    ValueError
+        When neither exists.
+    """
+    for candidate in (model / ENSEMBLE, model / "train" / ENSEMBLE, model):
+        if candidate.is_file():
+            return candidate
+    raise ValueError(
+        f"--model {model}: no {ENSEMBLE} there or in {model / 'train'}; pass the output "
+        "folder of 'bayesdoor run' (or its train/ folder)"
+    )
+
+
+def classify_stage(
+    model: Path, campaign: xr.Dataset, folder: Path, *, run_index: list[int] | None = None
+) -> None:
+    """Classify every run of ``campaign`` with the ensemble in ``model``.
+
+    Writes ``classification.json`` (DESIGN.md section 5: per run ``predicted``,
+    ``probabilities``, ``entropy``, ``mutual_information``, ``ood``; ``metrics`` over the
+    runs whose true state is one of the classes) and ``features.npz``. A run whose record is
+    not finite, or whose features cannot be computed, is reported with its ``problem`` and no
+    prediction; it does not stop the others.
+    """
+    path = model_file(model)
+    ensemble = load_ensemble(path)
+    classes = list(ensemble.class_names)
+    n_run = campaign.sizes["run"]
+    index = list(range(n_run)) if run_index is None else list(run_index)
+    states = (
+        np.asarray(campaign["state"].values).astype(str)
+        if "state" in campaign.coords
+        else np.full(n_run, "unknown")
+    )
+    speeds = (
+        np.asarray(campaign["v_max"].values, dtype=float)
+        if "v_max" in campaign.coords
+        else np.full(n_run, np.nan)
+    )
+    acc = np.asarray(campaign["acceleration"].transpose("run", "channel", "time").values)
+    problems: list[str | None] = [
+        None if np.all(np.isfinite(acc[i])) else "the record holds non-finite samples"
+        for i in range(n_run)
+    ]
+    n_freq = ensemble.network.input_shape[-1]
+    spec = CNNInputSpec()
+    features = np.full((n_run, *ensemble.network.input_shape), np.nan)
+    good = [i for i in range(n_run) if problems[i] is None]
+    if good:
+        try:
+            features[good] = campaign_features(campaign.isel(run=good), spec=spec)
+        except ValueError:
+            for i in good:
+                try:
+                    features[i] = campaign_features(campaign.isel(run=[i]), spec=spec)[0]
+                except ValueError as err:
+                    problems[i] = f"features failed: {err}"
+    for i in range(n_run):
+        if problems[i] is None and not np.all(np.isfinite(features[i])):
+            problems[i] = "non-finite features (a silent channel or a too short motion window)"
+    ok = np.array([p is None for p in problems])
+    probabilities = np.full((n_run, len(classes)), np.nan)
+    info = {k: np.full(n_run, np.nan) for k in ("entropy", "mi", "expected", "score")}
+    flags = np.zeros(n_run, dtype=bool)
+    if ok.any():
+        pred = predict(ensemble, jnp.asarray(features[ok]))
+        probabilities[ok] = np.asarray(pred.probabilities)
+        info["entropy"][ok] = np.asarray(pred.entropy)
+        info["mi"][ok] = np.asarray(pred.mutual_information)
+        info["expected"][ok] = np.asarray(pred.expected_entropy)
+        if pred.ood is not None and pred.ood_score is not None:
+            info["score"][ok] = np.asarray(pred.ood_score)
+            flags[ok] = np.asarray(pred.ood)
+    runs = []
+    for i in range(n_run):
+        entry: dict[str, Any] = {
+            "run": index[i],
+            "state": str(states[i]),
+            "v_max": _clean(speeds[i]),
+            "predicted": None,
+            "probabilities": None,
+            "entropy": None,
+            "expected_entropy": None,
+            "mutual_information": None,
+            "ood": None,
+            "ood_score": None,
+            "problem": problems[i],
+        }
+        if ok[i]:
+            entry.update(
+                predicted=classes[int(np.argmax(probabilities[i]))],
+                probabilities={c: float(p) for c, p in zip(classes, probabilities[i], strict=True)},
+                entropy=_clean(info["entropy"][i]),
+                expected_entropy=_clean(info["expected"][i]),
+                mutual_information=_clean(info["mi"][i]),
+                ood=bool(flags[i]) if ensemble.ood is not None else None,
+                ood_score=_clean(info["score"][i]),
+            )
+        runs.append(entry)
+    known = ok & np.isin(states, classes)
+    metrics = None
+    if known.any():
+        labels = np.array([classes.index(s) for s in states[known]])
+        metrics = _metrics(probabilities[known], labels)
+        metrics["ood_runs"] = int(flags[known].sum())
+        metrics["classes"] = classes
+    payload = {
+        "classes": classes,
+        "temperature": float(ensemble.temperature),
+        "ood_threshold": None if ensemble.ood is None else float(ensemble.ood.threshold),
+        "n_runs": n_run,
+        "n_failed": int((~ok).sum()),
+        "n_ood": int(flags.sum()),
+        "runs": runs,
+        "metrics": metrics,
+    }
+    _write_json(folder / "classification.json", payload)
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            np.savez(
+                f,
+                features=features,
+                frequencies=np.arange(n_freq)
+                * (float(campaign.attrs["sampling_rate_hz"]) / spec.nperseg),
+                channels=np.asarray([str(c) for c in campaign["channel"].values]),
+            )
+
+    atomic_write(folder / "features.npz", write, overwrite=True)
+
+
+def report_stage(
+    classified: Path,
+    model: Path,
+    folder: Path,
+    *,
+    fit: FitSummary | None = None,
+    title: str = "Damage report",
+) -> None:
+    """Write the HTML damage reports from a classification and its model folder."""
+    classification = json.loads((classified / "classification.json").read_text())
+    with np.load(classified / "features.npz", allow_pickle=False) as f:
+        features, frequencies = f["features"], f["frequencies"]
+        channels = tuple(str(c) for c in f["channels"])
+    model_folder = model_file(model).parent
+    bands = PredictiveBands.load(model_folder / BANDS) if (model_folder / BANDS).is_file() else None
+    training_path = model_folder / "training.json"
+    training = json.loads(training_path.read_text()) if training_path.is_file() else None
+    write_damage_report(
+        folder,
+        classification,
+        features=features,
+        frequencies=frequencies,
+        channels=channels,
+        bands=None
+        if bands is None
+        else {
+            "states": bands.states,
+            "speeds": bands.speeds,
+            "values": bands.values,
+        },
+        training=training,
+        fit=None if fit is None else {"method": fit.method, "j": fit.j, "table": fit.table()},
+        title=title,
+    )

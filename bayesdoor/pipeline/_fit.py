@@ -1,0 +1,110 @@
+"""What the later stages need of a model-updating result, saved without the full posterior."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..io import atomic_write
+
+
+def _finite_or_none(value: Any) -> float | None:
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+@dataclasses.dataclass(frozen=True)
+class FitSummary:
+    """The point, the posterior draws and the model error of a fit, as plain arrays.
+
+    Attributes
+    ----------
+    method
+        How the fit was made (``"cmaes"``, ``"nuts"``, ``"emcee"``).
+    point
+        One value per system parameter (the optimum; the contact-law index included).
+    j
+        The objective at ``point`` (``None`` when the fit does not report it).
+    draws
+        Posterior draws of the sampled parameters (empty for a point fit).
+    sigma_model
+        Posterior draws of the model-error scale, ``(sample, channel)`` in log10 decades, or
+        ``None`` when the fit has no model-error posterior.
+    """
+
+    method: str
+    point: dict[str, float]
+    j: float | None
+    draws: dict[str, np.ndarray]
+    sigma_model: np.ndarray | None
+
+    @classmethod
+    def from_result(cls, result: Any, method: str) -> FitSummary:
+        """Take the summary from a ``bayesdoor.inference.FitResult``-like object.
+
+        The object needs ``point`` (dict), ``j``, ``posterior_draws()`` (dict name -> array,
+        possibly empty) and ``model_error_draws()`` (array or ``None``).
+        """
+        draws = {
+            str(k): np.asarray(v, dtype=float).reshape(-1)
+            for k, v in (result.posterior_draws() or {}).items()
+        }
+        sigma = result.model_error_draws()
+        if sigma is not None:
+            sigma = np.asarray(sigma, dtype=float)
+            sigma = sigma.reshape(sigma.shape[0], -1) if sigma.ndim > 1 else sigma
+        return cls(
+            method=method,
+            point={str(k): float(v) for k, v in result.point.items()},
+            j=_finite_or_none(result.j),
+            draws=draws,
+            sigma_model=sigma,
+        )
+
+    def save(self, folder: Path) -> None:
+        """Write ``summary.json`` and ``draws.npz`` into ``folder``."""
+        header = {"method": self.method, "point": self.point, "j": self.j}
+        text = json.dumps(header, indent=1) + "\n"
+        atomic_write(folder / "summary.json", lambda tmp: tmp.write_text(text), overwrite=True)
+        arrays = {f"draw/{k}": v for k, v in self.draws.items()}
+        if self.sigma_model is not None:
+            arrays["sigma_model"] = self.sigma_model
+
+        def write(tmp: Path) -> None:
+            with open(tmp, "wb") as f:
+                np.savez(f, **arrays)
+
+        atomic_write(folder / "draws.npz", write, overwrite=True)
+
+    @classmethod
+    def load(cls, folder: Path) -> FitSummary:
+        """Read what :meth:`save` wrote."""
+        header = json.loads((folder / "summary.json").read_text())
+        with np.load(folder / "draws.npz", allow_pickle=False) as f:
+            arrays = {k: f[k] for k in f.files}
+        return cls(
+            method=header["method"],
+            point={k: float(v) for k, v in header["point"].items()},
+            j=header["j"],
+            draws={k.split("/", 1)[1]: v for k, v in arrays.items() if k.startswith("draw/")},
+            sigma_model=arrays.get("sigma_model"),
+        )
+
+    def table(self) -> list[dict[str, Any]]:
+        """Per parameter: the point, and the posterior mean, sd and 90 % interval when sampled."""
+        rows = []
+        for name, value in self.point.items():
+            row: dict[str, Any] = {"parameter": name, "point": value}
+            if name in self.draws:
+                d = self.draws[name]
+                lo, hi = np.quantile(d, [0.05, 0.95])
+                row.update(mean=float(d.mean()), sd=float(d.std()), q05=float(lo), q95=float(hi))
+            rows.append(row)
+        return rows

@@ -1,0 +1,461 @@
+"""The main job: fit, generate, train, classify, report; each stage reused when unchanged.
+
+Folder of a job::
+
+    OUT/fit/        the model updating on the calibration runs (summary.json, draws.npz,
+                    result/ with the full fit)
+    OUT/generate/   the simulated training data (bayesdoor.datagen's layout)
+    OUT/train/      the calibrated ensemble (ensemble.eqx), training.json, bands.npz
+    OUT/classify/   classification.json (DESIGN.md section 5) and features.npz
+    OUT/report/     index.html (the campaign) and runs/run-NNNN.html (one per run)
+    OUT/job.json    the job's settings, the stages' hashes and the headline numbers
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Callable
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Literal, NamedTuple
+
+import jax
+import numpy as np
+import xarray as xr
+
+from ..classify import TrainConfig
+from ..datagen import (
+    AbstractParameterSource,
+    GaussianScatter,
+    GenerationConfig,
+    ModelErrorDraws,
+    PosteriorDraws,
+    describe_system,
+    generate,
+    load_training_data,
+)
+from ..io import atomic_write
+from ..systems import AbstractSystem
+from ._classify import classify_stage, report_stage, train_stage
+from ._fit import FitSummary
+from ._stages import StageRecord, run_stage
+
+Source = Literal["posterior", "posterior+model_error", "gaussian"]
+SOURCES: tuple[str, ...] = ("posterior", "posterior+model_error", "gaussian")
+
+
+@dataclasses.dataclass(frozen=True)
+class Sizes:
+    """How much a job simulates and trains.
+
+    Parameters
+    ----------
+    runs_per_state
+        Simulated training runs per state (the paper: 600, 70/30 train/validation).
+    chunk_size
+        Runs per saved chunk of the generation.
+    validation_fraction
+        Share of every state's runs held out for the temperature and the OOD threshold.
+    train
+        The ensemble's training settings (the paper's: 10 members, 80 epochs, batch 100).
+    gaussian_sd
+        Relative standard deviation of the Gaussian baseline around the point (the paper:
+        "1-10 %"; 5 % is the middle of that range).
+    ood_quantile
+        Quantile of the simulated validation OOD scores that becomes the threshold.
+    """
+
+    runs_per_state: int = 600
+    chunk_size: int = 100
+    validation_fraction: float = 0.3
+    train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
+    gaussian_sd: float = 0.05
+    ood_quantile: float = 0.99
+
+    @classmethod
+    def quick(cls) -> Sizes:
+        """Smaller training data (100 runs per state) for a first look in a few minutes."""
+        return cls(runs_per_state=100, chunk_size=50)
+
+    def to_json(self) -> dict[str, Any]:
+        return {**dataclasses.asdict(self), "train": self.train.to_json()}
+
+
+@dataclasses.dataclass(frozen=True)
+class JobResult:
+    """What a finished job produced.
+
+    Attributes
+    ----------
+    out
+        The job's folder.
+    stages
+        The record of each stage, in order.
+    fit
+        The fit's point, draws and model error.
+    classification
+        The JSON of DESIGN.md section 5 (``classes``, ``runs``, ``metrics``).
+    report
+        The campaign's HTML report.
+    """
+
+    out: Path
+    stages: tuple[StageRecord, ...]
+    fit: FitSummary
+    classification: dict[str, Any]
+    report: Path
+
+    def to_json(self) -> dict[str, Any]:
+        """The job's JSON: the fit's summary, the classification, the files and the stages."""
+        return {
+            "out": str(self.out),
+            "report": str(self.report),
+            "fit": {
+                "method": self.fit.method,
+                "j": self.fit.j,
+                "parameters": self.fit.table(),
+            },
+            **self.classification,
+            "stages": [
+                {"name": s.name, "reused": s.reused, "seconds": s.seconds, "hash": s.config_hash}
+                for s in self.stages
+            ],
+        }
+
+
+def _digest_runs(campaign: xr.Dataset) -> str:
+    """SHA-256 of the runs' signals, time axis and per-run coordinates."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(campaign["acceleration"].values).tobytes())
+    h.update(np.ascontiguousarray(campaign["time"].values).tobytes())
+    for name in sorted(str(c) for c in campaign.coords if c not in ("time",)):
+        h.update(name.encode())
+        h.update(np.asarray(campaign[name].values).astype(str).tobytes())
+    return h.hexdigest()
+
+
+def calibration_runs(campaign: xr.Dataset) -> xr.Dataset:
+    """The runs to fit on: ``split == "calibration"`` when present, else all healthy runs.
+
+    Raises
+    ------
+    ValueError
+        When there is none.
+    """
+    if "split" in campaign.coords:
+        keep = np.asarray(campaign["split"].values).astype(str) == "calibration"
+        rule = "split == 'calibration'"
+    else:
+        keep = np.asarray(campaign["state"].values).astype(str) == "healthy"
+        rule = "state == 'healthy' (the campaign has no split coordinate)"
+    if not keep.any():
+        raise ValueError(
+            f"the campaign has no calibration runs (looked for {rule}): model updating needs "
+            "healthy runs; mark them with a 'split' coordinate 'calibration' or label them "
+            "state 'healthy'"
+        )
+    return campaign.isel(run=np.flatnonzero(keep))
+
+
+def runs_to_classify(campaign: xr.Dataset) -> xr.Dataset:
+    """The runs to classify: ``split == "test"`` when there are any, else all runs."""
+    if "split" in campaign.coords:
+        keep = np.asarray(campaign["split"].values).astype(str) == "test"
+        if keep.any():
+            return campaign.isel(run=np.flatnonzero(keep))
+    return campaign
+
+
+def _versions() -> dict[str, str]:
+    out = {}
+    for name in ("bayesdoor", "jax", "equinox", "diffrax", "numpyro"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def _default_fit(system, campaign, **options):
+    from ..inference import fit_campaign
+
+    return fit_campaign(system, campaign, **options)
+
+
+def parameter_source(
+    system: AbstractSystem, fit: FitSummary, source: Source, gaussian_sd: float
+) -> tuple[AbstractParameterSource, ModelErrorDraws | None]:
+    """The parameter source (and model-error draws) of the training data for ``source``.
+
+    Raises
+    ------
+    ValueError
+        For an unknown ``source``, posterior sources on a fit without posterior draws, or
+        model-error draws on a fit without a model-error posterior.
+    """
+    if source not in SOURCES:
+        raise ValueError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
+    if source == "gaussian":
+        return GaussianScatter.around(system, fit.point, gaussian_sd), None
+    if not fit.draws:
+        raise ValueError(
+            f"source={source!r} needs posterior draws, but the {fit.method} fit holds a point "
+            "only: fit with method 'nuts' or 'emcee', or use source='gaussian'"
+        )
+    fixed = {k: v for k, v in fit.point.items() if k not in fit.draws}
+    posterior = PosteriorDraws(fit.draws, fixed=fixed)
+    if source == "posterior":
+        return posterior, None
+    if fit.sigma_model is None:
+        raise ValueError(
+            f"source={source!r} needs the model-error posterior, but the {fit.method} fit has "
+            "none: use source='posterior'"
+        )
+    return posterior, ModelErrorDraws(fit.sigma_model)
+
+
+class Generation(NamedTuple):
+    """The training-data generation of a job: its stage configuration and its inputs."""
+
+    config: dict[str, Any]
+    source: AbstractParameterSource
+    model_error: ModelErrorDraws | None
+    generation: GenerationConfig
+
+
+def generation_settings(
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    fit: FitSummary,
+    fit_hash: str,
+    source: Source,
+    sizes: Sizes,
+    seed: int,
+) -> Generation:
+    """What the generation stage simulates, and the configuration that decides its reuse.
+
+    The speeds are the campaign's commanded ``v_max`` values (operating conditions, not
+    labels); the parameters come from :func:`parameter_source`.
+    """
+    params, model_error = parameter_source(system, fit, source, sizes.gaussian_sd)
+    speeds = np.unique(np.asarray(campaign["v_max"].values, dtype=float))
+    config = GenerationConfig(
+        speeds[np.isfinite(speeds)],
+        runs_per_state=sizes.runs_per_state,
+        validation_fraction=sizes.validation_fraction,
+        chunk_size=sizes.chunk_size,
+    )
+    stage = {
+        "fit": fit_hash,
+        "source": source,
+        "parameters": params.describe(),
+        "model_error": None if model_error is None else model_error.describe(),
+        "generation": config.to_dict(),
+        "seed": seed,
+    }
+    return Generation(stage, params, model_error, config)
+
+
+def run_job(
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    out: str | Path,
+    *,
+    quick: bool = False,
+    seed: int = 0,
+    source: Source = "posterior",
+    method: str = "nuts",
+    fit_seed: int | None = None,
+    sizes: Sizes | None = None,
+    fit: Callable[..., Any] | None = None,
+    progress: bool = True,
+    report: Callable[[str], None] = print,
+) -> JobResult:
+    """Fit on the calibration runs, simulate training data, train, classify the test runs, report.
+
+    Every stage writes under ``out/<stage>/`` (see the module docstring) and is reused when it
+    is finished with the same configuration, so a second call recomputes nothing and a changed
+    setting recomputes only the stages it reaches. The test runs are never used for fitting,
+    training, calibration or thresholds.
+
+    Parameters
+    ----------
+    system
+        The simulated system (its parameters, states and simulator).
+    campaign
+        A measurement campaign (DESIGN.md section 5). Fit on ``split == "calibration"`` (else
+        the healthy runs); classify ``split == "test"`` (else all runs).
+    out
+        The job's folder.
+    quick
+        Smaller sizes (:meth:`Sizes.quick`) and the fit's quick mode.
+    seed
+        Seed of the generation and the training (and of the fit unless ``fit_seed``).
+    source
+        Training-data parameters: ``"posterior"`` draws, ``"posterior+model_error"`` (plus
+        model-error offsets on the features) or the paper's ``"gaussian"`` scatter around the
+        fit's point.
+    method
+        The fit's method (``"nuts"``, ``"emcee"``; ``"cmaes"`` for a point only).
+    fit_seed
+        Seed of the fit; ``None`` means ``seed``.
+    sizes
+        Sizes of the generation and training; ``None``: the paper's, or the quick ones.
+    fit
+        The model-updating function, called as ``fit(system, calibration, method=, law=None,
+        seed=, quick=, progress=)`` and returning a ``FitResult``-like object (``point``, ``j``,
+        ``posterior_draws()``, ``model_error_draws()``, ``save(folder)``); ``None`` means
+        :func:`bayesdoor.inference.fit_campaign`.
+    progress
+        Show the progress bars of the stages.
+    report
+        Receives one line per stage event.
+
+    Returns
+    -------
+    JobResult
+
+    Raises
+    ------
+    ValueError
+        For a campaign without calibration runs, an unknown source, or a source the fit cannot
+        serve.
+    """
+    if source not in SOURCES:
+        raise ValueError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
+    out = Path(out)
+    sizes = (Sizes.quick() if quick else Sizes()) if sizes is None else sizes
+    fit = _default_fit if fit is None else fit
+    fit_seed = seed if fit_seed is None else fit_seed
+    calibration = calibration_runs(campaign)
+    test = runs_to_classify(campaign)
+    out.mkdir(parents=True, exist_ok=True)
+    system_description = describe_system(system)
+    versions = _versions()
+    records: list[StageRecord] = []
+
+    def compute_fit(folder: Path) -> None:
+        result = fit(
+            system,
+            calibration,
+            method=method,
+            law=None,
+            seed=fit_seed,
+            quick=quick,
+            progress=progress,
+        )
+        result.save(folder / "result")
+        FitSummary.from_result(result, method).save(folder)
+
+    fit_record = run_stage(
+        out,
+        "fit",
+        {
+            "system": system_description,
+            "calibration_runs": _digest_runs(calibration),
+            "method": method,
+            "seed": fit_seed,
+            "quick": quick,
+            "versions": versions,
+        },
+        compute_fit,
+        report=report,
+    )
+    records.append(fit_record)
+    summary = FitSummary.load(fit_record.path)
+
+    generation = generation_settings(
+        system, campaign, summary, fit_record.config_hash, source, sizes, seed
+    )
+    key = jax.random.key(seed)
+
+    def compute_generate(folder: Path) -> None:
+        generate(
+            system,
+            generation.source,
+            generation.generation,
+            folder / "data",
+            key=jax.random.fold_in(key, 1),
+            model_error=generation.model_error,
+            progress=progress,
+        )
+
+    gen_record = run_stage(
+        out,
+        "generate",
+        generation.config,
+        compute_generate,
+        resumable=True,
+        report=report,
+    )
+    records.append(gen_record)
+
+    train_record = run_stage(
+        out,
+        "train",
+        {"data": gen_record.config_hash, "sizes": sizes.to_json(), "seed": seed},
+        lambda folder: train_stage(
+            load_training_data(gen_record.path / "data"),
+            folder,
+            key=jax.random.fold_in(key, 2),
+            config=sizes.train,
+            ood_quantile=sizes.ood_quantile,
+            progress=progress,
+        ),
+        report=report,
+    )
+    records.append(train_record)
+
+    runs = [int(i) for i in np.flatnonzero(np.isin(campaign["run"].values, test["run"].values))]
+    classify_record = run_stage(
+        out,
+        "classify",
+        {"model": train_record.config_hash, "runs": _digest_runs(test), "indices": runs},
+        lambda folder: classify_stage(train_record.path, test, folder, run_index=runs),
+        report=report,
+    )
+    records.append(classify_record)
+
+    report_record = run_stage(
+        out,
+        "report",
+        {
+            "classification": classify_record.config_hash,
+            "fit": fit_record.config_hash,
+            "versions": versions,
+        },
+        lambda folder: report_stage(
+            classify_record.path,
+            train_record.path,
+            folder,
+            fit=summary,
+            title=f"{system.name}: damage report",
+        ),
+        report=report,
+    )
+    records.append(report_record)
+    classification = json.loads((classify_record.path / "classification.json").read_text())
+    result = JobResult(
+        out=out,
+        stages=tuple(records),
+        fit=summary,
+        classification=classification,
+        report=report_record.path / "index.html",
+    )
+    job = {
+        "system": system.name,
+        "quick": quick,
+        "seed": seed,
+        "fit_seed": fit_seed,
+        "source": source,
+        "method": method,
+        "sizes": sizes.to_json(),
+        "stages": {s.name: s.config_hash for s in records},
+        "metrics": classification.get("metrics"),
+        "report": str(result.report),
+    }
+    text = json.dumps(job, indent=1, default=float) + "\n"
+    atomic_write(out / "job.json", lambda tmp: tmp.write_text(text), overwrite=True)
+    return result

@@ -1,0 +1,158 @@
+"""Stages of a job: one folder each, finished atomically, reused when their configuration matches.
+
+A stage ``NAME`` of a job in ``OUT`` owns the folder ``OUT/NAME``. It is finished when
+``OUT/NAME/stage.json`` exists; that record holds the SHA-256 of the stage's configuration
+(which includes the hashes of the stages it reads, so a change upstream propagates). A finished
+stage with the same hash is reused as it is; any other content of the folder is replaced.
+
+Most stages are computed in a temporary sibling folder that is renamed into place when it is
+complete, so an interrupted stage leaves nothing behind. A *resumable* stage (training-data
+generation, which saves chunk by chunk) computes in its own folder; a start marker holding the
+hash lets an interrupted run of the same configuration continue where it stopped, while one of
+another configuration starts afresh.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import shutil
+import time
+import uuid
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from ..io import atomic_write
+
+RECORD = "stage.json"
+_STARTED = ".started"
+
+
+def configuration_hash(config: Mapping[str, Any]) -> str:
+    """SHA-256 of a JSON-able configuration (keys sorted, so their order does not matter)."""
+    text = json.dumps(config, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+@dataclasses.dataclass(frozen=True)
+class StageRecord:
+    """What ``OUT/NAME/stage.json`` says about a finished stage.
+
+    Attributes
+    ----------
+    name
+        The stage's name (its folder).
+    path
+        The stage's folder.
+    config_hash
+        SHA-256 of the stage's configuration.
+    reused
+        True when this call found the stage finished and did not recompute it.
+    seconds
+        Time the stage took when it was computed.
+    """
+
+    name: str
+    path: Path
+    config_hash: str
+    reused: bool
+    seconds: float
+
+
+def finished_record(path: Path) -> dict[str, Any] | None:
+    """The record of a finished stage folder, ``None`` when the stage is not finished."""
+    record = path / RECORD
+    if not record.is_file():
+        return None
+    try:
+        return json.loads(record.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def _write_record(path: Path, payload: dict[str, Any]) -> None:
+    text = json.dumps(payload, indent=1, default=str) + "\n"
+    atomic_write(path / RECORD, lambda tmp: tmp.write_text(text), overwrite=True)
+
+
+def run_stage(
+    out: Path,
+    name: str,
+    config: Mapping[str, Any],
+    compute: Callable[[Path], None],
+    *,
+    resumable: bool = False,
+    report: Callable[[str], None] = lambda line: None,
+) -> StageRecord:
+    """Run the stage ``name`` of the job in ``out`` unless it is finished with this configuration.
+
+    Parameters
+    ----------
+    out
+        The job's output folder.
+    name
+        The stage (its folder under ``out``).
+    config
+        Everything the stage's output depends on, JSON-able (the hashes of the stages it reads
+        included).
+    compute
+        Writes the stage's files into the folder it is given.
+    resumable
+        Compute in the stage's own folder and let an interrupted run of the same configuration
+        continue (``compute`` must then tolerate partial content of its own making).
+    report
+        Receives one progress line when the stage starts and one when it ends or is reused.
+
+    Returns
+    -------
+    StageRecord
+    """
+    path = out / name
+    digest = configuration_hash(config)
+    old = finished_record(path)
+    if old is not None and old.get("config_hash") == digest:
+        report(f"{name}: reused (configuration {digest[:10]}, finished {old.get('finished')})")
+        return StageRecord(name, path, digest, True, float(old.get("seconds", 0.0)))
+    why = "configuration changed" if old is not None else "computing"
+    report(f"{name}: {why} ...")
+    start = time.perf_counter()
+    if resumable:
+        marker = path / _STARTED
+        if path.exists() and (
+            old is not None or not marker.is_file() or marker.read_text() != digest
+        ):
+            shutil.rmtree(path)
+        path.mkdir(parents=True, exist_ok=True)
+        marker.write_text(digest)
+        compute(path)
+        work = path
+    else:
+        work = out / f".{name}.{uuid.uuid4().hex}.tmp"
+        work.mkdir(parents=True)
+        try:
+            compute(work)
+        except BaseException:
+            shutil.rmtree(work, ignore_errors=True)
+            raise
+    seconds = time.perf_counter() - start
+    finished = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    _write_record(
+        work,
+        {
+            "stage": name,
+            "config_hash": digest,
+            "config": dict(config),
+            "seconds": seconds,
+            "finished": finished,
+        },
+    )
+    if not resumable:
+        if path.exists():
+            shutil.rmtree(path)
+        work.rename(path)
+    else:
+        (path / _STARTED).unlink(missing_ok=True)
+    report(f"{name}: done in {seconds:.1f} s")
+    return StageRecord(name, path, digest, False, seconds)

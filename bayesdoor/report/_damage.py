@@ -1,0 +1,588 @@
+"""Damage reports: one HTML page per campaign and one per run, figures embedded.
+
+The figures follow the paper: probability bars per run (its Figure 6) and the confusion
+matrix (its Figure 7), plus what a calibrated classifier adds: the reliability diagram, the
+uncertainty of every run (predictive entropy, mutual information between the ensemble's
+members, out-of-distribution score) and each run's features against the posterior-predictive
+band of every state. Matplotlib is used through ``matplotlib.figure.Figure`` only, so the
+caller's pyplot backend is left alone.
+"""
+
+from __future__ import annotations
+
+import html
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from jaxtyping import Float
+
+from ..io import atomic_write
+from . import _html as H
+from ._calibration import plot_reliability
+from ._psd import STATE_COLORS
+
+_OTHER = ("tab:purple", "tab:orange", "tab:brown", "tab:olive", "tab:cyan")
+
+
+def _colors(classes: Sequence[str]) -> dict[str, str]:
+    spare = iter(_OTHER * 4)
+    return {c: STATE_COLORS.get(c) or next(spare) for c in classes}
+
+
+def _figure(width: float, height: float, **kw):
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(width, height), layout="constrained", **kw)
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+def probability_bars(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) -> bytes:
+    """Stacked class probabilities of every run, one panel per true state (paper, Figure 6)."""
+    colors = _colors(classes)
+    valid = [r for r in runs if r["probabilities"] is not None]
+    groups = [s for s in (*classes, "unknown") if any(r["state"] == s for r in valid)]
+    groups += sorted({r["state"] for r in valid} - set(groups))
+    fig = _figure(11.5, 1.7 + 1.55 * max(len(groups), 1))
+    axes = fig.subplots(max(len(groups), 1), 1, squeeze=False)[:, 0]
+    for ax, group in zip(axes, groups, strict=False):
+        members = [r for r in valid if r["state"] == group]
+        p = np.array([[r["probabilities"][c] for c in classes] for r in members])
+        x = np.arange(len(members))
+        bottom = np.zeros(len(members))
+        for k, c in enumerate(classes):
+            ax.bar(x, p[:, k], 1.0, bottom=bottom, color=colors[c], label=c, linewidth=0)
+            bottom += p[:, k]
+        wrong = [i for i, r in enumerate(members) if r["predicted"] != group]
+        if group in classes and wrong:
+            ax.plot(wrong, np.full(len(wrong), 1.06), "v", color="black", ms=4, clip_on=False)
+        ood = [i for i, r in enumerate(members) if r["ood"]]
+        if ood:
+            ax.plot(ood, np.full(len(ood), -0.08), "^", color="darkorange", ms=4, clip_on=False)
+        ax.set_xlim(-0.5, len(members) - 0.5)
+        ax.set_ylim(0, 1)
+        ax.set_yticks([0, 0.5, 1])
+        label = f"true {group}" if group in classes else group
+        n_wrong = f", {len(wrong)} misclassified (black marks)" if group in classes else ""
+        ax.set_title(f"{label}: {len(members)} runs{n_wrong}", fontsize=10, loc="left")
+        ax.set_ylabel("probability")
+    axes[0].legend(
+        ncol=len(classes), loc="lower right", bbox_to_anchor=(1, 1.12), frameon=False, fontsize=9
+    )
+    axes[-1].set_xlabel("run (in campaign order within each true state); orange marks: OOD")
+    return H.png(fig, dpi=90)
+
+
+def confusion_figure(confusion: Sequence[Sequence[int]], classes: Sequence[str]) -> bytes:
+    """The confusion matrix with counts and row percentages (paper, Figure 7)."""
+    m = np.asarray(confusion, dtype=float)
+    rows = m.sum(axis=1, keepdims=True)
+    share = np.divide(m, rows, out=np.zeros_like(m), where=rows > 0)
+    fig = _figure(4.8, 4.2)
+    ax = fig.subplots()
+    ax.imshow(share, cmap="Blues", vmin=0, vmax=1)
+    for i in range(m.shape[0]):
+        for j in range(m.shape[1]):
+            ax.text(
+                j,
+                i,
+                f"{int(m[i, j])}\n{100 * share[i, j]:.1f} %",
+                ha="center",
+                va="center",
+                fontsize=10,
+                color="white" if share[i, j] > 0.6 else "black",
+            )
+    ax.set_xticks(range(len(classes)), classes)
+    ax.set_yticks(range(len(classes)), classes)
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true")
+    return H.png(fig, dpi=100)
+
+
+def uncertainty_figure(
+    runs: Sequence[Mapping[str, Any]], classes: Sequence[str], threshold: float | None
+) -> bytes:
+    """Entropy against mutual information per run, and the OOD scores against the threshold."""
+    valid = [r for r in runs if r["probabilities"] is not None]
+    fig = _figure(11.5, 3.8)
+    ax, ax_ood = fig.subplots(1, 2)
+    known = [r for r in valid if r["state"] in classes]
+    right = [r for r in known if r["predicted"] == r["state"]]
+    wrong = [r for r in known if r["predicted"] != r["state"]]
+    unknown = [r for r in valid if r["state"] not in classes]
+    for group, style, label in (
+        (right, dict(color="tab:green", alpha=0.5, s=14), "correct"),
+        (wrong, dict(color="black", marker="x", s=28), "misclassified"),
+        (unknown, dict(color="0.4", alpha=0.6, s=14), "true state unknown"),
+    ):
+        if group:
+            ax.scatter(
+                [r["entropy"] for r in group],
+                [r["mutual_information"] for r in group],
+                label=f"{label} ({len(group)})",
+                **style,
+            )
+    ax.set_xlabel("predictive entropy (nats)")
+    ax.set_ylabel("mutual information (nats)")
+    ax.set_title("uncertainty per run", fontsize=10, loc="left")
+    ax.axvline(np.log(len(classes)), color="0.6", lw=0.8, ls=":")
+    ax.legend(fontsize=8.5, frameon=False, loc="upper left")
+    ax.grid(True, alpha=0.3)
+    scores = np.array([r["ood_score"] for r in valid if r["ood_score"] is not None])
+    if scores.size:
+        colors = _colors(classes)
+        bins = np.linspace(0, max(scores.max(), threshold or 0) * 1.05, 40)
+        for state in sorted({r["state"] for r in valid}):
+            s = [
+                r["ood_score"] for r in valid if r["state"] == state and r["ood_score"] is not None
+            ]
+            ax_ood.hist(s, bins=bins, alpha=0.55, label=state, color=colors.get(state, "0.45"))
+        if threshold is not None:
+            ax_ood.axvline(threshold, color="darkorange", lw=2, label="OOD threshold")
+        ax_ood.legend(fontsize=8.5, frameon=False, loc="upper right")
+    ax_ood.set_xlabel("Mahalanobis distance to the nearest simulated state")
+    ax_ood.set_ylabel("runs")
+    ax_ood.set_title("out-of-distribution score", fontsize=10, loc="left")
+    ax_ood.grid(True, alpha=0.3)
+    return H.png(fig, dpi=90)
+
+
+def _band_axes(n_channels: int, width: float = 11.5, height: float = 2.4):
+    fig = _figure(width, height * ((n_channels + 1) // 2))
+    axes = fig.subplots((n_channels + 1) // 2, 2, squeeze=False, sharex=True).ravel()
+    return fig, axes
+
+
+def _draw_bands(ax, frequencies, bands: np.ndarray, classes: Sequence[str], colors) -> None:
+    """Bands ``(state, quantile, freq)`` of one channel: 90 % band and median."""
+    for k, c in enumerate(classes):
+        lo, mid, hi = bands[k]
+        if np.all(np.isnan(mid)):
+            continue
+        ax.fill_between(frequencies, lo, hi, color=colors[c], alpha=0.18, lw=0)
+        ax.plot(frequencies, mid, color=colors[c], lw=1.0, label=f"{c} (simulated 90 %)")
+
+
+def bands_figure(
+    features: Float[np.ndarray, "run channel freq"],
+    states: Sequence[str],
+    frequencies: np.ndarray,
+    channels: Sequence[str],
+    bands: np.ndarray,
+    classes: Sequence[str],
+    speed: float,
+) -> bytes:
+    """Every channel: the simulated band of each state and the measured runs' features."""
+    colors = _colors(classes)
+    fig, axes = _band_axes(len(channels))
+    for ch, ax in enumerate(axes[: len(channels)]):
+        _draw_bands(ax, frequencies, bands[:, :, ch], classes, colors)
+        for state in sorted(set(states)):
+            rows = [i for i, s in enumerate(states) if s == state]
+            if rows:
+                ax.plot(
+                    frequencies,
+                    np.median(features[rows, ch], axis=0),
+                    color=colors.get(state, "0.3"),
+                    lw=1.6,
+                    ls="--",
+                    label=f"{state} measured (median of {len(rows)})",
+                )
+        ax.set_title(channels[ch], fontsize=10, loc="left")
+        ax.set_ylabel("log10 PSD")
+        ax.grid(True, alpha=0.3)
+    for ax in axes[len(channels) :]:
+        ax.set_visible(False)
+    for ax in axes[-2:]:
+        ax.set_xlabel("frequency (Hz)")
+    axes[0].legend(fontsize=7.5, frameon=False, ncol=2, loc="upper right")
+    fig.suptitle(f"posterior-predictive bands at v_max = {speed:g} m/s", fontsize=10)
+    return H.png(fig, dpi=90)
+
+
+class _RunFigure:
+    """One figure per band speed, redrawn for each run (fast for hundreds of runs)."""
+
+    def __init__(self, frequencies, channels, bands_at_speed, classes):
+        self.fig, axes = _band_axes(len(channels), width=10.0, height=2.2)
+        colors = _colors(classes)
+        self.lines = []
+        for ch, ax in enumerate(axes[: len(channels)]):
+            if bands_at_speed is not None:
+                _draw_bands(ax, frequencies, bands_at_speed[:, :, ch], classes, colors)
+            (line,) = ax.plot(
+                frequencies, np.zeros_like(frequencies), color="black", lw=1.8, label="this run"
+            )
+            self.lines.append((ax, line))
+            ax.set_title(channels[ch], fontsize=10, loc="left")
+            ax.set_ylabel("log10 PSD")
+            ax.grid(True, alpha=0.3)
+        for ax in axes[len(channels) :]:
+            ax.set_visible(False)
+        axes[0].legend(fontsize=7.5, frameon=False, loc="upper right")
+        for ax in axes[-2:]:
+            ax.set_xlabel("frequency (Hz)")
+
+    def render(self, features: np.ndarray, title: str) -> bytes:
+        for ch, (ax, line) in enumerate(self.lines):
+            line.set_ydata(features[ch])
+            ax.relim()
+            ax.autoscale_view()
+        self.fig.suptitle(title, fontsize=10)
+        return H.png(self.fig, dpi=72)
+
+
+def _tag(state: str | None, colors: Mapping[str, str]) -> str:
+    if state is None:
+        return "-"
+    color = {"tab:green": "#2ca02c", "tab:red": "#d62728", "tab:blue": "#1f77b4"}.get(
+        colors.get(state, ""), "#6b7680"
+    )
+    return f'<span class="tag" style="background:{color}">{html.escape(state)}</span>'
+
+
+def _row_class(run: Mapping[str, Any], classes: Sequence[str]) -> str:
+    if run["probabilities"] is None:
+        return "failed"
+    if run["state"] in classes and run["predicted"] != run["state"]:
+        return "wrong"
+    return "ood" if run["ood"] else ""
+
+
+def _verdict(run: Mapping[str, Any], threshold: float | None) -> str:
+    if run["probabilities"] is None:
+        return f"Not classified: {run['problem']}."
+    p = run["probabilities"][run["predicted"]]
+    text = f"The ensemble says {run['predicted']} with probability {p:.2f}."
+    if run["ood"]:
+        text += (
+            f" But the run is unlike every simulated state (OOD score {run['ood_score']:.1f} >"
+            f" threshold {threshold:.1f}): treat the prediction with suspicion and check the"
+            " sensors or the model."
+        )
+    elif p < 0.8:
+        text += " The classifier is unsure: look at the probabilities of the other states."
+    return text
+
+
+def write_damage_report(
+    folder: str | Path,
+    classification: Mapping[str, Any],
+    *,
+    features: Float[np.ndarray, "run channel freq"],
+    frequencies: Float[np.ndarray, " freq"],
+    channels: Sequence[str],
+    bands: Mapping[str, Any] | None = None,
+    training: Mapping[str, Any] | None = None,
+    fit: Mapping[str, Any] | None = None,
+    title: str = "Damage report",
+) -> Path:
+    """Write ``index.html`` (the campaign) and ``runs/run-NNNN.html`` (each run) into ``folder``.
+
+    Parameters
+    ----------
+    folder
+        Output folder (created).
+    classification
+        The classification JSON (``classes``, ``runs``, ``metrics``, ``ood_threshold``,
+        ``temperature``) of :func:`bayesdoor.pipeline.classify_stage`.
+    features
+        The classifier's input of each run, in the order of ``classification["runs"]``.
+    frequencies, channels
+        The feature bins (Hz) and channel names.
+    bands
+        Posterior-predictive bands: ``states``, ``speeds`` and ``values`` of shape
+        ``(state, speed, quantile, channel, freq)`` with quantiles (0.05, 0.5, 0.95).
+    training
+        The training record (simulated validation metrics, temperature), shown when given.
+    fit
+        The model updating's ``method``, ``j`` and parameter ``table``, shown when given.
+    title
+        The page title.
+
+    Returns
+    -------
+    path
+        The campaign page.
+    """
+    folder = Path(folder)
+    (folder / "runs").mkdir(parents=True, exist_ok=True)
+    classes = list(classification["classes"])
+    runs = list(classification["runs"])
+    metrics = classification.get("metrics")
+    threshold = classification.get("ood_threshold")
+    colors = _colors(classes)
+    stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    parts: list[str] = []
+
+    valid = [r for r in runs if r["probabilities"] is not None]
+    headline = [("runs classified", f"{len(valid)} / {len(runs)}", "")]
+    if metrics is not None:
+        acc = metrics["accuracy"]
+        headline += [
+            ("accuracy", f"{100 * acc:.1f} %", "good" if acc >= 0.95 else "bad"),
+            ("ECE", _fmt(metrics["ece"]), "good" if metrics["ece"] <= 0.05 else "bad"),
+            ("NLL", _fmt(metrics["nll"]), ""),
+            ("Brier", _fmt(metrics["brier"]), ""),
+        ]
+    n_ood = sum(1 for r in valid if r["ood"])
+    headline.append(("flagged OOD", str(n_ood), "bad" if n_ood else "good"))
+    if classification.get("n_failed"):
+        headline.append(("not classified", str(classification["n_failed"]), "bad"))
+    parts.append(H.cards(headline))
+    parts.append(
+        H.note(
+            f"Classes: {', '.join(classes)}. Probabilities are the ensemble's, calibrated by "
+            f"temperature scaling (T = {classification.get('temperature', float('nan')):.3f}, "
+            "fitted on simulated validation runs only). Runs whose features lie farther from "
+            "every simulated state than 99 % of the simulated validation runs are flagged "
+            "out-of-distribution (OOD)."
+        )
+    )
+
+    parts.append(
+        H.section(
+            "Class probabilities per run",
+            H.img(
+                probability_bars(runs, classes),
+                "probability bars",
+                "Stacked calibrated probabilities of each run, grouped by true state (as in the "
+                "paper's Figure 6). A bar entirely in the colour of its panel's state is a "
+                "confident, correct prediction.",
+            ),
+        )
+    )
+    if metrics is not None:
+        labels = np.array([classes.index(r["state"]) for r in valid if r["state"] in classes])
+        probs = np.array(
+            [[r["probabilities"][c] for c in classes] for r in valid if r["state"] in classes]
+        )
+        metric_rows = [
+            [name, _fmt(metrics[key], 4)]
+            for name, key in (
+                ("accuracy", "accuracy"),
+                ("expected calibration error (15 equal-width bins)", "ece"),
+                ("expected calibration error (15 equal-mass bins)", "ece_mass"),
+                ("negative log-likelihood (nats per run)", "nll"),
+                ("Brier score", "brier"),
+            )
+        ]
+        metric_rows.append(["runs with a known true state", str(metrics["runs"])])
+        if training is not None:
+            val = training["validation"]["calibrated"]
+            metric_rows.append(
+                ["simulated validation accuracy / ECE", f"{val['accuracy']:.4f} / {val['ece']:.4f}"]
+            )
+        with tempfile.TemporaryDirectory() as tmp:
+            reliability = plot_reliability(
+                probs,
+                labels,
+                Path(tmp) / "reliability.png",
+                n_bins=min(15, max(1, len(labels))),
+                title="Reliability on the classified runs",
+            ).read_bytes()
+        parts.append(
+            H.section(
+                "Accuracy and calibration",
+                H.table(["metric", "value"], metric_rows),
+                H.img(
+                    confusion_figure(metrics["confusion"], classes),
+                    "confusion matrix",
+                    "Confusion matrix (paper, Figure 7): counts and share of each true state.",
+                ),
+                H.img(
+                    reliability,
+                    "reliability diagram",
+                    "Accuracy against confidence. Points on the diagonal mean the stated "
+                    "probabilities can be taken at face value.",
+                ),
+            )
+        )
+    parts.append(
+        H.section(
+            "Uncertainty and out-of-distribution runs",
+            H.img(
+                uncertainty_figure(runs, classes, threshold),
+                "uncertainty",
+                "Left: total uncertainty (entropy) against disagreement between the ensemble's "
+                "members (mutual information); the dotted line is the entropy of a uniform "
+                "guess. Right: OOD scores by true state against the threshold.",
+            ),
+        )
+    )
+    band_values = None if bands is None else np.asarray(bands["values"])
+    speeds = None if bands is None else np.asarray(bands["speeds"], dtype=float)
+    band_classes = classes if bands is None else list(bands["states"])
+    if band_values is not None and speeds is not None and valid:
+        run_speeds = np.array([r["v_max"] if r["v_max"] is not None else np.nan for r in runs])
+        figures = []
+        for j, v in enumerate(speeds):
+            at = [
+                i
+                for i, r in enumerate(runs)
+                if r["probabilities"] is not None and np.isclose(run_speeds[i], v)
+            ]
+            if not at:
+                continue
+            figures.append(
+                H.img(
+                    bands_figure(
+                        features[at],
+                        [runs[i]["state"] for i in at],
+                        frequencies,
+                        channels,
+                        band_values[:, j],
+                        band_classes,
+                        float(v),
+                    ),
+                    f"bands at {v:g} m/s",
+                )
+            )
+        parts.append(
+            H.section(
+                "Measured features against the posterior-predictive bands",
+                H.note(
+                    "Shaded: the 5-95 % range of the simulated training features of each state "
+                    "(the posterior-predictive distribution the classifier learned from); "
+                    "dashed: the median of the measured runs of each true state at that speed. "
+                    "Where a measured line leaves its own state's band, the model and the "
+                    "measurements disagree there."
+                ),
+                *figures,
+            )
+        )
+    if fit is not None:
+        rows = [
+            [
+                row["parameter"],
+                _fmt(row["point"], 4),
+                _fmt(row.get("mean"), 4),
+                _fmt(row.get("sd"), 4),
+                "-" if "q05" not in row else f"{row['q05']:.4g} to {row['q95']:.4g}",
+            ]
+            for row in fit["table"]
+        ]
+        parts.append(
+            H.section(
+                "Model updating on the calibration runs",
+                H.note(
+                    f"Method: {fit['method']}; objective J at the point: {_fmt(fit['j'], 4)}. "
+                    "The training runs were simulated from these parameters."
+                ),
+                H.table(["parameter", "point", "posterior mean", "sd", "90 % interval"], rows),
+            )
+        )
+    run_rows, row_classes = [], []
+    for r in runs:
+        p = r["probabilities"]
+        run_rows.append(
+            [
+                f'<a href="runs/{_run_file(r["run"])}">{r["run"]}</a>',
+                _tag(r["state"], colors),
+                _fmt(r["v_max"], 2),
+                _tag(r["predicted"], colors),
+                *[("-" if p is None else f"{p[c]:.3f}") for c in classes],
+                _fmt(r["entropy"]),
+                _fmt(r["mutual_information"]),
+                "-" if r["ood"] is None else ("OOD" if r["ood"] else "no"),
+                html.escape(r["problem"] or ""),
+            ]
+        )
+        row_classes.append(_row_class(r, classes))
+    parts.append(
+        H.section(
+            "Every run",
+            H.note(
+                "Red rows: misclassified; yellow: flagged OOD; grey: not classified. Each run "
+                "number links to its own report."
+            ),
+            H.table(
+                [
+                    "run",
+                    "true",
+                    "v_max",
+                    "predicted",
+                    *[f"p({c})" for c in classes],
+                    "entropy",
+                    "MI",
+                    "OOD",
+                    "problem",
+                ],
+                run_rows,
+                row_classes=row_classes,
+                left=1,
+                raw=True,
+            ),
+        )
+    )
+    subtitle = f"{len(runs)} runs, generated {stamp}"
+    index = folder / "index.html"
+    text = H.page(title, subtitle, "".join(parts))
+    atomic_write(index, lambda tmp: tmp.write_text(text), overwrite=True)
+
+    renderers: dict[int, _RunFigure] = {}
+    for i, r in enumerate(runs):
+        body = [
+            H.cards(
+                [
+                    ("true state", r["state"], ""),
+                    ("predicted", r["predicted"] or "-", "bad" if _row_class(r, classes) else ""),
+                    ("entropy (nats)", _fmt(r["entropy"]), ""),
+                    ("mutual information", _fmt(r["mutual_information"]), ""),
+                    ("OOD score", _fmt(r["ood_score"], 2), "bad" if r["ood"] else ""),
+                ]
+            ),
+            H.note(_verdict(r, threshold)),
+        ]
+        if r["probabilities"] is not None:
+            body.append(
+                H.table(
+                    ["state", "probability"],
+                    [[c, f"{r['probabilities'][c]:.4f}"] for c in classes],
+                )
+            )
+            j = (
+                0
+                if speeds is None or r["v_max"] is None
+                else int(np.argmin(np.abs(speeds - r["v_max"])))
+            )
+            if j not in renderers:
+                renderers[j] = _RunFigure(
+                    frequencies,
+                    channels,
+                    None if band_values is None else band_values[:, j],
+                    band_classes,
+                )
+            band_speed = "" if speeds is None else f", bands at v_max = {speeds[j]:g} m/s"
+            body.append(
+                H.img(
+                    renderers[j].render(features[i], f"run {r['run']}{band_speed}"),
+                    "features against bands",
+                    "The run's log-PSD features (black) against the 5-95 % posterior-predictive "
+                    "band of each state.",
+                )
+            )
+        body.append('<p><a href="../index.html">back to the campaign report</a></p>')
+        page = H.page(f"Run {r['run']}", f"{title}, generated {stamp}", "".join(body))
+        atomic_write(
+            folder / "runs" / _run_file(r["run"]),
+            lambda tmp, page=page: tmp.write_text(page),
+            overwrite=True,
+        )
+    return index
+
+
+def _run_file(run: int) -> str:
+    return f"run-{int(run):04d}.html"

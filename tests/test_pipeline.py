@@ -1,0 +1,410 @@
+"""The main job: stages reused or recomputed by their configuration, the JSON, the reports.
+
+A small analytic system (tones whose frequency and amplitude follow the parameters, one extra
+tone per damage state) and a stand-in fit (posterior draws around a known point) keep the job
+to seconds; the door end to end is under ``slow``.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+import shutil
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bayesdoor.classify import TrainConfig
+from bayesdoor.io import make_campaign
+from bayesdoor.pipeline import (
+    FitSummary,
+    Sizes,
+    calibration_runs,
+    configuration_hash,
+    run_job,
+    run_stage,
+    runs_to_classify,
+)
+from bayesdoor.systems import AbstractSystem, DamageSpec, ParameterSpec
+
+FS = 2048.0
+REST = 0.1
+DURATION = 0.75
+CENTER = {"k": 0.5, "m": 1.0, "law": 2.0}
+
+
+class ToneSystem(AbstractSystem):
+    """Two channels: a tone at 20 + 40 k Hz of amplitude m v, plus 48 Hz (D1) or 80 Hz (D2)."""
+
+    @property
+    def name(self):
+        return "tones"
+
+    @property
+    def parameters(self):
+        return (
+            ParameterSpec("k", "-", 0.5, 0.0, 1.0, "tone frequency"),
+            ParameterSpec("m", "-", 1.0, 0.5, 2.0, "amplitude"),
+            ParameterSpec("law", "-", 2, 1, 3, "an integer index", integer=True),
+        )
+
+    @property
+    def states(self):
+        return {
+            "healthy": DamageSpec("healthy", "none"),
+            "D1": DamageSpec("D1", "a 48 Hz tone", {"a1": (0.5, 1.0)}),
+            "D2": DamageSpec("D2", "an 80 Hz tone", {"a2": (0.3, 0.6)}),
+        }
+
+    @property
+    def channels(self):
+        return ("X", "Z")
+
+    @property
+    def sampling_rate_hz(self):
+        return FS
+
+    def record_duration(self, operating):
+        return DURATION
+
+    def motion_window(self, operating, *, duration=None):
+        v = np.atleast_1d(np.asarray(operating, dtype=float))
+        return np.full(v.shape, REST), np.full(v.shape, DURATION)
+
+    def simulate(self, theta, damage, operating, *, duration=None):
+        return self.simulate_values(theta, operating, state=damage, duration=duration)
+
+    def simulate_values(
+        self, values, operating, *, state="healthy", severity=None, duration=None, check=True
+    ):
+        spec = self.check_state(state)
+        severity = dict(severity or {})
+        sev = {k: severity.get(k, 0.5 * (lo + hi)) for k, (lo, hi) in spec.severity.items()}
+        v = jnp.atleast_1d(jnp.asarray(operating, dtype=float))
+        k, m = (jnp.broadcast_to(jnp.asarray(values[n], dtype=float), v.shape) for n in "km")
+        sev = {n: jnp.broadcast_to(jnp.asarray(x, dtype=float), v.shape) for n, x in sev.items()}
+        return _tones(k, m, v, sev, round((duration or DURATION) * FS))
+
+
+class _Result(eqx.Module):
+    signals: jax.Array
+    status: jax.Array
+
+
+@eqx.filter_jit
+def _tones(k, m, v, sev, n_time: int):
+    t = jnp.arange(n_time, dtype=float) / FS
+    on = (t >= REST).astype(float)
+    x = m[:, None] * v[:, None] * jnp.sin(2 * jnp.pi * (20.0 + 40.0 * k[:, None]) * t)
+    if "a1" in sev:
+        x = x + sev["a1"][:, None] * jnp.sin(2 * jnp.pi * 48 * t)
+    if "a2" in sev:
+        x = x + sev["a2"][:, None] * jnp.sin(2 * jnp.pi * 80 * t)
+    noise = 0.02 * jnp.sin(2 * jnp.pi * 30 * t) + 0.01 * jnp.cos(2 * jnp.pi * 91 * t)
+    signals = jnp.stack([x * on + noise, 0.5 * x * on + noise], axis=1)
+    return _Result(signals, jnp.zeros(v.shape, dtype=jnp.int32))
+
+
+SYSTEM = ToneSystem()
+
+
+def tone_campaign(*, calibration=3, per_state=4, split=True, seed=0):
+    """Measured-like runs: parameters scattered around CENTER, known states."""
+    rng = np.random.default_rng(seed)
+    states = ["healthy"] * calibration + ["healthy", "D1", "D2"] * per_state
+    speeds = np.resize([0.3, 0.5], len(states))
+    signals = []
+    for state, v in zip(states, speeds, strict=True):
+        values = {"k": 0.5 + 0.02 * rng.standard_normal(), "m": 1.0, "law": 2.0}
+        sev = {n: rng.uniform(lo, hi) for n, (lo, hi) in SYSTEM.states[state].severity.items()}
+        res = SYSTEM.simulate_values(values, v, state=state, severity=sev)
+        signals.append(np.asarray(res.signals[0]))
+    extra = {}
+    if split:
+        extra["split"] = ["calibration"] * calibration + ["test"] * (len(states) - calibration)
+    return make_campaign(
+        np.stack(signals),
+        channels=["X", "Z"],
+        fs=FS,
+        state=states,
+        v_max=speeds,
+        t_start=np.full(len(states), REST),
+        t_stop=np.full(len(states), DURATION),
+        system="tones",
+        **extra,
+    )
+
+
+class StandInFit:
+    """What the pipeline reads of a fit: draws around CENTER; counts its calls."""
+
+    calls = 0
+
+    def __init__(self, seed):
+        rng = np.random.default_rng(seed)
+        self.point = dict(CENTER)
+        self.j = 0.1
+        self._draws = {
+            "k": np.clip(0.5 + 0.02 * rng.standard_normal(200), 0, 1),
+            "m": np.clip(1.0 + 0.05 * rng.standard_normal(200), 0.5, 2),
+        }
+
+    def posterior_draws(self):
+        return self._draws
+
+    def model_error_draws(self):
+        return np.full((200, 2), 0.05)
+
+    def save(self, folder):
+        Path(folder).mkdir(parents=True)
+        (Path(folder) / "point.json").write_text(json.dumps(self.point))
+
+
+def stand_in_fit(system, campaign, *, method, law, seed, quick, progress):
+    StandInFit.calls += 1
+    assert set(np.asarray(campaign["split"].values)) == {"calibration"}
+    return StandInFit(seed)
+
+
+SIZES = Sizes(
+    runs_per_state=12,
+    chunk_size=6,
+    validation_fraction=0.5,
+    train=TrainConfig(members=3, epochs=30, batch_size=12, learning_rate=1e-2),
+)
+
+
+def job(out, campaign=None, lines=None, **kw):
+    settings = dict(seed=0, sizes=SIZES, fit=stand_in_fit, progress=False)
+    settings.update(kw)
+    return run_job(
+        SYSTEM,
+        tone_campaign() if campaign is None else campaign,
+        out,
+        report=(lines.append if lines is not None else lambda line: None),
+        **settings,
+    )
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """One job run to the end (shared by the tests that only read its output)."""
+    out = tmp_path_factory.mktemp("job")
+    StandInFit.calls = 0
+    return job(out), out
+
+
+# ------------------------------------------------------------------------------------ stages
+
+
+def test_stage_reused_only_with_the_same_configuration(tmp_path):
+    calls = []
+
+    def compute(folder):
+        calls.append(folder)
+        (folder / "x.txt").write_text(str(len(calls)))
+
+    a = run_stage(tmp_path, "s", {"a": 1}, compute)
+    b = run_stage(tmp_path, "s", {"a": 1}, compute)
+    assert (a.reused, b.reused, len(calls)) == (False, True, 1)
+    c = run_stage(tmp_path, "s", {"a": 2}, compute)
+    assert not c.reused and len(calls) == 2
+    assert (tmp_path / "s" / "x.txt").read_text() == "2"
+    assert a.config_hash == configuration_hash({"a": 1}) != c.config_hash
+    # nothing but the stage folder is left behind
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+
+
+def test_interrupted_stage_leaves_the_finished_one_untouched(tmp_path):
+    run_stage(tmp_path, "s", {"a": 1}, lambda f: (f / "x.txt").write_text("old"))
+
+    def crash(folder):
+        (folder / "x.txt").write_text("half")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_stage(tmp_path, "s", {"a": 2}, crash)
+    assert (tmp_path / "s" / "x.txt").read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+
+
+def test_resumable_stage_continues_an_interrupted_run_of_the_same_configuration(tmp_path):
+    seen = []
+
+    def first(folder):
+        (folder / "chunk-0").write_text("done")
+        raise KeyboardInterrupt
+
+    def second(folder):
+        seen.append(sorted(p.name for p in folder.iterdir()))
+
+    with pytest.raises(KeyboardInterrupt):
+        run_stage(tmp_path, "g", {"a": 1}, first, resumable=True)
+    run_stage(tmp_path, "g", {"a": 1}, second, resumable=True)
+    assert "chunk-0" in seen[0]
+    # another configuration starts from an empty folder
+    run_stage(tmp_path, "g", {"a": 2}, second, resumable=True)
+    assert "chunk-0" not in seen[1]
+
+
+# ----------------------------------------------------------------------------------- the job
+
+
+def test_second_run_recomputes_nothing(finished, tmp_path):
+    result, out = finished
+    assert all(not s.reused for s in result.stages)
+    copy = tmp_path / "job"
+    shutil.copytree(out, copy)
+    lines = []
+    again = job(copy, lines=lines)
+    assert [s.reused for s in again.stages] == [True] * 5
+    assert StandInFit.calls == 1
+    assert len(lines) == 5 and all("reused" in line for line in lines)
+    assert again.classification == result.classification
+
+
+def test_changed_test_runs_recompute_only_the_stages_they_reach(finished, tmp_path):
+    _, out = finished
+    copy = tmp_path / "job"
+    shutil.copytree(out, copy)
+    campaign = tone_campaign()
+    fewer = campaign.isel(run=np.arange(campaign.sizes["run"] - 1))
+    changed = job(copy, campaign=fewer)
+    reused = {s.name: s.reused for s in changed.stages}
+    assert reused == {
+        "fit": True,
+        "generate": True,
+        "train": True,
+        "classify": False,
+        "report": False,
+    }
+    assert len(changed.classification["runs"]) == 11
+    assert StandInFit.calls == 1
+
+
+def test_every_setting_reaches_the_generation_hash():
+    """Seed, source and sizes change the generation's configuration, hence its hash."""
+    from bayesdoor.pipeline import generation_settings
+
+    summary = FitSummary("nuts", dict(CENTER), 0.1, StandInFit(0).posterior_draws(), None)
+    campaign = tone_campaign()
+    base = generation_settings(SYSTEM, campaign, summary, "fit-hash", "posterior", SIZES, 0)
+    variants = [
+        generation_settings(SYSTEM, campaign, summary, "fit-hash", "posterior", SIZES, 1),
+        generation_settings(SYSTEM, campaign, summary, "fit-hash", "gaussian", SIZES, 0),
+        generation_settings(SYSTEM, campaign, summary, "other", "posterior", SIZES, 0),
+        generation_settings(
+            SYSTEM, campaign, summary, "fit-hash", "posterior", Sizes(runs_per_state=13), 0
+        ),
+    ]
+    hashes = {configuration_hash(v.config) for v in [base, *variants]}
+    assert len(hashes) == 5
+
+
+def test_classification_json_keys_and_metrics(finished):
+    result, out = finished
+    payload = json.loads((out / "classify" / "classification.json").read_text())
+    assert payload["classes"] == ["healthy", "D1", "D2"]
+    runs = payload["runs"]
+    # the test runs only, in campaign order (run indices after the 3 calibration runs)
+    assert [r["run"] for r in runs] == list(range(3, 15))
+    for r in runs:
+        assert {"predicted", "probabilities", "entropy", "mutual_information", "ood"} <= set(r)
+        assert set(r["probabilities"]) == set(payload["classes"])
+        assert sum(r["probabilities"].values()) == pytest.approx(1.0, abs=1e-5)
+        assert r["predicted"] == max(r["probabilities"], key=r["probabilities"].get)
+        assert r["mutual_information"] >= -1e-6
+    m = payload["metrics"]
+    assert {"accuracy", "ece", "nll", "brier", "confusion"} <= set(m)
+    confusion = np.asarray(m["confusion"])
+    assert confusion.sum() == len(runs) and confusion.shape == (3, 3)
+    # accuracy recomputed from the per-run entries
+    correct = np.mean([r["predicted"] == r["state"] for r in runs])
+    assert m["accuracy"] == pytest.approx(correct)
+    # the tones separate the states plainly: a working pipeline gets them right
+    assert m["accuracy"] >= 0.9
+    assert result.to_json()["metrics"] == m
+
+
+def test_html_reports_embed_their_figures(finished):
+    _, out = finished
+    index = (out / "report" / "index.html").read_text()
+    images = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', index)
+    assert len(images) >= 5  # bars, confusion, reliability, uncertainty, bands at 2 speeds
+    for data in images:
+        assert base64.b64decode(data)[:8] == b"\x89PNG\r\n\x1a\n"
+    assert 'src="http' not in index and "<script" not in index
+    pages = sorted((out / "report" / "runs").glob("run-*.html"))
+    assert len(pages) == 12
+    page = pages[0].read_text()
+    assert "data:image/png;base64," in page and "../index.html" in page
+
+
+def test_fit_summary_round_trip(finished):
+    _, out = finished
+    summary = FitSummary.load(out / "fit")
+    assert summary.point == CENTER
+    assert set(summary.draws) == {"k", "m"}
+    assert summary.sigma_model.shape == (200, 2)
+    rows = {r["parameter"]: r for r in summary.table()}
+    assert rows["k"]["q05"] < rows["k"]["mean"] < rows["k"]["q95"]
+    assert "mean" not in rows["law"]
+
+
+# ------------------------------------------------------------------------- runs and errors
+
+
+def test_calibration_and_test_selection():
+    campaign = tone_campaign(split=False)
+    assert set(calibration_runs(campaign)["state"].values) == {"healthy"}
+    assert runs_to_classify(campaign).sizes["run"] == campaign.sizes["run"]
+    with_split = tone_campaign()
+    assert runs_to_classify(with_split).sizes["run"] == 12
+
+
+def test_campaign_without_calibration_runs_is_refused(tmp_path):
+    campaign = tone_campaign()
+    faulty = campaign.isel(run=np.flatnonzero(campaign["state"].values != "healthy"))
+    faulty = faulty.drop_vars("split")
+    with pytest.raises(ValueError, match="no calibration runs"):
+        job(tmp_path / "x", campaign=faulty)
+    assert not (tmp_path / "x").exists()
+
+
+def test_model_error_source_needs_the_fit_to_have_one(finished):
+    _, out = finished
+    summary = FitSummary.load(out / "fit")
+    from bayesdoor.pipeline import parameter_source
+
+    _, model_error = parameter_source(SYSTEM, summary, "posterior+model_error", 0.05)
+    assert model_error is not None
+    point_only = FitSummary("cmaes", summary.point, 0.1, {}, None)
+    with pytest.raises(ValueError, match="posterior draws"):
+        parameter_source(SYSTEM, point_only, "posterior", 0.05)
+    with pytest.raises(ValueError, match="source must be one of"):
+        parameter_source(SYSTEM, summary, "uniform", 0.05)
+
+
+def test_corrupted_and_unknown_runs_are_reported_per_run(finished, tmp_path):
+    from bayesdoor.pipeline import classify_stage
+
+    _, out = finished
+    campaign = runs_to_classify(tone_campaign(seed=3))
+    acc = campaign["acceleration"].values.copy()
+    acc[1, 0, 500] = np.nan
+    campaign["acceleration"].values[:] = acc
+    states = campaign["state"].values.astype(object)
+    states[2] = "unknown"
+    campaign = campaign.assign_coords(state=("run", states.astype(str)))
+    classify_stage(out / "train", campaign, tmp_path)
+    payload = json.loads((tmp_path / "classification.json").read_text())
+    runs = payload["runs"]
+    assert runs[1]["predicted"] is None and "non-finite" in runs[1]["problem"]
+    assert runs[2]["predicted"] is not None and runs[2]["state"] == "unknown"
+    assert payload["metrics"]["runs"] == len(runs) - 2
+    assert payload["n_failed"] == 1

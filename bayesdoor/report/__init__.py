@@ -1,6 +1,11 @@
 """Figures and summaries at the edge of the library, shared by the command-line tools."""
 
 from ._calibration import plot_reliability as plot_reliability
+from ._damage import bands_figure as bands_figure
+from ._damage import confusion_figure as confusion_figure
+from ._damage import probability_bars as probability_bars
+from ._damage import uncertainty_figure as uncertainty_figure
+from ._damage import write_damage_report as write_damage_report
 from ._psd import STATE_COLORS as STATE_COLORS
 from ._psd import RunPSDs as RunPSDs
 from ._psd import campaign_psds as campaign_psds

@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Literal, NamedTuple
 
 import numpy as np
-import scipy.stats
 from jaxtyping import ArrayLike, Float, Int
 
 Binning = Literal["width", "mass"]
@@ -154,7 +153,8 @@ def reliability_bins(
                 f"equal-mass binning needs at least n_bins={n_bins} samples, got {len(y)}: use "
                 f"fewer bins or binning='width'"
             )
-        rank = scipy.stats.rankdata(confidence, method="min") - 1
+        # rank from 0, ties sharing the lowest: how many confidences are strictly smaller
+        rank = np.searchsorted(np.sort(confidence), confidence, side="left")
         index = rank * n_bins // len(y)
         groups = [np.flatnonzero(index == b) for b in range(n_bins)]
         lower = np.array([confidence[g].min() if len(g) else np.nan for g in groups])

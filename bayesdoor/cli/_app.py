@@ -202,3 +202,25 @@ def inspect(
         typer.echo(f"problem: {message}", err=True)
     if problems:
         raise fail(f"{path} is not a valid campaign: {len(problems)} problem(s) found", code=1)
+
+
+@app.command()
+def fit(
+    path: Annotated[Path, typer.Argument(help="campaign NetCDF file")],
+    out: Annotated[Path, typer.Option("--out", help="output folder")],
+    method: Annotated[str, typer.Option(help="cmaes, nuts or emcee")] = "cmaes",
+    law: Annotated[
+        str, typer.Option(help="fix the contact-law index I, or 'all' (default: searched)")
+    ] = "",
+    seed: Annotated[int, typer.Option(help="seed of CMA-ES, surrogate and sampler")] = 0,
+    quick: Annotated[bool, typer.Option(help="small sizes (demos, tests; not converged)")] = False,
+    force: Annotated[bool, typer.Option(help="overwrite a previous result in --out")] = False,
+    json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
+) -> None:
+    """Update the model on the healthy calibration runs: CMA-ES, then NUTS or emcee."""
+    configure_jax()
+    from ._fit import run_fit
+
+    payload = run_fit(path, out, method, law, seed, quick, force, json)
+    if json:
+        emit_json(payload)

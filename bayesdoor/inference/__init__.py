@@ -33,3 +33,10 @@ from ._surrogate import box_around as box_around
 from ._surrogate import box_from_samples as box_from_samples
 from ._surrogate import fit_surrogate as fit_surrogate
 from ._surrogate import simulate_design as simulate_design
+from ._update import METHODS as METHODS
+from ._update import FitResult as FitResult
+from ._update import FitSettings as FitSettings
+from ._update import calibration_runs as calibration_runs
+from ._update import campaign_data as campaign_data
+from ._update import fit_campaign as fit_campaign
+from ._update import posterior_predictive as posterior_predictive

@@ -1,0 +1,939 @@
+"""Model updating of a system on a measurement campaign: CMA-ES on J, then a posterior.
+
+The pipeline of :func:`fit_campaign`:
+
+1. the calibration runs of the campaign (``split == "calibration"`` when present, else every
+   ``healthy`` run) become feature vectors (:class:`CalibrationData`), with each run's motion
+   window clipped to the length of the simulated one, so both sides average the same stretch;
+2. CMA-ES minimises the paper's objective J over the parameters' bounds, an integer
+   parameter (a contact-law index) as an integer variable unless it is fixed, each population
+   simulated as one vmapped batch over all operating points;
+3. for ``nuts`` and ``emcee``: a quadratic surrogate of the features is fitted in a box around
+   the optimum (parameters the data cannot move span their whole range), its held-out error
+   enters the likelihood, the sampling coordinates are whitened by a Laplace approximation,
+   and the sampler starts at the optimum; the convergence gates are checked and a failure is
+   reported loudly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import arviz as az
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import xarray as xr
+from numpyro.infer import Predictive
+
+from .._types import Array, Bool, Float, Int
+from ..features import motion_window as detect_motion_window
+from ..features import objective_j
+from ..io import atomic_write
+from ..systems import AbstractSystem
+from ._cmaes import CMAESHistory, CMAESResult, minimize_cmaes
+from ._diagnostics import SamplingDiagnostics, diagnose_sampling
+from ._features import FeatureSpec, run_features
+from ._likelihood import CalibrationData, ModelError, SimulatorForward, log_likelihood, make_model
+from ._parameterisation import SamplingTransform
+from ._posterior import load_posterior, save_posterior
+from ._samplers import sample_emcee, sample_nuts
+from ._surrogate import box_around, fit_surrogate, simulate_design
+
+Method = Literal["cmaes", "nuts", "emcee"]
+METHODS: tuple[str, ...] = ("cmaes", "nuts", "emcee")
+
+#: smallest model-error scale (decades) used to start the sampler and for a CMA-ES point
+_SIGMA_FLOOR = 0.01
+
+
+@dataclasses.dataclass(frozen=True)
+class FitSettings:
+    """Sizes of every stage of :func:`fit_campaign`.
+
+    Attributes
+    ----------
+    max_motion_s
+        Longest stretch of motion (s) that enters the features; ``None``: the whole motion.
+    cmaes_max_evals, cmaes_restarts, cmaes_popsize, cmaes_sigma0
+        CMA-ES budget, IPOP restarts, first population (``None``: pycma's default) and
+        initial step (fraction of each range).
+    box_fraction
+        Half-width of the surrogate's box around the optimum, as a fraction of each range.
+    insensitive
+        A parameter whose move from its lower to its upper bound changes no feature by more
+        than this many Welch standard deviations spans its whole range in the surrogate's box
+        (the data cannot constrain it, so its posterior must be free to be its prior).
+    train_per_term, n_test
+        Surrogate training simulations per polynomial term, and held-out simulations.
+    num_warmup, num_samples, num_chains, target_accept
+        NUTS settings.
+    emcee_walkers, emcee_steps, emcee_burn, emcee_thin
+        emcee settings (walkers are raised to twice the dimension plus two when fewer).
+    predictive_draws
+        Posterior draws kept in the ``posterior_predictive`` group.
+    """
+
+    max_motion_s: float | None = None
+    cmaes_max_evals: int = 1500
+    cmaes_restarts: int = 2
+    cmaes_popsize: int | None = None
+    cmaes_sigma0: float = 0.25
+    box_fraction: float = 0.25
+    insensitive: float = 0.5
+    train_per_term: int = 7
+    n_test: int = 64
+    num_warmup: int = 500
+    num_samples: int = 500
+    num_chains: int = 4
+    target_accept: float = 0.9
+    emcee_walkers: int = 48
+    emcee_steps: int = 6000
+    emcee_burn: int = 1000
+    emcee_thin: int = 5
+    predictive_draws: int = 400
+
+    @classmethod
+    def quick(cls) -> FitSettings:
+        """Small sizes for tests and demos (minutes on a loaded 2-core CPU, not converged).
+
+        1 s of motion per run; CMA-ES 120 evaluations, no restart; a surrogate on twice as
+        many simulations as terms and 16 held-out ones; NUTS 2 chains x (150 + 150); emcee
+        600 steps (200 burn-in); 100 predictive draws.
+        """
+        return cls(
+            max_motion_s=1.0,
+            cmaes_max_evals=120,
+            cmaes_restarts=0,
+            train_per_term=2,
+            n_test=16,
+            num_warmup=150,
+            num_samples=150,
+            num_chains=2,
+            emcee_walkers=24,
+            emcee_steps=600,
+            emcee_burn=200,
+            emcee_thin=1,
+            predictive_draws=100,
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# the campaign side
+
+
+def calibration_runs(campaign: xr.Dataset) -> Int[np.ndarray, " run"]:
+    """Indices of the runs a model is updated on.
+
+    The runs with ``split == "calibration"`` when the campaign has such runs, else every run;
+    of those, the ``healthy`` ones.
+
+    Raises
+    ------
+    ValueError
+        When no such run is healthy.
+    """
+    state = np.asarray(campaign["state"].values).astype(str)
+    chosen = np.ones(state.shape, dtype=bool)
+    if "split" in campaign.variables:
+        split = np.asarray(campaign["split"].values).astype(str)
+        if np.any(split == "calibration"):
+            chosen = split == "calibration"
+    runs = np.flatnonzero(chosen & (state == "healthy"))
+    if runs.size == 0:
+        labels, counts = np.unique(state[chosen], return_counts=True)
+        found = ", ".join(f"{n} {s}" for s, n in zip(labels, counts, strict=True)) or "no runs"
+        where = "calibration runs" if not chosen.all() else "runs"
+        raise ValueError(
+            f"the campaign has no healthy run to update the model on (its {where}: {found}): "
+            "model updating needs measurements of the healthy system; (a) label them "
+            "state='healthy', (b) mark them split='calibration', (c) pass another campaign"
+        )
+    return runs
+
+
+def campaign_data(
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    runs: Sequence[int] | Int[np.ndarray, " run"],
+    *,
+    spec: FeatureSpec | None = None,
+    max_motion_s: float | None = None,
+) -> tuple[CalibrationData, float]:
+    """The features of some runs of a campaign, and the record length to simulate them with.
+
+    The simulated record holds the system's motion at every operating point of the runs
+    (truncated to ``max_motion_s`` of motion); each measured window (``t_start``/``t_stop``
+    of the campaign, else detected from the signals) is clipped to the length of the
+    simulated window at its operating point, so that both average the same stretch.
+
+    Parameters
+    ----------
+    system
+        The system the campaign measured.
+    campaign
+        A campaign (DESIGN.md section 5); the per-run ``v_max`` is the operating point.
+    runs
+        The runs to use.
+    spec
+        The feature definition; ``None`` means ``FeatureSpec()``.
+    max_motion_s
+        Longest stretch of motion (s) to use; ``None``: all of it.
+
+    Returns
+    -------
+    data
+        Features, Welch scatter and operating points of the runs.
+    duration
+        The simulated record length (s).
+
+    Raises
+    ------
+    ValueError
+        For a sampling rate or channels that differ from the system's, or no runs.
+    """
+    spec = FeatureSpec() if spec is None else spec
+    runs = np.asarray(runs, dtype=int)
+    if runs.size == 0:
+        raise ValueError("runs is empty: pass the indices of at least one run")
+    fs = float(campaign.attrs.get("sampling_rate_hz", np.nan))
+    if fs != system.sampling_rate_hz:
+        raise ValueError(
+            f"the campaign's sampling_rate_hz={fs} differs from {system.name}'s "
+            f"{system.sampling_rate_hz} Hz: resample the measurements to the model's rate"
+        )
+    channels = [str(c) for c in campaign["channel"].values]
+    missing = [c for c in system.channels if c not in channels]
+    if missing:
+        raise ValueError(
+            f"the campaign lacks the channels {missing} of {system.name} (it has {channels})"
+        )
+    selected = campaign.isel(run=runs)
+    signals = np.asarray(
+        selected["acceleration"].sel(channel=list(system.channels)).values, dtype=float
+    )
+    operating = np.asarray(selected["v_max"].values, dtype=float)
+    if "t_start" in selected.variables and "t_stop" in selected.variables:
+        t_start = np.asarray(selected["t_start"].values, dtype=float)
+        t_stop = np.asarray(selected["t_stop"].values, dtype=float)
+    else:
+        t = np.arange(signals.shape[-1]) / fs
+        windows = np.array([detect_motion_window(t, s) for s in signals])
+        t_start, t_stop = windows[:, 0], windows[:, 1]
+    unique, index = np.unique(operating, return_inverse=True)
+    duration = float(system.record_duration(unique))
+    if max_motion_s is not None:
+        start, _ = system.motion_window(unique)
+        duration = min(duration, float(np.max(start)) + float(max_motion_s))
+    sim_start, sim_stop = system.motion_window(unique, duration=duration)
+    length = (np.asarray(sim_stop) - np.asarray(sim_start))[index.reshape(-1)]
+    t_stop = np.minimum(t_stop, t_start + length)
+    data = CalibrationData.from_signals(signals, fs, operating, t_start, t_stop, spec)
+    return data, duration
+
+
+# ---------------------------------------------------------------------------------------------
+# the objective J over a population
+
+
+class _PopulationJ(eqx.Module):
+    """The paper's J of each candidate, averaged over the runs; ``inf`` for a failed solve."""
+
+    system: AbstractSystem
+    names: tuple[str, ...] = eqx.field(static=True)
+    fixed: tuple[tuple[str, float], ...] = eqx.field(static=True)
+    operating: Float[Array, " op"]
+    t_start: Float[Array, " op"]
+    t_stop: Float[Array, " op"]
+    duration: float = eqx.field(static=True)
+    spec: FeatureSpec
+    y: Float[Array, "run channel band"]
+    run_operating: Int[Array, " run"]
+
+    def __call__(self, x: Float[Array, "pop dim"]) -> Float[Array, " pop"]:
+        pop, n_op = x.shape[0], self.operating.shape[0]
+        values: dict[str, Any] = {n: jnp.repeat(x[:, i], n_op) for i, n in enumerate(self.names)}
+        values.update({k: jnp.full(pop * n_op, v) for k, v in self.fixed})
+        result = self.system.simulate_values(
+            values, jnp.tile(self.operating, pop), duration=self.duration, check=False
+        )
+        features, _ = run_features(
+            result.signals,
+            self.system.sampling_rate_hz,
+            jnp.tile(self.t_start, pop),
+            jnp.tile(self.t_stop, pop),
+            self.spec,
+        )
+        features = features.reshape(pop, n_op, *features.shape[1:])
+        j = jnp.mean(objective_j(features[:, self.run_operating], self.y[None]), axis=-1)
+        ok = jnp.all((result.status == 0).reshape(pop, n_op), axis=-1) & jnp.isfinite(j)
+        return jnp.where(ok, j, jnp.inf)
+
+
+@eqx.filter_jit
+def _evaluate(objective: _PopulationJ, x: Float[Array, "pop dim"]) -> Float[Array, " pop"]:
+    return objective(x)
+
+
+def _batch_objective(objective: _PopulationJ, chunk: int):
+    """J of any number of candidates in padded chunks of one size (one compilation)."""
+
+    def evaluate(x: np.ndarray) -> np.ndarray:
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        out = []
+        for start in range(0, len(x), chunk):
+            block = x[start : start + chunk]
+            padded = np.concatenate([block, np.repeat(block[-1:], chunk - len(block), axis=0)])
+            out.append(np.asarray(_evaluate(objective, jnp.asarray(padded)))[: len(block)])
+        return np.concatenate(out)
+
+    return evaluate
+
+
+# ---------------------------------------------------------------------------------------------
+# the result
+
+
+@dataclasses.dataclass(frozen=True)
+class FitResult:
+    """Outcome of :func:`fit_campaign`.
+
+    Attributes
+    ----------
+    method
+        ``cmaes``, ``nuts`` or ``emcee``.
+    law
+        The integer parameter's value (the contact-law index), or ``None`` without one.
+    point
+        Every parameter by name: the CMA-ES optimum (``cmaes``) or the posterior mean, with
+        the integer parameter at ``law``.
+    j
+        The paper's objective J at ``point`` (exact simulator), averaged over the runs.
+    idata
+        The posterior (``nuts``/``emcee``), with ``posterior_predictive``; ``None`` for
+        ``cmaes``.
+    diagnostics
+        The sampling gates (``None`` for ``cmaes``).
+    cmaes
+        The CMA-ES run (optimum, history).
+    feature_spec
+        The features used.
+    settings
+        The stage sizes.
+    names
+        The sampled (continuous) parameters, in order.
+    sigma_point
+        Maximum-likelihood model-error scale per channel at the CMA-ES optimum (decades).
+    bounds
+        Lower and upper bounds of ``names``.
+    surrogate_box
+        The surrogate's training box (``None`` for ``cmaes``).
+    surrogate_rms
+        The surrogate's held-out RMS error over all features (decades), or ``None``.
+    runs
+        Indices (in the campaign) of the runs fitted.
+    duration
+        Simulated record length (s).
+    notes
+        Warnings raised during the fit (failed gates, a posterior cut by the surrogate box).
+    timings
+        Seconds spent per stage.
+    seed
+        The seed.
+    """
+
+    method: str
+    law: int | None
+    point: dict[str, float]
+    j: float
+    idata: az.InferenceData | None
+    diagnostics: SamplingDiagnostics | None
+    cmaes: CMAESResult
+    feature_spec: FeatureSpec
+    settings: FitSettings
+    names: tuple[str, ...]
+    sigma_point: np.ndarray
+    bounds: tuple[np.ndarray, np.ndarray]
+    surrogate_box: tuple[np.ndarray, np.ndarray] | None
+    surrogate_rms: float | None
+    runs: np.ndarray
+    duration: float
+    notes: tuple[str, ...]
+    timings: dict[str, float]
+    seed: int
+
+    def posterior_draws(self) -> dict[str, np.ndarray]:
+        """Draws of every continuous parameter, chains flattened (``cmaes``: the point once)."""
+        if self.idata is None:
+            return {n: np.asarray([self.point[n]]) for n in self.names}
+        post = self.idata["posterior"]
+        return {n: np.asarray(post[n].values).reshape(-1) for n in self.names}
+
+    def model_error_draws(self) -> np.ndarray | None:
+        """Model-error scales, (draw, channel), decades (``cmaes``: the ML estimate once)."""
+        if self.idata is None:
+            return np.asarray(self.sigma_point)[None]
+        sigma = np.asarray(self.idata["posterior"]["sigma_model"].values)
+        return sigma.reshape(-1, sigma.shape[-1])
+
+    def to_json(self) -> dict[str, Any]:
+        """Per parameter: point (or mean), sd and 90 % interval; diagnostics; J."""
+        draws = self.posterior_draws()
+        parameters: dict[str, Any] = {}
+        for name, value in self.point.items():
+            if name in draws and self.idata is not None:
+                d = draws[name]
+                q5, q95 = np.quantile(d, [0.05, 0.95])
+                parameters[name] = {
+                    "mean": float(np.mean(d)),
+                    "sd": float(np.std(d)),
+                    "q5": float(q5),
+                    "q95": float(q95),
+                }
+            else:
+                parameters[name] = {"point": float(value), "sd": None, "q5": None, "q95": None}
+        sigma = self.model_error_draws()
+        return {
+            "method": self.method,
+            "law": self.law,
+            "j": self.j,
+            "parameters": parameters,
+            "model_error": None if sigma is None else np.mean(sigma, axis=0).tolist(),
+            "diagnostics": None if self.diagnostics is None else self.diagnostics.to_json(),
+            "cmaes": {
+                "f_best": self.cmaes.f_best,
+                "evaluations": self.cmaes.evaluations,
+                "restarts": self.cmaes.restarts,
+                "stop": list(self.cmaes.stop),
+            },
+            "surrogate_rms": self.surrogate_rms,
+            "runs": self.runs.tolist(),
+            "notes": list(self.notes),
+            "timings": self.timings,
+        }
+
+    def save(self, folder: str | Path, *, force: bool = False) -> Path:
+        """Write ``fit.json`` (everything but the posterior) and ``posterior.nc`` to a folder.
+
+        Raises
+        ------
+        FileExistsError
+            When the folder already holds a fit and ``force`` is false (nothing is written).
+        """
+        folder = Path(folder)
+        target = folder / "fit.json"
+        nc = folder / "posterior.nc"
+        if not force and (target.exists() or nc.exists()):
+            raise FileExistsError(
+                f"{folder} already holds a fit ({target.name} or {nc.name}); pass force=True "
+                "to overwrite it"
+            )
+        folder.mkdir(parents=True, exist_ok=True)
+        if self.idata is not None:
+            save_posterior(self.idata, nc, overwrite=True)
+        h = self.cmaes.history
+        record = {
+            "method": self.method,
+            "law": self.law,
+            "point": self.point,
+            "j": self.j,
+            "feature_spec": {
+                f: getattr(self.feature_spec, f)
+                for f in ("f_low", "f_high", "band_width", "nperseg", "noverlap", "window")
+            },
+            "settings": dataclasses.asdict(self.settings),
+            "names": list(self.names),
+            "sigma_point": np.asarray(self.sigma_point).tolist(),
+            "bounds": [np.asarray(b).tolist() for b in self.bounds],
+            "surrogate_box": None
+            if self.surrogate_box is None
+            else [np.asarray(b).tolist() for b in self.surrogate_box],
+            "surrogate_rms": self.surrogate_rms,
+            "runs": self.runs.tolist(),
+            "duration": self.duration,
+            "notes": list(self.notes),
+            "timings": self.timings,
+            "seed": self.seed,
+            "diagnostics": None if self.diagnostics is None else self.diagnostics.to_json(),
+            "cmaes": {
+                "x_best": self.cmaes.x_best.tolist(),
+                "f_best": self.cmaes.f_best,
+                "evaluations": self.cmaes.evaluations,
+                "restarts": self.cmaes.restarts,
+                "failed": self.cmaes.failed,
+                "stop": list(self.cmaes.stop),
+                "seed": self.cmaes.seed,
+                "history": {
+                    f.name: np.asarray(getattr(h, f.name)).tolist() for f in dataclasses.fields(h)
+                },
+            },
+        }
+        text = json.dumps(record, indent=1, default=_json_default) + "\n"
+        atomic_write(target, lambda tmp: tmp.write_text(text), overwrite=True)
+        return folder
+
+    @classmethod
+    def load(cls, folder: str | Path) -> FitResult:
+        """Read a fit written by :meth:`save`.
+
+        Raises
+        ------
+        FileNotFoundError
+            When the folder holds no ``fit.json`` (or a sampled fit lacks ``posterior.nc``).
+        """
+        folder = Path(folder)
+        target = folder / "fit.json"
+        if not target.is_file():
+            raise FileNotFoundError(f"{target} not found: pass a folder written by fit.save")
+        r = json.loads(target.read_text())
+        c = r["cmaes"]
+        history = CMAESHistory(
+            **{
+                k: np.asarray(v, dtype=float if k in ("best_f", "median_f", "sigma") else int)
+                for k, v in c["history"].items()
+            }
+        )
+        cmaes = CMAESResult(
+            x_best=np.asarray(c["x_best"], dtype=float),
+            f_best=_float(c["f_best"]),
+            evaluations=c["evaluations"],
+            restarts=c["restarts"],
+            failed=c["failed"],
+            stop=tuple(c["stop"]),
+            history=history,
+            seed=c["seed"],
+        )
+        diagnostics = None
+        if r["diagnostics"] is not None:
+            d = dict(r["diagnostics"])
+            for k in ("rhat_max", "ess_bulk_min", "ess_tail_min"):
+                d[k] = _float(d[k])
+            d["ebfmi"] = None if d["ebfmi"] is None else tuple(_float(e) for e in d["ebfmi"])
+            d["messages"] = tuple(d["messages"])
+            diagnostics = SamplingDiagnostics(**d)
+        return cls(
+            method=r["method"],
+            law=r["law"],
+            point={k: float(v) for k, v in r["point"].items()},
+            j=_float(r["j"]),
+            idata=None if r["method"] == "cmaes" else load_posterior(folder / "posterior.nc"),
+            diagnostics=diagnostics,
+            cmaes=cmaes,
+            feature_spec=FeatureSpec(**r["feature_spec"]),
+            settings=FitSettings(**r["settings"]),
+            names=tuple(r["names"]),
+            sigma_point=np.asarray(r["sigma_point"], dtype=float),
+            bounds=tuple(np.asarray(b, dtype=float) for b in r["bounds"]),  # type: ignore[arg-type]
+            surrogate_box=None
+            if r["surrogate_box"] is None
+            else tuple(np.asarray(b, dtype=float) for b in r["surrogate_box"]),  # type: ignore[arg-type]
+            surrogate_rms=r["surrogate_rms"],
+            runs=np.asarray(r["runs"], dtype=int),
+            duration=float(r["duration"]),
+            notes=tuple(r["notes"]),
+            timings=dict(r["timings"]),
+            seed=int(r["seed"]),
+        )
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot write {type(value).__name__} as JSON")
+
+
+def _float(value: float | None) -> float:
+    return float("nan") if value is None else float(value)
+
+
+# ---------------------------------------------------------------------------------------------
+# the fit
+
+
+def _integer_parameter(system: AbstractSystem, law: int | None) -> tuple[str | None, int | None]:
+    """The system's integer parameter (if any) and the value ``law`` fixes it to."""
+    integer = [p for p in system.parameters if p.integer]
+    if len(integer) > 1:
+        raise ValueError(
+            f"{system.name} has {len(integer)} integer parameters "
+            f"({', '.join(p.name for p in integer)}); fit_campaign handles at most one"
+        )
+    if not integer:
+        if law is not None:
+            raise ValueError(f"law={law!r}, but {system.name} has no integer parameter to fix")
+        return None, None
+    spec = integer[0]
+    if law is not None:
+        if isinstance(law, bool) or int(law) != law or not spec.lower <= law <= spec.upper:
+            raise ValueError(
+                f"law={law!r} must be an integer in [{spec.lower:g}, {spec.upper:g}] "
+                f"({spec.name}: {spec.description})"
+            )
+        law = int(law)
+    return spec.name, law
+
+
+def _ml_model_error(
+    residual: Float[np.ndarray, "run channel band"], welch_variance: Float[np.ndarray, " run"]
+) -> np.ndarray:
+    """Per channel: the model-error scale that the residuals at a point call for, floored."""
+    excess = np.mean(residual**2, axis=(0, 2)) - np.mean(welch_variance)
+    return np.sqrt(np.maximum(excess, _SIGMA_FLOOR**2))
+
+
+def fit_campaign(
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    *,
+    method: Method = "cmaes",
+    law: int | None = None,
+    seed: int = 0,
+    quick: bool = False,
+    progress: bool = True,
+    settings: FitSettings | None = None,
+    spec: FeatureSpec | None = None,
+    error: ModelError | None = None,
+) -> FitResult:
+    """Update a system's parameters on the healthy calibration runs of a campaign.
+
+    Parameters
+    ----------
+    system
+        The simulated system.
+    campaign
+        The measurements (DESIGN.md section 5): runs with ``split == "calibration"`` when
+        present, else every ``healthy`` run, are fitted.
+    method
+        ``cmaes`` (the optimum of J only), ``nuts`` or ``emcee`` (a posterior on a surrogate
+        of the simulator, started at the CMA-ES optimum).
+    law
+        Fix the system's integer parameter (the door's contact-law index) to this value;
+        ``None``: CMA-ES searches it and the posterior is conditional on its optimum.
+    seed
+        Seeds CMA-ES (``seed + 1``, pycma needs a positive seed), the surrogate design and
+        the sampler.
+    quick
+        Use :meth:`FitSettings.quick` (small sizes for tests and demos).
+    progress
+        Show progress bars.
+    settings
+        The stage sizes (overrides ``quick``).
+    spec
+        The feature definition; ``None`` means ``FeatureSpec()``.
+    error
+        The model-error prior; ``None`` means ``ModelError()``.
+
+    Returns
+    -------
+    result
+        The fit: point, J, posterior, diagnostics, CMA-ES history.
+
+    Raises
+    ------
+    ValueError
+        For an unknown method, an invalid ``law``, or a campaign without a usable healthy
+        run (see :func:`calibration_runs`).
+
+    References
+    ----------
+    The paper's eq. (2) and Table 2 (``../shared/seed/paper.md``); ``docs/inference.md``.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method={method!r}: use one of {', '.join(METHODS)}")
+    settings = (FitSettings.quick() if quick else FitSettings()) if settings is None else settings
+    spec = FeatureSpec() if spec is None else spec
+    integer_name, law = _integer_parameter(system, law)
+    timings: dict[str, float] = {}
+    notes: list[str] = []
+    t0 = time.perf_counter()
+    runs = calibration_runs(campaign)
+    data, duration = campaign_data(
+        system, campaign, runs, spec=spec, max_motion_s=settings.max_motion_s
+    )
+    timings["features"] = time.perf_counter() - t0
+
+    specs = {p.name: p for p in system.parameters}
+    free = tuple(p.name for p in system.parameters if not p.integer)
+    search = free if integer_name is None or law is not None else (*free, integer_name)
+    fixed = {} if integer_name is None or law is None else {integer_name: float(law)}
+    lower = np.array([specs[n].lower for n in search])
+    upper = np.array([specs[n].upper for n in search])
+    t_start, t_stop = system.motion_window(np.asarray(data.operating), duration=duration)
+    objective = _PopulationJ(
+        system=system,
+        names=search,
+        fixed=tuple(fixed.items()),
+        operating=data.operating,
+        t_start=jnp.asarray(t_start),
+        t_stop=jnp.asarray(t_stop),
+        duration=duration,
+        spec=spec,
+        y=data.y,
+        run_operating=data.run_operating,
+    )
+    popsize = settings.cmaes_popsize or int(4 + 3 * np.log(len(search)))
+    batch = _batch_objective(objective, popsize)
+    integers = [len(search) - 1] if integer_name in search else []
+    x0 = 0.5 * (lower + upper)
+    x0[integers] = np.round(x0[integers])
+    t0 = time.perf_counter()
+    cmaes = minimize_cmaes(
+        batch,
+        x0,
+        lower=lower,
+        upper=upper,
+        seed=seed + 1,
+        sigma0=settings.cmaes_sigma0,
+        integer_variables=integers,
+        max_evals=settings.cmaes_max_evals,
+        restarts=settings.cmaes_restarts,
+        popsize=popsize,
+        progress=progress,
+    )
+    timings["cmaes"] = time.perf_counter() - t0
+    if not cmaes.success:
+        raise RuntimeError(
+            f"every one of {cmaes.evaluations} CMA-ES candidates failed to simulate: (a) the "
+            "bounds reach where the solver breaks down, (b) the record is too long for the "
+            "solver's max_steps"
+        )
+    optimum = dict(zip(search, (float(v) for v in cmaes.x_best), strict=True))
+    if integer_name is not None:
+        law = round(optimum.pop(integer_name, law))  # type: ignore[arg-type]
+    theta_opt = np.array([optimum[n] for n in free])
+    bounds = (np.array([specs[n].lower for n in free]), np.array([specs[n].upper for n in free]))
+    full_point = {**optimum, **({} if integer_name is None else {integer_name: float(law)})}  # type: ignore[arg-type]
+    fixed_law = {} if integer_name is None else {integer_name: float(law)}  # type: ignore[arg-type]
+    forward = SimulatorForward.build(
+        system, free, fixed_law, data.operating, spec=spec, duration=duration
+    )
+    sim, _ = simulate_design(forward, theta_opt[None])
+    residual = np.asarray(data.y) - sim[0][np.asarray(data.run_operating)]
+    sigma_point = _ml_model_error(residual, np.asarray(data.welch_variance))
+
+    common = dict(
+        law=law,
+        cmaes=cmaes,
+        feature_spec=spec,
+        settings=settings,
+        names=free,
+        sigma_point=sigma_point,
+        bounds=bounds,
+        runs=runs,
+        duration=duration,
+        seed=seed,
+    )
+    if method == "cmaes":
+        return FitResult(
+            method=method,
+            point=full_point,
+            j=float(cmaes.f_best),
+            idata=None,
+            diagnostics=None,
+            surrogate_box=None,
+            surrogate_rms=None,
+            notes=tuple(notes),
+            timings=timings,
+            **common,  # type: ignore[arg-type]
+        )
+
+    key_sur, key_sample, key_pred = jax.random.split(jax.random.key(seed), 3)
+    t0 = time.perf_counter()
+    d = len(free)
+    ends = np.repeat(theta_opt[None], 2 * d, axis=0)
+    ends[2 * np.arange(d), np.arange(d)] = bounds[0]
+    ends[2 * np.arange(d) + 1, np.arange(d)] = bounds[1]
+    end_features, _ = simulate_design(forward, ends)
+    reach = np.max(np.abs(end_features[0::2] - end_features[1::2]), axis=(1, 2, 3))
+    welch_sd = float(np.sqrt(np.median(np.asarray(data.welch_variance))))
+    loose = reach < settings.insensitive * welch_sd
+    box = box_around(theta_opt, *bounds, np.where(loose, 1.0, settings.box_fraction))
+    n_terms = 1 + d + d * (d + 1) // 2
+    surrogate = fit_surrogate(
+        forward,
+        *box,
+        key=key_sur,
+        n_train=settings.train_per_term * n_terms,
+        n_test=settings.n_test,
+    )
+    surrogate_rms = float(np.sqrt(np.mean(np.asarray(surrogate.error_variance))))
+    timings["surrogate"] = time.perf_counter() - t0
+
+    inside = box[0] + np.clip((theta_opt - box[0]) / (box[1] - box[0]), 0.02, 0.98) * (
+        box[1] - box[0]
+    )
+    transform = SamplingTransform.box(free, *box)
+    sigma_init = jnp.asarray(sigma_point)
+    try:
+        transform = transform.whitened_at(
+            lambda th: log_likelihood(th, sigma_init, data, surrogate), jnp.asarray(inside)
+        )
+    except ValueError as err:
+        notes.append(f"Laplace whitening failed ({err}); sampling in plain logit coordinates")
+    model = make_model(data, surrogate, transform, error)
+    init = {"z": transform.to_sampling(jnp.asarray(inside)), "sigma_model": sigma_init}
+    t0 = time.perf_counter()
+    if method == "nuts":
+        idata = sample_nuts(
+            model,
+            key=key_sample,
+            init_values=init,
+            num_warmup=settings.num_warmup,
+            num_samples=settings.num_samples,
+            num_chains=settings.num_chains,
+            target_accept=settings.target_accept,
+            progress=progress,
+        )
+    else:
+        idata = sample_emcee(
+            model,
+            key=key_sample,
+            init_values=init,
+            n_walkers=max(settings.emcee_walkers, 2 * (d + data.y.shape[1]) + 2),
+            n_steps=settings.emcee_steps,
+            burn=settings.emcee_burn,
+            thin=settings.emcee_thin,
+            init_scale=0.1,
+            progress=progress,
+        )
+    timings["sampling"] = time.perf_counter() - t0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        diagnostics = diagnose_sampling(idata)
+    if not diagnostics.passed:
+        notes.extend(f"SAMPLING GATES FAILED: {m}" for m in diagnostics.messages)
+        for w in caught:
+            warnings.warn(w.message, w.category, stacklevel=2)
+
+    post = idata["posterior"]
+    draws = np.stack([np.asarray(post[n].values).reshape(-1) for n in free], axis=-1)
+    edge = surrogate.edge_fraction(draws, bounds)
+    for name, frac in zip(free, edge, strict=True):
+        if frac > 0.05:
+            message = (
+                f"{100 * frac:.0f} % of the {name} draws lie at the surrogate box's face, not "
+                "at a bound: the box, not the data, cuts the posterior; refit with a larger "
+                "box_fraction"
+            )
+            notes.append(message)
+            warnings.warn(message, UserWarning, stacklevel=2)
+
+    _add_predictive(idata, model, settings.predictive_draws, key_pred)
+    point = {n: float(np.mean(draws[:, i])) for i, n in enumerate(free)}
+    point.update(fixed_law)
+    j = float(batch(np.array([[point[n] for n in search]]))[0])
+    return FitResult(
+        method=method,
+        point=point,
+        j=j,
+        idata=idata,
+        diagnostics=diagnostics,
+        surrogate_box=box,
+        surrogate_rms=surrogate_rms,
+        notes=tuple(notes),
+        timings=timings,
+        **common,  # type: ignore[arg-type]
+    )
+
+
+def _add_predictive(idata: az.InferenceData, model, n_draws: int, key: jax.Array) -> None:
+    """A ``posterior_predictive`` group from about ``n_draws`` draws, thinned evenly."""
+    post = idata["posterior"]
+    n_chain, n_draw = post.sizes["chain"], post.sizes["draw"]
+    step = max(1, (n_chain * n_draw) // max(n_draws, 1))
+    keep = slice(None, None, step)
+    samples = {
+        name: jnp.asarray(np.asarray(post[name].values)[:, keep]).reshape(-1, *post[name].shape[2:])
+        for name in ("z", "sigma_model")
+    }
+    kept = len(range(n_draw)[keep])
+    replicate = Predictive(model, posterior_samples=samples, return_sites=["y"])(key, y=None)
+    y = np.asarray(replicate["y"]).reshape(n_chain, kept, *replicate["y"].shape[1:])
+    observed = idata["observed_data"]["y"]
+    coords = {"chain": post["chain"].values, "draw": post["draw"].values[keep]}
+    coords.update({dim: observed[dim].values for dim in observed.dims})
+    idata.add_groups(
+        posterior_predictive=xr.Dataset(
+            {"y": (("chain", "draw", *observed.dims), y)}, coords=coords
+        )
+    )
+
+
+def posterior_predictive(
+    result: FitResult,
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    runs: Sequence[int] | Int[np.ndarray, " run"] | None = None,
+    *,
+    key: jax.Array,
+    n_draws: int = 100,
+) -> tuple[Float[np.ndarray, "draw run channel band"], CalibrationData, Bool[np.ndarray, " draw"]]:
+    """Replicated features of some runs under a fit, through the exact simulator.
+
+    Each replicate takes one posterior draw (``cmaes``: the point), simulates the runs'
+    operating points, and adds Gaussian scatter with the run's Welch variance plus the draw's
+    model-error variance: the distribution the fit predicts for a new measurement of the run.
+
+    Parameters
+    ----------
+    result
+        A fit.
+    system
+        The system fitted.
+    campaign
+        The campaign holding the runs (for example the held-out healthy runs).
+    runs
+        Which runs; ``None``: the runs fitted.
+    key
+        Seeds the choice of draws and the scatter.
+    n_draws
+        Replicates (draws are taken evenly from the posterior).
+
+    Returns
+    -------
+    replicates
+        Replicated features; rows whose simulation failed are NaN.
+    data
+        The measured features of the runs (same windows as the fit).
+    ok
+        Whether each replicate's simulation succeeded.
+    """
+    runs = result.runs if runs is None else np.asarray(runs, dtype=int)
+    data, _ = campaign_data(
+        system,
+        campaign,
+        runs,
+        spec=result.feature_spec,
+        max_motion_s=result.settings.max_motion_s,
+    )
+    draws = result.posterior_draws()
+    sigma = result.model_error_draws()
+    total = len(next(iter(draws.values())))
+    pick = np.linspace(0, total - 1, min(n_draws, total)).round().astype(int)
+    pick = np.resize(pick, n_draws)
+    thetas = np.stack([draws[n][pick] for n in result.names], axis=-1)
+    fixed = {k: v for k, v in result.point.items() if k not in result.names}
+    forward = SimulatorForward.build(
+        system,
+        result.names,
+        fixed,
+        data.operating,
+        spec=result.feature_spec,
+        duration=result.duration,
+    )
+    features, ok = simulate_design(forward, thetas)
+    mean = features[:, np.asarray(data.run_operating)]
+    sd = np.sqrt(
+        np.asarray(data.welch_variance)[None, :, None, None]
+        + np.asarray(sigma)[pick % len(sigma)][:, None, :, None] ** 2
+    )
+    noise = np.asarray(jax.random.normal(key, mean.shape, dtype=jnp.float64))
+    replicates = np.where(ok[:, None, None, None], mean + sd * noise, np.nan)
+    return replicates, data, ok

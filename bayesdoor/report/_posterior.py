@@ -1,0 +1,166 @@
+"""Figures of a model update: posterior pairs and traces, posterior-predictive PSD bands."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import arviz as az
+import numpy as np
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_predictive_bands(
+    replicates: np.ndarray,
+    measured: np.ndarray,
+    run_operating: np.ndarray,
+    operating: np.ndarray,
+    band_centres: np.ndarray,
+    channels: Sequence[str],
+    path: str | Path,
+    *,
+    title: str = "posterior-predictive log PSD",
+    operating_label: str = "v_max",
+    operating_unit: str = "m/s",
+) -> tuple[Path, float]:
+    """Posterior-predictive 90 % bands of the log-PSD features against the measured ones.
+
+    One panel per channel (rows) and operating point (columns): the shaded band holds 90 % of
+    the replicates of the runs at that operating point (5 % to 95 % per feature), the dark line
+    is their median, the dots are the measured features of each run.
+
+    Parameters
+    ----------
+    replicates
+        Replicated features, (draw, run, channel, band); NaN rows (failed simulations) skipped.
+    measured
+        Measured features, (run, channel, band).
+    run_operating
+        The index into ``operating`` of each run.
+    operating
+        The distinct operating points.
+    band_centres
+        Band centre frequencies, Hz.
+    channels
+        Channel names.
+    path
+        The PNG to write (its folder is created).
+    title
+        Figure title.
+    operating_label, operating_unit
+        How to label the operating points.
+
+    Returns
+    -------
+    path
+        The file written.
+    coverage
+        The fraction of measured features inside their run's 90 % band.
+    """
+    plt = _pyplot()
+    reps = replicates[np.all(np.isfinite(replicates), axis=(1, 2, 3))]
+    lo, hi = np.quantile(reps, [0.05, 0.95], axis=0)
+    inside = (measured >= lo) & (measured <= hi)
+    coverage = float(np.mean(inside))
+    n_ch, n_op = len(channels), len(operating)
+    fig, axes = plt.subplots(
+        n_ch, n_op, figsize=(3.6 * n_op + 0.6, 2.2 * n_ch + 0.8), sharex=True, squeeze=False
+    )
+    for o in range(n_op):
+        runs = np.flatnonzero(np.asarray(run_operating) == o)
+        pooled = reps[:, runs].reshape(-1, *reps.shape[2:])
+        p_lo, p_mid, p_hi = np.quantile(pooled, [0.05, 0.5, 0.95], axis=0)
+        for c in range(n_ch):
+            ax = axes[c, o]
+            ax.fill_between(band_centres, p_lo[c], p_hi[c], color="tab:blue", alpha=0.25)
+            ax.plot(band_centres, p_mid[c], color="tab:blue", linewidth=1.2)
+            for r in runs:
+                ax.plot(
+                    band_centres,
+                    measured[r, c],
+                    linestyle="none",
+                    marker="o",
+                    markersize=2.5,
+                    color="black",
+                    alpha=0.7,
+                )
+            share = np.mean(inside[runs, c])
+            ax.text(
+                0.98,
+                0.95,
+                f"{100 * share:.0f} % inside",
+                transform=ax.transAxes,
+                ha="right",
+                va="top",
+                fontsize=8,
+            )
+            ax.grid(alpha=0.3)
+            if o == 0:
+                ax.set_ylabel(f"{channels[c]}\nlog10 PSD")
+            if c == 0:
+                ax.set_title(
+                    f"{operating_label} = {operating[o]:g} {operating_unit} ({runs.size} runs)",
+                    fontsize=10,
+                )
+            if c == n_ch - 1:
+                ax.set_xlabel("frequency (Hz)")
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles = [
+        Patch(color="tab:blue", alpha=0.25, label="90 % predictive band"),
+        Line2D([], [], color="tab:blue", label="predictive median"),
+        Line2D([], [], color="black", marker="o", linestyle="none", markersize=3, label="measured"),
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=3, frameon=False)
+    fig.suptitle(f"{title}: {100 * coverage:.1f} % of measured features inside")
+    fig.tight_layout(rect=(0, 0.04, 1, 0.97))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path, coverage
+
+
+def plot_posterior_pairs(idata: az.InferenceData, names: Sequence[str], path: str | Path) -> Path:
+    """Pairwise scatter and marginal densities of the parameters (``arviz.plot_pair``)."""
+    plt = _pyplot()
+    axes = az.plot_pair(
+        idata,
+        var_names=list(names),
+        kind="scatter",
+        marginals=True,
+        scatter_kwargs={"alpha": 0.15, "markersize": 2},
+        textsize=9,
+    )
+    fig = np.ravel(axes)[0].figure
+    fig.suptitle("posterior (pairs and marginals)")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_posterior_trace(idata: az.InferenceData, names: Sequence[str], path: str | Path) -> Path:
+    """Per-chain densities and traces of the parameters and model errors (``plot_trace``)."""
+    plt = _pyplot()
+    var_names = [*names, "sigma_model"]
+    axes = az.plot_trace(
+        idata, var_names=var_names, compact=True, figsize=(10, 1.7 * len(var_names))
+    )
+    fig = np.ravel(axes)[0].figure
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

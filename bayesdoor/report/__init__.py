@@ -11,3 +11,6 @@ from ._psd import RunPSDs as RunPSDs
 from ._psd import campaign_psds as campaign_psds
 from ._psd import motion_windows as motion_windows
 from ._psd import plot_state_psds as plot_state_psds
+from ._posterior import plot_posterior_pairs as plot_posterior_pairs
+from ._posterior import plot_posterior_trace as plot_posterior_trace
+from ._posterior import plot_predictive_bands as plot_predictive_bands

@@ -9,9 +9,10 @@ import numpy as np
 
 from .._types import Float
 from ._coherence import CoherenceMap, coherence_map
-from ._residual import ResidualMap, residual_map
+from ._residual import Region, ResidualMap, residual_map
 from ._rest import RestLines, rest_lines, rest_segments
 from ._welch_stats import windowed_log_psd
+from ._within import WithinRunFit, within_run_speed
 
 
 @dataclasses.dataclass(frozen=True)
@@ -26,12 +27,25 @@ class Features:
         Measured against simulated coherence of the examined pairs (``None``: not examined).
     rest_before, rest_after
         Lines in the rest before the motion starts and after it stops (``None``: no rest).
+    within_run
+        Per region of ``residuals``, whether it follows the speed inside the runs (``None``:
+        no speed profiles given).
     """
 
     residuals: ResidualMap
     coherence: CoherenceMap | None = None
     rest_before: RestLines | None = None
     rest_after: RestLines | None = None
+    within_run: tuple[WithinRunFit, ...] | None = None
+
+    def within(self, region: Region) -> WithinRunFit | None:
+        """The within-run speed test of one of the residual map's regions."""
+        if self.within_run is None:
+            return None
+        for mine, fit in zip(self.residuals.regions, self.within_run, strict=True):
+            if mine is region:
+                return fit
+        return None
 
     @property
     def n_runs(self) -> int:
@@ -66,6 +80,7 @@ def find_features(
     t_start: Float[np.ndarray, " run"],
     t_stop: Float[np.ndarray, " run"],
     speeds: Float[np.ndarray, " run"] | None = None,
+    speed_profiles: Float[np.ndarray, "run time"] | None = None,
     pairs: Sequence[tuple[str, str]] = (),
     nperseg: int | None = None,
     coherence_nperseg: int | None = None,
@@ -78,7 +93,8 @@ def find_features(
     The motion window ``[t_start, t_stop]`` of each run gives the spectra of the residual map
     (:func:`windowed_log_psd`, the same segmentation for measured and predictive runs) and the
     coherence (measured against the first predictive draw of the same run); the samples
-    before ``t_start`` and after ``t_stop`` give the rest lines.
+    before ``t_start`` and after ``t_stop`` give the rest lines; with speed profiles, the
+    short-time spectra give each region's within-run speed test.
 
     Parameters
     ----------
@@ -94,6 +110,9 @@ def find_features(
         Each run's motion window, s.
     speeds
         Each run's speed, for the wavenumber map and the speed fits.
+    speed_profiles
+        Each run's speed at every sample, for the within-run speed test of every region
+        (:func:`within_run_speed`).
     pairs
         Channel pairs whose coherence is examined (none: no coherence map).
     nperseg
@@ -170,6 +189,13 @@ def find_features(
                 q=q,
             )
         )
+    within = None
+    if speed_profiles is not None:
+        within = within_run_speed(x, sims, fs, speed_profiles, residuals.regions, channels)
     return Features(
-        residuals=residuals, coherence=coherence, rest_before=rests[0], rest_after=rests[1]
+        residuals=residuals,
+        coherence=coherence,
+        rest_before=rests[0],
+        rest_after=rests[1],
+        within_run=within,
     )

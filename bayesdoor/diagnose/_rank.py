@@ -76,8 +76,9 @@ class Ranking:
     ----------
     verdict
         ``"none"`` when no significant residual exists; otherwise the top candidate when its
-        score reaches ``MIN_VERDICT_SCORE``; ``None`` when residuals exist that no signature
-        matches well (see ``causes`` and ``features``).
+        score reaches ``MIN_VERDICT_SCORE`` and beats the runner-up's; ``None`` when residuals
+        exist that no signature matches well, or that two match equally well (see ``causes``
+        and ``features``).
     causes
         Every candidate, best first.
     features
@@ -102,7 +103,8 @@ def rank_causes(features: Features, catalogue: Catalogue) -> Ranking:
     passes the largest share of its checks (ties: the strongest); its score is that share.
     Candidates are ranked by score, then strength. ``none`` scores 1 exactly when nothing is
     significant, and then it is the verdict; otherwise the verdict is the top candidate if it
-    scores at least ``MIN_VERDICT_SCORE``, else ``None``.
+    scores at least ``MIN_VERDICT_SCORE`` and strictly more than the runner-up, else ``None``
+    (nothing fits well, or two causes fit equally well: the refit has to decide).
 
     Parameters
     ----------
@@ -140,6 +142,7 @@ def rank_causes(features: Features, catalogue: Catalogue) -> Ranking:
     if nothing is not None and nothing.score == 1.0:
         verdict: str | None = NONE
     else:
-        top = next(c for c in scored if c.name != NONE)
-        verdict = top.name if top.score >= MIN_VERDICT_SCORE else None
+        top, runner_up = [c for c in scored if c.name != NONE][:2]
+        clear = top.score > runner_up.score
+        verdict = top.name if top.score >= MIN_VERDICT_SCORE and clear else None
     return Ranking(verdict=verdict, causes=tuple(scored), features=features)

@@ -85,7 +85,9 @@ class SpeedFit:
     The preferred model is the one whose residual sum is at least ``SPEED_DECISION_RATIO``
     times smaller, provided the loser's RMS in ``ln f`` exceeds half the relative bin width
     (otherwise the data cannot tell them apart) and the loser lights no more runs than the
-    winner. With fewer than three affected runs, speeds spread by less than
+    winner. Runs lying more than 1.5 bins off the better line are dropped first, one at a
+    time while more than three remain (a neighbouring feature's peak in the window). With
+    fewer than three affected runs, speeds spread by less than
     ``MIN_SPEED_SPREAD``, or peaks that do not decide, the domain contrast does: a region whose
     combined statistic is at least ``CONTRAST_DECISION`` times the other domain's largest
     over the same span belongs to its own domain (fixed for frequency, tracking for
@@ -518,7 +520,8 @@ def _resonance(f, y, mu, c, low, high, domain) -> tuple[float, float]:
 
     Only for the frequency domain (NaN otherwise): the excess PSD ``10^y - 10^mu`` averaged
     over runs, its largest bin within the region (padded), the contiguous bins around it above
-    half that value. The width includes the Hann window's main lobe (about 1.5 bins).
+    half that value, inside the padded region. The width includes the Hann window's main lobe
+    (about 1.5 bins).
     """
     nan = float("nan")
     if domain != FREQUENCY:
@@ -530,10 +533,10 @@ def _resonance(f, y, mu, c, low, high, domain) -> tuple[float, float]:
     if excess[m] <= 0:
         return nan, nan
     lo = m
-    while lo > 0 and excess[lo - 1] >= excess[m] / 2:
+    while lo > inside[0] and excess[lo - 1] >= excess[m] / 2:
         lo -= 1
     hi = m
-    while hi < f.size - 1 and excess[hi + 1] >= excess[m] / 2:
+    while hi < inside[-1] and excess[hi + 1] >= excess[m] / 2:
         hi += 1
     band = slice(lo, hi + 1)
     centroid = float(np.sum(f[band] * excess[band]) / np.sum(excess[band]))
@@ -588,6 +591,25 @@ def _lit(f: np.ndarray, signed_z: np.ndarray, at: np.ndarray, runs: np.ndarray) 
     return hits
 
 
+def _drop_outliers(freq: np.ndarray, v: np.ndarray, use: np.ndarray, df: float) -> np.ndarray:
+    """Drop, one at a time, the run lying farthest (over 1.5 bins) off the better line.
+
+    A run's window can hold a neighbouring feature's peak (the next harmonic at a slow run);
+    such a run sits off both lines and would hide which one fits. At least 3 runs are kept.
+    """
+    use = use.copy()
+    while use.sum() > 3:
+        log_f, log_v = np.log(freq[use]), np.log(v[use])
+        fixed = np.full(log_f.shape, np.exp(log_f.mean()))
+        tracking = np.exp(log_v + np.mean(log_f - log_v))
+        off = [np.abs(freq[use] - fixed), np.abs(freq[use] - tracking)]
+        worst = off[int(np.argmin([np.sum(o**2) for o in off]))]
+        if worst.max() <= 1.5 * df:
+            break
+        use[np.flatnonzero(use)[int(np.argmax(worst))]] = False
+    return use
+
+
 def _speed_fit(
     peaks: RunPeaks, v, f: np.ndarray, signed_z: np.ndarray, domain: str, contrast: float
 ) -> SpeedFit:
@@ -608,6 +630,12 @@ def _speed_fit(
     wavelength = float(np.exp(-log_a))
     if n < 3 or v[use].max() / v[use].min() < MIN_SPEED_SPREAD:
         return SpeedFit(fallback, c, wavelength, nan, nan, n, 0, 0, contrast)
+    use = _drop_outliers(peaks.frequency_hz, v, use, f[1] - f[0])
+    n = int(use.sum())
+    log_f, log_v = np.log(peaks.frequency_hz[use]), np.log(v[use])
+    c = float(np.exp(log_f.mean()))
+    log_a = float(np.mean(log_f - log_v))
+    wavelength = float(np.exp(-log_a))
     rss_fixed = float(np.sum((log_f - log_f.mean()) ** 2))
     rss_tracking = float(np.sum((log_f - log_v - log_a) ** 2))
     at_fixed, at_tracking = np.full(v.shape, c), v / wavelength

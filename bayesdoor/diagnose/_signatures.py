@@ -17,7 +17,7 @@ import equinox as eqx
 import numpy as np
 
 from ._features import Features
-from ._residual import FIXED, FREQUENCY, TRACKING, WAVENUMBER, Region
+from ._residual import FIXED, FREQUENCY, TRACKING, UNDETERMINED, WAVENUMBER, Region
 
 #: a fixed-frequency line at rest has this tolerance in motion bins, on top of the rest bin
 LINE_TOLERANCE_BINS = 2.0
@@ -65,6 +65,17 @@ def _in_most_runs(region: Region, n_runs: int) -> Check:
     return Check("in most runs", 2 * n >= n_runs, f"{n} of {n_runs}")
 
 
+def _speed_check(features: Features, region: Region, wanted: str) -> Check:
+    """Across runs when the speeds decide, else within the runs when the profiles decide."""
+    name = "frequency independent of speed" if wanted == FIXED else "frequency follows the speed"
+    across = region.speed.preferred
+    within = features.within(region)
+    inside = "" if within is None else f"; within runs: {within.preferred} (z = {within.z:.1f})"
+    if across == UNDETERMINED and within is not None and within.preferred != UNDETERMINED:
+        return Check(name, within.preferred == wanted, f"across runs: {across}{inside}")
+    return Check(name, across == wanted, f"across runs: {across}{inside}")
+
+
 def _rest_tolerance(features: Features) -> float:
     rest = features.rest_before
     res = features.residuals.resolution_hz
@@ -93,9 +104,10 @@ class FixedFrequency(AbstractSignature):
     """A resonance the model lacks: excess at a speed-independent frequency within ``band``.
 
     Checks on each excess region of the fixed-frequency map with its peak in ``band``: its
-    peak frequency does not move with speed (the speed fit prefers ``f = const``); it is in
-    most runs; no line at that frequency at rest before the motion (a resonance needs
-    excitation and decays at rest); its channel has no broadband coherence excess (a line
+    peak frequency does not move with speed (the speed fit across runs prefers ``f = const``,
+    or, when it cannot tell, the within-run test does); it is in most runs; no line at that
+    frequency at rest before the motion (a resonance needs excitation and decays at rest);
+    its channel has no broadband coherence excess (a line
     carried over from another channel is a leak, not a mode). Parameters: ``frequency_hz``
     (the centroid of the half-power band of the run-averaged excess power, averaged over the
     channels that show it), ``damping_ratio`` (half-power width over twice the frequency; an
@@ -133,11 +145,7 @@ class FixedFrequency(AbstractSignature):
                 fractions = [p.fraction_significant for p in pairs]
                 leak = max(fractions, default=0.0) >= self.max_coherent_fraction
             checks = (
-                Check(
-                    "frequency independent of speed",
-                    region.speed.preferred == FIXED,
-                    region.speed.preferred,
-                ),
+                _speed_check(features, region, FIXED),
                 _in_most_runs(region, features.n_runs),
                 _absent_before_motion(features, np.array([f])),
                 Check("no broadband coherence excess", None if leak is None else not leak),
@@ -166,12 +174,14 @@ class SpeedTracking(AbstractSignature):
     ``wavelengths`` lists the periods this cause produces (with ``labels``, for example the
     harmonic numbers); ``excluded`` lists periods this cause cannot have (they belong to
     another cause); a relative tolerance ``rel_tol`` decides a match. Checks on each excess
-    region of the wavenumber map (or of the frequency map whose speed fit prefers tracking):
-    the frequency follows the speed; it is in most runs; its wavelength is one of
-    ``wavelengths`` (when given) and none of ``excluded`` (when given); no line at rest
-    before the motion at its frequencies. Parameters: ``wavelength_m`` (of the speed fit),
-    and with ``wavelengths`` the matched ``label`` and every label found among the tracking
-    regions (``labels_found``).
+    region of the wavenumber map, or of the frequency map unless it is known to stay put
+    (with one speed for all runs and no within-run test, a tone's wavelength is ``v / f`` and
+    the speed check fails, as the fixed signature's does: the two tie): the frequency
+    follows the speed; it is in most runs; its
+    wavelength is one of ``wavelengths`` (when given) and none of ``excluded`` (when given);
+    no line at rest before the motion at its frequencies. Parameters: ``wavelength_m`` (of
+    the speed fit), and with ``wavelengths`` the matched ``label`` and every label found
+    among the tracking regions (``labels_found``).
     """
 
     wavelengths: tuple[float, ...] = eqx.field(static=True, default=())
@@ -201,14 +211,16 @@ class SpeedTracking(AbstractSignature):
         regions = [
             r
             for r in res.regions
-            if r.sign > 0 and (r.domain == WAVENUMBER or r.speed.preferred == TRACKING)
+            if r.sign > 0
+            and (r.domain == WAVENUMBER or not _speed_check(features, r, FIXED).passed)
+            and np.isfinite(r.speed.wavelength_m)
         ]
         labels = self.labels or tuple(range(1, len(self.wavelengths) + 1))
         found = sorted(
             {
                 labels[i]
                 for r in regions
-                if r.speed.preferred == TRACKING
+                if _speed_check(features, r, TRACKING).passed
                 and (i := self._nearest(r.speed.wavelength_m, self.wavelengths)) is not None
             },
             key=str,
@@ -217,11 +229,7 @@ class SpeedTracking(AbstractSignature):
         for region in regions:
             lam = region.speed.wavelength_m
             checks = [
-                Check(
-                    "frequency proportional to speed",
-                    region.speed.preferred == TRACKING,
-                    region.speed.preferred,
-                ),
+                _speed_check(features, region, TRACKING),
                 _in_most_runs(region, features.n_runs),
             ]
             params: dict[str, float | str | tuple] = {"wavelength_m": lam}

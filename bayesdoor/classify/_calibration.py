@@ -17,6 +17,7 @@ from .._types import Array, ScalarLike
 TEMPERATURE_BOUNDS = (1e-2, 1e2)
 
 
+@jax.jit
 def tempered_log_probabilities(
     member_logits: Float[ArrayLike, "member *batch class"], temperature: ScalarLike
 ) -> Float[Array, "*batch class"]:
@@ -106,10 +107,11 @@ def fit_temperature(
     result = scipy.optimize.minimize_scalar(
         objective, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6}
     )
-    # Brent's bounded search never evaluates the bounds themselves and stops on a flat NLL
-    # (one that underflows to 0 as T -> 0), so compare with the bounds explicitly
+    # Brent's bounded search never evaluates the bounds themselves and stops anywhere on an NLL
+    # that is flat to round-off (one that underflows to 0 as T -> 0), so compare with the bounds
+    # explicitly; 1e-12 nats is far below any difference that matters and above the round-off
     bound = min((lo, hi), key=objective)
-    if objective(bound) <= result.fun:
+    if objective(bound) <= result.fun + 1e-12:
         warnings.warn(
             f"the NLL-optimal temperature lies at the bound {np.exp(bound):.3g} of "
             f"{TEMPERATURE_BOUNDS}: (a) the validation set may be classified perfectly with "

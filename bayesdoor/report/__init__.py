@@ -14,3 +14,4 @@ from ._psd import plot_state_psds as plot_state_psds
 from ._posterior import plot_posterior_pairs as plot_posterior_pairs
 from ._posterior import plot_posterior_trace as plot_posterior_trace
 from ._posterior import plot_predictive_bands as plot_predictive_bands
+from ._posterior import ablation_table as ablation_table

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import arviz as az
 import numpy as np
@@ -164,3 +165,66 @@ def plot_posterior_trace(idata: az.InferenceData, names: Sequence[str], path: st
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
+
+
+def ablation_table(results: dict[int, Any]) -> tuple[list[dict[str, Any]], str]:
+    """PSIS-LOO per law and stacking weights (``arviz.compare``), and a Markdown table.
+
+    Parameters
+    ----------
+    results
+        A fit (``bayesdoor.inference.FitResult``) per law index.
+
+    Returns
+    -------
+    rows
+        Per law: ``j``, posterior ``mean`` and ``sd`` per parameter, ``elpd_loo``, ``se``,
+        ``pareto_k_bad`` (Pareto k > 0.7), ``rank``, ``elpd_diff``, ``dse``, ``weight``
+        (stacking) and ``gates_passed``.
+    table
+        The rows as Markdown.
+    """
+
+    sampled = {f"law {k}": r.idata for k, r in results.items() if r.idata is not None}
+    compare = az.compare(sampled, ic="loo", method="stacking") if len(sampled) > 1 else None
+    rows = []
+    for law, r in results.items():
+        row: dict[str, Any] = {"law": law, "j": r.j, "mean": {}, "sd": {}}
+        draws = r.posterior_draws()
+        for name in r.names:
+            row["mean"][name] = float(draws[name].mean())
+            row["sd"][name] = float(draws[name].std())
+        if r.idata is not None:
+            loo = az.loo(r.idata)
+            row["elpd_loo"] = float(loo.elpd_loo)
+            row["se"] = float(loo.se)
+            row["pareto_k_bad"] = int((loo.pareto_k.values > 0.7).sum())
+        if compare is not None:
+            entry = compare.loc[f"law {law}"]
+            row["rank"] = int(entry["rank"])
+            row["elpd_diff"] = float(entry["elpd_diff"])
+            row["dse"] = float(entry["dse"])
+            row["weight"] = float(entry["weight"])
+        if r.diagnostics is not None:
+            row["gates_passed"] = r.diagnostics.passed
+        rows.append(row)
+    return rows, markdown_table(rows)
+
+
+def markdown_table(rows: list[dict[str, Any]]) -> str:
+    """One line per law: J, ELPD (SE), difference to the best, stacking weight, means (sd)."""
+    if not rows:
+        return ""
+    names = list(rows[0]["mean"])
+    head = ["law", "J", "ELPD-LOO (SE)", "dELPD (dSE)", "weight", "gates", *names]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in rows:
+        cells = [str(row["law"]), f"{row['j']:.4f}"]
+        cells.append(f"{row['elpd_loo']:.1f} ({row['se']:.1f})" if "elpd_loo" in row else "-")
+        cells.append(f"{row['elpd_diff']:.1f} ({row['dse']:.1f})" if "elpd_diff" in row else "-")
+        cells.append(f"{row['weight']:.2f}" if "weight" in row else "-")
+        gates = row.get("gates_passed")
+        cells.append("-" if gates is None else ("pass" if gates else "FAIL"))
+        cells += [f"{row['mean'][n]:.4g} ({row['sd'][n]:.2g})" for n in names]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

@@ -197,9 +197,10 @@ def test_laplace_whitening_conditions_the_sampling_coordinates(door_case, box_po
 def test_exact_simulator_posterior_agrees_with_the_surrogate_posterior(door_case):
     """Two free parameters (K, C), the rest at the truth: NUTS through diffrax vs surrogate.
 
-    Posterior means agree within 0.3 posterior sd (the Monte Carlo error of a mean from a few
-    hundred effective draws is about 0.07 sd; the surrogate's error, 0.003 decades on this
-    box, shifts the likelihood far less) and sds within 30 %.
+    Posterior means agree within 0.3 posterior sd and sds within 30 %: the exact chain is
+    short (150 draws, each gradient a diffrax solve and its adjoint), so the Monte Carlo error
+    of its mean is about 0.1 sd and of its sd about 7 %; the surrogate's error (0.003 decades
+    on this two-parameter box) shifts the likelihood far less.
     """
     data = door_case["data"]
     door = door_case["forward"].system
@@ -219,7 +220,7 @@ def test_exact_simulator_posterior_agrees_with_the_surrogate_posterior(door_case
     s_sur, _ = _nuts(make_model(data, sur, box), jax.random.key(9), 300, 600)
     t_sur = time.perf_counter() - start
     start = time.perf_counter()
-    s_exact, div = _nuts(make_model(data, exact, box), jax.random.key(9), 150, 300)
+    s_exact, div = _nuts(make_model(data, exact, box), jax.random.key(9), 100, 150)
     t_exact = time.perf_counter() - start
     print(f"NUTS: surrogate {t_sur:.0f} s, exact simulator {t_exact:.0f} s, {div} divergences")
     for name in (*names, "sigma_model"):

@@ -58,6 +58,8 @@ class CauseScore:
         The best feature and the outcome of every check, in words.
     parameters
         The parameter estimate the best feature implies.
+    feature
+        The best feature, in words (empty when there is none).
     """
 
     name: str
@@ -66,6 +68,7 @@ class CauseScore:
     strength: float
     evidence: str
     parameters: Mapping[str, float | str | tuple]
+    feature: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,9 +79,9 @@ class Ranking:
     ----------
     verdict
         ``"none"`` when no significant residual exists; otherwise the top candidate when its
-        score reaches ``MIN_VERDICT_SCORE`` and beats the runner-up's; ``None`` when residuals
-        exist that no signature matches well, or that two match equally well (see ``causes``
-        and ``features``).
+        score reaches ``MIN_VERDICT_SCORE`` and it is not tied with the runner-up on the same
+        feature; ``None`` when residuals exist that no signature matches well, or one feature
+        that two match equally well (see ``causes`` and ``features``).
     causes
         Every candidate, best first.
     features
@@ -103,8 +106,10 @@ def rank_causes(features: Features, catalogue: Catalogue) -> Ranking:
     passes the largest share of its checks (ties: the strongest); its score is that share.
     Candidates are ranked by score, then strength. ``none`` scores 1 exactly when nothing is
     significant, and then it is the verdict; otherwise the verdict is the top candidate if it
-    scores at least ``MIN_VERDICT_SCORE`` and strictly more than the runner-up, else ``None``
-    (nothing fits well, or two causes fit equally well: the refit has to decide).
+    scores at least ``MIN_VERDICT_SCORE`` and is not tied with the runner-up on the same
+    feature, else ``None`` (nothing fits well, or two causes explain one feature equally well:
+    the refit has to decide). Two causes that fully explain two different features may both be
+    present; the stronger feature ranks first.
 
     Parameters
     ----------
@@ -135,6 +140,7 @@ def rank_causes(features: Features, catalogue: Catalogue) -> Ranking:
                 strength=match.strength,
                 evidence=match.evidence(),
                 parameters=dict(match.parameters),
+                feature=match.feature,
             )
         )
     scored.sort(key=lambda c: (-c.score, -c.strength))
@@ -143,6 +149,6 @@ def rank_causes(features: Features, catalogue: Catalogue) -> Ranking:
         verdict: str | None = NONE
     else:
         top, runner_up = [c for c in scored if c.name != NONE][:2]
-        clear = top.score > runner_up.score
+        clear = top.score > runner_up.score or top.feature != runner_up.feature
         verdict = top.name if top.score >= MIN_VERDICT_SCORE and clear else None
     return Ranking(verdict=verdict, causes=tuple(scored), features=features)

@@ -521,7 +521,8 @@ def _resonance(f, y, mu, c, low, high, domain) -> tuple[float, float]:
     Only for the frequency domain (NaN otherwise): the excess PSD ``10^y - 10^mu`` averaged
     over runs, its largest bin within the region (padded), the contiguous bins around it above
     half that value, inside the padded region. The width includes the Hann window's main lobe
-    (about 1.5 bins).
+    (about 1.5 bins). Without any positive excess power (a deficit), the bin of the largest
+    value and no width.
     """
     nan = float("nan")
     if domain != FREQUENCY:
@@ -531,7 +532,7 @@ def _resonance(f, y, mu, c, low, high, domain) -> tuple[float, float]:
     inside = np.flatnonzero((f >= low - SEARCH_PAD_BINS * df) & (f <= high + SEARCH_PAD_BINS * df))
     m = int(inside[np.argmax(excess[inside])])
     if excess[m] <= 0:
-        return nan, nan
+        return float(f[m]), nan
     lo = m
     while lo > inside[0] and excess[lo - 1] >= excess[m] / 2:
         lo -= 1

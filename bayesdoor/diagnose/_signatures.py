@@ -138,7 +138,7 @@ class FixedFrequency(AbstractSignature):
                 for r in regions
                 if abs(r.centroid_hz - region.centroid_hz)
                 <= max(LINE_TOLERANCE_BINS * res.resolution_hz, region.half_power_width_hz)
-            ]
+            ] or [region]
             leak = None
             if features.coherence is not None:
                 pairs = features.coherence.for_channel(region.channel)
@@ -155,9 +155,9 @@ class FixedFrequency(AbstractSignature):
                     feature=region.describe(),
                     checks=checks,
                     parameters={
-                        "frequency_hz": float(np.nanmean([r.centroid_hz for r in same])),
+                        "frequency_hz": float(np.mean([r.centroid_hz for r in same])),
                         "damping_ratio": float(
-                            np.nanmean([r.half_power_width_hz / (2 * r.centroid_hz) for r in same])
+                            np.mean([r.half_power_width_hz / (2 * r.centroid_hz) for r in same])
                         ),
                         "excess_db": region.excess_db,
                         "channels": tuple(sorted({r.channel for r in same})),

@@ -12,6 +12,7 @@ import json
 import re
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
 import equinox as eqx
 import jax
@@ -145,9 +146,12 @@ class StandInFit:
 
     calls = 0
 
+    names = ("k", "m")
+
     def __init__(self, seed):
         rng = np.random.default_rng(seed)
         self.point = dict(CENTER)
+        self.cmaes = SimpleNamespace(x_best=np.array([0.51, 0.99]))
         self.j = 0.1
         self._draws = {
             "k": np.clip(0.5 + 0.02 * rng.standard_normal(200), 0, 1),
@@ -274,7 +278,9 @@ def test_changed_test_runs_recompute_only_the_stages_they_reach(finished, tmp_pa
     shutil.copytree(out, copy)
     campaign = tone_campaign()
     fewer = campaign.isel(run=np.arange(campaign.sizes["run"] - 1))
-    changed = job(copy, campaign=fewer)
+    with pytest.raises(FileExistsError, match="other settings"):
+        job(copy, campaign=fewer)
+    changed = job(copy, campaign=fewer, overwrite=True)
     reused = {s.name: s.reused for s in changed.stages}
     assert reused == {
         "fit": True,
@@ -291,7 +297,9 @@ def test_every_setting_reaches_the_generation_hash():
     """Seed, source and sizes change the generation's configuration, hence its hash."""
     from bayesdoor.pipeline import generation_settings
 
-    summary = FitSummary("nuts", dict(CENTER), 0.1, StandInFit(0).posterior_draws(), None)
+    summary = FitSummary(
+        "nuts", dict(CENTER), dict(CENTER), 0.1, StandInFit(0).posterior_draws(), None
+    )
     campaign = tone_campaign()
     base = generation_settings(SYSTEM, campaign, summary, "fit-hash", "posterior", SIZES, 0)
     variants = [
@@ -349,6 +357,7 @@ def test_fit_summary_round_trip(finished):
     _, out = finished
     summary = FitSummary.load(out / "fit")
     assert summary.point == CENTER
+    assert summary.optimum == {"k": 0.51, "m": 0.99, "law": 2.0}
     assert set(summary.draws) == {"k", "m"}
     assert summary.sigma_model.shape == (200, 2)
     rows = {r["parameter"]: r for r in summary.table()}
@@ -357,6 +366,13 @@ def test_fit_summary_round_trip(finished):
 
 
 # ------------------------------------------------------------------------- runs and errors
+
+
+def test_a_foreign_folder_is_refused(tmp_path):
+    (tmp_path / "notes.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match="not a bayesdoor job folder"):
+        job(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 
 
 def test_calibration_and_test_selection():
@@ -383,7 +399,7 @@ def test_model_error_source_needs_the_fit_to_have_one(finished):
 
     _, model_error = parameter_source(SYSTEM, summary, "posterior+model_error", 0.05)
     assert model_error is not None
-    point_only = FitSummary("cmaes", summary.point, 0.1, {}, None)
+    point_only = FitSummary("cmaes", summary.point, summary.point, 0.1, {}, None)
     with pytest.raises(ValueError, match="posterior draws"):
         parameter_source(SYSTEM, point_only, "posterior", 0.05)
     with pytest.raises(ValueError, match="source must be one of"):

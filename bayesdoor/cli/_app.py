@@ -101,47 +101,78 @@ def simulate(
 
 
 @app.command()
-def demo(
-    out: Annotated[Path, typer.Option("--out", help="output folder")] = Path("out/demo"),
-    seed: Annotated[int, typer.Option(help="seed of the damage severity draws")] = 0,
-    force: Annotated[bool, typer.Option(help="overwrite previous results")] = False,
+def run(
+    path: Annotated[Path, typer.Argument(help="campaign file (.nc)")],
+    out: Annotated[Path, typer.Option("--out", help="output folder of the job")],
+    quick: Annotated[bool, typer.Option(help="small sizes: a first look in minutes")] = False,
+    seed: Annotated[int, typer.Option(help="seed of the fit, the simulations and training")] = 0,
+    source: Annotated[
+        str,
+        typer.Option(help="training parameters: posterior, posterior+model_error or gaussian"),
+    ] = "posterior",
+    method: Annotated[str, typer.Option(help="fit method: nuts, emcee or cmaes")] = "nuts",
+    force: Annotated[bool, typer.Option(help="replace a finished job of other settings")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
-    """The main job (for now): simulate the healthy door, D1 and D2, and plot their PSDs."""
-    configure_jax()
-    from ..io import save_campaign
-    from ..report import campaign_psds, plot_state_psds
-    from ._simulate import simulate_campaign
+    """The main job: fit, simulate training data, train, classify the test runs, report.
 
-    campaign, figure, full = out / "campaign.nc", out / "psd.png", out / "psd_full.png"
-    for path in (campaign, figure, full):
-        check_output_path(path, force)
-    stage = _progress(json)
-    ds = simulate_campaign(
-        ["healthy", "D1", "D2"],
-        [0.4, 0.4, 0.4],
+    Stages finished with the same settings are reused, so a second run is immediate.
+    """
+    configure_jax()
+    from . import _run
+
+    _run.run(
+        _run.load(path),
+        out,
+        quick=quick,
         seed=seed,
-        params={},
-        dtype="float64",
-        progress=stage,
+        source=source,
+        method=method,
+        force=force,
+        json=json,
     )
-    out.mkdir(parents=True, exist_ok=True)
-    save_campaign(ds, campaign, overwrite=force)
-    with stage("plotting PSDs"):
-        psds = campaign_psds(ds)
-        title = "Simulated door (reduced model, paper's optimum), v_max = 0.4 m/s"
-        plot_state_psds(psds, figure, fmax=100.0, title=f"{title}, 0-100 Hz")
-        plot_state_psds(psds, full, title=f"{title}, full band")
-    result = {
-        "campaign": str(campaign),
-        "psd_plot": str(figure),
-        "psd_plot_full_band": str(full),
-        "runs": int(ds.sizes["run"]),
-    }
-    if json:
-        emit_json(result)
-    else:
-        _err.print(f"campaign: {campaign}\nPSD plots: {figure}, {full}")
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option("--out", help="output folder")] = Path("out/demo"),
+    quick: Annotated[bool, typer.Option(help="small sizes: a first look in minutes")] = False,
+    seed: Annotated[int, typer.Option(help="seed of the fit, the simulations and training")] = 0,
+    force: Annotated[bool, typer.Option(help="replace a finished job of other settings")] = False,
+    json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
+) -> None:
+    """`run` on the embedded demo campaign (recorded by the virtual rig on first use)."""
+    configure_jax()
+    from ..datasets import load_demo_campaign
+    from . import _run
+
+    _run.run(
+        load_demo_campaign(show_progress=not json),
+        out,
+        quick=quick,
+        seed=seed,
+        source="posterior",
+        method="nuts",
+        force=force,
+        json=json,
+    )
+
+
+@app.command()
+def classify(
+    path: Annotated[Path, typer.Argument(help="campaign file (.nc)")],
+    model: Annotated[
+        Path, typer.Option("--model", help="a job folder of 'bayesdoor run' or its train/")
+    ],
+    out: Annotated[Path, typer.Option("--out", help="output folder of the report")],
+    force: Annotated[bool, typer.Option(help="replace a previous classification")] = False,
+    json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
+) -> None:
+    """Damage report for every run: probabilities, uncertainty, OOD flag, HTML and JSON."""
+    configure_jax()
+    from . import _classify, _run
+
+    _classify.classify(_run.load(path), model, out, force=force, json=json)
 
 
 @app.command()

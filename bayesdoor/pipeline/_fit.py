@@ -29,7 +29,11 @@ class FitSummary:
     method
         How the fit was made (``"cmaes"``, ``"nuts"``, ``"emcee"``).
     point
-        One value per system parameter (the optimum; the contact-law index included).
+        One value per system parameter (the posterior mean of a sampled fit, the CMA-ES
+        optimum of a point fit; the contact-law index included).
+    optimum
+        The CMA-ES optimum, one value per system parameter (the centre of the paper's
+        Gaussian baseline).
     j
         The objective at ``point`` (``None`` when the fit does not report it).
     draws
@@ -41,28 +45,39 @@ class FitSummary:
 
     method: str
     point: dict[str, float]
+    optimum: dict[str, float]
     j: float | None
     draws: dict[str, np.ndarray]
     sigma_model: np.ndarray | None
 
     @classmethod
     def from_result(cls, result: Any, method: str) -> FitSummary:
-        """Take the summary from a ``bayesdoor.inference.FitResult``-like object.
+        """Take the summary from a :class:`bayesdoor.inference.FitResult`.
 
-        The object needs ``point`` (dict), ``j``, ``posterior_draws()`` (dict name -> array,
-        possibly empty) and ``model_error_draws()`` (array or ``None``).
+        Uses its ``point``, ``j``, ``names`` with ``cmaes.x_best`` (the optimum of the
+        continuous parameters, in that order), ``posterior_draws()`` and
+        ``model_error_draws()``. A fit with a single draw (a CMA-ES point) keeps no draws and
+        no model error: they are estimates at a point, not posteriors.
         """
+        point = {str(k): float(v) for k, v in result.point.items()}
+        best = np.asarray(result.cmaes.x_best, dtype=float)
+        optimum = {**point, **{n: float(best[i]) for i, n in enumerate(result.names)}}
         draws = {
             str(k): np.asarray(v, dtype=float).reshape(-1)
-            for k, v in (result.posterior_draws() or {}).items()
+            for k, v in result.posterior_draws().items()
         }
         sigma = result.model_error_draws()
         if sigma is not None:
             sigma = np.asarray(sigma, dtype=float)
-            sigma = sigma.reshape(sigma.shape[0], -1) if sigma.ndim > 1 else sigma
+            sigma = sigma.reshape(sigma.shape[0], -1)
+        if any(v.size < 2 for v in draws.values()):
+            draws, sigma = {}, None
+        if sigma is not None and sigma.shape[0] < 2:
+            sigma = None
         return cls(
             method=method,
-            point={str(k): float(v) for k, v in result.point.items()},
+            point=point,
+            optimum=optimum,
             j=_finite_or_none(result.j),
             draws=draws,
             sigma_model=sigma,
@@ -70,7 +85,12 @@ class FitSummary:
 
     def save(self, folder: Path) -> None:
         """Write ``summary.json`` and ``draws.npz`` into ``folder``."""
-        header = {"method": self.method, "point": self.point, "j": self.j}
+        header = {
+            "method": self.method,
+            "point": self.point,
+            "optimum": self.optimum,
+            "j": self.j,
+        }
         text = json.dumps(header, indent=1) + "\n"
         atomic_write(folder / "summary.json", lambda tmp: tmp.write_text(text), overwrite=True)
         arrays = {f"draw/{k}": v for k, v in self.draws.items()}
@@ -92,15 +112,16 @@ class FitSummary:
         return cls(
             method=header["method"],
             point={k: float(v) for k, v in header["point"].items()},
+            optimum={k: float(v) for k, v in header["optimum"].items()},
             j=header["j"],
             draws={k.split("/", 1)[1]: v for k, v in arrays.items() if k.startswith("draw/")},
             sigma_model=arrays.get("sigma_model"),
         )
 
     def table(self) -> list[dict[str, Any]]:
-        """Per parameter: the point, and the posterior mean, sd and 90 % interval when sampled."""
+        """Per parameter: the CMA-ES optimum, and the posterior mean, sd and 90 % interval."""
         rows = []
-        for name, value in self.point.items():
+        for name, value in self.optimum.items():
             row: dict[str, Any] = {"parameter": name, "point": value}
             if name in self.draws:
                 d = self.draws[name]

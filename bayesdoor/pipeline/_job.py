@@ -40,10 +40,12 @@ from ..io import atomic_write
 from ..systems import AbstractSystem
 from ._classify import classify_stage, report_stage, train_stage
 from ._fit import FitSummary
-from ._stages import StageRecord, run_stage
+from ._stages import StageRecord, configuration_hash, run_stage
 
 Source = Literal["posterior", "posterior+model_error", "gaussian"]
 SOURCES: tuple[str, ...] = ("posterior", "posterior+model_error", "gaussian")
+#: the stages of a job, in order (each one a folder of the job)
+STAGES: tuple[str, ...] = ("fit", "generate", "train", "classify", "report")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,7 +127,7 @@ class JobResult:
         }
 
 
-def _digest_runs(campaign: xr.Dataset) -> str:
+def digest_runs(campaign: xr.Dataset) -> str:
     """SHA-256 of the runs' signals, time axis and per-run coordinates."""
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(campaign["acceleration"].values).tobytes())
@@ -184,6 +186,39 @@ def _default_fit(system, campaign, **options):
     return fit_campaign(system, campaign, **options)
 
 
+def _check_folder(out: Path, settings: dict[str, Any], job_hash: str, overwrite: bool) -> None:
+    """Refuse to replace a finished job of other settings, or to write into a foreign folder."""
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise FileExistsError(f"{out} is a file, not a job folder: pass a folder for the job")
+    record = out / "job.json"
+    if record.is_file():
+        old = json.loads(record.read_text())
+        if old.get("job_hash") != job_hash and not overwrite:
+            changed = [
+                k
+                for k in ("campaign", "quick", "seed", "fit_seed", "source", "method", "sizes")
+                if k in old and old.get(k) != settings.get(k)
+            ]
+            raise FileExistsError(
+                f"{out} holds a finished job with other settings "
+                f"({', '.join(changed) or 'the system or the campaign'} differ); pass --force "
+                "(overwrite=True) to replace it (unchanged stages are reused), or use another "
+                "folder"
+            )
+        return
+    known = {*STAGES, "job.json"}
+    foreign = sorted(
+        p.name for p in out.iterdir() if p.name not in known and not p.name.startswith(".")
+    )
+    if foreign and not overwrite:
+        raise FileExistsError(
+            f"{out} is not empty and is not a bayesdoor job folder (it holds {foreign[:5]}); "
+            "pass an empty or new folder"
+        )
+
+
 def parameter_source(
     system: AbstractSystem, fit: FitSummary, source: Source, gaussian_sd: float
 ) -> tuple[AbstractParameterSource, ModelErrorDraws | None]:
@@ -198,7 +233,7 @@ def parameter_source(
     if source not in SOURCES:
         raise ValueError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
     if source == "gaussian":
-        return GaussianScatter.around(system, fit.point, gaussian_sd), None
+        return GaussianScatter.around(system, fit.optimum, gaussian_sd), None
     if not fit.draws:
         raise ValueError(
             f"source={source!r} needs posterior draws, but the {fit.method} fit holds a point "
@@ -272,6 +307,7 @@ def run_job(
     fit: Callable[..., Any] | None = None,
     progress: bool = True,
     report: Callable[[str], None] = print,
+    overwrite: bool = False,
 ) -> JobResult:
     """Fit on the calibration runs, simulate training data, train, classify the test runs, report.
 
@@ -312,6 +348,9 @@ def run_job(
         Show the progress bars of the stages.
     report
         Receives one line per stage event.
+    overwrite
+        Let a job of other settings replace the finished job in ``out`` (stages whose
+        configuration did not change are still reused).
 
     Returns
     -------
@@ -322,6 +361,9 @@ def run_job(
     ValueError
         For a campaign without calibration runs, an unknown source, or a source the fit cannot
         serve.
+    FileExistsError
+        When ``out`` holds a finished job of other settings (and ``overwrite`` is false), or
+        files that are not a job's; nothing is written then.
     """
     if source not in SOURCES:
         raise ValueError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
@@ -331,8 +373,20 @@ def run_job(
     fit_seed = seed if fit_seed is None else fit_seed
     calibration = calibration_runs(campaign)
     test = runs_to_classify(campaign)
-    out.mkdir(parents=True, exist_ok=True)
     system_description = describe_system(system)
+    settings = {
+        "system": system_description,
+        "campaign": digest_runs(campaign),
+        "quick": quick,
+        "seed": seed,
+        "fit_seed": fit_seed,
+        "source": source,
+        "method": method,
+        "sizes": sizes.to_json(),
+    }
+    job_hash = configuration_hash(settings)
+    _check_folder(out, settings, job_hash, overwrite)
+    out.mkdir(parents=True, exist_ok=True)
     versions = _versions()
     records: list[StageRecord] = []
 
@@ -354,7 +408,7 @@ def run_job(
         "fit",
         {
             "system": system_description,
-            "calibration_runs": _digest_runs(calibration),
+            "calibration_runs": digest_runs(calibration),
             "method": method,
             "seed": fit_seed,
             "quick": quick,
@@ -412,7 +466,7 @@ def run_job(
     classify_record = run_stage(
         out,
         "classify",
-        {"model": train_record.config_hash, "runs": _digest_runs(test), "indices": runs},
+        {"model": train_record.config_hash, "runs": digest_runs(test), "indices": runs},
         lambda folder: classify_stage(train_record.path, test, folder, run_index=runs),
         report=report,
     )
@@ -445,13 +499,9 @@ def run_job(
         report=report_record.path / "index.html",
     )
     job = {
+        "job_hash": job_hash,
         "system": system.name,
-        "quick": quick,
-        "seed": seed,
-        "fit_seed": fit_seed,
-        "source": source,
-        "method": method,
-        "sizes": sizes.to_json(),
+        **{k: v for k, v in settings.items() if k != "system"},
         "stages": {s.name: s.config_hash for s in records},
         "metrics": classification.get("metrics"),
         "report": str(result.report),

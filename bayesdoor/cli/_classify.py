@@ -1,0 +1,83 @@
+"""``bayesdoor classify``: a damage report for every run of a campaign with a trained model."""
+
+from __future__ import annotations
+
+import hashlib
+import json as json_module
+from pathlib import Path
+
+import xarray as xr
+from rich.console import Console
+
+from ._common import emit_json, fail
+from ._run import print_summary
+
+_err = Console(stderr=True)
+
+
+def classify(campaign: xr.Dataset, model: Path, out: Path, *, force: bool, json: bool) -> None:
+    """Classify every run with the ensemble of ``model`` and write the report under ``out``.
+
+    ``out/classify`` (the JSON and the features) and ``out/report`` (the HTML) are stages:
+    the same model and runs reuse them; other ones replace them only with ``force``.
+    """
+    from ..pipeline import (
+        classify_stage,
+        configuration_hash,
+        digest_runs,
+        model_file,
+        report_stage,
+        run_stage,
+    )
+
+    try:
+        ensemble = model_file(model)
+    except ValueError as err:
+        raise fail(str(err)) from None
+    config = {
+        "model": hashlib.sha256(ensemble.read_bytes()).hexdigest(),
+        "runs": digest_runs(campaign),
+    }
+    record = out / "classify" / "stage.json"
+    if out.exists():
+        if not out.is_dir():
+            raise fail(f"--out {out} is a file: pass a folder")
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in ("classify", "report"))
+        if foreign and not force:
+            raise fail(
+                f"--out {out} holds other files ({', '.join(foreign[:5])}); pass an empty or new "
+                "folder, or --force"
+            )
+        if record.is_file() and not force:
+            if json_module.loads(record.read_text()).get("config_hash") != configuration_hash(
+                config
+            ):
+                raise fail(
+                    f"{out} holds a classification by another model or of other runs; pass "
+                    "--force to replace it, or use another folder"
+                )
+
+    def line(text: str) -> None:
+        if not json:
+            _err.print(text)
+
+    classified = run_stage(
+        out,
+        "classify",
+        config,
+        lambda folder: classify_stage(ensemble.parent, campaign, folder),
+        report=line,
+    )
+    reported = run_stage(
+        out,
+        "report",
+        {"classification": classified.config_hash},
+        lambda folder: report_stage(classified.path, ensemble.parent, folder),
+        report=line,
+    )
+    payload = json_module.loads((classified.path / "classification.json").read_text())
+    payload = {"model": str(ensemble), "report": str(reported.path / "index.html"), **payload}
+    if json:
+        emit_json(payload)
+    else:
+        print_summary(payload, Console())

@@ -1,0 +1,144 @@
+"""``bayesdoor run`` and ``bayesdoor demo``: the main job on a campaign, with a summary table."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any, cast
+
+import xarray as xr
+from rich.console import Console
+from rich.table import Table
+
+from ._common import emit_json, fail
+
+_err = Console(stderr=True)
+
+
+def system_for(campaign: xr.Dataset):
+    """The simulated system named by the campaign's ``system`` attribute."""
+    from ..systems import ElevatorDoor
+
+    systems = {"elevator_door": ElevatorDoor}
+    name = str(campaign.attrs.get("system", "elevator_door"))
+    if name not in systems:
+        raise fail(
+            f"the campaign's system {name!r} is not one bayesdoor simulates "
+            f"({', '.join(systems)}): set attrs['system'] to one of them"
+        )
+    return systems[name]()
+
+
+def load(path: Path) -> xr.Dataset:
+    """A campaign file for ``run`` or ``classify``; structural problems fail with one line.
+
+    Runs with non-finite samples are kept (``classify`` reports them run by run; the fit
+    refuses them among the calibration runs).
+    """
+    from ..io import load_campaign
+
+    if not path.is_file():
+        raise fail(f"{path}: no such file; pass a campaign file (.nc)")
+    try:
+        campaign = load_campaign(path, check=False)
+    except (OSError, ValueError) as err:
+        raise fail(f"{path} is not a readable campaign: {err}".replace("\n", " ")) from None
+    if "acceleration" not in campaign or "run" not in campaign["acceleration"].dims:
+        raise fail(f"{path} has no 'acceleration' (run, channel, time) variable: not a campaign")
+    if campaign.sizes["run"] == 0:
+        raise fail(f"{path} holds no runs")
+    return campaign
+
+
+def _fmt(value: Any, digits: int = 4) -> str:
+    if value is None:
+        return "-"
+    return f"{value:.{digits}g}" if isinstance(value, float) else str(value)
+
+
+def print_summary(result: dict[str, Any], console: Console) -> None:
+    """The posterior summary, the accuracy and calibration, and the report's path."""
+    fit = result.get("fit")
+    if fit is not None:
+        table = Table(title=f"model updating ({fit['method']}, J = {_fmt(fit['j'])})")
+        for column in ("parameter", "point", "mean", "sd", "90 % interval"):
+            table.add_column(column, justify="left" if column == "parameter" else "right")
+        for row in fit["parameters"]:
+            interval = "-" if "q05" not in row else f"{row['q05']:.4g} .. {row['q95']:.4g}"
+            table.add_row(
+                row["parameter"],
+                _fmt(row["point"]),
+                _fmt(row.get("mean")),
+                _fmt(row.get("sd"), 2),
+                interval,
+            )
+        console.print(table)
+    metrics = result.get("metrics")
+    table = Table(title=f"classification of {len(result['runs'])} runs")
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    if metrics is not None:
+        table.add_row("accuracy", f"{100 * metrics['accuracy']:.1f} %")
+        table.add_row("ECE (15 bins)", _fmt(metrics["ece"], 3))
+        table.add_row("NLL", _fmt(metrics["nll"], 3))
+        table.add_row("Brier", _fmt(metrics["brier"], 3))
+        table.add_row("runs with a known state", str(metrics["runs"]))
+    table.add_row("flagged out-of-distribution", str(result["n_ood"]))
+    if result["n_failed"]:
+        table.add_row("not classified (bad records)", str(result["n_failed"]))
+    console.print(table)
+    console.print(f"report: {result['report']}")
+
+
+def run(
+    campaign: xr.Dataset,
+    out: Path,
+    *,
+    quick: bool,
+    seed: int,
+    source: str,
+    method: str,
+    force: bool,
+    json: bool,
+) -> None:
+    """Run the job, print its summary (or its JSON)."""
+    from ..pipeline import SOURCES, Source, run_job
+
+    if source not in SOURCES:
+        raise fail(f"--source {source!r}: use one of {', '.join(SOURCES)}")
+    if method not in ("nuts", "emcee", "cmaes"):
+        raise fail(f"--method {method!r}: use nuts, emcee or cmaes")
+    if method == "cmaes" and source != "gaussian":
+        raise fail(
+            f"--method cmaes gives a point, not a posterior: use --source gaussian with it "
+            f"(got --source {source})"
+        )
+    system = system_for(campaign)
+    start = time.perf_counter()
+
+    def line(text: str) -> None:
+        if not json:
+            _err.print(f"[{time.perf_counter() - start:6.1f} s] {text}")
+
+    try:
+        result = run_job(
+            system,
+            campaign,
+            out,
+            quick=quick,
+            seed=seed,
+            source=cast(Source, source),
+            method=method,
+            progress=not json,
+            report=line,
+            overwrite=force,
+        )
+    except FileExistsError as err:
+        raise fail(str(err)) from None
+    except ValueError as err:
+        raise fail(str(err).replace("\n", " ")) from None
+    payload = result.to_json()
+    if json:
+        emit_json(payload)
+    else:
+        print_summary(payload, Console())

@@ -1,0 +1,149 @@
+"""``bayesdoor classify``, ``run`` and ``demo``: JSON, reuse, refusals, one-line errors.
+
+``classify`` is exercised with a model trained by the job of ``test_pipeline`` on its tone
+system (seconds); ``run`` on the door is checked for the errors it must give before any work,
+and end to end (``demo --quick``) under ``slow``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+from test_pipeline import job, runs_to_classify, tone_campaign
+from typer.testing import CliRunner
+
+from bayesdoor.cli import app
+from bayesdoor.io import make_campaign, save_campaign
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    out = tmp_path_factory.mktemp("model")
+    job(out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def tone_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("data") / "tones.nc"
+    save_campaign(runs_to_classify(tone_campaign(seed=5)), path)
+    return path
+
+
+def invoke(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def test_classify_json_and_report(model, tone_file, tmp_path):
+    out = tmp_path / "report"
+    result = invoke("classify", tone_file, "--model", model, "--out", out, "--json")
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    assert {"runs", "metrics", "classes", "report", "model"} <= set(payload)
+    assert len(payload["runs"]) == 12
+    for run in payload["runs"]:
+        assert {"predicted", "probabilities", "entropy", "mutual_information", "ood"} <= set(run)
+    assert {"accuracy", "ece", "nll", "brier", "confusion"} <= set(payload["metrics"])
+    html = (out / "report" / "index.html").read_text()
+    assert len(re.findall(r"data:image/png;base64,", html)) >= 5
+    # only under --out
+    assert sorted(p.name for p in out.iterdir()) == ["classify", "report"]
+
+
+def test_classify_reuses_and_refuses_to_overwrite(model, tone_file, tmp_path):
+    out = tmp_path / "report"
+    assert invoke("classify", tone_file, "--model", model, "--out", out).exit_code == 0
+    before = (out / "classify" / "classification.json").read_bytes()
+    again = invoke("classify", tone_file, "--model", model, "--out", out)
+    assert again.exit_code == 0 and "reused" in again.output
+    other = tone_file.parent / "other.nc"
+    save_campaign(runs_to_classify(tone_campaign(seed=6)), other)
+    refused = invoke("classify", other, "--model", model, "--out", out)
+    assert refused.exit_code == 2
+    assert "pass --force" in refused.output
+    assert (out / "classify" / "classification.json").read_bytes() == before
+    forced = invoke("classify", other, "--model", model, "--out", out, "--force")
+    assert forced.exit_code == 0
+    assert (out / "classify" / "classification.json").read_bytes() != before
+
+
+def test_classify_without_a_model(tone_file, tmp_path):
+    result = invoke("classify", tone_file, "--model", tmp_path, "--out", tmp_path / "o")
+    assert result.exit_code == 2
+    assert "no ensemble.eqx" in result.output
+    assert not (tmp_path / "o").exists()
+
+
+def door_file(path, states, split=None):
+    rng = np.random.default_rng(0)
+    extra = {} if split is None else {"split": split}
+    ds = make_campaign(
+        0.01 * rng.standard_normal((len(states), 4, 4096)),
+        channels=["A1X", "A1Z", "A2X", "A2Z"],
+        fs=2048.0,
+        state=states,
+        v_max=np.full(len(states), 0.4),
+        system="elevator_door",
+        **extra,
+    )
+    save_campaign(ds, path)
+    return path
+
+
+def test_run_without_calibration_runs_fails_in_one_line(tmp_path):
+    path = door_file(tmp_path / "faulty.nc", ["D1", "D2", "D1"])
+    result = invoke("run", path, "--out", tmp_path / "job")
+    assert result.exit_code == 2
+    assert "no calibration runs" in result.output
+    assert len(result.output.strip().splitlines()) == 1
+    assert not (tmp_path / "job").exists()
+
+
+def test_run_refuses_a_folder_that_is_not_a_job(tmp_path):
+    path = door_file(tmp_path / "c.nc", ["healthy", "D1"])
+    out = tmp_path / "busy"
+    out.mkdir()
+    (out / "thesis.tex").write_text("precious")
+    result = invoke("run", path, "--out", out)
+    assert result.exit_code == 2 and "not a bayesdoor job folder" in result.output
+    assert sorted(p.name for p in out.iterdir()) == ["thesis.tex"]
+
+
+def test_run_bad_options_and_files(tmp_path):
+    path = door_file(tmp_path / "c.nc", ["healthy", "D1"])
+    bad = invoke("run", path, "--out", tmp_path / "j", "--source", "uniform")
+    assert bad.exit_code == 2 and "--source" in bad.output
+    point = invoke("run", path, "--out", tmp_path / "j", "--method", "cmaes")
+    assert point.exit_code == 2 and "--source gaussian" in point.output
+    missing = invoke("run", tmp_path / "nope.nc", "--out", tmp_path / "j")
+    assert missing.exit_code == 2 and "no such file" in missing.output
+    text = tmp_path / "text.nc"
+    text.write_text("not netcdf")
+    garbled = invoke("run", text, "--out", tmp_path / "j")
+    assert garbled.exit_code == 2 and "not a readable campaign" in garbled.output
+    assert not (tmp_path / "j").exists()
+
+
+@pytest.mark.slow
+def test_demo_quick_end_to_end_and_reuse(tmp_path):
+    out = tmp_path / "demo"
+    first = invoke("demo", "--quick", "--out", out, "--json")
+    assert first.exit_code == 0, first.output
+    payload = json.loads(first.stdout)
+    assert len(payload["runs"]) == 300
+    assert {"accuracy", "ece", "nll", "brier", "confusion"} <= set(payload["metrics"])
+    assert [s["reused"] for s in payload["stages"]] == [False] * 5
+    assert (out / "report" / "index.html").is_file()
+    assert len(list((out / "report" / "runs").glob("run-*.html"))) == 300
+    second = invoke("demo", "--quick", "--out", out, "--json")
+    assert second.exit_code == 0
+    again = json.loads(second.stdout)
+    assert [s["reused"] for s in again["stages"]] == [True] * 5
+    assert again["metrics"] == payload["metrics"]
+    refused = invoke("demo", "--out", out)
+    assert refused.exit_code == 2 and "--force" in refused.output

@@ -17,11 +17,16 @@ import scipy.stats
 from bayesdoor.diagnose import (
     NONE,
     benjamini_hochberg,
+    coherence_map,
+    dof_from_log10_variance,
     find_features,
     log10_psd_variance,
+    log_chi2_normal_scores,
     rank_causes,
     residual_map,
+    rest_lines,
     welch_dof,
+    within_run_speed,
 )
 from bayesdoor.systems.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE
 
@@ -229,6 +234,28 @@ def test_log_variance_matches_monte_carlo_welch_of_white_noise():
     assert np.var(sample) == pytest.approx(log10_psd_variance(welch_dof(k, nperseg)), rel=0.08)
 
 
+def test_dof_from_log10_variance_inverts_the_variance():
+    nu = np.array([1.0, 2.0, 3.3, 6.4, 12.0, 100.0, 1e4])
+    np.testing.assert_allclose(dof_from_log10_variance(log10_psd_variance(nu)), nu, rtol=1e-10)
+
+
+@pytest.mark.parametrize("nu", [2.0, 6.4, 12.0])
+def test_normal_scores_are_standard_normal_for_log_chi_square_plus_normal(nu):
+    # the measured-minus-predicted log10 PSD as the model says: the centred log of a scaled
+    # chi-square plus a normal spread of the draws; 200000 samples estimate a tail
+    # probability of 0.00135 to about 6 %; the plain (d / sd) score is checked to fail
+    rng = np.random.default_rng(int(nu * 10))
+    w = np.log10(rng.chisquare(nu, 200_000) / nu)
+    d = w - w.mean() + rng.normal(0.0, 0.1, w.size)
+    z = log_chi2_normal_scores(d, 0.01, nu)
+    tail = scipy.stats.norm.cdf(-3.0)
+    assert np.mean(z < -3) == pytest.approx(tail, rel=0.2)
+    assert np.mean(z > 3) == pytest.approx(tail, rel=0.2)
+    assert scipy.stats.kstest(z, "norm").pvalue > 1e-3
+    plain = d / np.sqrt(0.01 + log10_psd_variance(nu))
+    assert np.mean(plain < -3) > 2 * tail
+
+
 def test_benjamini_hochberg_matches_scipy():
     rng = np.random.default_rng(4)
     p = np.concatenate([rng.uniform(size=900), rng.uniform(0, 1e-4, size=100)])
@@ -275,6 +302,18 @@ def test_residual_map_refuses_bad_shapes():
         residual_map(
             freqs, y, np.zeros((3, 2, 1, 10)), np.ones(2), channels=("a",), speeds=[1.0, -1.0]
         )
+
+
+def test_bad_inputs_are_refused_with_the_argument_named():
+    x = np.zeros((2, 4, 4096))
+    with pytest.raises(ValueError, match="speed_profiles must have dims"):
+        within_run_speed(x, x[None], FS, np.zeros((2, 10)), (), CHANNELS)
+    with pytest.raises(ValueError, match="names channel 'A3X'"):
+        coherence_map(list(x), list(x), FS, channels=CHANNELS, pairs=[("A1X", "A3X")], nperseg=256)
+    with pytest.raises(ValueError, match="no measured segment holds nperseg"):
+        rest_lines([np.zeros((4, 100))], FS, channels=CHANNELS, nperseg=512)
+    with pytest.raises(ValueError, match="holds no complete Welch segment"):
+        find_features(x, x[None], FS, channels=CHANNELS, t_start=[0.25, 0.25], t_stop=[0.5, 0.5])
 
 
 def test_coherence_is_scipys():

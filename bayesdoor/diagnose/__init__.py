@@ -34,6 +34,10 @@ from ._signatures import NoResidual as NoResidual
 from ._signatures import RestLine as RestLine
 from ._signatures import SpeedTracking as SpeedTracking
 from ._stats import benjamini_hochberg as benjamini_hochberg
+from ._welch_stats import dof_from_log10_variance as dof_from_log10_variance
 from ._welch_stats import log10_psd_variance as log10_psd_variance
+from ._welch_stats import log_chi2_normal_scores as log_chi2_normal_scores
 from ._welch_stats import welch_dof as welch_dof
 from ._welch_stats import windowed_log_psd as windowed_log_psd
+from ._within import WithinRunFit as WithinRunFit
+from ._within import within_run_speed as within_run_speed

@@ -100,20 +100,20 @@ class JobResult:
     classification
         The JSON of DESIGN.md section 5 (``classes``, ``runs``, ``metrics``).
     report
-        The campaign's HTML report.
+        The campaign's HTML report (``None`` when the job was run without it).
     """
 
     out: Path
     stages: tuple[StageRecord, ...]
     fit: FitSummary
     classification: dict[str, Any]
-    report: Path
+    report: Path | None
 
     def to_json(self) -> dict[str, Any]:
         """The job's JSON: the fit's summary, the classification, the files and the stages."""
         return {
             "out": str(self.out),
-            "report": str(self.report),
+            "report": None if self.report is None else str(self.report),
             "fit": {
                 "method": self.fit.method,
                 "j": self.fit.j,
@@ -308,6 +308,7 @@ def run_job(
     progress: bool = True,
     report: Callable[[str], None] = print,
     overwrite: bool = False,
+    html: bool = True,
 ) -> JobResult:
     """Fit on the calibration runs, simulate training data, train, classify the test runs, report.
 
@@ -348,6 +349,9 @@ def run_job(
         Show the progress bars of the stages.
     report
         Receives one line per stage event.
+    html
+        Write the HTML report stage (``False`` for batch studies that need the metrics only;
+        the JSON is always written).
     overwrite
         Let a job of other settings replace the finished job in ``out`` (stages whose
         configuration did not change are still reused).
@@ -471,32 +475,34 @@ def run_job(
         report=report,
     )
     records.append(classify_record)
-
-    report_record = run_stage(
-        out,
-        "report",
-        {
-            "classification": classify_record.config_hash,
-            "fit": fit_record.config_hash,
-            "versions": versions,
-        },
-        lambda folder: report_stage(
-            classify_record.path,
-            train_record.path,
-            folder,
-            fit=summary,
-            title=f"{system.name}: damage report",
-        ),
-        report=report,
-    )
-    records.append(report_record)
+    report_path = None
+    if html:
+        report_record = run_stage(
+            out,
+            "report",
+            {
+                "classification": classify_record.config_hash,
+                "fit": fit_record.config_hash,
+                "versions": versions,
+            },
+            lambda folder: report_stage(
+                classify_record.path,
+                train_record.path,
+                folder,
+                fit=summary,
+                title=f"{system.name}: damage report",
+            ),
+            report=report,
+        )
+        records.append(report_record)
+        report_path = report_record.path / "index.html"
     classification = json.loads((classify_record.path / "classification.json").read_text())
     result = JobResult(
         out=out,
         stages=tuple(records),
         fit=summary,
         classification=classification,
-        report=report_record.path / "index.html",
+        report=report_path,
     )
     job = {
         "job_hash": job_hash,
@@ -504,7 +510,7 @@ def run_job(
         **{k: v for k, v in settings.items() if k != "system"},
         "stages": {s.name: s.config_hash for s in records},
         "metrics": classification.get("metrics"),
-        "report": str(result.report),
+        "report": None if report_path is None else str(report_path),
     }
     text = json.dumps(job, indent=1, default=float) + "\n"
     atomic_write(out / "job.json", lambda tmp: tmp.write_text(text), overwrite=True)

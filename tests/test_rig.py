@@ -28,15 +28,13 @@ from bayesdoor.rig import (
 )
 from bayesdoor.systems import DoorDamage, DoorParameters, ElevatorDoor
 from bayesdoor.systems.door import (
+    commanded_motion,
     contact_kinematics,
     initial_state,
     make_args,
     motion_duration,
     rhs,
     static_equilibrium,
-)
-from bayesdoor.systems.door import (
-    commanded_motion as cmd,
 )
 
 FS = 2048.0
@@ -46,9 +44,15 @@ TWO_PI_R = 2 * np.pi * 0.03
 CONFIG = RigConfig(chunk_size=2)
 CLEAN = RigConfig(chunk_size=2, noise_rms=0.0, scatter=(0.0,) * 5, speed_scatter=0.0)
 TRUTH = RigTruth()
+TRUE_PARAMS = DoorParameters.from_dict(
+    {k: getattr(TRUTH, k) for k in ("K", "n", "c_r", "I", "mu_s", "mu_d", "C", "MF")}
+)
 
 
-def _record(effects=Effects(), states=("healthy", "healthy"), config=CONFIG, **kwargs):
+NO_EFFECTS = Effects()
+
+
+def _record(effects=NO_EFFECTS, states=("healthy", "healthy"), config=CONFIG, **kwargs):
     rig = VirtualRig(effects=effects, config=config)
     return rig.run(list(states), SPEEDS, key=jax.random.key(7), duration=DURATION, **kwargs)
 
@@ -66,17 +70,9 @@ def clean():
 @pytest.fixture(scope="module")
 def reduced():
     """The reduced model at the rig's true parameters, same speeds and record length."""
-    p = DoorParameters.from_dict(
-        {k: getattr(TRUTH, k) for k in ("K", "n", "c_r", "I")}
-        | {k: getattr(TRUTH, k) for k in ("mu_s", "mu_d", "C", "MF")}
-    )
-    door = ElevatorDoor()
-    return np.stack(
-        [
-            np.asarray(door.simulate(p, DoorDamage.healthy(), v, duration=DURATION).signals)
-            for v in SPEEDS
-        ]
-    )
+    door, healthy = ElevatorDoor(), DoorDamage.healthy()
+    runs = [door.simulate(TRUE_PARAMS, healthy, v, duration=DURATION) for v in SPEEDS]
+    return np.stack([np.asarray(r.signals) for r in runs])
 
 
 def _acc(recording):
@@ -88,8 +84,8 @@ def _time(n):
 
 
 def _motion(v, t):
-    pos = np.array([float(cmd(x, v)[0]) for x in t])
-    vel = np.array([float(cmd(x, v)[1]) for x in t])
+    pos = np.array([float(commanded_motion(x, v)[0]) for x in t])
+    vel = np.array([float(commanded_motion(x, v)[1]) for x in t])
     return pos, vel
 
 
@@ -100,22 +96,24 @@ def _welch(x, nperseg=512):
 # --- where the rig differs from the reduced model ---------------------------------------------
 
 
+def _peak_prominence(f, p, lo=155.0, hi=185.0):
+    """log10 of the largest PSD in [lo, hi] over the log-mean PSD 16-32 Hz to either side."""
+    peak = (f >= lo) & (f <= hi)
+    sides = ((f >= lo - 32) & (f <= lo - 16)) | ((f >= hi + 16) & (f <= hi + 32))
+    return np.log10(p[..., peak].max(-1)) - np.log10(p[..., sides]).mean(-1)
+
+
 def test_bending_mode_is_a_peak_the_reduced_model_lacks(clean, reduced):
-    """The panel bending mode (165 Hz nominal; a few Hz higher while rolling, where the wheel
-    contacts add stiffness) is a peak of A1X in 150-185 Hz, well above its surroundings; the
-    reduced model (rigid panel) shows none there, and the rig shows it mostly on A1X."""
+    """The panel bending mode (165 Hz) is a peak of A1X over a decade above its surroundings
+    at both speeds; the reduced model (rigid panel) has nothing there (under half a decade),
+    and among the rig's channels the peak stands highest on A1X."""
     f, p_rig = _welch(_acc(clean))
     _, p_red = _welch(reduced)
-    band = (f >= 150) & (f <= 185)
-    sides = ((f >= 110) & (f < 140)) | ((f > 195) & (f <= 240))
-
-    def prominence(p):
-        return p[..., band].max(-1) / np.median(p[..., sides], axis=-1)
-
-    rig, red = prominence(p_rig), prominence(p_red)
-    print("prominence rig", rig.round(1), "reduced", red.round(1))
-    assert np.all(rig[:, 0] > 10.0 * red[:, 0])
-    assert np.all(rig[:, 0] > 10.0)
+    rig, red = _peak_prominence(f, p_rig), _peak_prominence(f, p_red)
+    print("prominence (decades) rig", rig.round(2), "reduced", red.round(2))
+    assert np.all(rig[:, 0] > 1.0)
+    assert np.all(red[:, 0] < 0.5)
+    assert np.all(np.argmax(rig, axis=-1) == 0)
 
 
 def test_noise_floor_at_rest_and_quantisation(baseline, clean):
@@ -137,6 +135,31 @@ def test_noise_floor_at_rest_and_quantisation(baseline, clean):
     assert lsb == pytest.approx(2 * 4 * 9.81 / 2**16)
 
 
+@pytest.mark.slow
+def test_halving_the_step_barely_moves_the_spectrum():
+    """RK4 at 16384 Hz against 32768 Hz on one healthy and one D2 run (the flat's impacts are
+    the least smooth forcing): the 0-200 Hz log10 PSD moves by a mean of under 0.02 decades
+    per channel (0.006 healthy, 0.002 D2 when written) and by under 0.15 in any 4 Hz bin."""
+    for state, severity in (("healthy", None), ("D2", {"d2_depth": 2e-4, "d2_angle": 1.0})):
+        logs = []
+        for oversampling in (8, 16):
+            config = RigConfig(
+                chunk_size=1,
+                noise_rms=0.0,
+                scatter=(0.0,) * 5,
+                speed_scatter=0.0,
+                oversampling=oversampling,
+            )
+            rec = VirtualRig(config=config).record(
+                [state], [0.5], key=jax.random.key(3), duration=2.8, severities=[severity]
+            )
+            f, p = _welch(rec.acceleration.values[0])
+            logs.append(np.log10(p[:, f <= 200]))
+        diff = np.abs(logs[0] - logs[1])
+        assert diff.mean(-1).max() < 0.02
+        assert diff.max() < 0.15
+
+
 # --- where the rig agrees with the reduced model ----------------------------------------------
 
 
@@ -147,11 +170,7 @@ def test_static_indentation_matches_reduced_model():
     below 1 %; the rail phases differ, so each wheel's share differs by the waviness under
     it (a few micrometres, 2 %)."""
     rest = VirtualRig().rest_state()
-    p = DoorParameters.from_dict(
-        {k: getattr(TRUTH, k) for k in ("K", "n", "c_r", "I")}
-        | {k: getattr(TRUTH, k) for k in ("mu_s", "mu_d", "C", "MF")}
-    )
-    args = make_args(p, DoorDamage.healthy(), 0.4)
+    args = make_args(TRUE_PARAMS, DoorDamage.healthy(), 0.4)
     red = np.asarray(contact_kinematics(static_equilibrium(args), args)[0])
     hand = (72.0 * 9.81 / 2 / 2120.0) ** (1 / 1.74) * 1e-3
     np.testing.assert_allclose(rest.indentation_m[:2], red[:2], rtol=0.02)
@@ -167,11 +186,7 @@ def test_installed_frame_modes_match_reduced_model():
     softens the wheel support by about 4 % in stiffness, 2 % in frequency). The rig also has
     its inert 50 Hz extra-mode coordinate, unforced without the frame_mode effect."""
     rest = VirtualRig().rest_state()
-    p = DoorParameters.from_dict(
-        {k: getattr(TRUTH, k) for k in ("K", "n", "c_r", "I")}
-        | {k: getattr(TRUTH, k) for k in ("mu_s", "mu_d", "C", "MF")}
-    )
-    args = make_args(p, DoorDamage.healthy(), 0.4)
+    args = make_args(TRUE_PARAMS, DoorDamage.healthy(), 0.4)
     jac = np.asarray(jax.jacfwd(lambda y: rhs(0.0, y, args))(initial_state(args)))
     eig = np.linalg.eigvals(jac)
     red = np.sort(eig[eig.imag > 1e-6].imag / (2 * np.pi))
@@ -185,19 +200,33 @@ def test_installed_frame_modes_match_reduced_model():
 
 
 def test_analysis_band_matches_reduced_model(clean, reduced):
-    """Healthy runs without noise or scatter: the 4-96 Hz log10 PSD (4 Hz bins) of every
-    channel is close to the reduced model's at the same parameters. Tolerance: mean absolute
-    difference 0.1 decades (26 %) per channel, from the modelling differences (textbook
-    against smoothed contact, friction regularisation, the rail's phases, the panel's
-    flexibility, exact rotations). The test can fail: the same comparison against the
-    reduced model at the paper's optimum (other K, n, law, C) exceeds it."""
+    """Healthy runs without noise or scatter: the 4-96 Hz log10 PSD (4 Hz bins) of the rig is
+    close to the reduced model's at the same parameters, in every bin a measurement resolves
+    (the reduced model's PSD over 10x the rig's noise floor). Tolerances, mean absolute
+    difference per channel: 0.1 decades (26 %) on A1Z, A2X, A2Z, from the modelling
+    differences (textbook against smoothed contact, friction regularisation, the rail's
+    phases and roughness, exact rotations); 0.2 decades on A1X, where the flexible panel's
+    quasi-static bending adds to the small lateral motion of a rigid one (0.15 when
+    written). The test can fail: the same comparison against the reduced model at the
+    paper's optimum (other K, n, law, C) breaks it."""
+    tolerance = np.array([0.2, 0.1, 0.1, 0.1])
     f, p_rig = _welch(_acc(clean))
-    _, p_red = _welch(reduced)
     band = (f >= 4) & (f <= 96)
-    diff = np.abs(np.log10(p_rig[..., band]) - np.log10(p_red[..., band])).mean(-1)
-    print("mean |dlog10 PSD| per run and channel", diff.round(3))
-    assert np.all(diff < 0.1)
+    floor = 10 * CONFIG.noise_rms**2 / (FS / 2)
 
+    def mismatch(p_model):
+        diff = np.abs(np.log10(p_rig[..., band]) - np.log10(p_model[..., band]))
+        resolved = p_model[..., band] > floor
+        return np.array(
+            [
+                [d[r].mean() for d, r in zip(dr, rr, strict=True)]
+                for dr, rr in zip(diff, resolved, strict=True)
+            ]
+        )
+
+    same = mismatch(_welch(reduced)[1])
+    print("mean |dlog10 PSD| per run and channel", same.round(3))
+    assert np.all(same < tolerance)
     door = ElevatorDoor()
     other = np.stack(
         [
@@ -209,9 +238,7 @@ def test_analysis_band_matches_reduced_model(clean, reduced):
             for v in SPEEDS
         ]
     )
-    _, p_other = _welch(other)
-    wrong = np.abs(np.log10(p_rig[..., band]) - np.log10(p_other[..., band])).mean(-1)
-    assert wrong.max() > 0.1
+    assert np.any(mismatch(_welch(other)[1]) > tolerance)
 
 
 # --- damage signatures (DESIGN.md section 2) --------------------------------------------------
@@ -221,13 +248,17 @@ def test_analysis_band_matches_reduced_model(clean, reduced):
 def damaged():
     return _record(
         states=("D1", "D2"),
-        severities=[{"d1_height": 1.0e-3}, {"d2_depth": 0.2e-3, "d2_angle": 1.0}],
+        severities=[{"d1_height": 1.3e-3}, {"d2_depth": 0.2e-3, "d2_angle": 1.0}],
     )
 
 
 def test_d1_impacts_are_transversal_at_the_bumps(baseline, damaged):
     """D1 against the healthy run with the same key (same scatter and noise): the X channels
-    carry the fault, as impacts where the shoe reaches each bump (4 mm before its centre)."""
+    carry the fault, as impacts where the shoe reaches each bump (4 mm before its centre).
+    The bumps are 1.3 mm high, more than the groove's whole 1 mm play: a lower bump can miss
+    the shoe when the first bump has left it resting against the far wall (friction holds it
+    there against the sway's weak restoring force), so only then is an impact certain at
+    both."""
     x, h = _acc(damaged)[0], _acc(baseline)[0]
     t = _time(x.shape[-1])
     pos, _ = _motion(damaged.truth["runs"][0]["v_actual"], t)
@@ -473,7 +504,7 @@ def test_bad_parameters_are_refused():
             rail_lift=0.1,
             participation=(1.0, 1.0, 1.0, 1.0),
         )
-    with pytest.raises(ValueError, match="mains is 50.0 or 60.0"):
+    with pytest.raises(ValueError, match=r"mains is 50\.0 or 60\.0"):
         MainsHum(55.0, 0.01)
     with pytest.raises(ValueError, match="into"):
         SensorCrossAxis("A1", "Y", 0.1)

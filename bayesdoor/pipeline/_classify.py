@@ -72,10 +72,10 @@ def train_stage(
             "need held-out simulated runs; use a validation_fraction > 0"
         )
     training = fit_classifier(
-        train.features,
-        train.labels,
-        val.features,
-        val.labels,
+        jnp.asarray(train.features),
+        jnp.asarray(train.labels),
+        jnp.asarray(val.features),
+        jnp.asarray(val.labels),
         data.states,
         key=key,
         config=config,
@@ -84,8 +84,9 @@ def train_stage(
     )
     ensemble = training.ensemble
     save_ensemble(folder / ENSEMBLE, ensemble)
-    calibrated = np.asarray(predict(ensemble, val.features).probabilities)
-    raw = np.asarray(predict(_with_temperature(ensemble, 1.0), val.features).probabilities)
+    x_val = jnp.asarray(val.features)
+    calibrated = np.asarray(predict(ensemble, x_val).probabilities)
+    raw = np.asarray(predict(_with_temperature(ensemble, 1.0), x_val).probabilities)
     PredictiveBands.from_training_data(data).save(folder / BANDS)
     _write_json(
         folder / "training.json",

@@ -93,7 +93,7 @@ class FitSummary:
         }
         text = json.dumps(header, indent=1) + "\n"
         atomic_write(folder / "summary.json", lambda tmp: tmp.write_text(text), overwrite=True)
-        arrays = {f"draw/{k}": v for k, v in self.draws.items()}
+        arrays: dict[str, Any] = {f"draw/{k}": v for k, v in self.draws.items()}
         if self.sigma_model is not None:
             arrays["sigma_model"] = self.sigma_model
 

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, Literal, NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
@@ -248,7 +249,7 @@ def parameter_source(
             f"source={source!r} needs the model-error posterior, but the {fit.method} fit has "
             "none: use source='posterior'"
         )
-    return posterior, ModelErrorDraws(fit.sigma_model)
+    return posterior, ModelErrorDraws(jnp.asarray(fit.sigma_model))
 
 
 class Generation(NamedTuple):

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 from jaxtyping import Float
+from matplotlib.ticker import MaxNLocator
 
 from ..io import atomic_write
 from . import _html as H
@@ -33,7 +34,7 @@ def _colors(classes: Sequence[str]) -> dict[str, str]:
     return {c: STATE_COLORS.get(c) or next(spare) for c in classes}
 
 
-def _figure(width: float, height: float, **kw):
+def _figure(width: float, height: float, **kw: Any) -> Any:
     from matplotlib.figure import Figure
 
     return Figure(figsize=(width, height), layout="constrained", **kw)
@@ -72,6 +73,7 @@ def probability_bars(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) 
         if ood:
             ax.plot(ood, np.full(len(ood), -0.08), "^", color="darkorange", ms=4, clip_on=False)
         ax.set_xlim(-0.5, len(members) - 0.5)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylim(0, 1)
         ax.set_yticks([0, 0.5, 1])
         label = f"true {group}" if group in classes else group
@@ -81,7 +83,7 @@ def probability_bars(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) 
     axes[0].legend(
         ncol=len(classes), loc="lower right", bbox_to_anchor=(1, 1.12), frameon=False, fontsize=9
     )
-    axes[-1].set_xlabel("run (in campaign order within each true state); orange marks: OOD")
+    axes[-1].set_xlabel("runs of each true state, in campaign order (orange marks: flagged OOD)")
     return H.png(fig, dpi=90)
 
 
@@ -207,7 +209,13 @@ def bands_figure(
         ax.set_visible(False)
     for ax in axes[-2:]:
         ax.set_xlabel("frequency (Hz)")
-    axes[0].legend(fontsize=7.5, frameon=False, ncol=2, loc="upper right")
+    fig.legend(
+        *axes[0].get_legend_handles_labels(),
+        loc="outside lower center",
+        ncol=3,
+        fontsize=8,
+        frameon=False,
+    )
     fig.suptitle(f"posterior-predictive bands at v_max = {speed:g} m/s", fontsize=10)
     return H.png(fig, dpi=90)
 
@@ -231,7 +239,13 @@ class _RunFigure:
             ax.grid(True, alpha=0.3)
         for ax in axes[len(channels) :]:
             ax.set_visible(False)
-        axes[0].legend(fontsize=7.5, frameon=False, loc="upper right")
+        self.fig.legend(
+            *axes[0].get_legend_handles_labels(),
+            loc="outside lower center",
+            ncol=len(classes) + 1,
+            fontsize=8,
+            frameon=False,
+        )
         for ax in axes[-2:]:
             ax.set_xlabel("frequency (Hz)")
 
@@ -529,8 +543,7 @@ def write_damage_report(
     )
     subtitle = f"{len(runs)} runs, generated {stamp}"
     index = folder / "index.html"
-    text = H.page(title, subtitle, "".join(parts))
-    atomic_write(index, lambda tmp: tmp.write_text(text), overwrite=True)
+    _write_text(index, H.page(title, subtitle, "".join(parts)))
 
     renderers: dict[int, _RunFigure] = {}
     for i, r in enumerate(runs):
@@ -576,13 +589,13 @@ def write_damage_report(
             )
         body.append('<p><a href="../index.html">back to the campaign report</a></p>')
         page = H.page(f"Run {r['run']}", f"{title}, generated {stamp}", "".join(body))
-        atomic_write(
-            folder / "runs" / _run_file(r["run"]),
-            lambda tmp, page=page: tmp.write_text(page),
-            overwrite=True,
-        )
+        _write_text(folder / "runs" / _run_file(r["run"]), page)
     return index
 
 
 def _run_file(run: int) -> str:
     return f"run-{int(run):04d}.html"
+
+
+def _write_text(path: Path, text: str) -> None:
+    atomic_write(path, lambda tmp: tmp.write_text(text), overwrite=True)

@@ -107,12 +107,12 @@ class FixedFrequency(AbstractSignature):
     peak frequency does not move with speed (the speed fit across runs prefers ``f = const``,
     or, when it cannot tell, the within-run test does); it is in most runs; no line at that
     frequency at rest before the motion (a resonance needs excitation and decays at rest);
-    its channel has no broadband coherence excess (a line
-    carried over from another channel is a leak, not a mode). Parameters: ``frequency_hz``
-    (the centroid of the half-power band of the run-averaged excess power, averaged over the
-    channels that show it), ``damping_ratio`` (half-power width over twice the frequency; an
-    upper bound near the resolution, since the width includes the window's main lobe),
-    ``excess_db`` and ``channels``.
+    its channel has no broadband coherence excess (a line carried over from another channel
+    is a leak, not a mode). Parameters: ``frequency_hz`` (the centroid of the half-power band
+    of the run-averaged excess power; over the channels that show the mode, the strongest
+    region of each, weighted by its statistic), ``damping_ratio`` (half-power width over
+    twice the frequency; an upper bound near the resolution, since the width includes the
+    window's main lobe), ``excess_db`` and ``channels``.
     """
 
     band: tuple[float, float] = eqx.field(static=True)
@@ -133,12 +133,18 @@ class FixedFrequency(AbstractSignature):
         matches = []
         for region in regions:
             f = region.frequency_hz
-            same = [
+            near = [
                 r
                 for r in regions
                 if abs(r.centroid_hz - region.centroid_hz)
                 <= max(LINE_TOLERANCE_BINS * res.resolution_hz, region.half_power_width_hz)
+            ]
+            # the strongest region of each channel that shows the mode, weighted by strength
+            same = [
+                max((r for r in near if r.channel == ch), key=lambda r: abs(r.z))
+                for ch in {r.channel for r in near}
             ] or [region]
+            weights = np.array([abs(r.z) for r in same])
             leak = None
             if features.coherence is not None:
                 pairs = features.coherence.for_channel(region.channel)
@@ -155,9 +161,14 @@ class FixedFrequency(AbstractSignature):
                     feature=region.describe(),
                     checks=checks,
                     parameters={
-                        "frequency_hz": float(np.mean([r.centroid_hz for r in same])),
+                        "frequency_hz": float(
+                            np.average([r.centroid_hz for r in same], weights=weights)
+                        ),
                         "damping_ratio": float(
-                            np.mean([r.half_power_width_hz / (2 * r.centroid_hz) for r in same])
+                            np.average(
+                                [r.half_power_width_hz / (2 * r.centroid_hz) for r in same],
+                                weights=weights,
+                            )
                         ),
                         "excess_db": region.excess_db,
                         "channels": tuple(sorted({r.channel for r in same})),

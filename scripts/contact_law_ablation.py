@@ -31,6 +31,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small sizes (FitSettings.quick)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--campaign", type=Path, help="a campaign file (default: the cached demo campaign)"
+    )
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     jax.config.update("jax_compilation_cache_dir", str(ROOT / ".jax_cache"))
@@ -38,11 +41,17 @@ def main() -> int:
 
     from bayesdoor.datasets import load_demo_campaign
     from bayesdoor.inference import fit_campaign
+    from bayesdoor.io import load_campaign
     from bayesdoor.report import ablation_table
     from bayesdoor.systems import ElevatorDoor
 
     door = ElevatorDoor()
-    campaign = load_demo_campaign("calibration")
+    if args.campaign is None:
+        campaign = load_demo_campaign("calibration")
+        source = "the demo campaign"
+    else:
+        campaign = load_campaign(args.campaign)
+        source = f"{args.campaign.name}"
     law_spec = next(p for p in door.parameters if p.integer)
     results = {}
     started = time.perf_counter()
@@ -64,10 +73,12 @@ def main() -> int:
     command = "scripts/contact_law_ablation.py" + (" --quick" if args.quick else "")
     if args.seed:
         command += f" --seed {args.seed}"
+    if args.campaign is not None:
+        command += f" --campaign {args.campaign}"
     header = (
         f"Command: `.venv/bin/python {command}` ({elapsed / 60:.1f} min on the shared 2-core "
         f"machine; {'quick sizes, NOT converged' if args.quick else 'full sizes'}; "
-        f"{len(results[1].runs)} calibration runs of the demo campaign)\n\n"
+        f"{len(results[1].runs)} calibration runs of {source})\n\n"
     )
     notes = [f"- law {law}: " + "; ".join(r.notes) for law, r in results.items() if r.notes]
     block = (

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from rich.console import Console
 
 from ._common import fail
@@ -81,10 +82,10 @@ def write_figures(result, system, campaign, folder: Path, seed: int) -> dict[str
     )
     path, coverage = plot_predictive_bands(
         replicates,
-        data.y,
-        data.run_operating,
-        data.operating,
-        data.band_centres,
+        np.asarray(data.y),
+        np.asarray(data.run_operating),
+        np.asarray(data.operating),
+        np.asarray(data.band_centres),
         system.channels,
         folder / "predictive_psd.png",
         title=f"{result.method} fit, law {result.law}, calibration runs",

@@ -45,7 +45,7 @@ from ._likelihood import CalibrationData, ModelError, SimulatorForward, log_like
 from ._parameterisation import SamplingTransform
 from ._posterior import load_posterior, save_posterior
 from ._samplers import sample_emcee, sample_nuts
-from ._surrogate import box_around, fit_surrogate, simulate_design
+from ._surrogate import box_around, fit_surrogate
 
 Method = Literal["cmaes", "nuts", "emcee"]
 METHODS: tuple[str, ...] = ("cmaes", "nuts", "emcee")
@@ -235,32 +235,50 @@ def campaign_data(
     sim_start, sim_stop = system.motion_window(unique, duration=duration)
     length = (np.asarray(sim_stop) - np.asarray(sim_start))[index.reshape(-1)]
     t_stop = np.minimum(t_stop, t_start + length)
-    data = CalibrationData.from_signals(signals, fs, operating, t_start, t_stop, spec)
+    data = CalibrationData.from_signals(
+        jnp.asarray(signals),
+        fs,
+        jnp.asarray(operating),
+        jnp.asarray(t_start),
+        jnp.asarray(t_stop),
+        spec,
+    )
     return data, duration
 
 
 # ---------------------------------------------------------------------------------------------
-# the objective J over a population
+# the population simulator
 
 
-class _PopulationJ(eqx.Module):
-    """The paper's J of each candidate, averaged over the runs; ``inf`` for a failed solve."""
+#: candidates per vmapped simulation: every batch (CMA-ES populations, the sensitivity design,
+#: predictive draws) is padded to a multiple of it, so one compilation serves them all
+_CHUNK = 10
+
+
+class _Population(eqx.Module):
+    """Features of a batch of full parameter vectors at every operating point."""
 
     system: AbstractSystem
-    names: tuple[str, ...] = eqx.field(static=True)
-    fixed: tuple[tuple[str, float], ...] = eqx.field(static=True)
     operating: Float[Array, " op"]
     t_start: Float[Array, " op"]
     t_stop: Float[Array, " op"]
     duration: float = eqx.field(static=True)
     spec: FeatureSpec
-    y: Float[Array, "run channel band"]
-    run_operating: Int[Array, " run"]
 
-    def __call__(self, x: Float[Array, "pop dim"]) -> Float[Array, " pop"]:
+    @classmethod
+    def build(
+        cls, system: AbstractSystem, data: CalibrationData, duration: float, spec: FeatureSpec
+    ) -> _Population:
+        t_start, t_stop = system.motion_window(np.asarray(data.operating), duration=duration)
+        return cls(
+            system, data.operating, jnp.asarray(t_start), jnp.asarray(t_stop), duration, spec
+        )
+
+    def __call__(
+        self, x: Float[Array, "pop param"]
+    ) -> tuple[Float[Array, "pop op channel band"], Bool[Array, " pop"]]:
         pop, n_op = x.shape[0], self.operating.shape[0]
-        values: dict[str, Any] = {n: jnp.repeat(x[:, i], n_op) for i, n in enumerate(self.names)}
-        values.update({k: jnp.full(pop * n_op, v) for k, v in self.fixed})
+        values = {p.name: jnp.repeat(x[:, i], n_op) for i, p in enumerate(self.system.parameters)}
         result = self.system.simulate_values(
             values, jnp.tile(self.operating, pop), duration=self.duration, check=False
         )
@@ -272,29 +290,52 @@ class _PopulationJ(eqx.Module):
             self.spec,
         )
         features = features.reshape(pop, n_op, *features.shape[1:])
-        j = jnp.mean(objective_j(features[:, self.run_operating], self.y[None]), axis=-1)
-        ok = jnp.all((result.status == 0).reshape(pop, n_op), axis=-1) & jnp.isfinite(j)
-        return jnp.where(ok, j, jnp.inf)
+        ok = jnp.all((result.status == 0).reshape(pop, n_op), axis=-1)
+        return features, ok & jnp.all(jnp.isfinite(features), axis=(1, 2, 3))
 
 
 @eqx.filter_jit
-def _evaluate(objective: _PopulationJ, x: Float[Array, "pop dim"]) -> Float[Array, " pop"]:
-    return objective(x)
+def _simulate_chunk(
+    population: _Population, x: Float[Array, "pop param"]
+) -> tuple[Float[Array, "pop op channel band"], Bool[Array, " pop"]]:
+    return population(x)
 
 
-def _batch_objective(objective: _PopulationJ, chunk: int):
-    """J of any number of candidates in padded chunks of one size (one compilation)."""
+def _simulate(
+    population: _Population, x: Float[np.ndarray, "pop param"]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Features and success of any number of full parameter vectors, in padded chunks."""
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    features, ok = [], []
+    for start in range(0, len(x), _CHUNK):
+        block = x[start : start + _CHUNK]
+        padded = np.concatenate([block, np.repeat(block[-1:], _CHUNK - len(block), axis=0)])
+        f, k = _simulate_chunk(population, jnp.asarray(padded))
+        features.append(np.asarray(f)[: len(block)])
+        ok.append(np.asarray(k)[: len(block)])
+    return np.concatenate(features), np.concatenate(ok)
 
-    def evaluate(x: np.ndarray) -> np.ndarray:
-        x = np.atleast_2d(np.asarray(x, dtype=float))
-        out = []
-        for start in range(0, len(x), chunk):
-            block = x[start : start + chunk]
-            padded = np.concatenate([block, np.repeat(block[-1:], chunk - len(block), axis=0)])
-            out.append(np.asarray(_evaluate(objective, jnp.asarray(padded)))[: len(block)])
-        return np.concatenate(out)
 
-    return evaluate
+def _j(features: np.ndarray, ok: np.ndarray, data: CalibrationData) -> np.ndarray:
+    """The paper's J of each candidate, averaged over the runs; ``inf`` for a failed one."""
+    sim = features[:, np.asarray(data.run_operating)]
+    j = np.asarray(objective_j(jnp.asarray(sim), data.y[None])).mean(axis=-1)
+    return np.where(ok & np.isfinite(j), j, np.inf)
+
+
+def _full(
+    system: AbstractSystem, x: np.ndarray, names: Sequence[str], fixed: dict[str, float]
+) -> np.ndarray:
+    """Full parameter vectors (the system's order) from the columns ``names`` and ``fixed``."""
+    x = np.atleast_2d(x)
+    columns = {n: x[:, i] for i, n in enumerate(names)}
+    return np.stack(
+        [
+            columns[p.name] if p.name in columns else np.full(len(x), fixed[p.name])
+            for p in system.parameters
+        ],
+        axis=-1,
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -665,21 +706,11 @@ def fit_campaign(
     fixed = {} if integer_name is None or law is None else {integer_name: float(law)}
     lower = np.array([specs[n].lower for n in search])
     upper = np.array([specs[n].upper for n in search])
-    t_start, t_stop = system.motion_window(np.asarray(data.operating), duration=duration)
-    objective = _PopulationJ(
-        system=system,
-        names=search,
-        fixed=tuple(fixed.items()),
-        operating=data.operating,
-        t_start=jnp.asarray(t_start),
-        t_stop=jnp.asarray(t_stop),
-        duration=duration,
-        spec=spec,
-        y=data.y,
-        run_operating=data.run_operating,
-    )
-    popsize = settings.cmaes_popsize or int(4 + 3 * np.log(len(search)))
-    batch = _batch_objective(objective, popsize)
+    population = _Population.build(system, data, duration, spec)
+
+    def batch(x: np.ndarray) -> np.ndarray:
+        return _j(*_simulate(population, _full(system, x, search, fixed)), data)
+
     integers = [len(search) - 1] if integer_name in search else []
     x0 = 0.5 * (lower + upper)
     x0[integers] = np.round(x0[integers])
@@ -694,7 +725,7 @@ def fit_campaign(
         integer_variables=integers,
         max_evals=settings.cmaes_max_evals,
         restarts=settings.cmaes_restarts,
-        popsize=popsize,
+        popsize=settings.cmaes_popsize,
         progress=progress,
     )
     timings["cmaes"] = time.perf_counter() - t0
@@ -711,10 +742,7 @@ def fit_campaign(
     bounds = (np.array([specs[n].lower for n in free]), np.array([specs[n].upper for n in free]))
     full_point = {**optimum, **({} if integer_name is None else {integer_name: float(law)})}  # type: ignore[arg-type]
     fixed_law = {} if integer_name is None else {integer_name: float(law)}  # type: ignore[arg-type]
-    forward = SimulatorForward.build(
-        system, free, fixed_law, data.operating, spec=spec, duration=duration
-    )
-    sim, _ = simulate_design(forward, theta_opt[None])
+    sim, _ = _simulate(population, _full(system, theta_opt, free, fixed_law))
     residual = np.asarray(data.y) - sim[0][np.asarray(data.run_operating)]
     sigma_point = _ml_model_error(residual, np.asarray(data.welch_variance))
 
@@ -750,15 +778,24 @@ def fit_campaign(
     ends = np.repeat(theta_opt[None], 2 * d, axis=0)
     ends[2 * np.arange(d), np.arange(d)] = bounds[0]
     ends[2 * np.arange(d) + 1, np.arange(d)] = bounds[1]
-    end_features, _ = simulate_design(forward, ends)
+    end_features, _ = _simulate(population, _full(system, ends, free, fixed_law))
     reach = np.max(np.abs(end_features[0::2] - end_features[1::2]), axis=(1, 2, 3))
     welch_sd = float(np.sqrt(np.median(np.asarray(data.welch_variance))))
     loose = reach < settings.insensitive * welch_sd
-    box = box_around(theta_opt, *bounds, np.where(loose, 1.0, settings.box_fraction))
+    box = box_around(
+        jnp.asarray(theta_opt),
+        jnp.asarray(bounds[0]),
+        jnp.asarray(bounds[1]),
+        jnp.asarray(np.where(loose, 1.0, settings.box_fraction)),
+    )
     n_terms = 1 + d + d * (d + 1) // 2
+    forward = SimulatorForward.build(
+        system, free, fixed_law, data.operating, spec=spec, duration=duration
+    )
     surrogate = fit_surrogate(
         forward,
-        *box,
+        jnp.asarray(box[0]),
+        jnp.asarray(box[1]),
         key=key_sur,
         n_train=settings.train_per_term * n_terms,
         n_test=settings.n_test,
@@ -769,7 +806,7 @@ def fit_campaign(
     inside = box[0] + np.clip((theta_opt - box[0]) / (box[1] - box[0]), 0.02, 0.98) * (
         box[1] - box[0]
     )
-    transform = SamplingTransform.box(free, *box)
+    transform = SamplingTransform.box(free, box[0].tolist(), box[1].tolist())
     sigma_init = jnp.asarray(sigma_point)
     try:
         transform = transform.whitened_at(
@@ -814,7 +851,7 @@ def fit_campaign(
 
     post = idata["posterior"]
     draws = np.stack([np.asarray(post[n].values).reshape(-1) for n in free], axis=-1)
-    edge = surrogate.edge_fraction(draws, bounds)
+    edge = surrogate.edge_fraction(jnp.asarray(draws), bounds)
     for name, frac in zip(free, edge, strict=True):
         if frac > 0.05:
             message = (
@@ -828,7 +865,7 @@ def fit_campaign(
     _add_predictive(idata, model, settings.predictive_draws, key_pred)
     point = {n: float(np.mean(draws[:, i])) for i, n in enumerate(free)}
     point.update(fixed_law)
-    j = float(batch(np.array([[point[n] for n in search]]))[0])
+    j = float(batch(np.array([point[n] for n in search]))[0])
     return FitResult(
         method=method,
         point=point,
@@ -857,8 +894,8 @@ def _add_predictive(idata: az.InferenceData, model, n_draws: int, key: jax.Array
     replicate = Predictive(model, posterior_samples=samples, return_sites=["y"])(key, y=None)
     y = np.asarray(replicate["y"]).reshape(n_chain, kept, *replicate["y"].shape[1:])
     observed = idata["observed_data"]["y"]
-    coords = {"chain": post["chain"].values, "draw": post["draw"].values[keep]}
-    coords.update({dim: observed[dim].values for dim in observed.dims})
+    coords: dict[str, Any] = {"chain": post["chain"].values, "draw": post["draw"].values[keep]}
+    coords.update({str(dim): observed[dim].values for dim in observed.dims})
     idata.add_groups(
         posterior_predictive=xr.Dataset(
             {"y": (("chain", "draw", *observed.dims), y)}, coords=coords
@@ -906,7 +943,7 @@ def posterior_predictive(
         Whether each replicate's simulation succeeded.
     """
     runs = result.runs if runs is None else np.asarray(runs, dtype=int)
-    data, _ = campaign_data(
+    data, duration = campaign_data(
         system,
         campaign,
         runs,
@@ -914,21 +951,16 @@ def posterior_predictive(
         max_motion_s=result.settings.max_motion_s,
     )
     draws = result.posterior_draws()
-    sigma = result.model_error_draws()
+    sigma = np.asarray(result.model_error_draws())
     total = len(next(iter(draws.values())))
     pick = np.linspace(0, total - 1, min(n_draws, total)).round().astype(int)
     pick = np.resize(pick, n_draws)
-    thetas = np.stack([draws[n][pick] for n in result.names], axis=-1)
+    unique, inverse = np.unique(pick, return_inverse=True)
+    thetas = np.stack([draws[n][unique] for n in result.names], axis=-1)
     fixed = {k: v for k, v in result.point.items() if k not in result.names}
-    forward = SimulatorForward.build(
-        system,
-        result.names,
-        fixed,
-        data.operating,
-        spec=result.feature_spec,
-        duration=result.duration,
-    )
-    features, ok = simulate_design(forward, thetas)
+    population = _Population.build(system, data, duration, result.feature_spec)
+    features, ok = _simulate(population, _full(system, thetas, result.names, fixed))
+    features, ok = features[inverse.reshape(-1)], ok[inverse.reshape(-1)]
     mean = features[:, np.asarray(data.run_operating)]
     sd = np.sqrt(
         np.asarray(data.welch_variance)[None, :, None, None]

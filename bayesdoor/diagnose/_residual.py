@@ -335,14 +335,16 @@ def residual_map(
     variance plus the centred ``log10`` of a chi-square with the degrees of freedom whose
     variance is ``log_variance`` (:func:`log_chi2_normal_scores`; its long lower tail would
     make ``(y - mu) / sd`` raise false deficits several times too often). Runs are combined
-    (Stouffer) along two families of paths: at fixed frequency,
-    and, when the runs' speeds differ, at fixed wavenumber ``f / v`` (each run's residuals
-    interpolated to ``f = kappa v_r``), so that a feature that stays put and one that tracks
-    the speed each line up in one of them. The variance of each combined sum keeps the
+    (Stouffer) along two families of paths: at fixed frequency, and, when the runs' speeds
+    differ, at fixed wavenumber ``f / v`` (each run's residuals interpolated to
+    ``f = kappa v_r``), so that a feature that stays put and one that tracks the speed each
+    line up in one of them. The variance of each combined sum keeps the
     correlation that shared posterior parameters induce between runs. Both maps are tested
     two-sided in one Benjamini-Hochberg family at rate ``q``; contiguous significant bins
-    of one sign form regions; a region in one domain that shares most of its runs' peaks with
-    a stronger region of the other is dropped as the same feature.
+    of one sign form regions (see :class:`Region` for what each records, and
+    :class:`SpeedFit` for how its speed dependence is decided); a region in one domain that
+    shares most of its runs' peaks with a stronger region of the other is dropped as the same
+    feature.
 
     Parameters
     ----------

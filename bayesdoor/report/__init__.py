@@ -6,12 +6,12 @@ from ._damage import confusion_figure as confusion_figure
 from ._damage import probability_bars as probability_bars
 from ._damage import uncertainty_figure as uncertainty_figure
 from ._damage import write_damage_report as write_damage_report
+from ._posterior import ablation_table as ablation_table
+from ._posterior import plot_posterior_pairs as plot_posterior_pairs
+from ._posterior import plot_posterior_trace as plot_posterior_trace
+from ._posterior import plot_predictive_bands as plot_predictive_bands
 from ._psd import STATE_COLORS as STATE_COLORS
 from ._psd import RunPSDs as RunPSDs
 from ._psd import campaign_psds as campaign_psds
 from ._psd import motion_windows as motion_windows
 from ._psd import plot_state_psds as plot_state_psds
-from ._posterior import plot_posterior_pairs as plot_posterior_pairs
-from ._posterior import plot_posterior_trace as plot_posterior_trace
-from ._posterior import plot_predictive_bands as plot_predictive_bands
-from ._posterior import ablation_table as ablation_table

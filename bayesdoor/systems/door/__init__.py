@@ -1,5 +1,7 @@
 """The reference elevator door: parameters, damage modes, equations and simulation."""
 
+from ._catalogue import DOOR_CATALOGUE as DOOR_CATALOGUE
+from ._catalogue import WHEEL_CIRCUMFERENCE as WHEEL_CIRCUMFERENCE
 from ._geometry import CHANNELS as CHANNELS
 from ._model import STATE_SIZE as STATE_SIZE
 from ._model import DoorArgs as DoorArgs
@@ -23,5 +25,3 @@ from ._simulate import static_equilibrium as static_equilibrium
 from ._system import V_MAX_RANGE as V_MAX_RANGE
 from ._system import ElevatorDoor as ElevatorDoor
 from ._system import check_speed as check_speed
-from ._catalogue import DOOR_CATALOGUE as DOOR_CATALOGUE
-from ._catalogue import WHEEL_CIRCUMFERENCE as WHEEL_CIRCUMFERENCE

@@ -41,7 +41,14 @@ from ..systems import AbstractSystem
 from ._cmaes import CMAESHistory, CMAESResult, minimize_cmaes
 from ._diagnostics import SamplingDiagnostics, diagnose_sampling
 from ._features import FeatureSpec, run_features
-from ._likelihood import CalibrationData, ModelError, SimulatorForward, log_likelihood, make_model
+from ._likelihood import (
+    AbstractForward,
+    CalibrationData,
+    ForwardOutput,
+    ModelError,
+    log_likelihood,
+    make_model,
+)
 from ._parameterisation import SamplingTransform
 from ._posterior import load_posterior, save_posterior
 from ._samplers import sample_emcee, sample_nuts
@@ -314,6 +321,42 @@ def _simulate(
         features.append(np.asarray(f)[: len(block)])
         ok.append(np.asarray(k)[: len(block)])
     return np.concatenate(features), np.concatenate(ok)
+
+
+class _PartialForward(AbstractForward):
+    """The population simulator as a forward model of some parameters, the rest held.
+
+    The held values (for example the contact-law index) are traced, not static, so a fit per
+    law reuses one compilation of the vmapped simulation.
+    """
+
+    population: _Population
+    names: tuple[str, ...] = eqx.field(static=True)
+    operating: Float[Array, " op"]
+    index: Int[Array, " param"]
+    base: Float[Array, " full"]
+
+    @classmethod
+    def build(
+        cls,
+        system: AbstractSystem,
+        population: _Population,
+        names: Sequence[str],
+        held: dict[str, float],
+    ) -> _PartialForward:
+        order = [p.name for p in system.parameters]
+        base = _full(system, np.zeros(len(names)), names, held)[0]
+        return cls(
+            population=population,
+            names=tuple(names),
+            operating=population.operating,
+            index=jnp.asarray([order.index(n) for n in names]),
+            base=jnp.asarray(base),
+        )
+
+    def __call__(self, theta: Float[Array, " param"]) -> ForwardOutput:
+        features, ok = self.population(self.base.at[self.index].set(theta)[None])
+        return ForwardOutput(features[0], jnp.zeros_like(features[0]), ok[0])
 
 
 def _j(features: np.ndarray, ok: np.ndarray, data: CalibrationData) -> np.ndarray:
@@ -789,9 +832,7 @@ def fit_campaign(
         jnp.asarray(np.where(loose, 1.0, settings.box_fraction)),
     )
     n_terms = 1 + d + d * (d + 1) // 2
-    forward = SimulatorForward.build(
-        system, free, fixed_law, data.operating, spec=spec, duration=duration
-    )
+    forward = _PartialForward.build(system, population, free, fixed_law)
     surrogate = fit_surrogate(
         forward,
         jnp.asarray(box[0]),

@@ -90,6 +90,7 @@ def test_valid_campaign_human_summary(valid):
 
 
 def test_plots_written_under_out_and_not_overwritten(valid, tmp_path):
+    source = valid.read_bytes()
     out = tmp_path / "report"
     result = invoke(valid, "--out", out, "--json")
     assert result.exit_code == 0, result.output
@@ -112,6 +113,16 @@ def test_plots_written_under_out_and_not_overwritten(valid, tmp_path):
     forced = invoke(valid, "--out", out, "--force", "--json")
     assert forced.exit_code == 0, forced.output
     assert sorted(p.name for p in out.iterdir()) == sorted(before)
+    assert valid.read_bytes() == source
+
+
+def test_motion_window_detected_without_t_start_and_t_stop(tmp_path):
+    path, _ = write(synthetic(window=False), tmp_path / "nowindow.nc")
+    result = invoke(path, "--json", "--out", tmp_path / "out")
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    assert payload["motion_window"] == "detected" and payload["warnings"] == []
+    assert len(payload["plots"]) == 2
 
 
 @pytest.mark.parametrize(

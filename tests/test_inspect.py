@@ -165,6 +165,21 @@ def test_runs_with_their_own_problems_are_left_out_of_the_plots(tmp_path):
     assert path.read_bytes() == before
 
 
+def test_a_window_that_holds_no_whole_welch_segment_is_left_out(tmp_path):
+    ds = synthetic()
+    # 601 samples (the format's check passes) but no segment boundary (every 256) fits
+    ds["t_start"][3] = 3 / FS
+    ds["t_stop"][3] = 603 / FS
+    path, _ = write(ds, tmp_path / "short.nc")
+    result = invoke(path, "--out", tmp_path / "out", "--json")
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    assert len(payload["plots"]) == 2
+    assert len(payload["warnings"]) == 1
+    assert payload["warnings"][0].startswith("run 3: its motion window")
+    assert "left out of the PSD plots" in payload["warnings"][0]
+
+
 def test_no_plots_without_a_usable_time_axis(tmp_path):
     ds = synthetic()
     ds.attrs.pop("sampling_rate_hz")

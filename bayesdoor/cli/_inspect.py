@@ -133,23 +133,32 @@ def plot(ds: xr.Dataset, problems: list, paths: list[Path], title: str) -> tuple
     Returns the paths written and notes (runs left out, windows detected, why nothing was
     plotted).
     """
-    from ..report import campaign_psds, motion_windows, plot_state_psds
+    from ..report import campaign_psds, motion_windows, plot_state_psds, segments_in_window
 
     blocking = sorted({p.code for p in problems if p.code in _BLOCKS_PSD})
     if blocking:
         return [], [f"no PSD plots: the campaign has no usable time axis ({', '.join(blocking)})"]
-    bad = sorted({p.run for p in problems if p.code in _BAD_RUN and p.run is not None})
-    good = [r for r in range(ds.sizes["run"]) if r not in bad]
-    notes = [f"runs {bad} are left out of the PSD plots (see their problems)"] if bad else []
+    start, stop, notes = motion_windows(ds)
+    flagged = sorted({p.run for p in problems if p.code in _BAD_RUN and p.run is not None})
+    if flagged:
+        notes.append(f"runs {flagged} are left out of the PSD plots (see their problems)")
+    empty = [
+        int(r) for r in np.flatnonzero(segments_in_window(ds, start, stop) == 0) if r not in flagged
+    ]
+    notes += [
+        f"run {r}: its motion window [{start[r]!r}, {stop[r]!r}] s holds no whole Welch segment "
+        "(512 samples, starting every 256); it is left out of the PSD plots"
+        for r in empty
+    ]
+    good = [r for r in range(ds.sizes["run"]) if r not in flagged and r not in empty]
     if not good:
-        return [], [*notes, "no PSD plots: every run has a problem of its own"]
-    start, stop, window_notes = motion_windows(ds)
+        return [], [*notes, "no PSD plots: no run is left to plot"]
     psds = campaign_psds(ds, runs=good, windows=(start, stop))
     low, full = paths
     title = f"{title}: mean log PSD per state and its spread over the runs"
     plot_state_psds(psds, low, fmax=_LOW_BAND_HZ, title=f"{title}, 0-{_LOW_BAND_HZ:g} Hz")
     plot_state_psds(psds, full, title=f"{title}, full band")
-    return [low, full], [*notes, *window_notes]
+    return [low, full], notes
 
 
 def render(result: dict) -> str:

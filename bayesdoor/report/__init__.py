@@ -15,3 +15,4 @@ from ._psd import RunPSDs as RunPSDs
 from ._psd import campaign_psds as campaign_psds
 from ._psd import motion_windows as motion_windows
 from ._psd import plot_state_psds as plot_state_psds
+from ._psd import segments_in_window as segments_in_window

@@ -50,12 +50,42 @@ class RunPSDs:
     fs: float
 
 
+def segments_in_window(
+    ds: xr.Dataset, t_start: np.ndarray, t_stop: np.ndarray, *, nperseg: int = 512
+) -> np.ndarray:
+    """How many whole Welch segments (half overlap) lie inside each run's window.
+
+    A PSD of the window needs at least one; a window of ``nperseg`` samples or more can still
+    hold none when it does not start on a segment boundary.
+
+    Parameters
+    ----------
+    ds
+        A campaign with a usable ``sampling_rate_hz`` and ``time``.
+    t_start, t_stop
+        Per run, seconds.
+    nperseg
+        The Welch segment length.
+
+    Returns
+    -------
+    counts
+        One integer per run.
+    """
+    t = np.asarray(ds["time"].values, dtype=float)
+    fs = float(ds.attrs["sampling_rate_hz"])
+    weights = segment_weights(
+        t.size, fs, jnp.asarray(t_start), jnp.asarray(t_stop), nperseg, t0=float(t[0])
+    )
+    return np.asarray(weights).sum(axis=-1).astype(int)
+
+
 def motion_windows(ds: xr.Dataset, *, nperseg: int = 512) -> tuple[np.ndarray, np.ndarray, list]:
     """The motion window of every run: ``t_start``/``t_stop`` when present, else detected.
 
     Detection uses :func:`bayesdoor.features.motion_window` on all channels. A run whose
-    motion cannot be detected, or whose detected window is shorter than one Welch segment,
-    gets its whole record, and a note says so.
+    motion cannot be detected, or whose detected window holds no whole Welch segment, gets
+    its whole record, and a note says so.
 
     Parameters
     ----------
@@ -79,22 +109,20 @@ def motion_windows(ds: xr.Dataset, *, nperseg: int = 512) -> tuple[np.ndarray, n
             np.asarray(ds["t_stop"].values, dtype=float),
             [],
         )
-    fs = float(ds.attrs["sampling_rate_hz"])
     acc = np.asarray(ds["acceleration"].transpose("run", "channel", "time").values, dtype=float)
     start, stop, notes = np.full(runs, t[0]), np.full(runs, t[-1]), []
     for r in range(runs):
         try:
-            a, b = motion_window(t, acc[r])
+            start[r], stop[r] = motion_window(t, acc[r])
         except ValueError as err:
             notes.append(f"run {r}: motion not detected ({err}); its PSD uses the whole record")
-            continue
-        if (b - a) * fs + 1 < nperseg:
-            notes.append(
-                f"run {r}: the detected motion [{a:.3f}, {b:.3f}] s is shorter than one Welch "
-                f"segment ({nperseg} samples); its PSD uses the whole record"
-            )
-            continue
-        start[r], stop[r] = a, b
+    short = segments_in_window(ds, start, stop, nperseg=nperseg) == 0
+    notes += [
+        f"run {r}: the detected motion [{start[r]:.3f}, {stop[r]:.3f}] s holds no whole "
+        f"Welch segment of {nperseg} samples; its PSD uses the whole record"
+        for r in np.flatnonzero(short)
+    ]
+    start[short], stop[short] = t[0], t[-1]
     return start, stop, notes
 
 
@@ -139,16 +167,16 @@ def campaign_psds(
     selected = list(range(ds.sizes["run"])) if runs is None else [int(r) for r in runs]
     start, stop = motion_windows(ds, nperseg=nperseg)[:2] if windows is None else windows
     start, stop = np.asarray(start)[selected], np.asarray(stop)[selected]
-    weights = segment_weights(
-        t.size, fs, jnp.asarray(start), jnp.asarray(stop), nperseg, t0=float(t[0])
-    )
-    empty = np.flatnonzero(np.asarray(weights).sum(axis=-1) == 0)
+    empty = np.flatnonzero(segments_in_window(ds, start, stop, nperseg=nperseg) == 0)
     if empty.size:
         r = selected[int(empty[0])]
         raise ValueError(
             f"run {r}: its window [{start[empty[0]]!r}, {stop[empty[0]]!r}] s holds no whole "
             f"Welch segment of {nperseg} samples; widen the window or pass a smaller nperseg"
         )
+    weights = segment_weights(
+        t.size, fs, jnp.asarray(start), jnp.asarray(stop), nperseg, t0=float(t[0])
+    )
     acc = ds["acceleration"].transpose("run", "channel", "time").values[selected]
     freqs, psd = welch_psd(
         jnp.asarray(acc, dtype=float), fs, nperseg, segment_weights=weights[:, None]

@@ -139,7 +139,7 @@ def plot_posterior_pairs(idata: az.InferenceData, names: Sequence[str], path: st
         var_names=list(names),
         kind="scatter",
         marginals=True,
-        scatter_kwargs={"alpha": 0.15, "markersize": 2},
+        scatter_kwargs={"alpha": 0.15, "s": 3},
         textsize=9,
     )
     fig = np.ravel(axes)[0].figure

@@ -16,6 +16,7 @@ from collections.abc import Mapping
 import equinox as eqx
 import numpy as np
 
+from ._coherence import PairCoherence
 from ._features import Features
 from ._residual import FIXED, FREQUENCY, TRACKING, UNDETERMINED, WAVENUMBER, Region
 
@@ -92,6 +93,32 @@ def _absent_before_motion(features: Features, frequencies: np.ndarray) -> Check:
     return Check("absent at rest before the motion", not found, detail)
 
 
+def _unshared_fraction(
+    regions: tuple[Region, ...], freqs: np.ndarray, pair: PairCoherence
+) -> float:
+    """Share of a pair's bins with a coherence excess that no shared feature explains.
+
+    A resonance or tone that both channels of the pair show (overlapping positive
+    frequency-domain regions) makes them coherent over its band; a leak makes them coherent
+    wherever the source has signal, with an excess in the receiver's spectrum only. Bins within
+    one coherence bin of the overlap of two such regions are left out of both the count and the
+    total.
+    """
+    step = float(freqs[1] - freqs[0])
+    a_regions, b_regions = (
+        [r for r in regions if r.channel == ch and r.sign > 0 and r.domain == FREQUENCY]
+        for ch in pair.pair
+    )
+    shared = np.zeros(freqs.shape, dtype=bool)
+    for a in a_regions:
+        for b in b_regions:
+            lo, hi = max(a.low, b.low), min(a.high, b.high)
+            if lo <= hi:
+                shared |= (freqs >= lo - step) & (freqs <= hi + step)
+    rest = ~shared
+    return float(np.sum(pair.significant & rest) / max(int(rest.sum()), 1))
+
+
 class AbstractSignature(eqx.Module):
     """How a cause shows in the residual features."""
 
@@ -107,12 +134,13 @@ class FixedFrequency(AbstractSignature):
     peak frequency does not move with speed (the speed fit across runs prefers ``f = const``,
     or, when it cannot tell, the within-run test does); it is in most runs; no line at that
     frequency at rest before the motion (a resonance needs excitation and decays at rest);
-    its channel has no broadband coherence excess (a line carried over from another channel
-    is a leak, not a mode). Parameters: ``frequency_hz`` (the centroid of the half-power band
-    of the run-averaged excess power; over the channels that show the mode, the strongest
-    region of each, weighted by its statistic), ``damping_ratio`` (half-power width over
-    twice the frequency; an upper bound near the resolution, since the width includes the
-    window's main lobe), ``excess_db`` and ``channels``.
+    its channel has no broadband coherence excess beyond shared features (a line carried
+    over from another channel is a leak, not a mode). Parameters: ``frequency_hz`` (the
+    centroid of the half-power band of the run-averaged excess power; over the channels that
+    show the mode, the strongest region of each, weighted by its statistic),
+    ``damping_ratio`` (half-power width over twice the frequency; an upper bound near the
+    resolution, since the width includes the window's main lobe), ``excess_db`` and
+    ``channels``.
     """
 
     band: tuple[float, float] = eqx.field(static=True)
@@ -148,7 +176,9 @@ class FixedFrequency(AbstractSignature):
             leak = None
             if features.coherence is not None:
                 pairs = features.coherence.for_channel(region.channel)
-                fractions = [p.fraction_significant for p in pairs]
+                fractions = [
+                    _unshared_fraction(res.regions, features.coherence.freqs, p) for p in pairs
+                ]
                 leak = max(fractions, default=0.0) >= self.max_coherent_fraction
             checks = (
                 _speed_check(features, region, FIXED),
@@ -272,7 +302,9 @@ class CrossAxisCoherence(AbstractSignature):
     """One channel carries a fraction of another's signal: coherence the model lacks.
 
     Checks on each listed pair with a significant coherence excess: the excess covers at
-    least ``min_fraction`` of the analysed bins (broadband, unlike a resonance); the change of
+    least ``min_fraction`` of the analysed bins that no feature shared by both channels
+    explains (overlapping excess regions on both channels are left out: broadband, unlike a
+    resonance both channels feel); the change of
     the transfer function in the best direction is flat (relative spread at most
     ``max_spread``). Parameters: ``fraction`` (the leak, signed), ``receiver`` and
     ``source``.
@@ -283,18 +315,20 @@ class CrossAxisCoherence(AbstractSignature):
     max_spread: float = eqx.field(static=True, default=0.5)
 
     def match(self, features: Features) -> Match | None:
-        if features.coherence is None:
+        coherence = features.coherence
+        if coherence is None:
             return None
         wanted = {frozenset(p) for p in self.pairs}
         matches = []
-        for pair in features.coherence.pairs:
+        for pair in coherence.pairs:
             if frozenset(pair.pair) not in wanted or not pair.significant.any():
                 continue
+            fraction = _unshared_fraction(features.residuals.regions, coherence.freqs, pair)
             checks = (
                 Check(
                     "broadband coherence excess",
-                    pair.fraction_significant >= self.min_fraction,
-                    f"{100 * pair.fraction_significant:.0f} % of bins",
+                    fraction >= self.min_fraction,
+                    f"{100 * fraction:.0f} % of the bins no shared feature explains",
                 ),
                 Check(
                     "frequency-independent leak",

@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Literal, NamedTuple
@@ -306,6 +306,7 @@ def run_job(
     fit_seed: int | None = None,
     sizes: Sizes | None = None,
     fit: Callable[..., Any] | None = None,
+    fit_options: Mapping[str, Any] | None = None,
     progress: bool = True,
     report: Callable[[str], None] = print,
     overwrite: bool = False,
@@ -346,6 +347,10 @@ def run_job(
         seed=, quick=, progress=)`` and returning a ``FitResult``-like object (``point``, ``j``,
         ``posterior_draws()``, ``model_error_draws()``, ``save(folder)``); ``None`` means
         :func:`bayesdoor.inference.fit_campaign`.
+    fit_options
+        Further keyword arguments of ``fit`` (for example ``settings``, a
+        :class:`bayesdoor.inference.FitSettings`); they enter the fit stage's configuration
+        through their ``repr``.
     progress
         Show the progress bars of the stages.
     report
@@ -376,6 +381,7 @@ def run_job(
     sizes = (Sizes.quick() if quick else Sizes()) if sizes is None else sizes
     fit = _default_fit if fit is None else fit
     fit_seed = seed if fit_seed is None else fit_seed
+    options = dict(fit_options or {})
     calibration = calibration_runs(campaign)
     test = runs_to_classify(campaign)
     system_description = describe_system(system)
@@ -387,6 +393,7 @@ def run_job(
         "fit_seed": fit_seed,
         "source": source,
         "method": method,
+        "fit_options": {k: repr(v) for k, v in options.items()},
         "sizes": sizes.to_json(),
     }
     job_hash = configuration_hash(settings)
@@ -404,6 +411,7 @@ def run_job(
             seed=fit_seed,
             quick=quick,
             progress=progress,
+            **options,
         )
         result.save(folder / "result")
         FitSummary.from_result(result, method).save(folder)
@@ -417,6 +425,7 @@ def run_job(
             "method": method,
             "seed": fit_seed,
             "quick": quick,
+            "options": {k: repr(v) for k, v in options.items()},
             "versions": versions,
         },
         compute_fit,

@@ -79,7 +79,7 @@ def probability_bars(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) 
         ax.set_yticks([0, 0.5, 1])
         label = f"true {group}" if group in classes else group
         n_wrong = f", {len(wrong)} misclassified (black marks)" if group in classes else ""
-        ax.set_title(f"{label}: {len(members)} runs{n_wrong}", fontsize=10, loc="left")
+        ax.set_title(f"{label}: {len(members)} runs{n_wrong}", fontsize=10, loc="left", pad=11)
         ax.set_ylabel("probability")
     axes[0].legend(
         ncol=len(classes), loc="lower right", bbox_to_anchor=(1, 1.12), frameon=False, fontsize=9

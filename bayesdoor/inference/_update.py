@@ -74,6 +74,10 @@ class FitSettings:
         initial step (fraction of each range).
     box_fraction
         Half-width of the surrogate's box around the optimum, as a fraction of each range.
+    box_moves
+        How often the box may move to the posterior mean (surrogate refitted, posterior
+        resampled) when more than 5 % of the draws of a parameter lie at a face of the box
+        that is not one of its bounds.
     insensitive
         A parameter whose move from its lower to its upper bound changes no feature by more
         than this many Welch standard deviations spans its whole range in the surrogate's box
@@ -94,6 +98,7 @@ class FitSettings:
     cmaes_popsize: int | None = None
     cmaes_sigma0: float = 0.25
     box_fraction: float = 0.25
+    box_moves: int = 1
     insensitive: float = 0.5
     train_per_term: int = 7
     n_test: int = 64
@@ -825,63 +830,86 @@ def fit_campaign(
     reach = np.max(np.abs(end_features[0::2] - end_features[1::2]), axis=(1, 2, 3))
     welch_sd = float(np.sqrt(np.median(np.asarray(data.welch_variance))))
     loose = reach < settings.insensitive * welch_sd
-    box = box_around(
-        jnp.asarray(theta_opt),
-        jnp.asarray(bounds[0]),
-        jnp.asarray(bounds[1]),
-        jnp.asarray(np.where(loose, 1.0, settings.box_fraction)),
-    )
+    fractions = jnp.asarray(np.where(loose, 1.0, settings.box_fraction))
     n_terms = 1 + d + d * (d + 1) // 2
     forward = _PartialForward.build(system, population, free, fixed_law)
-    surrogate = fit_surrogate(
-        forward,
-        jnp.asarray(box[0]),
-        jnp.asarray(box[1]),
-        key=key_sur,
-        n_train=settings.train_per_term * n_terms,
-        n_test=settings.n_test,
-    )
-    surrogate_rms = float(np.sqrt(np.mean(np.asarray(surrogate.error_variance))))
-    timings["surrogate"] = time.perf_counter() - t0
+    centre, sigma_init = theta_opt, jnp.asarray(sigma_point)
+    timings["sensitivity"] = time.perf_counter() - t0
+    timings["surrogate"] = timings["sampling"] = 0.0
+    for stage in range(settings.box_moves + 1):
+        t0 = time.perf_counter()
+        box = box_around(
+            jnp.asarray(centre), jnp.asarray(bounds[0]), jnp.asarray(bounds[1]), fractions
+        )
+        surrogate = fit_surrogate(
+            forward,
+            jnp.asarray(box[0]),
+            jnp.asarray(box[1]),
+            key=jax.random.fold_in(key_sur, stage),
+            n_train=settings.train_per_term * n_terms,
+            n_test=settings.n_test,
+        )
+        surrogate_rms = float(np.sqrt(np.mean(np.asarray(surrogate.error_variance))))
+        timings["surrogate"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        inside = box[0] + np.clip((centre - box[0]) / (box[1] - box[0]), 0.02, 0.98) * (
+            box[1] - box[0]
+        )
+        transform = SamplingTransform.box(free, box[0].tolist(), box[1].tolist())
 
-    inside = box[0] + np.clip((theta_opt - box[0]) / (box[1] - box[0]), 0.02, 0.98) * (
-        box[1] - box[0]
-    )
-    transform = SamplingTransform.box(free, box[0].tolist(), box[1].tolist())
-    sigma_init = jnp.asarray(sigma_point)
-    try:
-        transform = transform.whitened_at(
-            lambda th: log_likelihood(th, sigma_init, data, surrogate), jnp.asarray(inside)
+        def density(th, sigma=sigma_init, forward=surrogate):
+            return log_likelihood(th, sigma, data, forward)
+
+        try:
+            transform = transform.whitened_at(density, jnp.asarray(inside))
+        except ValueError as err:
+            notes.append(f"Laplace whitening failed ({err}); sampling in plain logit coordinates")
+        model = make_model(data, surrogate, transform, error)
+        init = {"z": transform.to_sampling(jnp.asarray(inside)), "sigma_model": sigma_init}
+        if method == "nuts":
+            idata = sample_nuts(
+                model,
+                key=jax.random.fold_in(key_sample, stage),
+                init_values=init,
+                num_warmup=settings.num_warmup,
+                num_samples=settings.num_samples,
+                num_chains=settings.num_chains,
+                target_accept=settings.target_accept,
+                progress=progress,
+            )
+        else:
+            idata = sample_emcee(
+                model,
+                key=jax.random.fold_in(key_sample, stage),
+                init_values=init,
+                n_walkers=max(settings.emcee_walkers, 2 * (d + data.y.shape[1]) + 2),
+                n_steps=settings.emcee_steps,
+                burn=settings.emcee_burn,
+                thin=settings.emcee_thin,
+                init_scale=0.1,
+                progress=progress,
+            )
+        timings["sampling"] += time.perf_counter() - t0
+        post = idata["posterior"]
+        draws = np.stack([np.asarray(post[n].values).reshape(-1) for n in free], axis=-1)
+        edge = surrogate.edge_fraction(jnp.asarray(draws), bounds)
+        cut = [f"{n} ({100 * e:.0f} %)" for n, e in zip(free, edge, strict=True) if e > 0.05]
+        if not cut:
+            break
+        message = (
+            f"surrogate box {stage + 1}: draws of {', '.join(cut)} lie at a face of the box "
+            "that is not a bound: the box, not the data, cuts the posterior"
         )
-    except ValueError as err:
-        notes.append(f"Laplace whitening failed ({err}); sampling in plain logit coordinates")
-    model = make_model(data, surrogate, transform, error)
-    init = {"z": transform.to_sampling(jnp.asarray(inside)), "sigma_model": sigma_init}
-    t0 = time.perf_counter()
-    if method == "nuts":
-        idata = sample_nuts(
-            model,
-            key=key_sample,
-            init_values=init,
-            num_warmup=settings.num_warmup,
-            num_samples=settings.num_samples,
-            num_chains=settings.num_chains,
-            target_accept=settings.target_accept,
-            progress=progress,
-        )
-    else:
-        idata = sample_emcee(
-            model,
-            key=key_sample,
-            init_values=init,
-            n_walkers=max(settings.emcee_walkers, 2 * (d + data.y.shape[1]) + 2),
-            n_steps=settings.emcee_steps,
-            burn=settings.emcee_burn,
-            thin=settings.emcee_thin,
-            init_scale=0.1,
-            progress=progress,
-        )
-    timings["sampling"] = time.perf_counter() - t0
+        if stage < settings.box_moves:
+            message += "; the box was moved to the posterior mean and the posterior resampled"
+            centre = draws.mean(axis=0)
+            sigma = np.asarray(post["sigma_model"].values)
+            sigma_init = jnp.asarray(sigma.reshape(-1, sigma.shape[-1]).mean(axis=0))
+        else:
+            message += "; raise box_fraction or box_moves"
+            warnings.warn(message, UserWarning, stacklevel=2)
+        notes.append(message)
+
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         diagnostics = diagnose_sampling(idata)
@@ -889,19 +917,6 @@ def fit_campaign(
         notes.extend(f"SAMPLING GATES FAILED: {m}" for m in diagnostics.messages)
         for w in caught:
             warnings.warn(w.message, w.category, stacklevel=2)
-
-    post = idata["posterior"]
-    draws = np.stack([np.asarray(post[n].values).reshape(-1) for n in free], axis=-1)
-    edge = surrogate.edge_fraction(jnp.asarray(draws), bounds)
-    for name, frac in zip(free, edge, strict=True):
-        if frac > 0.05:
-            message = (
-                f"{100 * frac:.0f} % of the {name} draws lie at the surrogate box's face, not "
-                "at a bound: the box, not the data, cuts the posterior; refit with a larger "
-                "box_fraction"
-            )
-            notes.append(message)
-            warnings.warn(message, UserWarning, stacklevel=2)
 
     _add_predictive(idata, model, settings.predictive_draws, key_pred)
     point = {n: float(np.mean(draws[:, i])) for i, n in enumerate(free)}

@@ -139,7 +139,8 @@ def plot_posterior_pairs(idata: az.InferenceData, names: Sequence[str], path: st
         var_names=list(names),
         kind="scatter",
         marginals=True,
-        scatter_kwargs={"alpha": 0.15, "s": 3},
+        scatter_kwargs={"alpha": 0.3, "s": 6},
+        figsize=(2.0 * len(names), 2.0 * len(names)),
         textsize=9,
     )
     fig = np.ravel(axes)[0].figure

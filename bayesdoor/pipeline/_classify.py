@@ -92,6 +92,7 @@ def train_stage(
         folder / "training.json",
         {
             "states": list(data.states),
+            "spec": data.manifest["config"]["spec"],
             "counts": data.counts(),
             "temperature": float(ensemble.temperature),
             "ood_threshold": None if ensemble.ood is None else float(ensemble.ood.threshold),
@@ -164,7 +165,13 @@ def classify_stage(
         for i in range(n_run)
     ]
     n_freq = ensemble.network.input_shape[-1]
-    spec = CNNInputSpec()
+    training = path.parent / "training.json"
+    # the features of the training data (the default spec for a bare ensemble file)
+    spec = (
+        CNNInputSpec(**json.loads(training.read_text())["spec"])
+        if training.is_file()
+        else CNNInputSpec()
+    )
     features = np.full((n_run, *ensemble.network.input_shape), np.nan)
     good = [i for i in range(n_run) if problems[i] is None]
     if good:

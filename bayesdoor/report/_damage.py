@@ -392,6 +392,17 @@ def write_damage_report(
     if classification.get("n_failed"):
         headline.append(("not classified", str(classification["n_failed"]), "bad"))
     parts.append(H.cards(headline))
+    if valid and n_ood > len(valid) / 2:
+        parts.append(
+            H.warning(
+                f"{n_ood} of {len(valid)} runs lie outside the simulated training data (OOD): the "
+                "model does not reproduce these measurements well, so the classifier "
+                "extrapolates and its probabilities, calibrated on simulations, may be "
+                "overconfident here. The band figures below show where the measurements leave "
+                "the simulated bands; consider diagnosing the discrepancy before trusting the "
+                "verdicts."
+            )
+        )
     parts.append(
         H.note(
             f"Classes: {', '.join(classes)}. Probabilities are the ensemble's, calibrated by "

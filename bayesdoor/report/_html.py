@@ -16,6 +16,8 @@ h1 { font-size: 26px; margin: 0 0 4px; }
 h2 { font-size: 19px; margin: 34px 0 10px; padding-bottom: 4px; border-bottom: 1px solid #d4d8de; }
 p.sub { color: #5b6470; margin: 0 0 18px; }
 p.note { color: #5b6470; font-size: 13.5px; max-width: 920px; }
+p.warn { background: #fff4e0; border-left: 4px solid #e67e22; padding: 8px 12px;
+         max-width: 920px; font-size: 14px; }
 .cards { display: flex; flex-wrap: wrap; gap: 12px; margin: 16px 0; }
 .card { background: white; border: 1px solid #dde1e6; border-radius: 8px; padding: 10px 16px;
         min-width: 120px; }
@@ -102,6 +104,11 @@ def page(title: str, subtitle: str, body: str) -> str:
 def section(title: str, *parts: str) -> str:
     """A titled section."""
     return f"<h2>{html.escape(title)}</h2>" + "".join(parts)
+
+
+def warning(text: str) -> str:
+    """A highlighted paragraph for what the reader must not miss."""
+    return f'<p class="warn">{html.escape(text)}</p>'
 
 
 def note(text: str) -> str:

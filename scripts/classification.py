@@ -87,6 +87,10 @@ def main(argv: list[str] | None = None) -> None:
                 folder.mkdir(parents=True, exist_ok=True)
                 shutil.copytree(shared_fit, folder / "fit")
             line(f"job {folder.name}")
+
+            def stage_line(text: str, name: str = folder.name) -> None:
+                line(f"  {name}: {text}")
+
             result = run_job(
                 system,
                 campaign,
@@ -98,7 +102,7 @@ def main(argv: list[str] | None = None) -> None:
                 sizes=sizes,
                 fit_options={"settings": fit_settings},
                 progress=False,
-                report=lambda text, name=folder.name: line(f"  {name}: {text}"),
+                report=stage_line,
                 html=False,
                 overwrite=True,
             )

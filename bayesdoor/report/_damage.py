@@ -627,13 +627,13 @@ def write_damage_report(
                     band_classes,
                     ylims,
                 )
-            at = "" if speeds is None else f" at v_max = {speeds[j]:g} m/s"
+            speed_note = "" if speeds is None else f" at v_max = {speeds[j]:g} m/s"
             body.append(
                 H.img(
                     renderers[j].render(features[i]),
                     "features against bands",
                     "The run's log-PSD features (black) against the 5-95 % posterior-predictive "
-                    f"band of each state{at} (simulated training runs).",
+                    f"band of each state{speed_note} (simulated training runs).",
                 )
             )
         body.append('<p><a href="../index.html">back to the campaign report</a></p>')

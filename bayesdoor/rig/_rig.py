@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import equinox as eqx
 import jax
@@ -51,6 +52,8 @@ class RigConfig(eqx.Module):
     chunk_size
         Runs integrated together (one vmapped solve); the last chunk is padded to this size
         (or to the number of runs, if smaller) so every chunk reuses one compilation.
+    workers
+        Chunks integrated at the same time (threads; each keeps one CPU core busy).
     """
 
     sampling_rate_hz: float = eqx.field(static=True, default=2048.0)
@@ -65,7 +68,8 @@ class RigConfig(eqx.Module):
     )
     speed_scatter: float = eqx.field(static=True, default=0.005)
     rest_after_s: float = eqx.field(static=True, default=0.25)
-    chunk_size: int = eqx.field(static=True, default=32)
+    chunk_size: int = eqx.field(static=True, default=64)
+    workers: int = eqx.field(static=True, default=2)
 
     def __check_init__(self):
         if not (isinstance(self.oversampling, int) and self.oversampling >= 2):
@@ -85,10 +89,10 @@ class RigConfig(eqx.Module):
         for name in ("noise_rms", "speed_scatter", "rest_after_s"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be >= 0")
-        if self.full_scale <= 0 or self.bits < 2 or self.chunk_size < 1:
+        if self.full_scale <= 0 or self.bits < 2 or self.chunk_size < 1 or self.workers < 1:
             raise ValueError(
-                f"need full_scale > 0, bits >= 2, chunk_size >= 1; got {self.full_scale!r}, "
-                f"{self.bits!r}, {self.chunk_size!r}"
+                "need full_scale > 0, bits >= 2, chunk_size >= 1 and workers >= 1; got "
+                f"{self.full_scale!r}, {self.bits!r}, {self.chunk_size!r}, {self.workers!r}"
             )
 
     @property
@@ -128,6 +132,29 @@ class RestState:
     indentation_m: np.ndarray
     frequencies_hz: np.ndarray
     damping_ratios: np.ndarray
+
+
+@eqx.filter_jit
+def _linearise_at_rest(a: d.RunArgs):
+    """Contact gaps at the static equilibrium and the Jacobian of the flow (q, q_dot) there.
+
+    The Jacobian is by central differences (steps of 1 nm and 1 um/s, far inside the contact
+    indentation and the friction's 0.5 mm/s regularisation): differentiating the equations,
+    which already hold Jacobians and a second derivative, would compile for minutes.
+    """
+    q0 = d.static_equilibrium(a)
+    latch = jnp.full(d.N_CONTACT, d.LATCH_FLOOR)
+
+    def flow(x):
+        q, qd = x[: d.N_DOF], x[d.N_DOF :]
+        return jnp.concatenate([qd, d.dynamics(0.0, q, qd, latch, a)[0]])
+
+    x0 = jnp.concatenate([q0, jnp.zeros_like(q0)])
+    steps = jnp.concatenate([jnp.full(d.N_DOF, 1e-9), jnp.full(d.N_DOF, 1e-6)])
+    shifts = jnp.diag(steps)
+    f = jax.vmap(flow)(jnp.concatenate([x0 + shifts, x0 - shifts]))
+    jac = (f[: 2 * d.N_DOF] - f[2 * d.N_DOF :]).T / (2.0 * steps)
+    return d.contact_coordinates(q0, a)[: d.N_CONTACT], jac
 
 
 def _severities(states, severities, keys) -> dict[str, np.ndarray]:
@@ -238,7 +265,8 @@ class VirtualRig(eqx.Module):
             Record length (s); default 0.25 s rest, the slowest actual stroke and
             ``config.rest_after_s`` of rest, whole samples.
         progress
-            Called with the number of runs finished after each chunk.
+            Called with the number of runs finished after each chunk (chunks may finish in
+            any order).
 
         Returns
         -------
@@ -298,14 +326,27 @@ class VirtualRig(eqx.Module):
 
         acc = np.empty((runs, len(CHANNELS), n_out))
         size = min(cfg.chunk_size, runs)
-        for start in range(0, runs, size):
-            idx = np.arange(start, min(start + size, runs))
+        chunks = [np.arange(i, min(i + size, runs)) for i in range(0, runs, size)]
+        inputs = {**per_run, **damage}
+
+        def chunk_args(idx):
             padded = np.concatenate([idx, np.full(size - idx.size, idx[-1])])
-            args = self._run_args({k: v[padded] for k, v in {**per_run, **damage}.items()})
-            fine = np.asarray(integrate(args, n_out * cfg.oversampling, cfg.dt))[: idx.size]
+            return self._run_args({k: v[padded] for k, v in inputs.items()})
+
+        solve = integrate.lower(chunk_args(chunks[0]), n_out * cfg.oversampling, cfg.dt).compile()
+
+        def record_chunk(idx):
+            fine = np.asarray(solve(chunk_args(idx)))[: idx.size]
             acc[idx] = self._measure(fine, k_noise[idx], k_hum[idx], n_out)
-            if progress is not None:
-                progress(int(idx[-1]) + 1)
+            return idx.size
+
+        # chunks run concurrently in threads (XLA releases the GIL), one core each
+        with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
+            done = 0
+            for finished in as_completed([pool.submit(record_chunk, idx) for idx in chunks]):
+                done += finished.result()
+                if progress is not None:
+                    progress(done)
 
         campaign = make_campaign(
             acc,
@@ -342,20 +383,12 @@ class VirtualRig(eqx.Module):
         names = {*SCATTERED, "v_actual", "d1_height", "d2_depth", "d2_angle"}
         args = self._run_args({k: np.atleast_1d(self._true_value(k)) for k in names})
         one = jax.tree_util.tree_map(lambda x: x[0], args)
-        q0 = d.static_equilibrium(one)
-        latch = jnp.full(d.N_CONTACT, d.LATCH_FLOOR)
-
-        def flow(x):
-            q, qd = x[: d.N_DOF], x[d.N_DOF :]
-            return jnp.concatenate([qd, d.dynamics(0.0, q, qd, latch, one)[0]])
-
-        x0 = jnp.concatenate([q0, jnp.zeros_like(q0)])
-        eig = np.linalg.eigvals(np.asarray(jax.jacfwd(flow)(x0)))
+        gaps, jac = (np.asarray(x) for x in _linearise_at_rest(one))
+        eig = np.linalg.eigvals(jac)
         eig = eig[eig.imag > 1e-6]
         order = np.argsort(eig.imag)
-        gaps = d.contact_coordinates(q0, one)[: d.N_CONTACT]
         return RestState(
-            indentation_m=np.asarray(gaps),
+            indentation_m=gaps,
             frequencies_hz=eig.imag[order] / (2.0 * np.pi),
             damping_ratios=-eig.real[order] / np.abs(eig[order]),
         )

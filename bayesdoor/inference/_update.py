@@ -727,8 +727,10 @@ def fit_campaign(
     Raises
     ------
     ValueError
-        For an unknown method, an invalid ``law``, or a campaign without a usable healthy
-        run (see :func:`calibration_runs`).
+        For an unknown method, an invalid ``law`` or ``seed``, or a campaign without a
+        usable healthy run (see :func:`calibration_runs`).
+    RuntimeError
+        When every CMA-ES candidate failed to simulate.
 
     References
     ----------
@@ -736,6 +738,8 @@ def fit_campaign(
     """
     if method not in METHODS:
         raise ValueError(f"method={method!r}: use one of {', '.join(METHODS)}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"seed={seed!r} must be an integer >= 0")
     settings = (FitSettings.quick() if quick else FitSettings()) if settings is None else settings
     spec = FeatureSpec() if spec is None else spec
     integer_name, law = _integer_parameter(system, law)
@@ -788,8 +792,8 @@ def fit_campaign(
         law = round(optimum.pop(integer_name, law))  # type: ignore[arg-type]
     theta_opt = np.array([optimum[n] for n in free])
     bounds = (np.array([specs[n].lower for n in free]), np.array([specs[n].upper for n in free]))
-    full_point = {**optimum, **({} if integer_name is None else {integer_name: float(law)})}  # type: ignore[arg-type]
     fixed_law = {} if integer_name is None else {integer_name: float(law)}  # type: ignore[arg-type]
+    full_point = {**optimum, **fixed_law}
     sim, _ = _simulate(population, _full(system, theta_opt, free, fixed_law))
     residual = np.asarray(data.y) - sim[0][np.asarray(data.run_operating)]
     sigma_point = _ml_model_error(residual, np.asarray(data.welch_variance))

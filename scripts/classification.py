@@ -28,6 +28,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_ACCURACY = 0.923
+STATES = ("healthy", "D1", "D2")
 LABELS = {
     "gaussian": "Gaussian scatter around the CMA-ES optimum (paper's baseline, 5 %)",
     "posterior": "posterior draws",
@@ -206,6 +207,14 @@ def write_markdown(args, rows, fit, fit_settings, seconds: float, campaign_name:
         mean = "-" if "mean" not in row else f"{row['mean']:.4g}"
         sd = "-" if "sd" not in row else f"{row['sd']:.3g}"
         lines.append(f"| {row['parameter']} | {row['point']:.4g} | {mean} | {sd} | {interval} |")
+    if fit.sigma_model is not None:
+        sigma = ", ".join(f"{v:.3f}" for v in np.mean(fit.sigma_model, axis=0))
+        lines += [
+            "",
+            f"Posterior mean of the model-error scale per channel (log10 decades, in the "
+            f"campaign's channel order): {sigma}. The `posterior+model_error` source adds one "
+            "offset per run and channel drawn from it to the simulated features.",
+        ]
     lines += ["", *_comparison(args.sources, rows), ""]
     args.results.write_text("\n".join(lines))
 
@@ -224,6 +233,14 @@ def _comparison(sources, rows) -> list[str]:
             f"- {LABELS[source]}: mean accuracy {100 * acc:.1f} %, {verdict} the paper's "
             f"{100 * PAPER_ACCURACY:.1f} %; mean ECE {ece:.3f}."
         )
+        confusion = np.mean([r["confusion"] for r in sel], axis=0)
+        errors = confusion - np.diag(np.diag(confusion))
+        if errors.max() > 0:
+            t, p = np.unravel_index(np.argmax(errors), errors.shape)
+            text += (
+                f" Most frequent error: true {STATES[t]} predicted {STATES[p]} "
+                f"({errors[t, p]:.1f} of 100 runs per job)."
+            )
         if source == "posterior":
             met = [
                 f"accuracy >= 95 %: {'met' if acc >= 0.95 else 'NOT met'}",

@@ -114,9 +114,10 @@ def test_cmaes_reaches_the_truths_j_on_rig_data(rig, cmaes_fit):
     # its truth is not J's minimum; a working optimiser must get at least as close. Margin:
     # 10 % of J, what 120 evaluations leave of the gap between a quick and a long search
     assert cmaes_fit.j <= 1.10 * j_truth
-    # the budget holds, overshot by less than the last population
+    # the budget holds, overshot by at most the last population (pycma stops after the
+    # iteration that reaches it; 132 = 11 x 12 measured for a budget of 120)
     history = cmaes_fit.cmaes.history
-    assert cmaes_fit.cmaes.evaluations < cmaes_fit.settings.cmaes_max_evals + history.popsize[-1]
+    assert cmaes_fit.cmaes.evaluations <= cmaes_fit.settings.cmaes_max_evals + history.popsize[-1]
     assert cmaes_fit.law in range(1, 10)
 
 

@@ -142,9 +142,10 @@ def test_a_fit_saves_loads_and_refuses_to_overwrite(cmaes_fit, tmp_path):
 # slow: the posterior on rig data
 
 
-#: parameters the features identify (one-at-a-time sensitivities well above the Welch scatter,
-#: docs/inference.md): K, c_r, C, MF; n, mu_s and mu_d barely move the features
-IDENTIFIED = ("K", "c_r", "C", "MF")
+#: parameters the features identify: measured on the demo campaign (full fit, law 3), every
+#: posterior sd is below a quarter of the prior's except mu_s's (0.78 of it), which the
+#: features barely move (docs/inference.md)
+IDENTIFIED = ("K", "n", "c_r", "mu_d", "C", "MF")
 
 
 @pytest.mark.slow
@@ -171,7 +172,7 @@ def test_posterior_covers_the_rigs_truth_and_predicts_held_out_runs():
             assert q5 <= truth[name] <= q95, name
         else:
             # the data say little: the posterior keeps most of the prior's spread
-            assert ratio > 0.3, name
+            assert ratio > 0.5, name
     held_out = np.flatnonzero(
         (campaign["split"].values == "test") & (campaign["state"].values == "healthy")
     )

@@ -213,7 +213,10 @@ def ablation_table(results: dict[int, Any]) -> tuple[list[dict[str, Any]], str]:
 
 
 def markdown_table(rows: list[dict[str, Any]]) -> str:
-    """One line per law: J, ELPD (SE), difference to the best, stacking weight, means (sd)."""
+    """One line per law: J, ELPD (SE), difference to the best, stacking weight, means (sd).
+
+    Rows of CMA-ES fits (no posterior) show the optimum and no ELPD.
+    """
     if not rows:
         return ""
     names = list(rows[0]["mean"])
@@ -226,6 +229,10 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
         cells.append(f"{row['weight']:.2f}" if "weight" in row else "-")
         gates = row.get("gates_passed")
         cells.append("-" if gates is None else ("pass" if gates else "FAIL"))
-        cells += [f"{row['mean'][n]:.4g} ({row['sd'][n]:.2g})" for n in names]
+        sampled = "elpd_loo" in row  # a CMA-ES point has no spread to show
+        cells += [
+            f"{row['mean'][n]:.4g} ({row['sd'][n]:.2g})" if sampled else f"{row['mean'][n]:.4g}"
+            for n in names
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

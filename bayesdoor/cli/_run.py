@@ -61,7 +61,7 @@ def print_summary(result: dict[str, Any], console: Console) -> None:
     fit = result.get("fit")
     if fit is not None:
         table = Table(title=f"model updating ({fit['method']}, J = {_fmt(fit['j'])})")
-        for column in ("parameter", "point", "mean", "sd", "90 % interval"):
+        for column in ("parameter", "CMA-ES optimum", "posterior mean", "sd", "90 % interval"):
             table.add_column(column, justify="left" if column == "parameter" else "right")
         for row in fit["parameters"]:
             interval = "-" if "q05" not in row else f"{row['q05']:.4g} .. {row['q95']:.4g}"

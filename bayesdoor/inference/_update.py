@@ -107,7 +107,7 @@ class FitSettings:
     num_chains: int = 4
     target_accept: float = 0.9
     emcee_walkers: int = 48
-    emcee_steps: int = 6000
+    emcee_steps: int = 9000
     emcee_burn: int = 1000
     emcee_thin: int = 5
     predictive_draws: int = 400

@@ -139,7 +139,7 @@ def test_noise_floor_at_rest_and_quantisation(baseline, clean):
 def test_halving_the_step_barely_moves_the_spectrum():
     """RK4 at 16384 Hz against 32768 Hz on one healthy and one D2 run (the flat's impacts are
     the least smooth forcing): the 0-200 Hz log10 PSD moves by a mean of under 0.02 decades
-    per channel (0.006 healthy, 0.002 D2 when written) and by under 0.15 in any 4 Hz bin."""
+    per channel (0.003 healthy, 0.003 D2 when written) and by under 0.15 in any 4 Hz bin."""
     for state, severity in (("healthy", None), ("D2", {"d2_depth": 2e-4, "d2_angle": 1.0})):
         logs = []
         for oversampling in (8, 16):

@@ -25,7 +25,7 @@ def check_speed(v_max) -> None:
     for v in np.atleast_1d(np.asarray(v_max, dtype=float)):
         if not np.isfinite(v) or not lo <= v <= hi:
             raise ValueError(
-                f"v_max={v!r} m/s is outside the allowed range [{lo}, {hi}] m/s "
+                f"v_max={float(v)!r} m/s is outside the allowed range [{lo}, {hi}] m/s "
                 f"(the S-curve of a {g.STROKE} m stroke with a = {g.ACCELERATION} m/s^2 and "
                 f"j = {g.JERK} m/s^3 has no cruise phase above {hi} m/s)"
             )

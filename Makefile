@@ -14,7 +14,7 @@ $(BIN)/bayesdoor: pyproject.toml
 install: $(BIN)/bayesdoor
 
 demo: install
-	$(BIN)/bayesdoor demo --out out/demo --force
+	$(BIN)/bayesdoor demo --quick --out out/demo --force
 
 test: install
 	$(BIN)/python -m pytest -n 2 -q

@@ -5,9 +5,7 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import json
-import os
 import platform
-import uuid
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -18,6 +16,8 @@ import numpy as np
 import numpyro
 import numpyro.distributions as dist
 from numpyro.infer import init_to_sample
+
+from ..io import atomic_write
 
 #: groups every posterior written by bayesdoor holds (DESIGN.md section 5)
 POSTERIOR_GROUPS = ("posterior", "sample_stats", "log_likelihood", "observed_data")
@@ -234,18 +234,7 @@ def save_posterior(idata: az.InferenceData, path: str | Path, *, overwrite: bool
             f"the posterior lacks the group(s) {missing}; build it with sample_nuts or "
             "sample_emcee, which add every required group"
         )
-    if path.exists() and not overwrite:
-        raise FileExistsError(
-            f"{path} already exists; pass overwrite=True to replace it (nothing was written)"
-        )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-    try:
-        idata.to_netcdf(str(tmp))
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    return atomic_write(path, lambda tmp: idata.to_netcdf(str(tmp)), overwrite=overwrite)
 
 
 def load_posterior(path: str | Path) -> az.InferenceData:

@@ -5,6 +5,13 @@ from ._classify import classify_stage as classify_stage
 from ._classify import model_file as model_file
 from ._classify import report_stage as report_stage
 from ._classify import train_stage as train_stage
+from ._diagnose import DIAGNOSIS_FILES as DIAGNOSIS_FILES
+from ._diagnose import catalogue_of as catalogue_of
+from ._diagnose import default_diagnose as default_diagnose
+from ._diagnose import diagnosis_stage as diagnosis_stage
+from ._diagnose import features_of as features_of
+from ._diagnose import json_safe as json_safe
+from ._diagnose import save_diagnosis as save_diagnosis
 from ._fit import FitSummary as FitSummary
 from ._job import SOURCES as SOURCES
 from ._job import STAGES as STAGES

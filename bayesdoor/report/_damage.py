@@ -338,6 +338,7 @@ def write_damage_report(
     training: Mapping[str, Any] | None = None,
     fit: Mapping[str, Any] | None = None,
     title: str = "Damage report",
+    sections: Sequence[str] = (),
 ) -> Path:
     """Write ``index.html`` (the campaign) and ``runs/run-NNNN.html`` (each run) into ``folder``.
 
@@ -361,6 +362,9 @@ def write_damage_report(
         The model updating's ``method``, ``j`` and parameter ``table``, shown when given.
     title
         The page title.
+    sections
+        Further HTML sections of the campaign page (for example the discrepancy diagnosis's
+        verdict and link), placed after the model updating.
 
     Returns
     -------
@@ -545,6 +549,7 @@ def write_damage_report(
                 H.table(["parameter", "point", "posterior mean", "sd", "90 % interval"], rows),
             )
         )
+    parts.extend(sections)
     run_rows, row_classes = [], []
     for r in runs:
         p = r["probabilities"]

@@ -1,0 +1,181 @@
+"""The diagnosis of a campaign under a fit, written as JSON and a self-contained HTML report.
+
+Shared by ``bayesdoor diagnose`` (one folder of its own) and the ``diagnose`` stage of the main
+job (``OUT/diagnose/``), so both write the same two files:
+
+``diagnosis.json``
+    DESIGN.md section 5: ``verdict`` (a catalogue name, ``"none"``, or ``null`` when nothing
+    is decisive) and ``causes`` ranked, each with ``name``, ``evidence``, ``parameters`` and
+    ``gain``; plus ``report``, the HTML's file name (next to the JSON).
+``diagnosis.html``
+    :func:`bayesdoor.report.write_diagnosis_report`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import xarray as xr
+
+from ..diagnose import Catalogue, Features
+from ..io import atomic_write
+from ..report import write_diagnosis_report
+from ..systems import AbstractSystem
+
+DIAGNOSIS_JSON = "diagnosis.json"
+DIAGNOSIS_HTML = "diagnosis.html"
+#: the files a diagnosis writes into its folder
+DIAGNOSIS_FILES = (DIAGNOSIS_JSON, DIAGNOSIS_HTML)
+
+
+class DiagnosisLike(Protocol):
+    """What the writers read of a diagnosis (:class:`bayesdoor.diagnose.Diagnosis`)."""
+
+    def to_json(self) -> dict[str, Any]: ...
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with NaN and infinities as ``None`` and numpy scalars and arrays as lists."""
+    if isinstance(value, Mapping):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return json_safe(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def features_of(diagnosis: Any) -> Features | None:
+    """The residual features a diagnosis scored its causes on (``None`` when it keeps none)."""
+    features = getattr(diagnosis, "features", None)
+    if features is None:
+        features = getattr(getattr(diagnosis, "ranking", None), "features", None)
+    return features if isinstance(features, Features) else None
+
+
+def catalogue_of(system: AbstractSystem, diagnosis: Any = None) -> Catalogue | None:
+    """The catalogue of candidate causes: the diagnosis's, else the system's, else ``None``."""
+    for owner in (diagnosis, system):
+        catalogue = getattr(owner, "catalogue", None)
+        if isinstance(catalogue, Catalogue):
+            return catalogue
+    return None
+
+
+def save_diagnosis(
+    diagnosis: DiagnosisLike,
+    folder: str | Path,
+    *,
+    catalogue: Catalogue | None = None,
+    fit: Mapping[str, Any] | None = None,
+    extra: Mapping[str, Any] | None = None,
+    title: str = "Discrepancy diagnosis",
+    overwrite: bool = False,
+) -> dict[str, Any]:
+    """Write ``diagnosis.json`` and ``diagnosis.html`` into ``folder``; return the JSON.
+
+    Each file is written atomically, the HTML first, so a ``diagnosis.json`` on disk always
+    has its report next to it.
+
+    Parameters
+    ----------
+    diagnosis
+        The diagnosis (its ``to_json()`` and, for the figures, its residual features).
+    folder
+        Where the two files go (created).
+    catalogue
+        The system's catalogue (chooses the figure of each cause's evidence).
+    fit
+        The base model's fit (``method``, ``j``, ``parameters``) for the report.
+    extra
+        Further entries of the JSON (for example the campaign's path).
+    title
+        The report's title.
+    overwrite
+        Replace files of a previous diagnosis.
+
+    Returns
+    -------
+    dict
+        The JSON written, with ``report`` the HTML's file name.
+
+    Raises
+    ------
+    FileExistsError
+        When a file exists and ``overwrite`` is false (nothing is written then).
+    """
+    folder = Path(folder)
+    json_path, html_path = folder / DIAGNOSIS_JSON, folder / DIAGNOSIS_HTML
+    if not overwrite:
+        for path in (json_path, html_path):
+            if path.exists():
+                raise FileExistsError(
+                    f"{path} already exists; pass --force (overwrite=True) to replace it"
+                )
+    payload = json_safe({**dict(extra or {}), **diagnosis.to_json(), "report": html_path.name})
+    write_diagnosis_report(
+        html_path,
+        payload,
+        features=features_of(diagnosis),
+        catalogue=catalogue,
+        fit=fit,
+        title=title,
+        overwrite=overwrite,
+    )
+    text = json.dumps(payload, indent=1, allow_nan=False) + "\n"
+    atomic_write(json_path, lambda tmp: tmp.write_text(text), overwrite=overwrite)
+    return payload
+
+
+def default_diagnose(
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    fit_folder: Path,
+    *,
+    seed: int,
+    quick: bool,
+    progress: bool,
+) -> DiagnosisLike:
+    """:func:`bayesdoor.diagnose.diagnose_campaign` under the fit saved in ``fit_folder``."""
+    from ..diagnose import diagnose_campaign
+    from ..inference import FitResult
+
+    fit = FitResult.load(fit_folder)
+    return diagnose_campaign(system, campaign, fit=fit, seed=seed, quick=quick, progress=progress)
+
+
+def diagnosis_stage(
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    fit_folder: Path,
+    folder: Path,
+    *,
+    diagnose: Callable[..., DiagnosisLike],
+    seed: int,
+    quick: bool,
+    progress: bool,
+    fit: Mapping[str, Any] | None = None,
+) -> None:
+    """The job's ``diagnose`` stage: diagnose the campaign under the job's fit, write both files.
+
+    ``diagnose`` is called as ``diagnose(system, campaign, fit_folder, seed=, quick=,
+    progress=)`` (:func:`default_diagnose` in a job).
+    """
+    diagnosis = diagnose(system, campaign, fit_folder, seed=seed, quick=quick, progress=progress)
+    save_diagnosis(
+        diagnosis,
+        folder,
+        catalogue=catalogue_of(system, diagnosis),
+        fit=fit,
+        title=f"{system.name}: discrepancy diagnosis",
+        overwrite=True,
+    )

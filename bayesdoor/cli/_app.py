@@ -255,3 +255,23 @@ def fit(
     payload = run_fit(path, out, method, law, seed, quick, force, json)
     if json:
         emit_json(payload)
+
+
+@app.command()
+def diagnose(
+    path: Annotated[Path, typer.Argument(help="campaign file (.nc)")],
+    out: Annotated[Path, typer.Option("--out", help="folder for diagnosis.json and .html")],
+    posterior: Annotated[
+        Path | None,
+        typer.Option("--posterior", help="the --out folder of 'bayesdoor fit' (else fit here)"),
+    ] = None,
+    seed: Annotated[int, typer.Option(help="seed of the fit, the simulations and refits")] = 0,
+    quick: Annotated[bool, typer.Option(help="small sizes (demos, tests; not converged)")] = False,
+    force: Annotated[bool, typer.Option(help="overwrite a previous diagnosis in --out")] = False,
+    json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
+) -> None:
+    """Where the model departs from the healthy runs, the catalogue cause, the refit's gain."""
+    configure_jax()
+    from ._diagnose import diagnose as run_diagnosis
+
+    run_diagnosis(path, out, posterior=posterior, seed=seed, quick=quick, force=force, json=json)

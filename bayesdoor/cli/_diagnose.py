@@ -1,0 +1,164 @@
+"""``bayesdoor diagnose``: what the model gets wrong on a campaign, its cause, and the gain."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+from rich.console import Console
+from rich.table import Table
+
+from ._common import emit_json, fail
+
+_err = Console(stderr=True)
+
+
+def load_fit(folder: Path, system) -> Any:
+    """The fit saved by ``bayesdoor fit --out FOLDER``, checked against the campaign's system.
+
+    Raises
+    ------
+    typer.Exit
+        (through :func:`fail`) for a missing folder, a folder of several laws, a folder
+        without a fit, an unreadable fit, or a fit of another system's parameters.
+    """
+    from ..inference import FitResult
+
+    if not folder.is_dir():
+        raise fail(f"--posterior {folder}: no such folder; pass the --out folder of bayesdoor fit")
+    laws = sorted(p.name for p in folder.glob("law_*") if (p / "fit.json").is_file())
+    if not (folder / "fit.json").is_file():
+        if laws:
+            raise fail(
+                f"--posterior {folder} holds one fit per contact law ({', '.join(laws[:4])}...): "
+                f"pass one of them, e.g. --posterior {folder / laws[0]}"
+            )
+        raise fail(
+            f"--posterior {folder} holds no fit.json: pass the --out folder of bayesdoor fit"
+        )
+    try:
+        fit = FitResult.load(folder)
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        reason = str(err).replace("\n", " ")
+        raise fail(f"--posterior {folder}: the fit cannot be read ({reason}); refit it") from None
+    expected = set(system.parameter_names)
+    found = set(fit.point)
+    if found != expected:
+        extra, missing = sorted(found - expected), sorted(expected - found)
+        raise fail(
+            f"--posterior {folder} is a fit of another system (parameters not in "
+            f"{system.name}: {extra or 'none'}; missing: {missing or 'none'}): pass a fit of "
+            "this campaign's system, or leave out --posterior to fit here"
+        )
+    return fit
+
+
+def healthy_runs(campaign: xr.Dataset) -> int:
+    """The number of healthy runs; refuses a campaign without any."""
+    if "state" not in campaign.coords:
+        raise fail("the campaign has no 'state' coordinate: label the healthy runs 'healthy'")
+    states = np.asarray(campaign["state"].values).astype(str)
+    n = int(np.sum(states == "healthy"))
+    if n == 0:
+        found = ", ".join(sorted(set(states.tolist())))
+        raise fail(
+            f"the campaign has no healthy runs (states: {found}): the diagnosis compares the "
+            "model with measurements of the healthy system; label them state 'healthy'"
+        )
+    return n
+
+
+def compute(system, campaign: xr.Dataset, fit, *, seed: int, quick: bool, progress: bool):
+    """The diagnosis (:func:`bayesdoor.diagnose.diagnose_campaign`); ``fit=None`` fits here."""
+    from ..diagnose import diagnose_campaign
+
+    return diagnose_campaign(system, campaign, fit=fit, seed=seed, quick=quick, progress=progress)
+
+
+def _value(value: Any) -> str:
+    if isinstance(value, dict):
+        centre = value.get("mean", value.get("point", value.get("value")))
+        text = _value(centre)
+        if value.get("sd") is not None:
+            text += f" ± {_value(value['sd'])}"
+        return text
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, list | tuple):
+        return ", ".join(_value(v) for v in value)
+    return "-" if value is None else str(value)
+
+
+def print_summary(payload: dict[str, Any], console: Console) -> None:
+    """The verdict, the ranked causes with their evidence, parameters and gain, the report."""
+    verdict = payload.get("verdict")
+    shown = {None: "undecided (no cause has decisive evidence)"}.get(verdict, str(verdict))
+    console.print(f"verdict: [bold]{shown}[/]")
+    table = Table(title="ranked causes")
+    for column in ("cause", "evidence", "parameters", "gain"):
+        table.add_column(column)
+    for cause in payload.get("causes", []):
+        parameters = cause.get("parameters") or {}
+        gain = cause.get("gain") or {}
+        table.add_row(
+            str(cause.get("name")),
+            str(cause.get("evidence", "")),
+            "\n".join(f"{k} = {_value(v)}" for k, v in parameters.items()) or "-",
+            "\n".join(f"{k} = {_value(v)}" for k, v in gain.items()) or "-",
+        )
+    console.print(table)
+    console.print(f"report: {payload['report']}")
+
+
+def diagnose(
+    path: Path,
+    out: Path,
+    *,
+    posterior: Path | None,
+    seed: int,
+    quick: bool,
+    force: bool,
+    json: bool,
+) -> None:
+    """The ``diagnose`` command: check the inputs, diagnose, write the two files, print."""
+    from ..pipeline import DIAGNOSIS_FILES, catalogue_of, save_diagnosis
+    from ._run import load, system_for
+
+    campaign = load(path)
+    system = system_for(campaign)
+    healthy_runs(campaign)
+    if out.exists() and not out.is_dir():
+        raise fail(f"--out {out} is a file: pass a folder for the diagnosis")
+    for name in DIAGNOSIS_FILES:
+        if (out / name).exists() and not force:
+            raise fail(f"{out / name} already exists; pass --force to overwrite it")
+    fit = None if posterior is None else load_fit(posterior, system)
+    if not json:
+        source = "a fit here" if fit is None else f"the fit in {posterior}"
+        _err.print(f"diagnosing {path.name} ({system.name}) under {source}")
+    try:
+        diagnosis = compute(system, campaign, fit, seed=seed, quick=quick, progress=not json)
+    except ValueError as err:
+        raise fail(str(err).replace("\n", " ")) from None
+    extra = {
+        "file": str(path),
+        "posterior": None if posterior is None else str(posterior),
+        "seed": seed,
+        "quick": quick,
+    }
+    payload = save_diagnosis(
+        diagnosis,
+        out,
+        catalogue=catalogue_of(system, diagnosis),
+        fit=None if fit is None else fit.to_json(),
+        extra=extra,
+        title=f"{path.name}: discrepancy diagnosis",
+        overwrite=force,
+    )
+    payload = {**payload, "out": str(out), "report": str(out / payload["report"])}
+    if json:
+        emit_json(payload)
+    else:
+        print_summary(payload, Console())

@@ -153,6 +153,45 @@ class AbstractSystem(eqx.Module):
             its status is non-zero and its signals are zero.
         """
 
+    @property
+    def extension_names(self) -> tuple[str, ...]:
+        """Catalogue names of the model extensions switched on (none by default)."""
+        return ()
+
+    def with_extensions(self, *extensions) -> AbstractSystem:
+        """The same system with model extensions (catalogue names or modules) switched on.
+
+        Raises
+        ------
+        ValueError
+            Always, for a system without a catalogue of model extensions.
+        """
+        raise ValueError(
+            f"{self.name} has no model extensions, so {extensions!r} cannot be switched on"
+        )
+
+    def without_output_extensions(self) -> AbstractSystem:
+        """The system with only the extensions that act inside the simulation (see below)."""
+        return self
+
+    def apply_output_extensions(
+        self,
+        signals: Float[Array, "*batch channel time"],
+        time: Float[Array, " time"],
+        values: Mapping[str, Float[Array, "*batch"] | float],
+    ) -> Float[Array, "*batch channel time"]:
+        """Signals of :meth:`without_output_extensions` with the output extensions applied.
+
+        Extensions that act on the sensor signals only (not inside the solve) can be refitted
+        on signals simulated once; ``values`` names at least their parameters. Without such
+        extensions the signals are returned unchanged.
+        """
+        return signals
+
+    def describe(self) -> dict:
+        """A JSON-able description (name, extensions) for provenance and configuration hashes."""
+        return {"name": self.name, "extensions": []}
+
     def parameter_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.parameters)
 

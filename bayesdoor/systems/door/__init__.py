@@ -2,6 +2,14 @@
 
 from ._catalogue import DOOR_CATALOGUE as DOOR_CATALOGUE
 from ._catalogue import WHEEL_CIRCUMFERENCE as WHEEL_CIRCUMFERENCE
+from ._extensions import EXTENSIONS as EXTENSIONS
+from ._extensions import AbstractDoorExtension as AbstractDoorExtension
+from ._extensions import FrameMode as FrameMode
+from ._extensions import MainsHum as MainsHum
+from ._extensions import RailWaviness as RailWaviness
+from ._extensions import SensorCrossAxis as SensorCrossAxis
+from ._extensions import WheelEccentricity as WheelEccentricity
+from ._extensions import extension as extension
 from ._geometry import CHANNELS as CHANNELS
 from ._model import STATE_SIZE as STATE_SIZE
 from ._model import DoorArgs as DoorArgs

@@ -22,6 +22,7 @@ import numpy as np
 from ..._types import Array, Float
 from ...contact import hysteresis_factor, latch_rate, smooth_contact_force, stribeck_friction
 from . import _geometry as g
+from ._extensions import AbstractDoorExtension
 from ._params import DoorDamage, DoorParameters
 from ._profile import commanded_motion
 
@@ -50,7 +51,9 @@ class DoorArgs(eqx.Module):
     """Everything the right-hand side needs, precomputed from parameters, damage and speed.
 
     All leaves are arrays (SI units), so one compiled solve serves any parameter values,
-    contact law, damage state and speed.
+    contact law, damage state and speed. ``extensions`` are the model extensions that act
+    inside the solve (static: one compiled solve per set of them) and ``extension_values``
+    their parameters by full name.
     """
 
     k_contact: Float[Array, ""]  # N/m^n
@@ -69,6 +72,8 @@ class DoorArgs(eqx.Module):
     d2_angle: Float[Array, ""]
     v_max: Float[Array, ""]
     constants: DoorConstants
+    extensions: tuple[AbstractDoorExtension, ...] = eqx.field(static=True, default=())
+    extension_values: dict[str, Float[Array, ""]] = eqx.field(default_factory=dict)
 
 
 def make_args(
@@ -77,13 +82,21 @@ def make_args(
     v_max,
     dtype=jnp.float64,
     constants: DoorConstants | None = None,
+    extensions: tuple[AbstractDoorExtension, ...] = (),
+    extension_values=None,
 ) -> DoorArgs:
-    """Convert Table 2 parameters (K in N/mm^n) to the SI quantities of the equations."""
+    """Convert Table 2 parameters (K in N/mm^n) to the SI quantities of the equations.
+
+    ``extensions`` that act inside the solve (``needs_resolve``) take their parameters from
+    ``extension_values`` (full names); output extensions are applied after the solve.
+    """
 
     def f(x):
         return jnp.asarray(x, dtype=dtype)
 
     constants = jax.tree_util.tree_map(f, DoorConstants() if constants is None else constants)
+    resolved = tuple(e for e in extensions if e.needs_resolve)
+    values = {} if extension_values is None else extension_values
 
     n = f(params.n)
     # F = K [N/mm^n] (1000 d [m])^n = K 1000^n d^n
@@ -109,6 +122,8 @@ def make_args(
         d2_angle=f(damage.d2_angle),
         v_max=f(v_max),
         constants=constants,
+        extensions=resolved,
+        extension_values={k: f(v) for e in resolved for k, v in e.full(values).items()},
     )
 
 
@@ -170,6 +185,10 @@ def contact_kinematics(q, args: DoorArgs, xp: ModuleType = jnp):
     for side, zl in enumerate(g.WHEEL_Z):
         zeta = s - g.RAIL_HEIGHT * th + zl - q2  # wheel centre along the (racking) rail
         r, dr = _waviness(zeta, c.waviness_scale, xp, dtype)
+        for extension in args.extensions:
+            extra = extension.surface(zeta, side, args.extension_values, xp)
+            if extra is not None:
+                r, dr = r + extra[0], dr + extra[1]
         psi, dpsi = g.rail_mode_shape(zeta, xp)
         if side == 1:
             fl, dfl = _flat(zeta, args, xp)

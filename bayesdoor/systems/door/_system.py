@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,6 +13,7 @@ import numpy as np
 from ..._types import Array, Float
 from .._base import AbstractSystem, DamageSpec, ParameterSpec, SimulationResult
 from . import _geometry as g
+from ._extensions import AbstractDoorExtension, extension
 from ._model import make_args
 from ._params import PARAMETERS, STATES, DoorDamage, DoorParameters, check_parameter_values
 from ._profile import max_speed_limit, motion_duration, record_duration
@@ -31,8 +34,29 @@ def check_speed(v_max) -> None:
             )
 
 
+@eqx.filter_jit
+def _apply_outputs(extensions, signals, time, values):
+    """Output extensions on a flat batch of runs, in their physical order (see ``stage``)."""
+
+    def one(run, vals):
+        for e in sorted(extensions, key=lambda e: e.stage):
+            run = e.apply(run, time, vals)
+        return run
+
+    return jax.vmap(one)(signals, values)
+
+
 class ElevatorDoor(AbstractSystem):
     """The reduced-order elevator landing door of the paper (DESIGN.md section 2).
+
+    Parameters
+    ----------
+    config
+        How the equations are integrated.
+    extensions
+        Model extensions from the discrepancy catalogue (``FrameMode()``,
+        ``WheelEccentricity(wheel="left")``, ...), at most one of each; default none, the
+        base model of the paper. Their parameters follow Table 2 in :attr:`parameters`.
 
     Examples
     --------
@@ -40,9 +64,30 @@ class ElevatorDoor(AbstractSystem):
     >>> res = door.simulate(DoorParameters.paper_optimum(), DoorDamage.healthy(), 0.4)
     >>> res.signals.shape  # (channel, time)
     (4, 6349)
+    >>> ElevatorDoor().with_extensions("mains_hum").parameter_names()[8]
+    'mains_hum.amplitude_A1X'
     """
 
     config: SolverConfig = SolverConfig()
+    extensions: tuple[AbstractDoorExtension, ...] = eqx.field(
+        static=True, default=(), converter=tuple
+    )
+
+    def __check_init__(self):
+        for e in self.extensions:
+            if not isinstance(e, AbstractDoorExtension):
+                raise ValueError(
+                    f"ElevatorDoor.extensions holds {e!r}, not a door model extension: build "
+                    "one with bayesdoor.systems.door.extension(name) or pass catalogue names "
+                    "to ElevatorDoor().with_extensions(...)"
+                )
+        names = [e.name for e in self.extensions]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(
+                f"ElevatorDoor.extensions holds {twice} more than once: at most one of each "
+                "catalogue extension"
+            )
 
     @property
     def name(self) -> str:
@@ -50,7 +95,101 @@ class ElevatorDoor(AbstractSystem):
 
     @property
     def parameters(self) -> tuple[ParameterSpec, ...]:
-        return PARAMETERS
+        """Table 2, then each extension's parameters (named ``"<extension>.<quantity>"``)."""
+        return PARAMETERS + tuple(p for e in self.extensions for p in e.parameters)
+
+    @property
+    def extension_names(self) -> tuple[str, ...]:
+        return tuple(e.name for e in self.extensions)
+
+    @property
+    def output_extensions(self) -> tuple[AbstractDoorExtension, ...]:
+        """The extensions that act on the sensor signals only (no new solve to refit them)."""
+        return tuple(e for e in self.extensions if not e.needs_resolve)
+
+    def with_extensions(self, *extensions: str | AbstractDoorExtension) -> ElevatorDoor:
+        """This door with more extensions switched on: catalogue names or built modules.
+
+        Examples
+        --------
+        >>> door = ElevatorDoor().with_extensions("frame_mode", MainsHum(frequency_hz=60.0))
+        >>> door.extension_names
+        ('frame_mode', 'mains_hum')
+        """
+        added = tuple(extension(e) for e in extensions)
+        return dataclasses.replace(self, extensions=self.extensions + added)
+
+    def without_output_extensions(self) -> ElevatorDoor:
+        """This door with only the extensions that need a new solve (its "base signals")."""
+        kept = tuple(e for e in self.extensions if e.needs_resolve)
+        return dataclasses.replace(self, extensions=kept)
+
+    def describe(self) -> dict:
+        """Name, solver settings and every extension with its configuration (JSON-able)."""
+        return {
+            "name": self.name,
+            "config": {
+                f.name: getattr(self.config, f.name) for f in dataclasses.fields(SolverConfig)
+            },
+            "extensions": [
+                {
+                    "name": e.name,
+                    "config": {f.name: getattr(e, f.name) for f in dataclasses.fields(e)},
+                    "parameters": [p.name for p in e.parameters],
+                }
+                for e in self.extensions
+            ],
+        }
+
+    def _extension_values(self, values) -> dict[str, Array]:
+        """Extension parameters by full name; missing ones at their (inert) nominal values."""
+        specs = {p.name: p for e in self.extensions for p in e.parameters}
+        values = {} if values is None else dict(values)
+        unknown = [k for k in values if k not in specs]
+        if unknown:
+            raise ValueError(
+                f"extension_values names {unknown}, which are not parameters of this door's "
+                f"extensions ({', '.join(specs) or 'none switched on'})"
+            )
+        return {k: jnp.asarray(values.get(k, p.nominal), dtype=float) for k, p in specs.items()}
+
+    def _check_extension_values(self, values: Mapping[str, Array]) -> None:
+        specs = {p.name: p for e in self.extensions for p in e.parameters}
+        for name, value in values.items():
+            for v in np.atleast_1d(np.asarray(value, dtype=float)).ravel():
+                specs[name].check(v)
+
+    def apply_output_extensions(self, signals, time, values):
+        """Signals of :meth:`without_output_extensions` with the output extensions applied.
+
+        ``frame_mode``, ``sensor_cross_axis`` and ``mains_hum`` act on the sensor signals
+        only, in that order (structure, sensor, measurement chain) whatever their order in
+        :attr:`extensions`; refitting them needs no new solve. ``values`` names at least
+        their parameters (others are ignored), scalars or arrays that broadcast to the
+        batch shape of ``signals``. Bounds are not checked (use :meth:`check_parameters`).
+
+        Examples
+        --------
+        >>> door = ElevatorDoor(extensions=(MainsHum(),))
+        >>> base = door.without_output_extensions()
+        >>> sim = base.simulate_values(DoorParameters.paper_optimum().to_dict(), 0.4)
+        >>> values = {**door.nominal(), "mains_hum.amplitude_A1X": 0.02}
+        >>> door.apply_output_extensions(sim.signals, sim.time, values).shape
+        (1, 4, 6349)
+        """
+        outputs = self.output_extensions
+        if not outputs:
+            return signals
+        signals = jnp.asarray(signals)
+        batch = signals.shape[:-2]
+        flat = signals.reshape((-1, *signals.shape[-2:]))
+        vals = {
+            k: jnp.broadcast_to(jnp.asarray(v, dtype=signals.dtype), batch).reshape(-1)
+            for e in outputs
+            for k, v in e.full(values).items()
+        }
+        out = _apply_outputs(outputs, flat, jnp.asarray(time, dtype=signals.dtype), vals)
+        return out.reshape(signals.shape)
 
     @property
     def states(self) -> Mapping[str, DamageSpec]:
@@ -79,6 +218,7 @@ class ElevatorDoor(AbstractSystem):
         operating,
         *,
         duration: float | None = None,
+        extension_values: Mapping[str, float] | None = None,
     ) -> SimulationResult:
         """Simulate one run; raises ``RuntimeError`` with the cause if the solve fails.
 
@@ -92,16 +232,29 @@ class ElevatorDoor(AbstractSystem):
             Peak door speed v_max (m/s).
         duration
             Record length in seconds; default: 0.25 s rest, the stroke, 0.25 s rest.
+        extension_values
+            Parameters of the :attr:`extensions` by full name; missing ones at their nominal
+            values, which switch the extension off.
         """
+        ext = self._extension_values(extension_values)
         check_parameter_values(theta.to_dict())
+        self._check_extension_values(ext)
         check_speed(operating)
         duration = record_duration(operating) if duration is None else float(duration)
         ts = sample_times(duration, dtype=self._dtype())
-        args = make_args(theta, damage, operating, dtype=self._dtype())
+        args = make_args(
+            theta,
+            damage,
+            operating,
+            dtype=self._dtype(),
+            extensions=self.extensions,
+            extension_values=ext,
+        )
         signals, status = solve(args, ts, self.config)
         code = int(status)
         if code != STATUS_OK:
             raise RuntimeError(f"door simulation failed: {STATUS_MESSAGES[code]}")
+        signals = self.apply_output_extensions(signals, ts, ext)
         return SimulationResult(signals=signals, status=status, time=ts)
 
     def simulate_batch(
@@ -112,18 +265,22 @@ class ElevatorDoor(AbstractSystem):
         *,
         duration: float | None = None,
         check: bool = True,
+        extension_values: Mapping[str, Float[Array, "*batch"] | float] | None = None,
     ) -> SimulationResult:
         """Simulate a batch of runs as one vmapped solve.
 
-        Every leaf of ``theta`` and ``damage`` and ``operating`` is broadcast to a common batch
-        size. Failed solves do not raise: their ``status`` is non-zero and their signals zero.
-        Set ``check=False`` inside likelihoods (no host round-trip for bounds checks).
+        Every leaf of ``theta`` and ``damage``, every extension value and ``operating`` is
+        broadcast to a common batch size. Failed solves do not raise: their ``status`` is
+        non-zero and their signals zero. Set ``check=False`` inside likelihoods (no host
+        round-trip for bounds checks). ``extension_values`` as in :meth:`simulate`.
         """
+        ext = self._extension_values(extension_values)
         v = jnp.atleast_1d(jnp.asarray(operating, dtype=self._dtype()))
         if check:
             check_parameter_values(theta.to_dict())
+            self._check_extension_values(ext)
             check_speed(np.asarray(v))
-        leaves = [*jax.tree_util.tree_leaves((theta, damage)), v]
+        leaves = [*jax.tree_util.tree_leaves((theta, damage)), *ext.values(), v]
         size = max(int(np.size(x)) for x in leaves)
         duration = record_duration(np.asarray(v)) if duration is None else float(duration)
         ts = sample_times(duration, dtype=self._dtype())
@@ -133,10 +290,16 @@ class ElevatorDoor(AbstractSystem):
 
         theta_b = jax.tree_util.tree_map(widen, theta)
         damage_b = jax.tree_util.tree_map(widen, damage)
-        args = jax.vmap(lambda p, d, vm: make_args(p, d, vm, dtype=self._dtype()))(
-            theta_b, damage_b, widen(v)
-        )
+        ext_b = {k: widen(x) for k, x in ext.items()}
+        args = jax.vmap(
+            lambda p, d, vm, e: make_args(
+                p, d, vm, dtype=self._dtype(), extensions=self.extensions, extension_values=e
+            )
+        )(theta_b, damage_b, widen(v), ext_b)
         signals, status = solve_batch(args, ts, self.config)
+        if self.output_extensions:
+            extended = self.apply_output_extensions(signals, ts, ext_b)
+            signals = jnp.where((status == STATUS_OK)[:, None, None], extended, 0.0)
         return SimulationResult(signals=signals, status=status, time=ts)
 
     def motion_window(
@@ -171,7 +334,10 @@ class ElevatorDoor(AbstractSystem):
         duration: float | None = None,
         check: bool = True,
     ) -> SimulationResult:
-        """A batch of runs from the Table 2 values by name (see :meth:`simulate_batch`)."""
+        """A batch of runs from every parameter's value by name (see :meth:`simulate_batch`).
+
+        ``values`` names Table 2 and every extension parameter (:meth:`parameter_names`).
+        """
         names = self.parameter_names()
         missing = [k for k in names if k not in values]
         unknown = [k for k in values if k not in names]
@@ -194,7 +360,10 @@ class ElevatorDoor(AbstractSystem):
         theta = DoorParameters(
             **{
                 p.name: jnp.asarray(values[p.name]).astype(jnp.int32 if p.integer else float)
-                for p in self.parameters
+                for p in PARAMETERS
             }
         )
-        return self.simulate_batch(theta, damage, operating, duration=duration, check=check)
+        ext = {p.name: values[p.name] for e in self.extensions for p in e.parameters}
+        return self.simulate_batch(
+            theta, damage, operating, duration=duration, check=check, extension_values=ext
+        )

@@ -1,0 +1,490 @@
+"""Model extensions of the reduced door: the discrepancy catalogue (DESIGN.md section 6) as code.
+
+Each extension is a frozen module whose fields are static configuration (which sensor, which
+wheel, 50 or 60 Hz); its fitted quantities are :class:`~bayesdoor.systems.ParameterSpec` s
+named ``"<catalogue name>.<quantity>"`` (``"frame_mode.frequency_hz"``), so they never clash
+with the paper's Table 2 names and say which extension they belong to. Every extension is
+inert at its nominal values (an amplitude, fraction or participation of zero), so an extended
+door at its nominal parameters is the base door.
+
+Two kinds:
+
+- *surface* extensions (``wheel_eccentricity``, ``rail_waviness``) change the height of the
+  running surface under a wheel inside the equations of motion: they need a new solve;
+- *output* extensions (``frame_mode``, ``sensor_cross_axis``, ``mains_hum``) act on the
+  simulated sensor signals only, so they can be applied to, and refitted on, signals already
+  simulated (:meth:`ElevatorDoor.apply_output_extensions`).
+
+The rig's effects (``bayesdoor.rig``) are the separate higher-fidelity counterparts used to
+make test data; these are the reduced model's own, simpler and differentiable, versions.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Mapping
+from types import ModuleType
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..._types import Array, Float
+from .._base import ParameterSpec
+from . import _geometry as g
+
+#: the door's two accelerometers and wheels (static choices of the extensions)
+SENSORS = ("A1", "A2")
+WHEELS = ("left", "right")
+#: mains frequencies, Hz
+MAINS_FREQUENCIES_HZ = (50.0, 60.0)
+
+
+def _spec(
+    owner: str, quantity: str, unit: str, nominal: float, lower: float, upper: float, text: str
+) -> ParameterSpec:
+    return ParameterSpec(f"{owner}.{quantity}", unit, nominal, lower, upper, text)
+
+
+class AbstractDoorExtension(eqx.Module):
+    """One model extension: a catalogue name, static configuration and fitted parameters.
+
+    Concrete extensions implement either :meth:`surface` (they act inside the solve,
+    ``needs_resolve = True``) or :meth:`apply` (they act on the sensor signals).
+    """
+
+    name: ClassVar[str]
+    needs_resolve: ClassVar[bool]
+    #: order in which output extensions act: structure, then sensor, then measurement chain
+    stage: ClassVar[int] = 0
+
+    @property
+    @abc.abstractmethod
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        """The fitted parameters, names prefixed with ``"<name>."``; nominal values are inert."""
+
+    def local(self, values: Mapping[str, Array]) -> dict[str, Array]:
+        """This extension's values from a mapping of full names, keyed by the unprefixed names.
+
+        Raises
+        ------
+        ValueError
+            When a parameter of this extension is missing from ``values``.
+        """
+        names = [p.name for p in self.parameters]
+        missing = [n for n in names if n not in values]
+        if missing:
+            raise ValueError(
+                f"values lack the {self.name} parameters {missing}: pass every parameter of "
+                f"the extension (its nominal values switch it off)"
+            )
+        prefix = len(self.name) + 1
+        return {n[prefix:]: values[n] for n in names}
+
+    def full(self, values: Mapping[str, Array]) -> dict[str, Array]:
+        """This extension's values from a mapping of full names, keyed by the full names."""
+        return {f"{self.name}.{k}": v for k, v in self.local(values).items()}
+
+    def nominal(self) -> dict[str, float]:
+        """Nominal value of every parameter by full name (the extension switched off)."""
+        return {p.name: p.nominal for p in self.parameters}
+
+    def surface(
+        self, zeta, wheel: int, values: Mapping[str, Array], xp: ModuleType = jnp
+    ) -> tuple[Array, Array] | None:
+        """Extra running-surface height under ``wheel`` at rail coordinate ``zeta``, and d/dzeta.
+
+        A positive height pushes the wheel up (it adds to the contact's indentation). ``None``
+        when this extension does not touch that wheel (or acts on outputs only).
+        """
+        return None
+
+    def apply(
+        self,
+        signals: Float[Array, "channel time"],
+        time: Float[Array, " time"],
+        values: Mapping[str, Array],
+    ) -> Float[Array, "channel time"]:
+        """The sensor signals of one run with this extension's effect (output extensions)."""
+        return signals
+
+
+class FrameMode(AbstractDoorExtension):
+    """A structural resonance the model lacks (``frame_mode``), as a base-excited mode.
+
+    A single-degree-of-freedom oscillator of frequency f and damping ratio zeta is driven
+    by the sum of the base model's accelerations on the ``drive`` channels, d(t):
+    u'' + 2 zeta w u' + w^2 u = -d(t) with w = 2 pi f, starting at rest. Its relative
+    acceleration u'', transfer function (2 pi nu)^2 / (w^2 - (2 pi nu)^2 + 2 i zeta w 2 pi nu),
+    is added to every channel c times a participation p_c. The reduced model's own motion
+    excites it, so it rings while the door moves and decays at rest with time constant
+    1 / (zeta w); its peak sits at f whatever the door speed, with half-power bandwidth
+    2 zeta f. The response to the sampled drive is exact for a drive linear between samples
+    (first-order hold, the discretisation of ``scipy.signal.lsim``).
+
+    Parameters (full names ``frame_mode.*``): ``frequency_hz`` (10-300 Hz, the catalogue's
+    band), ``damping_ratio`` (0.005-0.1), ``participation_<channel>`` (-1 to 1; 0 is off).
+    """
+
+    name: ClassVar[str] = "frame_mode"
+    needs_resolve: ClassVar[bool] = False
+    stage: ClassVar[int] = 1
+
+    drive: tuple[str, ...] = eqx.field(static=True, default=g.CHANNELS)
+
+    def __check_init__(self):
+        unknown = [c for c in self.drive if c not in g.CHANNELS]
+        if not self.drive or unknown:
+            raise ValueError(
+                f"FrameMode.drive={self.drive!r} must name one or more of the door's channels "
+                f"{g.CHANNELS}"
+            )
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        return (
+            _spec(
+                self.name,
+                "frequency_hz",
+                "Hz",
+                55.0,
+                10.0,
+                300.0,
+                "natural frequency of the missing structural mode",
+            ),
+            _spec(self.name, "damping_ratio", "-", 0.02, 0.005, 0.1, "damping ratio of the mode"),
+            *(
+                _spec(
+                    self.name,
+                    f"participation_{c}",
+                    "-",
+                    0.0,
+                    -1.0,
+                    1.0,
+                    f"share of the mode's relative acceleration seen on {c}",
+                )
+                for c in g.CHANNELS
+            ),
+        )
+
+    def response(
+        self,
+        drive: Float[Array, " time"],
+        dt: Float[Array, ""] | float,
+        frequency_hz: Float[Array, ""] | float,
+        damping_ratio: Float[Array, ""] | float,
+    ) -> Float[Array, " time"]:
+        """Relative acceleration u'' of the mode driven by the base acceleration ``drive``.
+
+        Exact discretisation for a drive linear between samples: the state (u, u') moves by
+        the matrix exponential of the augmented system (C. F. Van Loan (1978), Computing
+        integrals involving the matrix exponential, IEEE Trans. Autom. Control 23(3)).
+        """
+        dtype = drive.dtype
+        w = 2.0 * np.pi * jnp.asarray(frequency_hz, dtype)
+        zeta = jnp.asarray(damping_ratio, dtype)
+        dt = jnp.asarray(dt, dtype)
+        zero, one = jnp.zeros((), dtype), jnp.ones((), dtype)
+        augmented = jnp.stack(
+            [
+                jnp.stack([zero, dt, zero, zero]),
+                jnp.stack([-(w**2) * dt, -2.0 * zeta * w * dt, -dt, zero]),
+                jnp.stack([zero, zero, zero, one]),
+                jnp.stack([zero, zero, zero, zero]),
+            ]
+        )
+        e = jax.scipy.linalg.expm(augmented)
+        transition = e[:2, :2]
+        from_next = e[:2, 3]
+        from_this = e[:2, 2] - from_next
+        readout = jnp.stack([-(w**2), -2.0 * zeta * w])
+        following = jnp.concatenate([drive[1:], drive[-1:]])
+
+        def step(x, d):
+            d_this, d_next = d
+            y = readout @ x - d_this
+            return transition @ x + from_this * d_this + from_next * d_next, y
+
+        _, out = jax.lax.scan(step, jnp.zeros(2, dtype), (drive, following))
+        return out
+
+    def apply(self, signals, time, values):
+        v = self.local(values)
+        drive_rows = np.asarray([g.CHANNELS.index(c) for c in self.drive])
+        drive = jnp.sum(signals[drive_rows], axis=0)
+        u = self.response(drive, time[1] - time[0], v["frequency_hz"], v["damping_ratio"])
+        p = jnp.stack([jnp.asarray(v[f"participation_{c}"], signals.dtype) for c in g.CHANNELS])
+        return signals + p[:, None] * u[None, :]
+
+
+class SensorCrossAxis(AbstractDoorExtension):
+    """Cross-axis sensitivity or misalignment of one accelerometer (``sensor_cross_axis``).
+
+    The ``into`` channel (``"X"`` or ``"Z"``) of ``sensor`` reads its own axis plus
+    ``fraction`` times the sensor's other axis (a misalignment by a small angle a gives
+    fraction = sin a). Signature: coherence between that sensor's X and Z channels.
+
+    Parameter: ``sensor_cross_axis.fraction`` (-0.3 to 0.3; 0 is off).
+    """
+
+    name: ClassVar[str] = "sensor_cross_axis"
+    needs_resolve: ClassVar[bool] = False
+    stage: ClassVar[int] = 2
+
+    sensor: str = eqx.field(static=True, default="A1")
+    into: str = eqx.field(static=True, default="X")
+
+    def __check_init__(self):
+        if self.sensor not in SENSORS:
+            raise ValueError(f"SensorCrossAxis.sensor={self.sensor!r}: choose one of {SENSORS}")
+        if self.into not in ("X", "Z"):
+            raise ValueError(f"SensorCrossAxis.into={self.into!r}: choose 'X' or 'Z'")
+
+    @property
+    def channels(self) -> tuple[str, str]:
+        """(receiving channel, source channel), e.g. ``("A1X", "A1Z")``."""
+        other = "Z" if self.into == "X" else "X"
+        return f"{self.sensor}{self.into}", f"{self.sensor}{other}"
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        receiving, source = self.channels
+        return (
+            _spec(
+                self.name,
+                "fraction",
+                "-",
+                0.0,
+                -0.3,
+                0.3,
+                f"fraction of {source} read by {receiving}",
+            ),
+        )
+
+    def apply(self, signals, time, values):
+        fraction = jnp.asarray(self.local(values)["fraction"], signals.dtype)
+        receiving, source = (g.CHANNELS.index(c) for c in self.channels)
+        return signals.at[receiving].add(fraction * signals[source])
+
+
+class MainsHum(AbstractDoorExtension):
+    """Electrical interference in the measurement chain (``mains_hum``).
+
+    Channel c receives a_c (cos(2 pi f t) + sum over h = 2..H of r_h cos(2 pi h f t)) with
+    f = ``frequency_hz`` (50 or 60 Hz) and H = ``harmonics``: lines at exactly f and its
+    harmonics, of constant amplitude, present at rest as while moving. The phases are fixed
+    at zero: the spectral features the model is fitted on do not see them.
+
+    Parameters: ``mains_hum.amplitude_<channel>`` (0-0.1 m/s^2, the fundamental's amplitude;
+    0 is off) and ``mains_hum.ratio_<h>`` (0-1) for h = 2..H.
+    """
+
+    name: ClassVar[str] = "mains_hum"
+    needs_resolve: ClassVar[bool] = False
+    stage: ClassVar[int] = 3
+
+    frequency_hz: float = eqx.field(static=True, default=50.0)
+    harmonics: int = eqx.field(static=True, default=3)
+
+    def __check_init__(self):
+        if self.frequency_hz not in MAINS_FREQUENCIES_HZ:
+            raise ValueError(
+                f"MainsHum.frequency_hz={self.frequency_hz!r}: mains is 50.0 or 60.0 Hz"
+            )
+        top = int(g.SAMPLING_RATE_HZ / 2.0 // self.frequency_hz)
+        if not 1 <= self.harmonics <= top:
+            raise ValueError(
+                f"MainsHum.harmonics={self.harmonics!r} must be between 1 and {top} (the "
+                f"harmonics below the Nyquist frequency {g.SAMPLING_RATE_HZ / 2.0} Hz)"
+            )
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        return (
+            *(
+                _spec(
+                    self.name,
+                    f"amplitude_{c}",
+                    "m/s^2",
+                    0.0,
+                    0.0,
+                    0.1,
+                    f"amplitude of the {self.frequency_hz:g} Hz line on {c}",
+                )
+                for c in g.CHANNELS
+            ),
+            *(
+                _spec(
+                    self.name,
+                    f"ratio_{h}",
+                    "-",
+                    0.0,
+                    0.0,
+                    1.0,
+                    f"amplitude of harmonic {h} relative to the fundamental",
+                )
+                for h in range(2, self.harmonics + 1)
+            ),
+        )
+
+    def apply(self, signals, time, values):
+        v = self.local(values)
+        dtype = signals.dtype
+        phase = 2.0 * np.pi * self.frequency_hz * time.astype(dtype)
+        line = jnp.cos(phase)
+        for h in range(2, self.harmonics + 1):
+            line = line + jnp.asarray(v[f"ratio_{h}"], dtype) * jnp.cos(h * phase)
+        a = jnp.stack([jnp.asarray(v[f"amplitude_{c}"], dtype) for c in g.CHANNELS])
+        return signals + a[:, None] * line[None, :]
+
+
+class WheelEccentricity(AbstractDoorExtension):
+    """An out-of-round wheel (``wheel_eccentricity``): needs a new solve.
+
+    The radius of ``wheel`` varies with its rolling angle alpha = zeta / R as
+    sum over k = 1..H of a_k cos(k alpha + phi_k), H = ``harmonics``; rolling without slip
+    this enters the wheel-rail gap like a rail height and excites tones at k v / (2 pi R),
+    the wheel's rotation frequency and its harmonics, tracking the door speed.
+
+    Parameters: ``wheel_eccentricity.amplitude_<k>`` (0-50 um; 0 is off) and
+    ``wheel_eccentricity.phase_<k>`` (0 to 2 pi rad) for k = 1..H.
+    """
+
+    name: ClassVar[str] = "wheel_eccentricity"
+    needs_resolve: ClassVar[bool] = True
+
+    wheel: str = eqx.field(static=True, default="right")
+    harmonics: int = eqx.field(static=True, default=1)
+
+    def __check_init__(self):
+        if self.wheel not in WHEELS:
+            raise ValueError(f"WheelEccentricity.wheel={self.wheel!r}: choose one of {WHEELS}")
+        if not 1 <= self.harmonics <= 8:
+            raise ValueError(
+                f"WheelEccentricity.harmonics={self.harmonics!r} must be between 1 and 8"
+            )
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        specs = []
+        for k in range(1, self.harmonics + 1):
+            specs.append(
+                _spec(
+                    self.name,
+                    f"amplitude_{k}",
+                    "m",
+                    0.0,
+                    0.0,
+                    50e-6,
+                    f"radius amplitude of harmonic {k} of the {self.wheel} wheel",
+                )
+            )
+            specs.append(
+                _spec(
+                    self.name,
+                    f"phase_{k}",
+                    "rad",
+                    np.pi,
+                    0.0,
+                    2.0 * np.pi,
+                    f"phase of harmonic {k} at the closed position",
+                )
+            )
+        return tuple(specs)
+
+    def surface(self, zeta, wheel, values, xp=jnp):
+        if WHEELS[wheel] != self.wheel:
+            return None
+        v = self.local(values)
+        alpha = zeta / g.WHEEL_RADIUS
+        height, slope = 0.0 * zeta, 0.0 * zeta
+        for k in range(1, self.harmonics + 1):
+            arg = k * alpha + v[f"phase_{k}"]
+            a = v[f"amplitude_{k}"]
+            height = height + a * xp.cos(arg)
+            slope = slope - a * (k / g.WHEEL_RADIUS) * xp.sin(arg)
+        return height, slope
+
+
+class RailWaviness(AbstractDoorExtension):
+    """A periodic rail irregularity of one wavelength (``rail_waviness``): needs a new solve.
+
+    Adds a sin(2 pi zeta / lambda + ``phase``) to the rail height under both wheels, on top
+    of the door's built-in waviness; it excites a tone at v / lambda, tracking the door speed.
+    The phase is static (spectral features barely see it: it only shifts the relative phase
+    of the two wheels' excitations, which their 0.7 m spacing fixes anyway).
+
+    Parameters: ``rail_waviness.wavelength_m`` (4-200 mm) and ``rail_waviness.amplitude_m``
+    (0-30 um; 0 is off).
+    """
+
+    name: ClassVar[str] = "rail_waviness"
+    needs_resolve: ClassVar[bool] = True
+
+    phase: float = eqx.field(static=True, default=0.0)
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        return (
+            _spec(
+                self.name,
+                "wavelength_m",
+                "m",
+                0.02,
+                4e-3,
+                0.2,
+                "wavelength of the rail irregularity",
+            ),
+            _spec(
+                self.name,
+                "amplitude_m",
+                "m",
+                0.0,
+                0.0,
+                30e-6,
+                "amplitude of the rail irregularity",
+            ),
+        )
+
+    def surface(self, zeta, wheel, values, xp=jnp):
+        v = self.local(values)
+        k = 2.0 * np.pi / v["wavelength_m"]
+        arg = k * zeta + self.phase
+        return v["amplitude_m"] * xp.sin(arg), v["amplitude_m"] * k * xp.cos(arg)
+
+
+#: the extension class of every catalogue name (``none`` is the base model: no class)
+EXTENSIONS: dict[str, type[AbstractDoorExtension]] = {
+    cls.name: cls for cls in (FrameMode, WheelEccentricity, RailWaviness, SensorCrossAxis, MainsHum)
+}
+
+
+def extension(name_or_module: str | AbstractDoorExtension, **config) -> AbstractDoorExtension:
+    """The extension of a catalogue name (default configuration, or ``config``), or the module.
+
+    Examples
+    --------
+    >>> extension("mains_hum", frequency_hz=60.0)
+    MainsHum(frequency_hz=60.0)
+
+    Raises
+    ------
+    ValueError
+        For a name outside the catalogue, or ``"none"`` (the base model has no extension).
+    """
+    if isinstance(name_or_module, AbstractDoorExtension):
+        if config:
+            raise ValueError(
+                f"configuration {sorted(config)} was given with a built extension "
+                f"{name_or_module!r}: pass the catalogue name instead"
+            )
+        return name_or_module
+    if name_or_module not in EXTENSIONS:
+        hint = " ('none' is the base model: pass no extension)" if name_or_module == "none" else ""
+        raise ValueError(
+            f"unknown model extension {name_or_module!r}{hint}: the door's catalogue has "
+            f"{', '.join(EXTENSIONS)}"
+        )
+    return EXTENSIONS[name_or_module](**config)

@@ -1,0 +1,39 @@
+"""MkDocs hook: publish ``results/*.md`` with the documentation.
+
+The pages in ``docs/`` link the measured tables as ``../results/NAME.md`` so that the links work
+where the repository is read as files. The site has no ``..``: this hook adds every Markdown file
+of ``results/`` to the site under ``results/`` and rewrites those links to point there, so the
+strict build still checks that each linked table exists.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+from mkdocs.config.defaults import MkDocsConfig
+from mkdocs.structure.files import File, Files
+from mkdocs.structure.pages import Page
+
+_RESULTS = "results"
+_LINK = re.compile(r"\]\((?:\.\./)+results/")
+
+
+def _results_dir(config: MkDocsConfig) -> Path:
+    return Path(config.config_file_path).parent / _RESULTS
+
+
+def on_files(files: Files, *, config: MkDocsConfig, **kwargs: Any) -> Files:
+    """Add the Markdown files of ``results/`` to the site as ``results/NAME.md``."""
+    for path in sorted(_results_dir(config).glob("*.md")):
+        files.append(
+            File.generated(config, f"{_RESULTS}/{path.name}", abs_src_path=str(path.resolve()))
+        )
+    return files
+
+
+def on_page_markdown(markdown: str, *, page: Page, **kwargs: Any) -> str:
+    """Point ``../results/NAME.md`` links at the published copy, relative to the page."""
+    depth = page.file.src_uri.count("/")
+    return _LINK.sub("](" + "../" * depth + f"{_RESULTS}/", markdown)

@@ -1,13 +1,26 @@
-"""Shared plumbing of the command line: JAX cache, JSON output, one-line failures."""
+"""Shared plumbing of the command line: JAX cache, JSON output, one-line failures, checks."""
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
 import sys
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
+
+if TYPE_CHECKING:
+    import xarray as xr
+
+    from ..systems import AbstractSystem
+
+#: validation problems a job tolerates: the command names the system, extra channels are
+#: ignored, and a clipped record is the user's call (``inspect`` reports it)
+_TOLERATED = {"missing_system", "unknown_channels", "clipped"}
 
 
 def configure_jax() -> None:
@@ -26,7 +39,7 @@ def configure_jax() -> None:
 
 def fail(message: str, code: int = 2) -> typer.Exit:
     """Print a one-line reason on stderr and return the exit to raise."""
-    typer.echo(f"error: {message}", err=True)
+    typer.echo(f"error: {' '.join(message.split(chr(10)))}", err=True)
     return typer.Exit(code)
 
 
@@ -40,3 +53,90 @@ def check_output_path(path: Path, force: bool) -> None:
     """Refuse to overwrite an existing result unless ``--force``."""
     if path.exists() and not force:
         raise fail(f"{path} already exists; pass --force to overwrite it")
+
+
+def check_writable(path: Path, option: str = "--out") -> None:
+    """Refuse, before any work, an output path that cannot be created or written.
+
+    The nearest existing folder on the way to ``path`` must be a folder we may write in.
+    """
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if existing != path and not existing.is_dir():
+        raise fail(f"{option} {path}: {existing} is a file, so {path} cannot be created there")
+    folder = existing if existing.is_dir() else existing.parent
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise fail(f"{option} {path}: no permission to write in {folder}; pass a writable path")
+
+
+@contextlib.contextmanager
+def writing(path: Path, option: str = "--out") -> Iterator[None]:
+    """Turn a failed write under ``path`` (no permission, a full disk) into a one-line exit."""
+    try:
+        yield
+    except OSError as err:
+        if err.errno not in (errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EROFS, errno.EDQUOT):
+            raise
+        where = err.filename or path
+        raise fail(
+            f"cannot write {where}: {err.strerror}; pass a writable {option} with free space "
+            f"(files are written whole or not at all, so nothing half-written is left)"
+        ) from None
+
+
+def system_named(campaign: xr.Dataset) -> AbstractSystem:
+    """The simulated system the campaign names in its ``system`` attribute (default: the door)."""
+    from ..systems import ElevatorDoor
+
+    systems = {"elevator_door": ElevatorDoor}
+    name = str(campaign.attrs.get("system", "elevator_door"))
+    if name not in systems:
+        raise fail(
+            f"the campaign's system attribute is {name!r}; bayesdoor simulates "
+            f"{', '.join(systems)}: set attrs['system'] to one of them"
+        )
+    return systems[name]()
+
+
+def check_for_job(
+    campaign: xr.Dataset,
+    system: AbstractSystem,
+    source: str,
+    fitted: Callable[[xr.Dataset], Sequence[int]],
+) -> None:
+    """Refuse a campaign a job cannot use, before it writes anything, in one line.
+
+    Every problem of :func:`bayesdoor.io.validate_campaign` against the system's channels and
+    sampling rate is fatal when it concerns the whole campaign or one of the runs the model is
+    fitted on (``fitted(campaign)``, which raises ``ValueError`` when there are none);
+    problems of other runs are left to the job, which reports them run by run.
+    ``_TOLERATED`` lists the exceptions.
+    """
+    from ..io import validate_campaign
+
+    problems = [
+        p
+        for p in validate_campaign(
+            campaign,
+            channels=list(system.channels),
+            sampling_rate_hz=system.sampling_rate_hz,
+        )
+        if p.code not in _TOLERATED
+    ]
+
+    def refuse(found: list, what: str) -> None:
+        if found:
+            more = (
+                f" (and {len(found) - 1} more: 'bayesdoor inspect' lists them)"
+                if len(found) > 1
+                else ""
+            )
+            raise fail(f"{source}: {what}: {found[0].message}{more}")
+
+    refuse([p for p in problems if p.run is None], "not a usable campaign")
+    try:
+        runs = {int(r) for r in fitted(campaign)}
+    except ValueError as err:
+        raise fail(f"{source}: {err}") from None
+    refuse([p for p in problems if p.run in runs], "a run the model is fitted on is unusable")

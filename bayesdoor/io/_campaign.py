@@ -176,12 +176,67 @@ def load_campaign(path: str | os.PathLike, *, check: bool = True, **options) -> 
         If ``check`` and the campaign breaks the format.
     """
     path = Path(path)
+    if path.is_dir():
+        raise FileNotFoundError(
+            f"{path} is a folder, not a campaign file: pass the .nc file (a folder of CSV files "
+            "is read with from_csv)"
+        )
     if not path.is_file():
         raise FileNotFoundError(f"no campaign file at {path}")
     try:
         ds = xr.load_dataset(path, decode_times=False, decode_timedelta=False)
     except (OSError, ValueError) as err:
-        raise ValueError(f"{path} is not a readable NetCDF campaign file: {err}") from None
+        raise ValueError(_unreadable(path, err)) from None
     if check:
         check_campaign(ds, source=str(path), **options)
     return ds
+
+
+#: the first bytes of NetCDF-3 (classic, 64-bit offset) and NetCDF-4 (HDF5) files
+_NETCDF_MAGIC = (b"CDF\x01", b"CDF\x02", b"\x89HDF\r\n\x1a\n")
+#: the first bytes of files users mistake for a campaign
+_OTHER_MAGIC = {
+    b"\x89PNG": "a PNG image",
+    b"\xff\xd8\xff": "a JPEG image",
+    b"%PDF": "a PDF document",
+    b"PK\x03\x04": "a ZIP archive (an .xlsx, .npz or zipped folder)",
+    b"\x1f\x8b": "a gzip archive",
+    b"\x93NUMPY": "a NumPy .npy array",
+}
+
+
+def _unreadable(path: Path, err: Exception) -> str:
+    """Why ``path`` cannot be read as NetCDF, from its first bytes, and what to do."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.read(512)
+    if size == 0:
+        return (
+            f"{path} is empty (0 bytes): (a) an interrupted copy or download, (b) a failed "
+            "write; copy or record it again"
+        )
+    if head.startswith(_NETCDF_MAGIC):
+        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        return (
+            f"{path} is a NetCDF file that cannot be read ({reason}): (a) truncated by an "
+            f"interrupted copy or download (it has {size} bytes), (b) corrupted; copy or "
+            "record it again"
+        )
+    for magic, kind in _OTHER_MAGIC.items():
+        if head.startswith(magic):
+            return f"{path} is {kind}, not a NetCDF campaign file: pass the campaign's .nc file"
+    # a cut multi-byte character at the end of the head is dropped, not a sign of binary
+    text = head.decode("utf-8", errors="ignore")
+    if all(c.isprintable() or c in "\t\r\n" for c in text):
+        first = text.splitlines()[0][:40] if text.strip() else ""
+        hint = (
+            "; a campaign in CSV files is a folder of them: read it with from_csv (or "
+            "'bayesdoor inspect FOLDER')"
+            if "," in first
+            else ""
+        )
+        return f"{path} is a text file (it starts {first!r}), not a NetCDF campaign file{hint}"
+    return (
+        f"{path} is not a NetCDF file (its first bytes are {head[:8]!r}): pass a campaign "
+        "written by save_campaign or 'bayesdoor simulate'"
+    )

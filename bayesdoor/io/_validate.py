@@ -379,7 +379,8 @@ def validate_campaign(
     Each problem names the run index and channel it concerns and the value found. Codes:
 
     ``no_acceleration`` (no ``acceleration`` variable with dims (run, channel, time); nothing
-    else is checked then), ``missing_channels``, ``unknown_channels``, ``duplicate_channels``,
+    else is checked then), ``no_runs`` (an empty run dimension; nothing else is checked then),
+    ``missing_channels``, ``unknown_channels``, ``duplicate_channels``,
     ``missing_units``, ``wrong_units`` (``g`` and ``mg`` name the factor to m/s^2),
     ``missing_sampling_rate``, ``sampling_rate_mismatch`` (the attribute against the time
     coordinate, whose samples must lie within 0.01 sample periods of a uniform grid),
@@ -427,6 +428,14 @@ def validate_campaign(
                 "no_acceleration",
                 f"a campaign needs a variable 'acceleration' with dims (run, channel, time); "
                 f"found {found} (variables: {sorted(map(str, ds.data_vars))})",
+            )
+        ]
+    if ds.sizes["run"] == 0:
+        return [
+            Problem(
+                "no_runs",
+                "the campaign holds no runs (the run dimension is empty): record runs, or "
+                "check the selection that produced the file",
             )
         ]
     fs_attr = ds.attrs.get("sampling_rate_hz")

@@ -175,6 +175,34 @@ def stand_in_fit(system, campaign, *, method, law, seed, quick, progress):
     return StandInFit(seed)
 
 
+class StandInDiagnosis:
+    """What the pipeline reads of a diagnosis: its JSON; counts the calls and the runs seen."""
+
+    calls = 0
+
+    def __init__(self, fit_point):
+        self.fit_point = fit_point
+
+    def to_json(self):
+        return {
+            "verdict": "none",
+            "causes": [
+                {
+                    "name": "none",
+                    "evidence": "no significant residual",
+                    "parameters": {"k": self.fit_point["k"]},
+                    "gain": {},
+                }
+            ],
+        }
+
+
+def stand_in_diagnose(system, campaign, fit_folder, *, seed, quick, progress):
+    StandInDiagnosis.calls += 1
+    # the job hands over the fit it saved
+    return StandInDiagnosis(json.loads((fit_folder / "point.json").read_text()))
+
+
 SIZES = Sizes(
     runs_per_state=12,
     chunk_size=6,
@@ -184,7 +212,9 @@ SIZES = Sizes(
 
 
 def job(out, campaign=None, lines=None, **kw):
-    settings = dict(seed=0, sizes=SIZES, fit=stand_in_fit, progress=False)
+    settings = dict(
+        seed=0, sizes=SIZES, fit=stand_in_fit, diagnose=stand_in_diagnose, progress=False
+    )
     settings.update(kw)
     return run_job(
         SYSTEM,
@@ -200,6 +230,7 @@ def finished(tmp_path_factory):
     """One job run to the end (shared by the tests that only read its output)."""
     out = tmp_path_factory.mktemp("job")
     StandInFit.calls = 0
+    StandInDiagnosis.calls = 0
     return job(out), out
 
 
@@ -266,10 +297,19 @@ def test_second_run_recomputes_nothing(finished, tmp_path):
     shutil.copytree(out, copy)
     lines = []
     again = job(copy, lines=lines)
-    assert [s.reused for s in again.stages] == [True] * 5
-    assert StandInFit.calls == 1
-    assert len(lines) == 5 and all("reused" in line for line in lines)
+    assert [s.name for s in again.stages] == [
+        "fit",
+        "generate",
+        "train",
+        "classify",
+        "diagnose",
+        "report",
+    ]
+    assert [s.reused for s in again.stages] == [True] * 6
+    assert StandInFit.calls == 1 and StandInDiagnosis.calls == 1
+    assert len(lines) == 6 and all("reused" in line for line in lines)
     assert again.classification == result.classification
+    assert again.diagnosis["causes"] == result.diagnosis["causes"]
 
 
 def test_changed_test_runs_recompute_only_the_stages_they_reach(finished, tmp_path):
@@ -282,15 +322,61 @@ def test_changed_test_runs_recompute_only_the_stages_they_reach(finished, tmp_pa
         job(copy, campaign=fewer)
     changed = job(copy, campaign=fewer, overwrite=True)
     reused = {s.name: s.reused for s in changed.stages}
+    # the run left out is a damaged one: the diagnosis of the healthy runs stands
+    assert str(campaign["state"].values[-1]) != "healthy"
     assert reused == {
         "fit": True,
         "generate": True,
         "train": True,
         "classify": False,
+        "diagnose": True,
         "report": False,
     }
     assert len(changed.classification["runs"]) == 11
-    assert StandInFit.calls == 1
+    assert StandInFit.calls == 1 and StandInDiagnosis.calls == 1
+
+
+def test_a_changed_healthy_test_run_recomputes_the_diagnosis_not_the_fit(finished, tmp_path):
+    _, out = finished
+    copy = tmp_path / "job"
+    shutil.copytree(out, copy)
+    campaign = tone_campaign()
+    # run 3 is the first test run, a healthy one: the diagnosis compares it with the model
+    assert (str(campaign["split"].values[3]), str(campaign["state"].values[3])) == (
+        "test",
+        "healthy",
+    )
+    campaign["acceleration"].values[3] *= 1.01
+    changed = job(copy, campaign=campaign, overwrite=True)
+    reused = {s.name: s.reused for s in changed.stages}
+    assert reused["fit"] and reused["train"]
+    assert not reused["diagnose"] and not reused["report"]
+    assert StandInDiagnosis.calls == 2
+
+
+def test_the_diagnosis_is_in_the_job_json_and_linked_from_the_report(finished):
+    result, out = finished
+    payload = result.to_json()
+    assert payload["diagnosis"]["verdict"] == "none"
+    assert [c["name"] for c in payload["diagnosis"]["causes"]] == ["none"]
+    assert payload["diagnosis"]["report"] == str(out / "diagnose" / "diagnosis.html")
+    on_disk = json.loads((out / "diagnose" / "diagnosis.json").read_text())
+    assert on_disk["verdict"] == "none" and on_disk["report"] == "diagnosis.html"
+    assert json.loads((out / "job.json").read_text())["verdict"] == "none"
+    index = (out / "report" / "index.html").read_text()
+    links = re.findall(r'href="([^"]*diagnosis\.html)"', index)
+    assert links == ["../diagnose/diagnosis.html"]
+    assert (out / "report" / links[0]).resolve().is_file()
+    assert "Discrepancy diagnosis" in index
+
+
+def test_a_job_without_html_skips_the_diagnosis(tmp_path):
+    calls = StandInDiagnosis.calls
+    result = job(tmp_path / "batch", html=False)
+    assert [s.name for s in result.stages] == ["fit", "generate", "train", "classify"]
+    assert result.diagnosis is None and result.to_json()["diagnosis"] is None
+    assert StandInDiagnosis.calls == calls
+    assert not (tmp_path / "batch" / "diagnose").exists()
 
 
 def test_every_setting_reaches_the_generation_hash():

@@ -55,19 +55,18 @@ def load_fit(folder: Path, system) -> Any:
     return fit
 
 
-def healthy_runs(campaign: xr.Dataset) -> int:
-    """The number of healthy runs; refuses a campaign without any."""
+def check_healthy(campaign: xr.Dataset) -> None:
+    """Refuse a campaign without healthy runs (the diagnosis compares the model with them)."""
+    from ..pipeline import healthy_runs
+
     if "state" not in campaign.coords:
         raise fail("the campaign has no 'state' coordinate: label the healthy runs 'healthy'")
-    states = np.asarray(campaign["state"].values).astype(str)
-    n = int(np.sum(states == "healthy"))
-    if n == 0:
-        found = ", ".join(sorted(set(states.tolist())))
+    if healthy_runs(campaign).sizes["run"] == 0:
+        found = ", ".join(sorted(set(np.asarray(campaign["state"].values).astype(str))))
         raise fail(
             f"the campaign has no healthy runs (states: {found}): the diagnosis compares the "
             "model with measurements of the healthy system; label them state 'healthy'"
         )
-    return n
 
 
 def compute(system, campaign: xr.Dataset, fit, *, seed: int, quick: bool, progress: bool):
@@ -128,7 +127,7 @@ def diagnose(
 
     campaign = load(path)
     system = system_for(campaign)
-    healthy_runs(campaign)
+    check_healthy(campaign)
     if out.exists() and not out.is_dir():
         raise fail(f"--out {out} is a file: pass a folder for the diagnosis")
     for name in DIAGNOSIS_FILES:

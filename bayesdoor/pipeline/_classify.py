@@ -24,7 +24,7 @@ from ..classify import (
 from ..datagen import TrainingData, campaign_features
 from ..features import CNNInputSpec
 from ..io import atomic_write
-from ..report import write_damage_report
+from ..report import diagnosis_section, write_damage_report
 from ._bands import PredictiveBands
 from ._fit import FitSummary
 
@@ -264,8 +264,13 @@ def report_stage(
     *,
     fit: FitSummary | None = None,
     title: str = "Damage report",
+    diagnosis: dict[str, Any] | None = None,
 ) -> None:
-    """Write the HTML damage reports from a classification and its model folder."""
+    """Write the HTML damage reports from a classification and its model folder.
+
+    With the ``diagnosis`` JSON of the job (its ``report`` the HTML's path), the campaign page
+    shows its verdict and links it.
+    """
     classification = json.loads((classified / "classification.json").read_text())
     with np.load(classified / "features.npz", allow_pickle=False) as f:
         features, frequencies = f["features"], f["frequencies"]
@@ -290,4 +295,11 @@ def report_stage(
         training=training,
         fit=None if fit is None else {"method": fit.method, "j": fit.j, "table": fit.table()},
         title=title,
+        sections=() if diagnosis is None else (diagnosis_section(diagnosis, _sibling(diagnosis)),),
     )
+
+
+def _sibling(diagnosis: dict[str, Any]) -> str:
+    """The diagnosis report's address from the report's page: both are stages of one job."""
+    target = Path(diagnosis["report"])
+    return f"../{target.parent.name}/{target.name}"

@@ -7,7 +7,8 @@ Folder of a job::
     OUT/generate/   the simulated training data (bayesdoor.datagen's layout)
     OUT/train/      the calibrated ensemble (ensemble.eqx), training.json, bands.npz
     OUT/classify/   classification.json (DESIGN.md section 5) and features.npz
-    OUT/report/     index.html (the campaign) and runs/run-NNNN.html (one per run)
+    OUT/diagnose/   diagnosis.json (DESIGN.md section 5) and diagnosis.html
+    OUT/report/     index.html (the campaign, linking the diagnosis) and runs/run-NNNN.html
     OUT/job.json    the job's settings, the stages' hashes and the headline numbers
 """
 
@@ -40,13 +41,14 @@ from ..datagen import (
 from ..io import atomic_write
 from ..systems import AbstractSystem
 from ._classify import classify_stage, report_stage, train_stage
+from ._diagnose import DIAGNOSIS_HTML, DIAGNOSIS_JSON, default_diagnose, diagnosis_stage
 from ._fit import FitSummary
 from ._stages import StageRecord, configuration_hash, run_stage
 
 Source = Literal["posterior", "posterior+model_error", "gaussian"]
 SOURCES: tuple[str, ...] = ("posterior", "posterior+model_error", "gaussian")
 #: the stages of a job, in order (each one a folder of the job)
-STAGES: tuple[str, ...] = ("fit", "generate", "train", "classify", "report")
+STAGES: tuple[str, ...] = ("fit", "generate", "train", "classify", "diagnose", "report")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,6 +104,9 @@ class JobResult:
         The JSON of DESIGN.md section 5 (``classes``, ``runs``, ``metrics``).
     report
         The campaign's HTML report (``None`` when the job was run without it).
+    diagnosis
+        The diagnosis JSON (DESIGN.md section 5: ``verdict``, ``causes``) with ``report`` the
+        path of its HTML (``None`` when the job was run without it).
     """
 
     out: Path
@@ -109,9 +114,10 @@ class JobResult:
     fit: FitSummary
     classification: dict[str, Any]
     report: Path | None
+    diagnosis: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """The job's JSON: the fit's summary, the classification, the files and the stages."""
+        """The job's JSON: the fit's summary, the classification, the diagnosis, the stages."""
         return {
             "out": str(self.out),
             "report": None if self.report is None else str(self.report),
@@ -121,6 +127,7 @@ class JobResult:
                 "parameters": self.fit.table(),
             },
             **self.classification,
+            "diagnosis": self.diagnosis,
             "stages": [
                 {"name": s.name, "reused": s.reused, "seconds": s.seconds, "hash": s.config_hash}
                 for s in self.stages
@@ -159,6 +166,12 @@ def calibration_runs(campaign: xr.Dataset) -> xr.Dataset:
             "healthy runs; mark them with a 'split' coordinate 'calibration' or label them "
             "state 'healthy'"
         )
+    return campaign.isel(run=np.flatnonzero(keep))
+
+
+def healthy_runs(campaign: xr.Dataset) -> xr.Dataset:
+    """The runs a diagnosis compares with the model: ``state == "healthy"`` (maybe none)."""
+    keep = np.asarray(campaign["state"].values).astype(str) == "healthy"
     return campaign.isel(run=np.flatnonzero(keep))
 
 
@@ -311,6 +324,8 @@ def run_job(
     report: Callable[[str], None] = print,
     overwrite: bool = False,
     html: bool = True,
+    diagnosis: bool | None = None,
+    diagnose: Callable[..., Any] | None = None,
 ) -> JobResult:
     """Fit on the calibration runs, simulate training data, train, classify the test runs, report.
 
@@ -358,6 +373,16 @@ def run_job(
     html
         Write the HTML report stage (``False`` for batch studies that need the metrics only;
         the JSON is always written).
+    diagnosis
+        Run the discrepancy diagnosis of the campaign under the job's fit (the ``diagnose``
+        stage, linked from the report); ``None``: when ``html`` is true (a batch study that
+        needs the metrics only skips both).
+    diagnose
+        The diagnosis, called as ``diagnose(system, campaign, fit_folder, seed=, quick=,
+        progress=)`` with the folder of the saved fit and returning an object with
+        ``to_json()`` (:class:`bayesdoor.diagnose.Diagnosis`); ``None`` means
+        :func:`bayesdoor.pipeline.default_diagnose`
+        (:func:`bayesdoor.diagnose.diagnose_campaign`).
     overwrite
         Let a job of other settings replace the finished job in ``out`` (stages whose
         configuration did not change are still reused).
@@ -485,6 +510,34 @@ def run_job(
         report=report,
     )
     records.append(classify_record)
+    diagnosis_json = None
+    if html if diagnosis is None else diagnosis:
+        diagnose_record = run_stage(
+            out,
+            "diagnose",
+            {
+                "fit": fit_record.config_hash,
+                "healthy_runs": digest_runs(healthy_runs(campaign)),
+                "seed": seed,
+                "quick": quick,
+                "versions": versions,
+            },
+            lambda folder: diagnosis_stage(
+                system,
+                campaign,
+                fit_record.path / "result",
+                folder,
+                diagnose=default_diagnose if diagnose is None else diagnose,
+                seed=seed,
+                quick=quick,
+                progress=progress,
+                fit={"method": summary.method, "j": summary.j, "parameters": summary.table()},
+            ),
+            report=report,
+        )
+        records.append(diagnose_record)
+        diagnosis_json = json.loads((diagnose_record.path / DIAGNOSIS_JSON).read_text())
+        diagnosis_json["report"] = str(diagnose_record.path / DIAGNOSIS_HTML)
     report_path = None
     if html:
         report_record = run_stage(
@@ -493,6 +546,7 @@ def run_job(
             {
                 "classification": classify_record.config_hash,
                 "fit": fit_record.config_hash,
+                "diagnosis": None if diagnosis_json is None else records[-1].config_hash,
                 "versions": versions,
             },
             lambda folder: report_stage(
@@ -501,6 +555,7 @@ def run_job(
                 folder,
                 fit=summary,
                 title=f"{system.name}: damage report",
+                diagnosis=diagnosis_json,
             ),
             report=report,
         )
@@ -513,6 +568,7 @@ def run_job(
         fit=summary,
         classification=classification,
         report=report_path,
+        diagnosis=diagnosis_json,
     )
     job = {
         "job_hash": job_hash,
@@ -520,6 +576,7 @@ def run_job(
         **{k: v for k, v in settings.items() if k != "system"},
         "stages": {s.name: s.config_hash for s in records},
         "metrics": classification.get("metrics"),
+        "verdict": None if diagnosis_json is None else diagnosis_json.get("verdict"),
         "report": None if report_path is None else str(report_path),
     }
     text = json.dumps(job, indent=1, default=float) + "\n"

@@ -19,6 +19,14 @@ from bayesdoor.cli import app
 from bayesdoor.io import make_campaign, save_campaign
 
 runner = CliRunner()
+#: the catalogue names of DESIGN.md section 6
+DESIGN_CAUSES = (
+    "frame_mode",
+    "wheel_eccentricity",
+    "rail_waviness",
+    "sensor_cross_axis",
+    "mains_hum",
+)
 
 
 @pytest.fixture(scope="module")
@@ -137,13 +145,15 @@ def test_demo_quick_end_to_end_and_reuse(tmp_path):
     payload = json.loads(first.stdout)
     assert len(payload["runs"]) == 300
     assert {"accuracy", "ece", "nll", "brier", "confusion"} <= set(payload["metrics"])
-    assert [s["reused"] for s in payload["stages"]] == [False] * 5
+    assert [s["reused"] for s in payload["stages"]] == [False] * 6
+    assert payload["diagnosis"]["verdict"] in ("none", None, *DESIGN_CAUSES)
     assert (out / "report" / "index.html").is_file()
+    assert (out / "diagnose" / "diagnosis.html").is_file()
     assert len(list((out / "report" / "runs").glob("run-*.html"))) == 300
     second = invoke("demo", "--quick", "--out", out, "--json")
     assert second.exit_code == 0
     again = json.loads(second.stdout)
-    assert [s["reused"] for s in again["stages"]] == [True] * 5
+    assert [s["reused"] for s in again["stages"]] == [True] * 6
     assert again["metrics"] == payload["metrics"]
     refused = invoke("demo", "--out", out)
     assert refused.exit_code == 2 and "--force" in refused.output

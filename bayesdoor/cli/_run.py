@@ -10,23 +10,13 @@ import xarray as xr
 from rich.console import Console
 from rich.table import Table
 
-from ._common import emit_json, fail
+from ._common import check_for_job, check_writable, emit_json, fail, system_named, writing
 
 _err = Console(stderr=True)
 
 
-def system_for(campaign: xr.Dataset):
-    """The simulated system named by the campaign's ``system`` attribute."""
-    from ..systems import ElevatorDoor
-
-    systems = {"elevator_door": ElevatorDoor}
-    name = str(campaign.attrs.get("system", "elevator_door"))
-    if name not in systems:
-        raise fail(
-            f"the campaign's system {name!r} is not one bayesdoor simulates "
-            f"({', '.join(systems)}): set attrs['system'] to one of them"
-        )
-    return systems[name]()
+#: the system a campaign names (``bayesdoor diagnose`` imports it under this name)
+system_for = system_named
 
 
 def load(path: Path) -> xr.Dataset:
@@ -37,12 +27,12 @@ def load(path: Path) -> xr.Dataset:
     """
     from ..io import load_campaign
 
-    if not path.is_file():
+    if not path.exists():
         raise fail(f"{path}: no such file; pass a campaign file (.nc)")
     try:
         campaign = load_campaign(path, check=False)
     except (OSError, ValueError) as err:
-        raise fail(f"{path} is not a readable campaign: {err}".replace("\n", " ")) from None
+        raise fail(f"not a readable campaign: {err}") from None
     if "acceleration" not in campaign or "run" not in campaign["acceleration"].dims:
         raise fail(f"{path} has no 'acceleration' (run, channel, time) variable: not a campaign")
     if campaign.sizes["run"] == 0:
@@ -57,7 +47,7 @@ def _fmt(value: Any, digits: int = 4) -> str:
 
 
 def print_summary(result: dict[str, Any], console: Console) -> None:
-    """The posterior summary, the accuracy and calibration, and the report's path."""
+    """The posterior summary, the accuracy and calibration, the diagnosis, the report's path."""
     fit = result.get("fit")
     if fit is not None:
         table = Table(title=f"model updating ({fit['method']}, J = {_fmt(fit['j'])})")
@@ -87,6 +77,11 @@ def print_summary(result: dict[str, Any], console: Console) -> None:
     if result["n_failed"]:
         table.add_row("not classified (bad records)", str(result["n_failed"]))
     console.print(table)
+    diagnosis = result.get("diagnosis")
+    if diagnosis is not None:
+        verdict = diagnosis["verdict"]
+        shown = "undecided (no cause has decisive evidence)" if verdict is None else verdict
+        console.print(f"discrepancy diagnosis: {shown} ({diagnosis['report']})")
     console.print(f"report: {result['report']}")
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -38,19 +39,27 @@ def fit_ood(
     x_heldout: Float[Array, "heldout channel freq"],
     *,
     quantile: float = 0.99,
+    model_error: Float[Array, "draw channel freq"] | None = None,
+    key: Array | None = None,
 ) -> Ensemble:
     """The ensemble with a Mahalanobis OOD detector (see :func:`fit_mahalanobis`).
 
     Class means and the shared covariance come from the training inputs, the threshold from
     the ``quantile`` of the score on held-out simulated inputs, all standardised like the
-    ensemble's inputs.
+    ensemble's inputs. ``model_error`` (draws of an additive error in the inputs' units, for
+    example :func:`bayesdoor.datagen.model_error_draws`) widens the reference distribution
+    from "a simulation" to "a measurement of a simulated state"; ``key`` then picks the draw
+    added to each held-out input.
     """
+    scale = np.asarray(ensemble.scale, dtype=np.float64)
     detector = fit_mahalanobis(
         ensemble.standardise(jnp.asarray(x_train)),
         jnp.asarray(labels),
         ensemble.standardise(jnp.asarray(x_heldout)),
         ensemble.network.n_classes,
         quantile=quantile,
+        model_error=None if model_error is None else np.asarray(model_error) / scale,
+        key=key,
     )
     return eqx.tree_at(lambda e: e.ood, ensemble, detector, is_leaf=lambda v: v is None)
 
@@ -66,6 +75,7 @@ def fit_classifier(
     network: NetworkConfig | None = None,
     config: TrainConfig | None = None,
     ood_quantile: float = 0.99,
+    ood_model_error: Float[Array, "draw channel freq"] | None = None,
     progress: Progress = "rich",
 ) -> Training:
     """Train the ensemble, fit its temperature and its OOD threshold on the validation split.
@@ -81,6 +91,9 @@ def fit_classifier(
         As in :func:`train_ensemble`.
     ood_quantile
         Quantile of the validation OOD scores that becomes the threshold.
+    ood_model_error
+        Draws of the model error for the OOD detector (see :func:`fit_ood`); ``None``
+        compares inputs with the simulations alone.
 
     Returns
     -------
@@ -91,5 +104,13 @@ def fit_classifier(
         x_train, y_train, class_names, key=key, network=network, config=config, progress=progress
     )
     ensemble = calibrate(training.ensemble, x_val, y_val)
-    ensemble = fit_ood(ensemble, x_train, y_train, x_val, quantile=ood_quantile)
+    ensemble = fit_ood(
+        ensemble,
+        x_train,
+        y_train,
+        x_val,
+        quantile=ood_quantile,
+        model_error=ood_model_error,
+        key=jax.random.fold_in(key, 1),
+    )
     return Training(ensemble, training.loss)

@@ -1,8 +1,13 @@
-"""Out-of-distribution score: Mahalanobis distance to the nearest training class mean."""
+"""Out-of-distribution score: Mahalanobis distance to the nearest training class mean.
+
+The reference distribution is the simulated training data, optionally widened by draws of the
+model error (what a measurement of a known state carries on top of the simulation).
+"""
 
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -27,6 +32,9 @@ class MahalanobisOOD(eqx.Module):
         Score above which an input is flagged.
     quantile
         The held-out quantile ``threshold`` was set to (kept for the record).
+    model_error_draws
+        Number of model-error draws the covariance and the threshold include (0: the score
+        compares with the simulations alone; kept for the record).
 
     References
     ----------
@@ -38,6 +46,7 @@ class MahalanobisOOD(eqx.Module):
     whitening: Float[Array, "feature feature"]
     threshold: Float[Array, ""]
     quantile: float = eqx.field(static=True)
+    model_error_draws: int = eqx.field(static=True, default=0)
 
     def score(self, z: Float[Array, "batch channel freq"]) -> Float[Array, " batch"]:
         """Mahalanobis distance of each standardised input to its nearest class mean."""
@@ -87,8 +96,21 @@ def fit_mahalanobis(
     n_classes: int,
     *,
     quantile: float = 0.99,
+    model_error: Float[Array, "draw channel freq"] | None = None,
+    key: Array | None = None,
 ) -> MahalanobisOOD:
     """Fit class means and a tied shrunk covariance on training data; threshold on held-out data.
+
+    Without ``model_error`` the reference distribution is that of the simulated inputs alone:
+    its covariance is the Ledoit-Wolf shrunk within-class scatter ``S``. Simulations of a
+    model with a few parameters fill a thin slab of the feature space (directions with
+    almost no simulated variance), so a measurement that carries the usual model error, small
+    in every feature but off the slab, gets a large score. With ``model_error`` the reference
+    distribution is that of a measurement, simulation plus model error ``e``: the covariance
+    becomes ``S + E[e e^T]`` (the second moment: a systematic offset counts as error of
+    either sign) and the threshold is the ``quantile`` of the score of held-out inputs with one
+    model-error draw added to each. Both stay fitted on simulated inputs; the draws describe
+    the error, not the inputs to be scored.
 
     Parameters
     ----------
@@ -104,6 +126,12 @@ def fit_mahalanobis(
     quantile
         The held-out quantile that becomes the threshold (0.99: about 1 % of in-distribution
         inputs flagged).
+    model_error
+        Draws of the additive model error in the standardised feature units (for example
+        :func:`bayesdoor.datagen.model_error_draws` divided by the ensemble's ``scale``), or
+        ``None`` for the simulations alone.
+    key
+        Picks the draw added to each held-out input; required with ``model_error``.
 
     Returns
     -------
@@ -112,7 +140,9 @@ def fit_mahalanobis(
     Raises
     ------
     ValueError
-        For a quantile outside (0, 1), an empty class, or no held-out inputs.
+        For a quantile outside (0, 1), an empty class, no held-out inputs, model-error draws
+        of another shape than the inputs or with non-finite values, or ``model_error`` without
+        ``key``.
     """
     if not 0.0 < quantile < 1.0:
         raise ValueError(f"quantile must lie in (0, 1), got {quantile!r}")
@@ -128,6 +158,20 @@ def fit_mahalanobis(
         raise ValueError("z_heldout is empty: the threshold needs held-out in-distribution inputs")
     means = np.stack([z[y == k].mean(axis=0) for k in range(n_classes)])
     cov, _ = ledoit_wolf(z - means[y])
+    heldout = np.asarray(z_heldout, dtype=np.float64)
+    n_draws = 0
+    if model_error is not None:
+        if key is None:
+            raise ValueError(
+                "model_error needs key=: it picks the draw added to each held-out input for "
+                "the threshold (e.g. key=jax.random.key(0))"
+            )
+        e = _check_model_error(model_error, tuple(np.shape(z_train)[1:]))
+        n_draws = len(e)
+        flat = e.reshape(n_draws, -1)
+        cov = cov + flat.T @ flat / n_draws
+        pick = np.asarray(jax.random.randint(key, (len(heldout),), 0, n_draws))
+        heldout = heldout + e[pick]
     eigval, eigvec = np.linalg.eigh(cov)
     whitening = (eigvec / np.sqrt(eigval)).T
     dtype = jnp.asarray(z_train).dtype
@@ -136,7 +180,20 @@ def fit_mahalanobis(
         whitening=jnp.asarray(whitening, dtype=dtype),
         threshold=jnp.asarray(np.inf, dtype=dtype),
         quantile=float(quantile),
+        model_error_draws=n_draws,
     )
-    scores = np.asarray(detector.score(jnp.asarray(z_heldout, dtype=dtype)))
+    scores = np.asarray(detector.score(jnp.asarray(heldout, dtype=dtype)))
     threshold = np.quantile(scores, quantile)
     return eqx.tree_at(lambda d: d.threshold, detector, jnp.asarray(threshold, dtype=dtype))
+
+
+def _check_model_error(model_error, shape: tuple[int, ...]) -> np.ndarray:
+    e = np.asarray(model_error, dtype=np.float64)
+    if e.ndim != 1 + len(shape) or tuple(e.shape[1:]) != shape or len(e) == 0:
+        raise ValueError(
+            f"model_error must hold draws of the inputs' shape, (draw, {', '.join(map(str, shape))}"
+            f"), got {e.shape}: one additive error per draw, in the same units as the inputs"
+        )
+    if not np.all(np.isfinite(e)):
+        raise ValueError("model_error holds non-finite values: drop those draws")
+    return e

@@ -50,6 +50,7 @@ def _header(ensemble: Ensemble) -> dict[str, Any]:
             "threshold": float(ood.threshold),
             "quantile": ood.quantile,
             "features": int(ood.whitening.shape[0]),
+            "model_error_draws": ood.model_error_draws,
         },
         "training": None if ensemble.train_config is None else ensemble.train_config.to_json(),
     }
@@ -178,6 +179,7 @@ def load_ensemble(path: str | Path) -> Ensemble:
             whitening=leaves[2],
             threshold=jnp.asarray(ood["threshold"], dtype=dtype),
             quantile=float(ood["quantile"]),
+            model_error_draws=int(ood.get("model_error_draws", 0)),
         ),
         train_config=None if header["training"] is None else TrainConfig(**header["training"]),
     )

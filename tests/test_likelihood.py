@@ -15,10 +15,12 @@ from numpyro.infer.util import log_likelihood as numpyro_log_likelihood
 from bayesdoor.inference import (
     AbstractForward,
     CalibrationData,
+    DiscrepancyNormal,
     FeatureSpec,
     ForwardOutput,
     ModelError,
     SamplingTransform,
+    log_likelihood,
     make_model,
     run_features,
     welch_degrees_of_freedom,
@@ -164,13 +166,13 @@ def _forward(data, key, ok=True):
 
 
 @pytest.mark.parametrize("slope", [False, True])
-def test_pointwise_log_likelihood_is_the_stated_gaussian(key, slope):
+def test_independent_pointwise_log_likelihood_is_the_stated_gaussian(key, slope):
     """Reference: scipy.stats.norm.logpdf with the variance written out by hand."""
     k1, k2 = jax.random.split(key)
     data = _data(k1)
     forward = _forward(data, k2)
     transform = SamplingTransform.box(("a", "b"), [0.0, 0.0], [1.0, 2.0])
-    model = make_model(data, forward, transform, ModelError(slope=slope))
+    model = make_model(data, forward, transform, ModelError(slope=slope, shared=False))
     theta = np.array([0.25, 1.5])
     sigma = np.array([0.2, 0.05])
     beta = np.array([0.7, -1.2])
@@ -188,6 +190,148 @@ def test_pointwise_log_likelihood_is_the_stated_gaussian(key, slope):
     np.testing.assert_allclose(np.asarray(pointwise), ref, rtol=1e-12)
 
 
+def _dense_reference(y, loc, run_variance, shared_variance, run_operating):
+    """Joint log density and leave-one-out conditionals from the full covariance matrices.
+
+    Independent of DiscrepancyNormal's closed form: per operating point and element, the
+    covariance diag(v) + s 11^T is built, scipy gives the joint, and the conditionals come from
+    its inverse Q: log p(y_i | y_-i) = log N(r_i; r_i - (Q r)_i / Q_ii, 1 / Q_ii).
+    """
+    joint, conditional = 0.0, np.zeros(y.shape)
+    for o in range(shared_variance.shape[0]):
+        idx = np.flatnonzero(run_operating == o)
+        if idx.size == 0:
+            continue
+        for c, b in itertools.product(range(y.shape[1]), range(y.shape[2])):
+            cov = np.diag(run_variance[idx, c, b]) + shared_variance[o, c, b]
+            r = y[idx, c, b] - loc[idx, c, b]
+            joint += scipy.stats.multivariate_normal(np.zeros(idx.size), cov).logpdf(r)
+            q = np.linalg.inv(cov)
+            qr = q @ r
+            for k, i in enumerate(idx):
+                conditional[i, c, b] = scipy.stats.norm.logpdf(
+                    r[k], r[k] - qr[k] / q[k, k], np.sqrt(1.0 / q[k, k])
+                )
+    return joint, conditional
+
+
+def test_discrepancy_normal_matches_the_dense_covariance():
+    """Groups of 3, 2, 1 and 0 runs; float64 linear algebra on matrices of at most 3 x 3, so
+    agreement to round-off (1e-10 relative)."""
+    rng = np.random.default_rng(3)
+    run_operating = np.array([0, 1, 0, 2, 0, 1])
+    shape = (6, 2, 5)
+    loc = rng.normal(size=shape)
+    run_variance = rng.uniform(0.005, 0.05, shape)
+    shared_variance = rng.uniform(0.0, 0.2, (4, 2, 5))
+    shared_variance[1, 0, :2] = 0.0  # no discrepancy: the runs are independent there
+    y = loc + rng.normal(scale=0.3, size=shape)
+    d = DiscrepancyNormal(
+        jnp.asarray(loc),
+        jnp.asarray(run_variance),
+        jnp.asarray(shared_variance),
+        jnp.asarray(run_operating),
+    )
+    joint, conditional = _dense_reference(y, loc, run_variance, shared_variance, run_operating)
+    assert float(d.joint_log_prob(jnp.asarray(y))) == pytest.approx(joint, rel=1e-10)
+    np.testing.assert_allclose(np.asarray(d.log_prob(jnp.asarray(y))), conditional, rtol=1e-10)
+    # the lone run of operating point 2 has no other run to learn its discrepancy from
+    lone = scipy.stats.norm.logpdf(y[3], loc[3], np.sqrt(run_variance[3] + shared_variance[2]))
+    np.testing.assert_allclose(np.asarray(d.log_prob(jnp.asarray(y)))[3], lone, rtol=1e-10)
+
+
+def test_discrepancy_normal_samples_share_the_discrepancy(key):
+    """Covariances of 40000 draws within 5 Monte Carlo standard errors (for a Gaussian,
+    sd(cov estimate) = sqrt((var_i var_j + cov_ij^2) / n))."""
+    run_operating = jnp.asarray([0, 0, 1])
+    run_variance = jnp.asarray([0.01, 0.04, 0.02])[:, None, None]
+    shared_variance = jnp.asarray([0.09, 0.25])[:, None, None]
+    d = DiscrepancyNormal(jnp.zeros((3, 1, 1)), run_variance, shared_variance, run_operating)
+    x = np.asarray(d.sample(key, (40000,)))[:, :, 0, 0]
+    expected = np.array([[0.10, 0.09, 0.0], [0.09, 0.13, 0.0], [0.0, 0.0, 0.27]])
+    se = np.sqrt((np.outer(np.diag(expected), np.diag(expected)) + expected**2) / len(x))
+    assert np.all(np.abs(np.cov(x.T) - expected) < 5 * se)
+
+
+@pytest.mark.parametrize("slope", [False, True])
+def test_shared_model_density_is_the_marginal_over_the_discrepancy(key, slope):
+    """The numpyro model's log density less its priors is the dense joint Gaussian; its
+    pointwise log likelihood the leave-one-out conditionals (the reference as above)."""
+    k1, k2 = jax.random.split(key)
+    data = _data(k1)
+    forward = _forward(data, k2)
+    transform = SamplingTransform.box(("a", "b"), [0.0, 0.0], [1.0, 2.0])
+    error = ModelError(slope=slope)
+    model = make_model(data, forward, transform, error)
+    theta = np.array([0.25, 1.5])
+    sigma, rho, beta = np.array([0.2, 0.05]), np.array([0.5, 1.3]), np.array([0.7, -1.2])
+    params = {
+        "z": transform.to_sampling(jnp.asarray(theta)),
+        "sigma_model": jnp.asarray(sigma),
+        "run_scatter": jnp.asarray(rho),
+    }
+    if slope:
+        params["sigma_slope"] = jnp.asarray(beta)
+    x = (np.arange(4.0, 97.0, 4.0) - 50.0) / 92.0
+    s = (sigma[:, None] * (np.exp(beta[:, None] * x) if slope else 1.0)) ** 2
+    # the forward model's own error variance (0.01) is shared too
+    shared = np.broadcast_to(s[None] + 0.01, (2, 2, 24))
+    run_variance = np.asarray(data.welch_variance)[:, None, None] * rho[None, :, None] ** 2
+    loc = np.asarray(forward.features)[[0, 1, 0]] + theta.sum()
+    y = np.asarray(data.y)
+    joint, conditional = _dense_reference(
+        y, loc, np.broadcast_to(run_variance, y.shape), shared, np.array([0, 1, 0])
+    )
+    priors = float(transform.prior().log_prob(params["z"]))
+    priors += float(dist.HalfNormal(error.scale).log_prob(params["sigma_model"]).sum())
+    priors += float(dist.LogNormal(0.0, error.scatter_scale).log_prob(params["run_scatter"]).sum())
+    if slope:
+        priors += float(dist.Normal(0.0, error.slope_scale).log_prob(params["sigma_slope"]).sum())
+    density = float(log_density(model, (), {}, params)[0])
+    assert density - priors == pytest.approx(joint, rel=1e-10)
+    pointwise = numpyro_log_likelihood(model, {k: v[None] for k, v in params.items()})["y"][0]
+    np.testing.assert_allclose(np.asarray(pointwise), conditional, rtol=1e-10)
+    value = log_likelihood(
+        jnp.asarray(theta),
+        jnp.asarray(sigma),
+        data,
+        forward,
+        jnp.asarray(beta) if slope else None,
+        run_scatter=jnp.asarray(rho),
+    )
+    assert float(value) == pytest.approx(joint, rel=1e-10)
+
+
+def test_replicate_runs_do_not_average_the_discrepancy_away(key):
+    """The information about a location parameter from n runs at one operating point: the
+    independent form grows like n, the shared one saturates at 1 / sigma^2 per feature."""
+    rng = np.random.default_rng(0)
+    sigma, welch_sd = 0.2, 0.1
+
+    def information(n, shared):
+        data = CalibrationData(
+            y=jnp.asarray(rng.normal(scale=0.1, size=(n, 1, 24))),
+            welch_variance=jnp.full(n, welch_sd**2),
+            operating=jnp.asarray([0.4]),
+            run_operating=jnp.zeros(n, dtype=jnp.int32),
+            band_centres=jnp.arange(4.0, 97.0, 4.0),
+        )
+        forward = TableForward(("a",), data.operating, jnp.zeros((1, 1, 24)), 0.0, True)
+
+        def loglik(theta):
+            return log_likelihood(theta, jnp.asarray([sigma]), data, forward, shared=shared)
+
+        return -float(jax.hessian(loglik)(jnp.zeros(1))[0, 0])
+
+    for n in (1, 10, 100):
+        # 24 features, each a Gaussian whose mean moves one for one with theta
+        independent = 24 * n / (sigma**2 + welch_sd**2)
+        shared = 24 / (sigma**2 + welch_sd**2 / n)
+        assert information(n, False) == pytest.approx(independent, rel=1e-8)
+        assert information(n, True) == pytest.approx(shared, rel=1e-8)
+    assert information(100, True) < 24 / sigma**2 < information(10, False)
+
+
 def test_failed_forward_gives_minus_inf_with_finite_gradients(key):
     k1, k2 = jax.random.split(key)
     data = _data(k1)
@@ -197,7 +341,11 @@ def test_failed_forward_gives_minus_inf_with_finite_gradients(key):
     )
     transform = SamplingTransform.box(("a", "b"), [0.0, 0.0], [1.0, 2.0])
     model = make_model(data, broken, transform)
-    params = {"z": jnp.array([0.1, -0.3]), "sigma_model": jnp.array([0.1, 0.2])}
+    params = {
+        "z": jnp.array([0.1, -0.3]),
+        "sigma_model": jnp.array([0.1, 0.2]),
+        "run_scatter": jnp.array([0.5, 1.0]),
+    }
 
     def logp(p):
         return log_density(model, (), {}, p)[0]

@@ -15,9 +15,11 @@ from ._features import welch_degrees_of_freedom as welch_degrees_of_freedom
 from ._features import welch_log10_variance as welch_log10_variance
 from ._likelihood import AbstractForward as AbstractForward
 from ._likelihood import CalibrationData as CalibrationData
+from ._likelihood import DiscrepancyNormal as DiscrepancyNormal
 from ._likelihood import ForwardOutput as ForwardOutput
 from ._likelihood import ModelError as ModelError
 from ._likelihood import SimulatorForward as SimulatorForward
+from ._likelihood import feature_distribution as feature_distribution
 from ._likelihood import log_likelihood as log_likelihood
 from ._likelihood import make_model as make_model
 from ._likelihood import predictive_normal as predictive_normal
@@ -28,6 +30,15 @@ from ._posterior import load_posterior as load_posterior
 from ._posterior import save_posterior as save_posterior
 from ._samplers import sample_emcee as sample_emcee
 from ._samplers import sample_nuts as sample_nuts
+from ._sbc import SBCResult as SBCResult
+from ._sbc import SBCUniformity as SBCUniformity
+from ._sbc import load_sbc as load_sbc
+from ._sbc import plot_sbc_ranks as plot_sbc_ranks
+from ._sbc import run_sbc as run_sbc
+from ._sbc import save_sbc as save_sbc
+from ._sbc import sbc_ranks as sbc_ranks
+from ._sbc import sbc_uniformity as sbc_uniformity
+from ._sbc import thin_evenly as thin_evenly
 from ._surrogate import QuadraticSurrogate as QuadraticSurrogate
 from ._surrogate import box_around as box_around
 from ._surrogate import box_from_samples as box_from_samples

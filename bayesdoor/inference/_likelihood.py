@@ -1,21 +1,31 @@
-"""The likelihood of measured log-PSD features: Welch scatter, model error, surrogate error.
+"""The likelihood of measured log-PSD features: model discrepancy, run scatter, surrogate error.
 
 For run ``r`` at operating point ``o(r)``, channel ``c`` and band ``b``,
 
-    y_rcb ~ Normal(m_o(r)cb(theta), s_r^2 + sigma_c(f_b)^2 + e_o(r)cb^2)
+    y_rcb = m_o(r)cb(theta) + delta_o(r)cb + eps_rcb,
+    delta_ocb ~ Normal(0, sigma_c(f_b)^2 + e_ocb^2),   eps_rcb ~ Normal(0, rho_c^2 s_r^2)
 
 with ``m`` the simulated feature vector (:func:`~bayesdoor.inference.run_features` of a
-simulated run, or a surrogate of it), ``s_r^2`` the Welch scatter of run ``r`` (from its number
-of segments), ``sigma_c(f) = sigma_c exp(beta_c x(f))`` the model error of channel ``c``
-(inferred; ``x`` the band centre scaled to [-1/2, 1/2], ``beta = 0`` unless the slope is on)
-and ``e^2`` the surrogate's held-out error variance (zero for the exact simulator). All runs
-share the parameters.
+simulated run, or a surrogate of it), ``delta`` the model's discrepancy, shared by every run at
+one operating point (Kennedy and O'Hagan 2001: the model misses the system the same way in
+each repetition, so replicate runs average the scatter away, never the discrepancy), with
+``sigma_c(f) = sigma_c exp(beta_c x(f))`` per channel (``x`` the band centre scaled to [-1/2,
+1/2], ``beta = 0`` unless the slope is on) and ``e^2`` the surrogate's held-out error variance
+(zero for the exact simulator; also shared, it is an error of ``m``), and ``eps`` the scatter
+of one run, ``s_r^2`` the Welch variance of its features (from its number of segments) scaled
+by the inferred ``rho_c^2`` per channel (1 for a Gaussian random response, below 1 for a mostly
+deterministic one). The discrepancy is marginalised in closed form (:class:`DiscrepancyNormal`).
+
+``ModelError(shared=False)`` is the earlier, independent form ``y_rcb ~ Normal(m, s_r^2 +
+sigma_c(f_b)^2 + e_ocb^2)`` (``rho = 1``): every run adds its own model error, so ten runs of
+one speed shrink the parameters' posterior as if the model's error were noise.
 """
 
 from __future__ import annotations
 
 import abc
 from collections.abc import Callable, Mapping, Sequence
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -23,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 import numpyro
 import numpyro.distributions as dist
+from numpyro.distributions import constraints
 
 from .._types import Array, Bool, Float, Int
 from ..features import segment_weights
@@ -245,28 +256,219 @@ class CalibrationData(eqx.Module):
 
 
 class ModelError(eqx.Module):
-    """Prior of the model-error scale sigma_c(f) of each channel (log10 decades).
+    """Priors of the model discrepancy sigma_c(f) and the run scatter rho_c of each channel.
 
-    ``sigma_c ~ HalfNormal(scale)``: with the default 0.5, a model whose log PSD is off by a
-    factor 10 (one decade) in a channel is still plausible a priori (2 sd), off by a factor
-    100 is not. With ``slope`` on, ``sigma_c(f) = sigma_c exp(beta_c x(f))``, ``beta_c ~
-    Normal(0, slope_scale)``, ``x`` the band centre scaled to [-1/2, 1/2] over the analysis band.
+    ``sigma_c ~ HalfNormal(scale)`` (log10 decades): with the default 0.5, a model whose log
+    PSD is off by a factor 10 (one decade) in a channel is still plausible a priori (2 sd), off
+    by a factor 100 is not. With ``slope`` on, ``sigma_c(f) = sigma_c exp(beta_c x(f))``,
+    ``beta_c ~ Normal(0, slope_scale)``, ``x`` the band centre scaled to [-1/2, 1/2] over the
+    analysis band.
+
+    With ``shared`` (the default) the discrepancy is one draw per operating point, channel and
+    band, common to every run there, and each run scatters about it by ``rho_c`` Welch standard
+    deviations, ``rho_c ~ LogNormal(0, scatter_scale)``: the Welch variance is the scatter of a
+    Gaussian random response (``rho = 1``), a response mostly set by a deterministic excitation
+    (a rail's fixed profile) scatters less, one whose parameters vary from run to run more.
+    Replicate runs at an operating point identify ``rho_c``; with one run per operating point
+    its prior keeps it near the Welch value. ``shared=False`` is the independent form (each
+    run its own model error, ``rho = 1``; see the module docstring).
     """
 
     scale: float = eqx.field(static=True, default=0.5)
     slope: bool = eqx.field(static=True, default=False)
     slope_scale: float = eqx.field(static=True, default=1.0)
+    shared: bool = eqx.field(static=True, default=True)
+    scatter_scale: float = eqx.field(static=True, default=1.0)
 
     def __check_init__(self):
-        if not (self.scale > 0 and self.slope_scale > 0):
+        if not (self.scale > 0 and self.slope_scale > 0 and self.scatter_scale > 0):
             raise ValueError(
-                f"scale and slope_scale must be positive, got {self.scale!r}, {self.slope_scale!r}"
+                f"scale, slope_scale and scatter_scale must be positive, got {self.scale!r}, "
+                f"{self.slope_scale!r}, {self.scatter_scale!r}"
             )
+
+
+class DiscrepancyNormal(dist.Distribution):
+    """Gaussian features of runs that share a discrepancy per operating point.
+
+    ``y_r = loc_r + delta_o(r) + eps_r`` elementwise, ``delta_o ~ Normal(0, shared_variance_o)``
+    common to the runs at operating point ``o``, ``eps_r ~ Normal(0, run_variance_r)``
+    independent. The runs of one operating point are jointly Gaussian with covariance
+    ``diag(run_variance) + shared_variance 11^T`` per element, handled in closed form
+    (Sherman-Morrison), so the cost is linear in the runs.
+
+    ``log_prob`` returns, per element, the leave-one-out conditional ``log p(y_i | y_-i)`` given
+    the other runs of its operating point: the pointwise terms PSIS-LOO needs for a model whose
+    likelihood does not factorise over runs (Buerkner, Gabry and Vehtari 2021). They do not sum
+    to the joint density: :meth:`joint_log_prob` is that, and a model observing this
+    distribution adds ``joint_log_prob - sum(log_prob)`` as a factor (as :func:`make_model`
+    does). With ``shared_variance = 0`` both are the independent Gaussian. ``sample`` draws
+    from the joint (a fresh discrepancy per operating point).
+
+    Parameters
+    ----------
+    loc
+        The mean of each run's features.
+    run_variance
+        The variance of each run's own scatter (positive).
+    shared_variance
+        The variance of the discrepancy at each operating point (non-negative).
+    run_operating
+        The operating point (index into the first axis of ``shared_variance``) of each run.
+
+    References
+    ----------
+    P.-C. Buerkner, J. Gabry and A. Vehtari, "Efficient leave-one-out cross-validation for
+    Bayesian non-factorized normal and Student-t models", Computational Statistics 36, 2021.
+    M. C. Kennedy and A. O'Hagan, "Bayesian calibration of computer models", JRSS B 63, 2001.
+    """
+
+    arg_constraints: ClassVar[dict[str, constraints.Constraint]] = {
+        "loc": constraints.real,
+        "run_variance": constraints.positive,
+        "shared_variance": constraints.nonnegative,
+    }
+    support = constraints.real
+    reparametrized_params: ClassVar[list[str]] = ["loc", "run_variance", "shared_variance"]
+
+    def __init__(
+        self,
+        loc: Float[Array, "run channel band"],
+        run_variance: Float[Array, "#run #channel #band"],
+        shared_variance: Float[Array, "op channel band"],
+        run_operating: Int[Array, " run"],
+        *,
+        validate_args: bool | None = None,
+    ):
+        self.loc = loc
+        self.run_variance = jnp.broadcast_to(run_variance, loc.shape)
+        self.shared_variance = jnp.broadcast_to(
+            shared_variance, (shared_variance.shape[0], *loc.shape[1:])
+        )
+        self.run_operating = run_operating
+        super().__init__(batch_shape=loc.shape, validate_args=validate_args)
+
+    def _sums(self, value):
+        """Per operating point: sum of 1/v, of r/v, of r^2/v and of ln v over its runs."""
+        r = value - self.loc
+        w = 1.0 / self.run_variance
+        n_op = self.shared_variance.shape[0]
+
+        def total(x):
+            return jax.ops.segment_sum(x, self.run_operating, num_segments=n_op)
+
+        return r, w, total(w), total(r * w), total(r * r * w), total(jnp.log(self.run_variance))
+
+    def joint_log_prob(self, value: Float[Array, "run channel band"]) -> Float[Array, ""]:
+        """log p(y) of every run together (the discrepancy marginalised)."""
+        _, _, p, a, q, log_v = self._sums(value)
+        s = self.shared_variance
+        counts = jax.ops.segment_sum(
+            jnp.ones_like(self.loc), self.run_operating, num_segments=s.shape[0]
+        )
+        group = (
+            counts * jnp.log(2.0 * jnp.pi) + log_v + jnp.log1p(s * p) + q - s * a**2 / (1.0 + s * p)
+        )
+        return -0.5 * jnp.sum(group)
+
+    def log_prob(self, value: Float[Array, "run channel band"]) -> Float[Array, "run channel band"]:
+        """Per element, ``log p(y_i | y_-i)`` given the other runs of its operating point."""
+        r, w, p, a, _, _ = self._sums(value)
+        s = self.shared_variance[self.run_operating]
+        p_others = p[self.run_operating] - w
+        a_others = a[self.run_operating] - r * w
+        mean = s * a_others / (1.0 + s * p_others)
+        variance = self.run_variance + s / (1.0 + s * p_others)
+        return jax.scipy.stats.norm.logpdf(r, mean, jnp.sqrt(variance))
+
+    def discrepancy_posterior(
+        self, value: Float[Array, "run channel band"]
+    ) -> tuple[Float[Array, "op channel band"], Float[Array, "op channel band"]]:
+        """Mean and variance of each operating point's discrepancy given the runs ``value``."""
+        _, _, p, a, _, _ = self._sums(value)
+        s = self.shared_variance
+        return s * a / (1.0 + s * p), s / (1.0 + s * p)
+
+    def sample(self, key, sample_shape=()):
+        k_shared, k_run = jax.random.split(key)
+        shared = jnp.sqrt(self.shared_variance) * jax.random.normal(
+            k_shared, sample_shape + self.shared_variance.shape
+        )
+        own = jnp.sqrt(self.run_variance) * jax.random.normal(k_run, sample_shape + self.shape())
+        return self.loc + shared[..., self.run_operating, :, :] + own
+
+    @property
+    def mean(self):
+        return self.loc
+
+    @property
+    def variance(self):
+        return self.run_variance + self.shared_variance[self.run_operating]
 
 
 def _frequency_position(band_centres: Float[Array, " band"]) -> Float[Array, " band"]:
     lo, hi = band_centres[0], band_centres[-1]
     return jnp.where(hi > lo, (band_centres - 0.5 * (lo + hi)) / jnp.maximum(hi - lo, 1e-30), 0.0)
+
+
+def feature_distribution(
+    theta: Float[Array, " param"],
+    sigma_model: Float[Array, " channel"],
+    data: CalibrationData,
+    forward: AbstractForward,
+    slope: Float[Array, " channel"] | None = None,
+    *,
+    run_scatter: Float[Array, " channel"] | None = None,
+    shared: bool = True,
+) -> tuple[DiscrepancyNormal, Bool[Array, ""]]:
+    """The distribution of the measured features at ``theta``, and whether the model ran.
+
+    Where the forward model failed, the mean is replaced by the data (so nothing downstream
+    sees a NaN); the caller adds ``-inf`` to the log density (see :func:`log_likelihood`).
+
+    Parameters
+    ----------
+    theta
+        The parameters, in the forward model's order.
+    sigma_model
+        The discrepancy scale of each channel (decades).
+    data
+        The measured runs.
+    forward
+        The simulator or a surrogate of it.
+    slope
+        The discrepancy's slope over the band per channel; ``None``: flat.
+    run_scatter
+        ``rho_c``, each channel's run scatter in Welch standard deviations; ``None``: 1.
+    shared
+        The discrepancy is shared by the runs of an operating point (see the module
+        docstring); ``False``: each run's is independent.
+
+    Returns
+    -------
+    distribution
+        A :class:`DiscrepancyNormal` over ``data.y``.
+    ok
+        False when the forward model failed.
+    """
+    out = forward(theta)
+    loc = out.features[data.run_operating]
+    x = _frequency_position(data.band_centres)
+    slope = jnp.zeros_like(sigma_model) if slope is None else slope
+    rho = jnp.ones_like(sigma_model) if run_scatter is None else run_scatter
+    discrepancy = (sigma_model[:, None] * jnp.exp(slope[:, None] * x[None, :])) ** 2
+    run_variance = data.welch_variance[:, None, None] * rho[None, :, None] ** 2
+    shared_variance = discrepancy[None] + out.variance
+    if not shared:
+        run_variance = run_variance + shared_variance[data.run_operating]
+        shared_variance = jnp.zeros_like(shared_variance)
+    ok = out.ok & jnp.all(jnp.isfinite(loc))
+    return (
+        DiscrepancyNormal(
+            jnp.where(ok, loc, data.y), run_variance, shared_variance, data.run_operating
+        ),
+        ok,
+    )
 
 
 def predictive_normal(
@@ -275,11 +477,15 @@ def predictive_normal(
     data: CalibrationData,
     forward: AbstractForward,
     slope: Float[Array, " channel"] | None = None,
+    *,
+    run_scatter: Float[Array, " channel"] | None = None,
+    shared: bool = True,
 ) -> tuple[Float[Array, "run channel band"], Float[Array, "run channel band"], Bool[Array, ""]]:
-    """Mean and standard deviation of each measured feature, and whether the model ran.
+    """Mean and marginal standard deviation of each measured feature, and whether the model ran.
 
-    Where the forward model failed, the mean is replaced by the data (so nothing downstream
-    sees a NaN); the caller adds ``-inf`` to the log density (see :func:`log_likelihood`).
+    The marginal of one feature (discrepancy and run scatter together); the runs of an
+    operating point are correlated through the discrepancy (see :func:`feature_distribution`
+    for the joint and the parameters).
 
     Returns
     -------
@@ -288,16 +494,10 @@ def predictive_normal(
     ok
         False when the forward model failed.
     """
-    out = forward(theta)
-    loc = out.features[data.run_operating]
-    x = _frequency_position(data.band_centres)
-    slope = jnp.zeros_like(sigma_model) if slope is None else slope
-    sigma = sigma_model[:, None] * jnp.exp(slope[:, None] * x[None, :])
-    variance = (
-        data.welch_variance[:, None, None] + sigma[None] ** 2 + out.variance[data.run_operating]
+    d, ok = feature_distribution(
+        theta, sigma_model, data, forward, slope, run_scatter=run_scatter, shared=shared
     )
-    ok = out.ok & jnp.all(jnp.isfinite(loc))
-    return jnp.where(ok, loc, data.y), jnp.sqrt(variance), ok
+    return d.mean, jnp.sqrt(d.variance), ok
 
 
 def log_likelihood(
@@ -306,11 +506,18 @@ def log_likelihood(
     data: CalibrationData,
     forward: AbstractForward,
     slope: Float[Array, " channel"] | None = None,
+    *,
+    run_scatter: Float[Array, " channel"] | None = None,
+    shared: bool = True,
 ) -> Float[Array, ""]:
-    """The log likelihood of all runs; ``-inf`` (with finite gradients) where the model failed."""
-    loc, scale, ok = predictive_normal(theta, sigma_model, data, forward, slope)
-    total = jnp.sum(jax.scipy.stats.norm.logpdf(data.y, loc, scale))
-    return jnp.where(ok, total, -jnp.inf)
+    """The log likelihood of all runs; ``-inf`` (with finite gradients) where the model failed.
+
+    See :func:`feature_distribution` for the parameters.
+    """
+    d, ok = feature_distribution(
+        theta, sigma_model, data, forward, slope, run_scatter=run_scatter, shared=shared
+    )
+    return jnp.where(ok, d.joint_log_prob(data.y), -jnp.inf)
 
 
 def make_model(
@@ -323,10 +530,12 @@ def make_model(
 
     Sites: ``z`` (the sampling coordinates of :class:`SamplingTransform`, uniform box prior),
     one deterministic site per parameter name, ``sigma_model`` (per channel), ``sigma_slope``
-    (when the slope is on), ``solver_failed`` (a ``-inf`` factor when the forward model
-    failed) and the observed ``y`` with one log-likelihood term per run, channel and band (so
-    ArviZ's PSIS-LOO can use them). Call the model with ``y=None`` for posterior-predictive
-    replicates.
+    (when the slope is on), ``run_scatter`` (per channel, with a shared discrepancy),
+    ``solver_failed`` (a ``-inf`` factor when the forward model failed), ``shared_discrepancy``
+    (a factor: the joint density less the sum of the pointwise terms, zero for the independent
+    form) and the observed ``y`` with one log-likelihood term per run, channel and band, the
+    leave-one-out conditional of :class:`DiscrepancyNormal` (so ArviZ's PSIS-LOO can use
+    them). Call the model with ``y=None`` for posterior-predictive replicates.
 
     Parameters
     ----------
@@ -379,13 +588,24 @@ def make_model(
                 if error.slope
                 else None
             )
-        loc, scale, ok = predictive_normal(theta, sigma, data, forward, slope)
+            rho = (
+                numpyro.sample("run_scatter", dist.LogNormal(0.0, error.scatter_scale))
+                if error.shared
+                else None
+            )
+        features, ok = feature_distribution(
+            theta, sigma, data, forward, slope, run_scatter=rho, shared=error.shared
+        )
         numpyro.factor("solver_failed", jnp.where(ok, 0.0, -jnp.inf))
+        if y is not None and error.shared:
+            numpyro.factor(
+                "shared_discrepancy", features.joint_log_prob(y) - jnp.sum(features.log_prob(y))
+            )
         with (
             numpyro.plate("run", n_run, dim=-3),
             numpyro.plate("feature_channel", n_channel, dim=-2),
             numpyro.plate("band", n_band, dim=-1),
         ):
-            numpyro.sample("y", dist.Normal(loc, scale), obs=y)
+            numpyro.sample("y", features, obs=y)
 
     return model

@@ -44,6 +44,7 @@ from ._features import FeatureSpec, run_features
 from ._likelihood import (
     AbstractForward,
     CalibrationData,
+    DiscrepancyNormal,
     ForwardOutput,
     ModelError,
     log_likelihood,
@@ -419,7 +420,13 @@ class FitResult:
     names
         The sampled (continuous) parameters, in order.
     sigma_point
-        Maximum-likelihood model-error scale per channel at the CMA-ES optimum (decades).
+        Model-error (discrepancy) scale per channel at the CMA-ES optimum (decades), a moment
+        estimate from the residuals there.
+    scatter_point
+        Run scatter per channel at the CMA-ES optimum (Welch standard deviations; 1 for the
+        independent model error), likewise.
+    model_error
+        The model-error prior and structure of the likelihood.
     bounds
         Lower and upper bounds of ``names``.
     surrogate_box
@@ -449,6 +456,8 @@ class FitResult:
     settings: FitSettings
     names: tuple[str, ...]
     sigma_point: np.ndarray
+    scatter_point: np.ndarray
+    model_error: ModelError
     bounds: tuple[np.ndarray, np.ndarray]
     surrogate_box: tuple[np.ndarray, np.ndarray] | None
     surrogate_rms: float | None
@@ -471,6 +480,13 @@ class FitResult:
             return np.asarray(self.sigma_point)[None]
         sigma = np.asarray(self.idata["posterior"]["sigma_model"].values)
         return sigma.reshape(-1, sigma.shape[-1])
+
+    def run_scatter_draws(self) -> np.ndarray:
+        """Run scatter in Welch sds, (draw, channel) (``cmaes`` or independent: one row)."""
+        if self.idata is None or "run_scatter" not in self.idata["posterior"]:
+            return np.asarray(self.scatter_point)[None]
+        rho = np.asarray(self.idata["posterior"]["run_scatter"].values)
+        return rho.reshape(-1, rho.shape[-1])
 
     def to_json(self) -> dict[str, Any]:
         """Per parameter: point (or mean), sd and 90 % interval; diagnostics; J."""
@@ -495,6 +511,7 @@ class FitResult:
             "j": self.j,
             "parameters": parameters,
             "model_error": None if sigma is None else np.mean(sigma, axis=0).tolist(),
+            "run_scatter": np.mean(self.run_scatter_draws(), axis=0).tolist(),
             "diagnostics": None if self.diagnostics is None else self.diagnostics.to_json(),
             "cmaes": {
                 "f_best": self.cmaes.f_best,
@@ -540,6 +557,11 @@ class FitResult:
             "settings": dataclasses.asdict(self.settings),
             "names": list(self.names),
             "sigma_point": np.asarray(self.sigma_point).tolist(),
+            "scatter_point": np.asarray(self.scatter_point).tolist(),
+            "model_error": {
+                f: getattr(self.model_error, f)
+                for f in ("scale", "slope", "slope_scale", "shared", "scatter_scale")
+            },
             "bounds": [np.asarray(b).tolist() for b in self.bounds],
             "surrogate_box": None
             if self.surrogate_box is None
@@ -619,6 +641,11 @@ class FitResult:
             settings=FitSettings(**r["settings"]),
             names=tuple(r["names"]),
             sigma_point=np.asarray(r["sigma_point"], dtype=float),
+            scatter_point=np.asarray(
+                r.get("scatter_point", np.ones(len(r["sigma_point"]))), dtype=float
+            ),
+            # fits written before the shared discrepancy existed had the independent form
+            model_error=ModelError(**r.get("model_error", {"shared": False})),
             bounds=tuple(np.asarray(b, dtype=float) for b in r["bounds"]),  # type: ignore[arg-type]
             surrogate_box=None
             if r["surrogate_box"] is None
@@ -669,12 +696,37 @@ def _integer_parameter(system: AbstractSystem, law: int | None) -> tuple[str | N
     return spec.name, law
 
 
-def _ml_model_error(
-    residual: Float[np.ndarray, "run channel band"], welch_variance: Float[np.ndarray, " run"]
-) -> np.ndarray:
-    """Per channel: the model-error scale that the residuals at a point call for, floored."""
-    excess = np.mean(residual**2, axis=(0, 2)) - np.mean(welch_variance)
-    return np.sqrt(np.maximum(excess, _SIGMA_FLOOR**2))
+def _point_error(
+    residual: Float[np.ndarray, "run channel band"],
+    data: CalibrationData,
+    shared: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per channel: the discrepancy scale and the run scatter the residuals at a point call for.
+
+    Moment estimates. Shared: the run scatter (in Welch sds) from the spread of the runs about
+    their operating point's mean (1 without replicate runs), the discrepancy from the
+    operating points' mean residuals less the part of their variance the scatter explains.
+    Independent: the excess of the mean squared residual over the Welch variance, scatter 1.
+    The discrepancy scale is floored at ``_SIGMA_FLOOR``.
+    """
+    welch = np.asarray(data.welch_variance)
+    index = np.asarray(data.run_operating)
+    n_op = data.operating.shape[0]
+    rho = np.ones(residual.shape[1])
+    if not shared:
+        excess = np.mean(residual**2, axis=(0, 2)) - np.mean(welch)
+        return np.sqrt(np.maximum(excess, _SIGMA_FLOOR**2)), rho
+    counts = np.bincount(index, minlength=n_op)
+    means = np.stack([residual[index == o].mean(axis=0) for o in range(n_op)])
+    spread = residual - means[index]
+    replicated = counts[index] > 1
+    if replicated.any():
+        dof = np.sum(1.0 - 1.0 / counts[index][replicated])
+        ratio = (spread[replicated] ** 2 / welch[replicated, None, None]).sum(axis=(0, 2))
+        rho = np.sqrt(np.maximum(ratio / (dof * residual.shape[2]), _SIGMA_FLOOR**2))
+    scatter = rho[None, :] ** 2 * np.array([welch[index == o].mean() for o in range(n_op)])[:, None]
+    excess = np.mean(means**2, axis=2) - scatter / counts[:, None]
+    return np.sqrt(np.maximum(excess.mean(axis=0), _SIGMA_FLOOR**2)), rho
 
 
 def fit_campaign(
@@ -796,7 +848,8 @@ def fit_campaign(
     full_point = {**optimum, **fixed_law}
     sim, _ = _simulate(population, _full(system, theta_opt, free, fixed_law))
     residual = np.asarray(data.y) - sim[0][np.asarray(data.run_operating)]
-    sigma_point = _ml_model_error(residual, np.asarray(data.welch_variance))
+    error = ModelError() if error is None else error
+    sigma_point, scatter_point = _point_error(residual, data, error.shared)
 
     common = dict(
         law=law,
@@ -805,6 +858,8 @@ def fit_campaign(
         settings=settings,
         names=free,
         sigma_point=sigma_point,
+        scatter_point=scatter_point,
+        model_error=error,
         bounds=bounds,
         runs=runs,
         duration=duration,
@@ -837,7 +892,7 @@ def fit_campaign(
     fractions = jnp.asarray(np.where(loose, 1.0, settings.box_fraction))
     n_terms = 1 + d + d * (d + 1) // 2
     forward = _PartialForward.build(system, population, free, fixed_law)
-    centre, sigma_init = theta_opt, jnp.asarray(sigma_point)
+    centre, sigma_init, rho_init = theta_opt, jnp.asarray(sigma_point), jnp.asarray(scatter_point)
     timings["sensitivity"] = time.perf_counter() - t0
     timings["surrogate"] = timings["sampling"] = 0.0
     for stage in range(settings.box_moves + 1):
@@ -861,8 +916,8 @@ def fit_campaign(
         )
         transform = SamplingTransform.box(free, box[0].tolist(), box[1].tolist())
 
-        def density(th, sigma=sigma_init, forward=surrogate):
-            return log_likelihood(th, sigma, data, forward)
+        def density(th, sigma=sigma_init, rho=rho_init, forward=surrogate):
+            return log_likelihood(th, sigma, data, forward, run_scatter=rho, shared=error.shared)
 
         try:
             transform = transform.whitened_at(density, jnp.asarray(inside))
@@ -870,6 +925,8 @@ def fit_campaign(
             notes.append(f"Laplace whitening failed ({err}); sampling in plain logit coordinates")
         model = make_model(data, surrogate, transform, error)
         init = {"z": transform.to_sampling(jnp.asarray(inside)), "sigma_model": sigma_init}
+        if error.shared:
+            init["run_scatter"] = rho_init
         if method == "nuts":
             idata = sample_nuts(
                 model,
@@ -909,6 +966,9 @@ def fit_campaign(
             centre = draws.mean(axis=0)
             sigma = np.asarray(post["sigma_model"].values)
             sigma_init = jnp.asarray(sigma.reshape(-1, sigma.shape[-1]).mean(axis=0))
+            if error.shared:
+                rho = np.asarray(post["run_scatter"].values)
+                rho_init = jnp.asarray(rho.reshape(-1, rho.shape[-1]).mean(axis=0))
         else:
             message += "; raise box_fraction or box_moves"
             warnings.warn(message, UserWarning, stacklevel=2)
@@ -948,7 +1008,8 @@ def _add_predictive(idata: az.InferenceData, model, n_draws: int, key: jax.Array
     keep = slice(None, None, step)
     samples = {
         name: jnp.asarray(np.asarray(post[name].values)[:, keep]).reshape(-1, *post[name].shape[2:])
-        for name in ("z", "sigma_model")
+        for name in ("z", "sigma_model", "run_scatter")
+        if name in post
     }
     kept = len(range(n_draw)[keep])
     replicate = Predictive(model, posterior_samples=samples, return_sites=["y"])(key, y=None)
@@ -975,8 +1036,13 @@ def posterior_predictive(
     """Replicated features of some runs under a fit, through the exact simulator.
 
     Each replicate takes one posterior draw (``cmaes``: the point), simulates the runs'
-    operating points, and adds Gaussian scatter with the run's Welch variance plus the draw's
-    model-error variance: the distribution the fit predicts for a new measurement of the run.
+    operating points and adds the model's discrepancy and the run's own scatter: the
+    distribution the fit predicts for a new measurement of the run. With a shared discrepancy
+    (``ModelError(shared=True)``), at an operating point the fit's calibration runs measured
+    the discrepancy is drawn from its posterior given those runs (their features are taken
+    from ``campaign`` at ``result.runs``), elsewhere from its prior ``Normal(0, sigma_c^2)``;
+    the run's scatter has variance ``rho_c^2`` times its Welch variance. With the independent
+    model error, the scatter is ``Normal(0, s_r^2 + sigma_c^2)``.
 
     Parameters
     ----------
@@ -985,7 +1051,8 @@ def posterior_predictive(
     system
         The system fitted.
     campaign
-        The campaign holding the runs (for example the held-out healthy runs).
+        The campaign that was fitted, holding the runs (for example its held-out healthy
+        runs).
     runs
         Which runs; ``None``: the runs fitted.
     key
@@ -1011,21 +1078,78 @@ def posterior_predictive(
         max_motion_s=result.settings.max_motion_s,
     )
     draws = result.posterior_draws()
-    sigma = np.asarray(result.model_error_draws())
     total = len(next(iter(draws.values())))
-    pick = np.linspace(0, total - 1, min(n_draws, total)).round().astype(int)
-    pick = np.resize(pick, n_draws)
+    pick = np.resize(np.linspace(0, total - 1, min(n_draws, total)).round().astype(int), n_draws)
+    sigma = np.asarray(result.model_error_draws())
+    sigma = sigma[pick % len(sigma)]
+    rho = np.asarray(result.run_scatter_draws())
+    rho = rho[pick % len(rho)]
+    mean, ok = _draw_features(result, system, data, duration, draws, pick)
+    welch = np.asarray(data.welch_variance)[None, :, None, None]
+    if result.model_error.shared:
+        calibration, cal_duration = campaign_data(
+            system,
+            campaign,
+            result.runs,
+            spec=result.feature_spec,
+            max_motion_s=result.settings.max_motion_s,
+        )
+        cal_mean, cal_ok = _draw_features(result, system, calibration, cal_duration, draws, pick)
+        delta_mean, delta_var = _discrepancy_posterior(calibration, cal_mean, sigma, rho)
+        ok = ok & cal_ok
+        ops = np.asarray(data.operating)[np.asarray(data.run_operating)]
+        measured = np.asarray(calibration.operating)
+        shift = np.zeros_like(mean)
+        spread = np.broadcast_to(sigma[:, None, :, None] ** 2, mean.shape).copy()
+        for i, op in enumerate(ops):
+            match = np.flatnonzero(np.isclose(measured, op))
+            if match.size:
+                shift[:, i] = delta_mean[:, match[0]]
+                spread[:, i] = delta_var[:, match[0]]
+        mean = mean + shift
+        variance = spread + rho[:, None, :, None] ** 2 * welch
+    else:
+        variance = welch + sigma[:, None, :, None] ** 2
+    noise = np.asarray(jax.random.normal(key, mean.shape, dtype=jnp.float64))
+    replicates = np.where(ok[:, None, None, None], mean + np.sqrt(variance) * noise, np.nan)
+    return replicates, data, ok
+
+
+def _draw_features(
+    result: FitResult,
+    system: AbstractSystem,
+    data: CalibrationData,
+    duration: float,
+    draws: dict[str, np.ndarray],
+    pick: np.ndarray,
+) -> tuple[Float[np.ndarray, "draw run channel band"], Bool[np.ndarray, " draw"]]:
+    """The simulated features of the runs of ``data`` at the posterior draws ``pick``."""
     unique, inverse = np.unique(pick, return_inverse=True)
     thetas = np.stack([draws[n][unique] for n in result.names], axis=-1)
     fixed = {k: v for k, v in result.point.items() if k not in result.names}
     population = _Population.build(system, data, duration, result.feature_spec)
     features, ok = _simulate(population, _full(system, thetas, result.names, fixed))
     features, ok = features[inverse.reshape(-1)], ok[inverse.reshape(-1)]
-    mean = features[:, np.asarray(data.run_operating)]
-    sd = np.sqrt(
-        np.asarray(data.welch_variance)[None, :, None, None]
-        + np.asarray(sigma)[pick % len(sigma)][:, None, :, None] ** 2
-    )
-    noise = np.asarray(jax.random.normal(key, mean.shape, dtype=jnp.float64))
-    replicates = np.where(ok[:, None, None, None], mean + sd * noise, np.nan)
-    return replicates, data, ok
+    return features[:, np.asarray(data.run_operating)], ok
+
+
+def _discrepancy_posterior(
+    data: CalibrationData,
+    simulated: Float[np.ndarray, "draw run channel band"],
+    sigma: Float[np.ndarray, "draw channel"],
+    rho: Float[np.ndarray, "draw channel"],
+) -> tuple[Float[np.ndarray, "draw op channel band"], Float[np.ndarray, "draw op channel band"]]:
+    """Per draw, mean and variance of the discrepancy at each operating point of ``data``."""
+
+    def one(loc, s, r):
+        features = DiscrepancyNormal(
+            jnp.asarray(loc),
+            data.welch_variance[:, None, None] * r[None, :, None] ** 2,
+            jnp.broadcast_to(s[None, :, None] ** 2, (data.operating.shape[0], *loc.shape[1:])),
+            data.run_operating,
+        )
+        return features.discrepancy_posterior(data.y)
+
+    simulated = np.where(np.isfinite(simulated), simulated, np.asarray(data.y)[None])
+    mean, variance = jax.vmap(one)(jnp.asarray(simulated), jnp.asarray(sigma), jnp.asarray(rho))
+    return np.asarray(mean), np.asarray(variance)

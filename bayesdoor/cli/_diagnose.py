@@ -6,11 +6,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import typer
 import xarray as xr
 from rich.console import Console
-from rich.table import Table
 
-from ._common import emit_json, fail
+from ._common import check_for_job, check_writable, emit_json, fail, system_named, writing
 
 _err = Console(stderr=True)
 
@@ -43,7 +43,7 @@ def load_fit(folder: Path, system) -> Any:
     except (OSError, ValueError, KeyError, TypeError) as err:
         reason = str(err).replace("\n", " ")
         raise fail(f"--posterior {folder}: the fit cannot be read ({reason}); refit it") from None
-    expected = set(system.parameter_names)
+    expected = set(system.parameter_names())
     found = set(fit.point)
     if found != expected:
         extra, missing = sorted(found - expected), sorted(expected - found)
@@ -55,18 +55,24 @@ def load_fit(folder: Path, system) -> Any:
     return fit
 
 
-def check_healthy(campaign: xr.Dataset) -> None:
-    """Refuse a campaign without healthy runs (the diagnosis compares the model with them)."""
-    from ..pipeline import healthy_runs
+def healthy_positions(campaign: xr.Dataset) -> list[int]:
+    """Positions of the healthy runs, which the diagnosis compares with the model.
 
+    Raises
+    ------
+    ValueError
+        When there is none.
+    """
     if "state" not in campaign.coords:
-        raise fail("the campaign has no 'state' coordinate: label the healthy runs 'healthy'")
-    if healthy_runs(campaign).sizes["run"] == 0:
-        found = ", ".join(sorted(set(np.asarray(campaign["state"].values).astype(str))))
-        raise fail(
-            f"the campaign has no healthy runs (states: {found}): the diagnosis compares the "
-            "model with measurements of the healthy system; label them state 'healthy'"
+        raise ValueError("the campaign has no 'state' coordinate: label the healthy runs 'healthy'")
+    states = np.asarray(campaign["state"].values).astype(str)
+    if not (states == "healthy").any():
+        raise ValueError(
+            f"the campaign has no healthy runs (states: {', '.join(sorted(set(states)))}): the "
+            "diagnosis compares the model with measurements of the healthy system; label them "
+            "state 'healthy'"
         )
+    return [int(i) for i in np.flatnonzero(states == "healthy")]
 
 
 def compute(system, campaign: xr.Dataset, fit, *, seed: int, quick: bool, progress: bool):
@@ -90,25 +96,23 @@ def _value(value: Any) -> str:
     return "-" if value is None else str(value)
 
 
-def print_summary(payload: dict[str, Any], console: Console) -> None:
+def summary_lines(payload: dict[str, Any]) -> list[str]:
     """The verdict, the ranked causes with their evidence, parameters and gain, the report."""
     verdict = payload.get("verdict")
-    shown = {None: "undecided (no cause has decisive evidence)"}.get(verdict, str(verdict))
-    console.print(f"verdict: [bold]{shown}[/]")
-    table = Table(title="ranked causes")
-    for column in ("cause", "evidence", "parameters", "gain"):
-        table.add_column(column)
-    for cause in payload.get("causes", []):
+    shown = "undecided (no cause has decisive evidence)" if verdict is None else str(verdict)
+    lines = [f"verdict: {shown}", "ranked causes:"]
+    for rank, cause in enumerate(payload.get("causes", []), start=1):
         parameters = cause.get("parameters") or {}
         gain = cause.get("gain") or {}
-        table.add_row(
-            str(cause.get("name")),
-            str(cause.get("evidence", "")),
-            "\n".join(f"{k} = {_value(v)}" for k, v in parameters.items()) or "-",
-            "\n".join(f"{k} = {_value(v)}" for k, v in gain.items()) or "-",
-        )
-    console.print(table)
-    console.print(f"report: {payload['report']}")
+        lines.append(f"{rank:3d}. {cause.get('name')}: {cause.get('evidence', '')}")
+        if parameters:
+            lines.append(
+                "     parameters: " + ", ".join(f"{k} = {_value(v)}" for k, v in parameters.items())
+            )
+        if gain:
+            lines.append("     gain: " + ", ".join(f"{k} = {_value(v)}" for k, v in gain.items()))
+    lines.append(f"report: {payload['report']}")
+    return lines
 
 
 def diagnose(
@@ -123,13 +127,14 @@ def diagnose(
 ) -> None:
     """The ``diagnose`` command: check the inputs, diagnose, write the two files, print."""
     from ..pipeline import DIAGNOSIS_FILES, catalogue_of, save_diagnosis
-    from ._run import load, system_for
+    from ._run import load
 
     campaign = load(path)
-    system = system_for(campaign)
-    check_healthy(campaign)
+    system = system_named(campaign)
+    check_for_job(campaign, system, str(path), healthy_positions)
     if out.exists() and not out.is_dir():
         raise fail(f"--out {out} is a file: pass a folder for the diagnosis")
+    check_writable(out)
     for name in DIAGNOSIS_FILES:
         if (out / name).exists() and not force:
             raise fail(f"{out / name} already exists; pass --force to overwrite it")
@@ -147,17 +152,18 @@ def diagnose(
         "seed": seed,
         "quick": quick,
     }
-    payload = save_diagnosis(
-        diagnosis,
-        out,
-        catalogue=catalogue_of(system, diagnosis),
-        fit=None if fit is None else fit.to_json(),
-        extra=extra,
-        title=f"{path.name}: discrepancy diagnosis",
-        overwrite=force,
-    )
+    with writing(out):
+        payload = save_diagnosis(
+            diagnosis,
+            out,
+            catalogue=catalogue_of(system, diagnosis),
+            fit=None if fit is None else fit.to_json(),
+            extra=extra,
+            title=f"{path.name}: discrepancy diagnosis",
+            overwrite=force,
+        )
     payload = {**payload, "out": str(out), "report": str(out / payload["report"])}
     if json:
         emit_json(payload)
     else:
-        print_summary(payload, Console())
+        typer.echo("\n".join(summary_lines(payload)))

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from jaxtyping import Float
 
 from ..diagnose import (
     Catalogue,
@@ -141,7 +142,7 @@ def _spans(f: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
     return [(float(f[a]), float(f[b - 1])) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
-def speed_figure(region: Region, speeds: Sequence[float]) -> bytes:
+def speed_figure(region: Region, speeds: Float[np.ndarray, " run"] | Sequence[float]) -> bytes:
     """Each run's peak frequency of a feature against its speed, with both speed models.
 
     A tone from a spatial period lies on ``f = v / wavelength`` (through the origin); a
@@ -233,8 +234,13 @@ def coherence_figure(features: Features, pair: tuple[str, str]) -> bytes:
 
 def rest_figure(features: Features, frequency_hz: float | None = None) -> bytes:
     """The spectra at rest (before the motion, and after where recorded) against the model."""
-    rests = [(w, r) for w, r in (("before", features.rest_before), ("after", features.rest_after))]
-    rests = [(w, r) for w, r in rests if r is not None]
+    rests = [
+        (when, rest)
+        for when, rest in (("before", features.rest_before), ("after", features.rest_after))
+        if rest is not None
+    ]
+    if not rests:
+        raise ValueError("the features hold no rest spectra: nothing was recorded at rest")
     channels = rests[0][1].channels
     fig = _figure(11.5, 1.2 + 1.6 * len(channels))
     axes = fig.subplots(len(channels), len(rests), squeeze=False, sharex=True)
@@ -482,7 +488,7 @@ def diagnosis_page(
         cause_parts.append("".join(body))
     parts.append(H.section("Ranked causes", *cause_parts))
 
-    header, rows = gain_rows(causes)
+    gain_header, rows = gain_rows(causes)
     if rows:
         parts.append(
             H.section(
@@ -491,7 +497,7 @@ def diagnosis_page(
                     "Held-out measures of the base model and of the model extended with each "
                     "cause (fitted on part of the healthy runs, judged on the others)."
                 ),
-                H.table(header, rows),
+                H.table(gain_header, rows),
             )
         )
     if fit is not None:

@@ -1,0 +1,329 @@
+"""``bayesdoor diagnose``: the command-line contract and the HTML report.
+
+The diagnosis itself (``bayesdoor.diagnose.diagnose_campaign``) is tested in
+``test_diagnose_job.py``; here it is replaced by a stand-in whose causes are ranked by the real
+signatures on the synthetic records of ``test_diagnose`` (a hidden frame mode, a hidden
+cross-axis leak), so the report draws real residual maps and evidence. The door campaign the
+command reads is a few runs of noise: the stand-in does not look at it.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from test_diagnose import diagnose_case, make_case
+from typer.testing import CliRunner
+
+from bayesdoor.cli import app
+from bayesdoor.inference import FitResult
+from bayesdoor.io import make_campaign, save_campaign
+from bayesdoor.report import diagnosis_page
+from bayesdoor.systems import ElevatorDoor
+from bayesdoor.systems.door import DOOR_CATALOGUE
+
+runner = CliRunner()
+#: the diagnosis the command calls (replaced by a stand-in)
+COMPUTE = "bayesdoor.cli._diagnose.compute"
+
+
+def invoke(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+class StandIn:
+    """A diagnosis: the ranking of a synthetic case, with a made-up gain for the named cause."""
+
+    def __init__(self, ranking):
+        self.features = ranking.features
+        self.ranking = ranking
+
+    def to_json(self):
+        causes = []
+        for c in self.ranking.causes:
+            gain = {"delta_j": -0.25, "delta_elpd": 12.5} if c.name == self.ranking.verdict else {}
+            causes.append(
+                {
+                    "name": c.name,
+                    "description": c.description,
+                    "score": c.score,
+                    "evidence": c.evidence,
+                    "parameters": dict(c.parameters),
+                    "feature": c.feature,
+                    "gain": gain,
+                }
+            )
+        return {"verdict": self.ranking.verdict, "causes": causes}
+
+
+@pytest.fixture(scope="module")
+def frame_mode():
+    return StandIn(diagnose_case(make_case("frame_mode", 0)))
+
+
+@pytest.fixture(scope="module")
+def cross_axis():
+    return StandIn(diagnose_case(make_case("sensor_cross_axis", 0)))
+
+
+@pytest.fixture
+def calls(monkeypatch, frame_mode):
+    seen = []
+
+    def compute(system, campaign, fit, *, seed, quick, progress):
+        seen.append(SimpleNamespace(system=system, fit=fit, seed=seed, quick=quick))
+        return frame_mode
+
+    monkeypatch.setattr(COMPUTE, compute)
+    return seen
+
+
+def door_file(path, states):
+    rng = np.random.default_rng(0)
+    ds = make_campaign(
+        0.01 * rng.standard_normal((len(states), 4, 2048)),
+        channels=["A1X", "A1Z", "A2X", "A2Z"],
+        fs=2048.0,
+        state=states,
+        v_max=np.full(len(states), 0.4),
+        system="elevator_door",
+    )
+    save_campaign(ds, path)
+    return path
+
+
+@pytest.fixture
+def campaign(tmp_path):
+    return door_file(tmp_path / "door.nc", ["healthy", "healthy", "D1"])
+
+
+# ----------------------------------------------------------------------------- the contract
+
+
+def test_json_alone_on_stdout_and_both_files_under_out(calls, campaign, tmp_path):
+    out = tmp_path / "diag"
+    result = invoke("diagnose", campaign, "--out", out, "--json", "--seed", 3, "--quick")
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    assert payload["verdict"] == "frame_mode"
+    for cause in payload["causes"]:
+        assert {"name", "evidence", "parameters", "gain"} <= set(cause)
+    assert payload["causes"][0]["name"] == "frame_mode"
+    assert payload["causes"][0]["gain"] == {"delta_j": -0.25, "delta_elpd": 12.5}
+    assert payload["report"] == str(out / "diagnosis.html")
+    assert sorted(p.name for p in out.iterdir()) == ["diagnosis.html", "diagnosis.json"]
+    on_disk = json.loads((out / "diagnosis.json").read_text())
+    assert on_disk["causes"] == payload["causes"] and on_disk["report"] == "diagnosis.html"
+    # the options reach the diagnosis; without --posterior it fits itself
+    (call,) = calls
+    assert (call.seed, call.quick, call.fit) == (3, True, None)
+    assert call.system.name == ElevatorDoor().name
+
+
+def test_human_summary_names_the_verdict_the_causes_and_the_report(calls, campaign, tmp_path):
+    out = tmp_path / "diag"
+    result = invoke("diagnose", campaign, "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "verdict: frame_mode" in result.stdout
+    for name in ("frame_mode", "rail_waviness", "sensor_cross_axis", "mains_hum"):
+        assert name in result.stdout
+    assert "delta_elpd = 12.5" in result.stdout
+    assert f"report: {out / 'diagnosis.html'}" in result.stdout.replace("\n", "")
+
+
+def test_a_previous_diagnosis_is_kept_without_force(calls, campaign, tmp_path):
+    out = tmp_path / "diag"
+    assert invoke("diagnose", campaign, "--out", out).exit_code == 0
+    (out / "diagnosis.json").write_text("mine")
+    refused = invoke("diagnose", campaign, "--out", out)
+    assert refused.exit_code == 2
+    assert "--force" in refused.output and len(refused.output.strip().splitlines()) == 1
+    assert (out / "diagnosis.json").read_text() == "mine"
+    assert len(calls) == 1  # refused before any work
+    forced = invoke("diagnose", campaign, "--out", out, "--force")
+    assert forced.exit_code == 0
+    assert json.loads((out / "diagnosis.json").read_text())["verdict"] == "frame_mode"
+
+
+def test_other_files_in_out_are_left_alone(calls, campaign, tmp_path):
+    out = tmp_path / "diag"
+    out.mkdir()
+    (out / "notes.txt").write_text("precious")
+    assert invoke("diagnose", campaign, "--out", out).exit_code == 0
+    assert (out / "notes.txt").read_text() == "precious"
+    assert sorted(p.name for p in out.iterdir()) == [
+        "diagnosis.html",
+        "diagnosis.json",
+        "notes.txt",
+    ]
+
+
+def one_line_failure(result, *words, alone=True):
+    """Exit 2 with the reason on one line (the only line unless the work had begun)."""
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    errors = [line for line in lines if line.startswith("error: ")]
+    assert len(errors) == 1 and errors[0] == lines[-1], result.output
+    assert len(lines) == 1 or not alone, result.output
+    for word in words:
+        assert word in lines[-1], lines[-1]
+    assert "Traceback" not in result.output
+
+
+def test_bad_campaigns_fail_in_one_line_before_any_work(calls, tmp_path):
+    out = tmp_path / "diag"
+    one_line_failure(invoke("diagnose", tmp_path / "nope.nc", "--out", out), "no such file")
+    text = tmp_path / "text.nc"
+    text.write_text("not netcdf")
+    one_line_failure(invoke("diagnose", text, "--out", out), "not a readable campaign")
+    faulty = door_file(tmp_path / "faulty.nc", ["D1", "D2"])
+    one_line_failure(invoke("diagnose", faulty, "--out", out), "no healthy runs", "D1, D2")
+    assert not out.exists() and calls == []
+
+
+def test_an_out_that_is_a_file_is_refused(calls, campaign, tmp_path):
+    target = tmp_path / "diag"
+    target.write_text("a file")
+    one_line_failure(invoke("diagnose", campaign, "--out", target), "is a file")
+    assert target.read_text() == "a file" and calls == []
+
+
+def test_bad_posterior_folders_fail_in_one_line(calls, campaign, tmp_path):
+    out = tmp_path / "diag"
+    one_line_failure(
+        invoke("diagnose", campaign, "--out", out, "--posterior", tmp_path / "none"),
+        "no such folder",
+    )
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    one_line_failure(
+        invoke("diagnose", campaign, "--out", out, "--posterior", empty), "holds no fit.json"
+    )
+    laws = tmp_path / "laws"
+    for i in (1, 2):
+        (laws / f"law_{i}").mkdir(parents=True)
+        (laws / f"law_{i}" / "fit.json").write_text("{}")
+    one_line_failure(
+        invoke("diagnose", campaign, "--out", out, "--posterior", laws),
+        "one fit per contact law",
+        str(laws / "law_1"),
+    )
+    broken = laws / "law_1"
+    one_line_failure(
+        invoke("diagnose", campaign, "--out", out, "--posterior", broken), "cannot be read"
+    )
+    assert not out.exists() and calls == []
+
+
+def fake_fit_folder(tmp_path, monkeypatch, point):
+    """A fit folder whose ``FitResult.load`` gives a fit with ``point`` (the IO is not tested)."""
+    folder = tmp_path / "fit"
+    folder.mkdir()
+    (folder / "fit.json").write_text("{}")
+    fit = SimpleNamespace(
+        point=point,
+        to_json=lambda: {"method": "cmaes", "j": 0.1, "parameters": point},
+    )
+    monkeypatch.setattr(FitResult, "load", classmethod(lambda cls, f: fit))
+    return folder, fit
+
+
+def test_a_posterior_of_another_system_is_refused(calls, campaign, tmp_path, monkeypatch):
+    folder, _ = fake_fit_folder(tmp_path, monkeypatch, {"k": 0.5, "m": 1.0})
+    result = invoke("diagnose", campaign, "--out", tmp_path / "diag", "--posterior", folder)
+    one_line_failure(result, "another system", "'k'", "missing")
+    assert calls == []
+
+
+def test_a_posterior_of_the_system_is_reused(calls, campaign, tmp_path, monkeypatch):
+    point = ElevatorDoor().nominal()
+    folder, fit = fake_fit_folder(tmp_path, monkeypatch, point)
+    out = tmp_path / "diag"
+    result = invoke("diagnose", campaign, "--out", out, "--posterior", folder, "--json")
+    assert result.exit_code == 0, result.output
+    assert calls[0].fit is fit
+    assert json.loads(result.stdout)["posterior"] == str(folder)
+    page = (out / "diagnosis.html").read_text()
+    assert "Base model" in page and "cmaes" in page
+
+
+def test_a_diagnosis_error_is_one_line(monkeypatch, campaign, tmp_path):
+    def refuse(system, campaign, fit, *, seed, quick, progress):
+        raise ValueError("the campaign has 1 healthy run:\nthe held-out check needs 2")
+
+    monkeypatch.setattr(COMPUTE, refuse)
+    out = tmp_path / "diag"
+    one_line_failure(invoke("diagnose", campaign, "--out", out), "needs 2", alone=False)
+    assert not (out / "diagnosis.json").exists()
+
+
+# ------------------------------------------------------------------------------- the report
+
+
+def images(page: str) -> list[bytes]:
+    data = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
+    return [base64.b64decode(d) for d in data]
+
+
+def test_report_is_self_contained_with_the_residual_map_and_evidence(frame_mode):
+    page = diagnosis_page(
+        frame_mode.to_json(), features=frame_mode.features, catalogue=DOOR_CATALOGUE
+    )
+    pngs = images(page)
+    # the residual map, then the frame mode's speed plot and excess spectrum, and the figures
+    # of the other causes with a feature
+    assert len(pngs) >= 3
+    assert all(p[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
+    assert 'src="http' not in page and "<script" not in page
+    assert "Where the model is wrong" in page and "Gain of the extensions" in page
+    assert "a resonance stays at one frequency" in page
+    assert "The most likely cause of the discrepancy is frame_mode" in page
+    # every check of the evidence is listed
+    top = frame_mode.ranking.causes[0]
+    for part in top.evidence.split("; "):
+        assert part.replace("'", "&#x27;") in page or part in page
+
+
+def test_report_shows_coherence_for_a_cross_axis_leak(cross_axis):
+    assert cross_axis.ranking.verdict == "sensor_cross_axis"
+    page = diagnosis_page(
+        cross_axis.to_json(), features=cross_axis.features, catalogue=DOOR_CATALOGUE
+    )
+    assert "coherence, measured and simulated" in page
+    # the fitted fraction with its uncertainty, as the diagnosis reports it
+    with_sd = cross_axis.to_json()
+    with_sd["causes"][0]["parameters"]["fraction"] = {
+        "mean": 0.1,
+        "sd": 0.01,
+        "q5": 0.084,
+        "q95": 0.116,
+    }
+    page = diagnosis_page(with_sd, features=cross_axis.features, catalogue=DOOR_CATALOGUE)
+    assert "0.1 ± 0.01 [0.084, 0.116]" in page
+
+
+def test_report_without_features_and_with_no_verdict():
+    payload = {
+        "verdict": None,
+        "causes": [
+            {"name": "frame_mode", "evidence": "a; b", "parameters": {}, "gain": {}},
+            {"name": "rail_waviness", "evidence": "c", "parameters": {}, "gain": {}},
+        ],
+    }
+    page = diagnosis_page(payload)
+    assert "no cause has decisive evidence" in page
+    assert images(page) == []
+    assert "Gain of the extensions" not in page
+
+
+def test_report_shows_the_speed_dependence_of_a_tracking_tone():
+    ranking = diagnose_case(make_case("rail_waviness", 1))
+    assert ranking.verdict == "rail_waviness"
+    page = diagnosis_page(
+        StandIn(ranking).to_json(), features=ranking.features, catalogue=DOOR_CATALOGUE
+    )
+    assert "a tone from a spatial period tracks the speed" in page

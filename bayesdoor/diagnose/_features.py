@@ -87,6 +87,7 @@ def find_features(
     rest_nperseg: int | None = None,
     band: tuple[float, float] | None = None,
     q: float = 0.01,
+    smooth_discrepancy_bins: int | None = None,
 ) -> Features:
     """Residual map, coherence and rest lines of measured runs against predictive simulations.
 
@@ -126,6 +127,9 @@ def find_features(
         Analysed frequency range, Hz (all three analyses).
     q
         False discovery rate of each analysis.
+    smooth_discrepancy_bins
+        Half-width (bins) of the smooth discrepancy taken out of the residual map
+        (:func:`residual_map`); ``None``: none.
 
     Returns
     -------
@@ -150,7 +154,15 @@ def find_features(
     freqs, y, log_var = windowed_log_psd(x, fs, t0, t1, nperseg=nperseg)
     draws = np.stack([windowed_log_psd(s, fs, t0, t1, nperseg=nperseg)[1] for s in sims])
     residuals = residual_map(
-        freqs, y, draws, log_var, channels=channels, speeds=speeds, band=band, q=q
+        freqs,
+        y,
+        draws,
+        log_var,
+        channels=channels,
+        speeds=speeds,
+        band=band,
+        q=q,
+        smooth_discrepancy_bins=smooth_discrepancy_bins,
     )
     coherence = None
     if pairs:

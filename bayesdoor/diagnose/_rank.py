@@ -8,6 +8,7 @@ from collections.abc import Mapping
 import equinox as eqx
 
 from ._features import Features
+from ._refit import AbstractRefit
 from ._signatures import AbstractSignature, Match, NoResidual
 
 #: the catalogue name of "the model explains the data"
@@ -17,11 +18,13 @@ MIN_VERDICT_SCORE = 0.75
 
 
 class Candidate(eqx.Module):
-    """A candidate cause: a catalogue name, what it is, and its signature in the data."""
+    """A candidate cause: a catalogue name, what it is, its signature in the data, and how to
+    confirm it by refitting a model extension (``None``: it cannot be confirmed)."""
 
     name: str = eqx.field(static=True)
     description: str = eqx.field(static=True)
     signature: AbstractSignature
+    refit: AbstractRefit | None = None
 
 
 class Catalogue(eqx.Module):

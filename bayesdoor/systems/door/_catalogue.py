@@ -1,19 +1,30 @@
-"""The door's catalogue of discrepancy causes (DESIGN.md section 6), its numbers as data."""
+"""The door's catalogue of discrepancy causes (DESIGN.md section 6), its numbers as data.
+
+Each candidate has a signature (how it shows in the residual features) and a refit recipe
+(which of the door's model extensions, ``_extensions.py``, to fit, started from the
+signature's estimate).
+"""
 
 from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
 from ...diagnose import (
+    AbstractRefit,
     Candidate,
     Catalogue,
     CrossAxisCoherence,
+    ExtensionProposal,
     FixedFrequency,
     NoResidual,
     RestLine,
     SpeedTracking,
 )
 from . import _geometry as g
+from ._extensions import FrameMode, MainsHum, RailWaviness, SensorCrossAxis, WheelEccentricity
 
 #: travel per wheel revolution, m (2 pi R = 0.1885 m)
 WHEEL_CIRCUMFERENCE = 2.0 * np.pi * g.WHEEL_RADIUS
@@ -27,6 +38,125 @@ MAINS_HZ = (50.0, 60.0)
 FRAME_MODE_BAND = (10.0, 300.0)
 
 _WHEEL_WAVELENGTHS = tuple(WHEEL_CIRCUMFERENCE / k for k in WHEEL_HARMONICS)
+#: search box of a refit around the signature's estimate: frequency (Hz), relative wavelength
+_FREQUENCY_BOX_HZ = 3.0
+_WAVELENGTH_BOX = 0.04
+#: largest participation of a frame mode searched (the mode's relative acceleration is about
+#: 1 / (2 zeta) times the drive at resonance, so 0.2 already exceeds any channel's own level)
+_PARTICIPATION_BOX = 0.2
+
+
+class FrameModeRefit(AbstractRefit):
+    """An extra mode (``FrameMode``) at the residual's frequency, seen on every channel.
+
+    Free: its frequency (within 3 Hz of the signature's), damping ratio and the participation
+    of every channel (started at 0.02 on the channels that show the residual, 0 elsewhere).
+    """
+
+    def propose(self, parameters: Mapping[str, Any]) -> tuple[ExtensionProposal, ...]:
+        f = float(parameters["frequency_hz"])
+        zeta = float(np.clip(parameters.get("damping_ratio", 0.02), 0.005, 0.1))
+        shown = set(parameters.get("channels", ()))
+        start = {"frame_mode.frequency_hz": f, "frame_mode.damping_ratio": zeta}
+        start.update(
+            {f"frame_mode.participation_{c}": 0.02 if c in shown else 0.0 for c in g.CHANNELS}
+        )
+        box = {
+            f"frame_mode.participation_{c}": (-_PARTICIPATION_BOX, _PARTICIPATION_BOX)
+            for c in g.CHANNELS
+        }
+        box["frame_mode.frequency_hz"] = (f - _FREQUENCY_BOX_HZ, f + _FREQUENCY_BOX_HZ)
+        return (
+            ExtensionProposal(
+                extension=FrameMode(),
+                start=start,
+                free=tuple(start),
+                bounds=box,
+                key=("frame_mode.frequency_hz", "frame_mode.damping_ratio"),
+                label=f"a mode near {f:.1f} Hz",
+            ),
+        )
+
+
+class WheelRefit(AbstractRefit):
+    """An out-of-round right wheel with the harmonics the residual shows.
+
+    Free: the radius amplitude of every harmonic found (phases at their nominal values: the
+    spectra barely see them). The left wheel gives the same tones; only the right one is
+    refitted (each refit of a wheel needs new solves).
+    """
+
+    def propose(self, parameters: Mapping[str, Any]) -> tuple[ExtensionProposal, ...]:
+        found = [int(k) for k in parameters.get("labels_found", ())] or [int(parameters["label"])]
+        harmonics = max(found)
+        start = {f"wheel_eccentricity.amplitude_{k}": 5e-6 / k for k in found}
+        return (
+            ExtensionProposal(
+                extension=WheelEccentricity(wheel="right", harmonics=harmonics),
+                start=start,
+                free=tuple(start),
+                key=tuple(start),
+                label=f"right wheel, harmonics {found}",
+            ),
+        )
+
+
+class RailRefit(AbstractRefit):
+    """A rail irregularity near the residual's wavelength (4 %); free: wavelength, amplitude."""
+
+    def propose(self, parameters: Mapping[str, Any]) -> tuple[ExtensionProposal, ...]:
+        lam = float(parameters["wavelength_m"])
+        lo, hi = lam * (1.0 - _WAVELENGTH_BOX), lam * (1.0 + _WAVELENGTH_BOX)
+        return (
+            ExtensionProposal(
+                extension=RailWaviness(),
+                start={"rail_waviness.wavelength_m": lam, "rail_waviness.amplitude_m": 5e-6},
+                free=("rail_waviness.wavelength_m", "rail_waviness.amplitude_m"),
+                bounds={"rail_waviness.wavelength_m": (lo, hi)},
+                key=("rail_waviness.wavelength_m",),
+                label=f"wavelength near {1e3 * lam:.2f} mm",
+            ),
+        )
+
+
+class CrossAxisRefit(AbstractRefit):
+    """A leak into the coherent pair's receiving channel (and, as an alternative, the reverse)."""
+
+    def propose(self, parameters: Mapping[str, Any]) -> tuple[ExtensionProposal, ...]:
+        receiver, source = str(parameters["receiver"]), str(parameters["source"])
+        fraction = float(np.clip(parameters.get("fraction", 0.05), -0.3, 0.3))
+        out = []
+        for into, start in ((receiver, fraction), (source, 0.0)):
+            other = source if into == receiver else receiver
+            out.append(
+                ExtensionProposal(
+                    extension=SensorCrossAxis(sensor=into[:-1], into=into[-1]),
+                    start={"sensor_cross_axis.fraction": start},
+                    free=("sensor_cross_axis.fraction",),
+                    key=("sensor_cross_axis.fraction",),
+                    label=f"{into} reads {other}",
+                )
+            )
+        return tuple(out)
+
+
+class MainsRefit(AbstractRefit):
+    """Lines at the matched mains frequency and its 2nd and 3rd harmonics on every channel."""
+
+    def propose(self, parameters: Mapping[str, Any]) -> tuple[ExtensionProposal, ...]:
+        f0 = float(parameters["frequency_hz"])
+        start = {f"mains_hum.amplitude_{c}": 0.01 for c in g.CHANNELS}
+        start.update({"mains_hum.ratio_2": 0.2, "mains_hum.ratio_3": 0.2})
+        return (
+            ExtensionProposal(
+                extension=MainsHum(frequency_hz=f0, harmonics=3),
+                start=start,
+                free=tuple(start),
+                key=tuple(f"mains_hum.amplitude_{c}" for c in g.CHANNELS),
+                label=f"{f0:g} Hz mains",
+            ),
+        )
+
 
 DOOR_CATALOGUE = Catalogue(
     candidates=(
@@ -34,28 +164,33 @@ DOOR_CATALOGUE = Catalogue(
             name="frame_mode",
             description="a structural resonance the model lacks",
             signature=FixedFrequency(band=FRAME_MODE_BAND),
+            refit=FrameModeRefit(),
         ),
         Candidate(
             name="wheel_eccentricity",
             description="an out-of-round wheel: tones at the wheel rotation frequency "
             "v / (2 pi R) and its harmonics",
             signature=SpeedTracking(wavelengths=_WHEEL_WAVELENGTHS, labels=WHEEL_HARMONICS),
+            refit=WheelRefit(),
         ),
         Candidate(
             name="rail_waviness",
             description="a periodic rail irregularity: a tone at v / wavelength, the wavelength "
             "not a wheel harmonic",
             signature=SpeedTracking(excluded=_WHEEL_WAVELENGTHS),
+            refit=RailRefit(),
         ),
         Candidate(
             name="sensor_cross_axis",
             description="cross-axis sensitivity or misalignment of one accelerometer",
             signature=CrossAxisCoherence(pairs=SENSOR_PAIRS),
+            refit=CrossAxisRefit(),
         ),
         Candidate(
             name="mains_hum",
             description="electrical interference in the measurement chain",
             signature=RestLine(fundamentals=MAINS_HZ, harmonics=3),
+            refit=MainsRefit(),
         ),
         Candidate(
             name="none",

@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from ._common import check_output_path, configure_jax, emit_json, fail
+from ._common import check_output_path, check_writable, configure_jax, emit_json, fail, writing
 
 app = typer.Typer(
     name="bayesdoor",
@@ -74,6 +74,7 @@ def simulate(
     if out.suffix != ".nc":
         raise fail(f"--out must be a NetCDF file ending in .nc, got {out}")
     check_output_path(out, force)
+    check_writable(out)
     from ._simulate import _parse_overrides
 
     ds = simulate_campaign(
@@ -84,8 +85,8 @@ def simulate(
         dtype=dtype,
         progress=_progress(json),
     )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    save_campaign(ds, out, overwrite=force)
+    with writing(out):
+        save_campaign(ds, out, overwrite=force)
     result = {
         "file": str(out),
         "runs": int(ds.sizes["run"]),
@@ -183,6 +184,20 @@ def inspect(
     ] = None,
     force: Annotated[bool, typer.Option(help="overwrite previous plots in --out")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
+    v_max: Annotated[
+        list[float],
+        typer.Option(
+            "--v-max",
+            help="CSV folder without campaign.json: peak door speed (m/s), one or one per run",
+        ),
+    ] = [],  # noqa: B006
+    state: Annotated[
+        list[str],
+        typer.Option(
+            "--state",
+            help="CSV folder without campaign.json: healthy, D1, D2 or unknown, one or one per run",
+        ),
+    ] = [],  # noqa: B006
 ) -> None:
     """Validate a campaign, summarise it and (with --out) plot its PSDs per channel and state.
 
@@ -193,7 +208,7 @@ def inspect(
     from ..io import atomic_write, validate_campaign
     from . import _inspect
 
-    ds, problems = _inspect.load(path)
+    ds, problems = _inspect.load(path, v_max=v_max, state=state)
     warnings: list[str] = []
     if ds is not None:
         options, warnings = _inspect.expectations(ds)
@@ -207,9 +222,10 @@ def inspect(
         targets = [*_inspect.plot_paths(out, info["sampling_rate_hz"]), out / "inspect.json"]
         for target in targets:
             check_output_path(target, force)
-        out.mkdir(parents=True, exist_ok=True)
+        check_writable(out)
         title = f"{path.name} ({info['system'] or 'no system'})"
-        written, notes = _inspect.plot(ds, problems, targets[:2], title)
+        with writing(out):
+            written, notes = _inspect.plot(ds, problems, targets[:2], title)
         warnings += notes
     result = {
         "file": str(path),
@@ -224,7 +240,8 @@ def inspect(
     if out is not None and ds is not None:
         result["summary_file"] = str(out / "inspect.json")
         text = json_module.dumps(result, indent=2) + "\n"
-        atomic_write(out / "inspect.json", lambda tmp: tmp.write_text(text), overwrite=True)
+        with writing(out):
+            atomic_write(out / "inspect.json", lambda tmp: tmp.write_text(text), overwrite=True)
     if json:
         emit_json(result)
     elif ds is not None:

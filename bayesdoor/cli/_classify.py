@@ -9,7 +9,7 @@ from pathlib import Path
 import xarray as xr
 from rich.console import Console
 
-from ._common import emit_json, fail
+from ._common import check_writable, emit_json, fail, writing
 from ._run import print_summary
 
 _err = Console(stderr=True)
@@ -21,6 +21,7 @@ def classify(campaign: xr.Dataset, model: Path, out: Path, *, force: bool, json:
     ``out/classify`` (the JSON and the features) and ``out/report`` (the HTML) are stages:
     the same model and runs reuse them; other ones replace them only with ``force``.
     """
+    from ..classify import NetworkConfig, read_header
     from ..pipeline import (
         classify_stage,
         configuration_hash,
@@ -32,8 +33,18 @@ def classify(campaign: xr.Dataset, model: Path, out: Path, *, force: bool, json:
 
     try:
         ensemble = model_file(model)
+        header = read_header(ensemble)
     except ValueError as err:
         raise fail(str(err)) from None
+    expected = NetworkConfig.from_json(header["architecture"]).input_shape[0]
+    channels = [str(c) for c in campaign["channel"].values]
+    if len(channels) != expected:
+        raise fail(
+            f"the model in {ensemble.parent} takes {expected} channels, the campaign has "
+            f"{len(channels)} ({', '.join(channels)}): pass a campaign with the channels the "
+            "model was trained on"
+        )
+    check_writable(out)
     config = {
         "model": hashlib.sha256(ensemble.read_bytes()).hexdigest(),
         "runs": digest_runs(campaign),
@@ -61,20 +72,24 @@ def classify(campaign: xr.Dataset, model: Path, out: Path, *, force: bool, json:
         if not json:
             _err.print(text)
 
-    classified = run_stage(
-        out,
-        "classify",
-        config,
-        lambda folder: classify_stage(ensemble.parent, campaign, folder),
-        report=line,
-    )
-    reported = run_stage(
-        out,
-        "report",
-        {"classification": classified.config_hash},
-        lambda folder: report_stage(classified.path, ensemble.parent, folder),
-        report=line,
-    )
+    try:
+        with writing(out):
+            classified = run_stage(
+                out,
+                "classify",
+                config,
+                lambda folder: classify_stage(ensemble.parent, campaign, folder),
+                report=line,
+            )
+            reported = run_stage(
+                out,
+                "report",
+                {"classification": classified.config_hash},
+                lambda folder: report_stage(classified.path, ensemble.parent, folder),
+                report=line,
+            )
+    except ValueError as err:
+        raise fail(str(err)) from None
     payload = json_module.loads((classified.path / "classification.json").read_text())
     payload = {"model": str(ensemble), "report": str(reported.path / "index.html"), **payload}
     if json:

@@ -21,6 +21,8 @@ if TYPE_CHECKING:
 #: validation problems a job tolerates: the command names the system, extra channels are
 #: ignored, and a clipped record is the user's call (``inspect`` reports it)
 _TOLERATED = {"missing_system", "unknown_channels", "clipped"}
+#: the errors of a write that the user can fix by writing elsewhere
+_WRITE_ERRORS = (errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EROFS, errno.EDQUOT)
 
 
 def configure_jax() -> None:
@@ -72,16 +74,20 @@ def check_writable(path: Path, option: str = "--out") -> None:
 
 @contextlib.contextmanager
 def writing(path: Path, option: str = "--out") -> Iterator[None]:
-    """Turn a failed write under ``path`` (no permission, a full disk) into a one-line exit."""
+    """Write under ``path``: a failed write (no permission, a full disk) becomes a one-line exit,
+    and a folder ``path`` created here is removed again when the command fails with it empty."""
+    existed = path.exists()
     try:
         yield
-    except OSError as err:
-        if err.errno not in (errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EROFS, errno.EDQUOT):
+    except BaseException as err:
+        if not existed and path.is_dir() and not any(path.iterdir()):
+            path.rmdir()
+        if not isinstance(err, OSError) or err.errno not in _WRITE_ERRORS:
             raise
-        where = err.filename or path
         raise fail(
-            f"cannot write {where}: {err.strerror}; pass a writable {option} with free space "
-            f"(files are written whole or not at all, so nothing half-written is left)"
+            f"cannot write {err.filename or path}: {err.strerror}; pass a writable {option} "
+            "with free space (files are written whole or not at all: nothing half-written is "
+            "left)"
         ) from None
 
 

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import uuid
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from rich.console import Console
 
-from ._common import fail
+from ._common import check_for_job, check_writable, fail, system_named, writing
 
 _err = Console(stderr=True)
 
@@ -21,20 +24,6 @@ FIT_FILES = (
     "trace.png",
     "predictive_psd.png",
 )
-
-
-def system_of(campaign):
-    """The simulated system a campaign names in its ``system`` attribute."""
-    from ..systems import ElevatorDoor
-
-    systems = {"elevator_door": ElevatorDoor}
-    name = str(campaign.attrs.get("system", ""))
-    if name not in systems:
-        raise fail(
-            f"the campaign's system attribute is {name!r}; bayesdoor fits {', '.join(systems)}: "
-            "set the attribute or pass a campaign of a supported system"
-        )
-    return systems[name]()
 
 
 def parse_law(law: str, lower: float, upper: float) -> list[int | None]:
@@ -112,77 +101,116 @@ def summary_text(result) -> str:
     return "\n".join(lines)
 
 
+def _move_into(work: Path, out: Path) -> None:
+    """Move the files of a finished fit from ``work`` into ``out``, then drop ``work``.
+
+    Files of a previous fit that the new one does not write (a ``posterior.nc`` after a
+    CMA-ES fit replaced a sampled one) are removed, so the folder describes one fit.
+    """
+    new = {f.relative_to(work) for f in work.rglob("*") if f.is_file()}
+    for folder in {f.parent for f in new}:
+        for name in FIT_FILES:
+            if folder / name not in new:
+                (out / folder / name).unlink(missing_ok=True)
+    for relative in sorted(new):
+        target = out / relative
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(work / relative, target)
+    shutil.rmtree(work)
+
+
 def run_fit(
     path: Path, out: Path, method: str, law: str, seed: int, quick: bool, force: bool, as_json: bool
 ) -> dict[str, Any]:
-    """The ``fit`` command: load, fit each law, write the folder(s), return the JSON payload."""
+    """The ``fit`` command: load, fit each law, write the folder(s), return the JSON payload.
+
+    Everything is computed in a hidden folder under ``out`` and moved into place when every
+    fit is finished, so an interrupted fit leaves no partial result (a hidden folder left by a
+    killed one is removed by the next).
+    """
     import json as json_module
     import warnings
 
-    from ..inference import METHODS, fit_campaign
-    from ..io import CampaignError, atomic_write, load_campaign
+    from ..inference import METHODS, calibration_runs, fit_campaign
+    from ..io import load_campaign
 
     if method not in METHODS:
         raise fail(f"--method {method!r}: use one of {', '.join(METHODS)}")
-    if not path.is_file():
+    if not path.exists():
         raise fail(f"no campaign file at {path}: give a NetCDF file written by bayesdoor")
     if out.exists() and not out.is_dir():
         raise fail(f"--out {out} is a file: give a folder")
+    check_writable(out)
     try:
-        campaign = load_campaign(path)
-    except (CampaignError, ValueError, OSError) as err:
-        raise fail(f"{path} is not a valid campaign: {err}") from None
-    system = system_of(campaign)
+        campaign = load_campaign(path, check=False)
+    except (ValueError, OSError) as err:
+        raise fail(str(err)) from None
+    system = system_named(campaign)
     integer = [p for p in system.parameters if p.integer]
     if law and not integer:
         raise fail(f"--law given, but {system.name} has no integer parameter")
     laws = parse_law(law, integer[0].lower, integer[0].upper) if integer else [None]
+    check_for_job(campaign, system, str(path), calibration_runs)
     several = len(laws) > 1
-    folders = [fit_folder(out, i, several) for i in laws]
-    check_free(folders, force)
+    check_free([fit_folder(out, i, several) for i in laws], force)
     results: dict[Any, Any] = {}
     payload: dict[str, Any] = {"file": str(path), "method": method, "out": str(out), "fits": []}
-    for i, folder in zip(laws, folders, strict=True):
-        if not as_json:
-            _err.print(
-                f"fitting {path.name} with {method}, law {i if i is not None else 'searched'}"
-            )
+    for stale in out.glob(".fit.*.tmp"):
+        shutil.rmtree(stale)
+    work = out / f".fit.{uuid.uuid4().hex}.tmp"
+    with writing(out):
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore" if as_json else "default")
-                result = fit_campaign(
-                    system,
-                    campaign,
-                    method=method,  # type: ignore[arg-type]
-                    law=i,
-                    seed=seed,
-                    quick=quick,
-                    progress=not as_json,
-                )
-        except ValueError as err:
-            raise fail(str(err)) from None
-        result.save(folder, force=force)
-        figures = write_figures(result, system, campaign, folder, seed)
-        entry = {**result.to_json(), **figures, "folder": str(folder)}
-        results[result.law] = result
-        payload["fits"].append(entry)
-        if not as_json:
-            _err.print(summary_text(result))
-            _err.print(
-                f"predictive coverage (90 % band): {100 * figures['predictive_coverage_90']:.1f} %"
-            )
-            _err.print(f"wrote {folder}")
-    if several:
-        from ..report import ablation_table
+            work.mkdir(parents=True)
+            for i in laws:
+                if not as_json:
+                    _err.print(
+                        f"fitting {path.name} with {method}, law "
+                        f"{i if i is not None else 'searched'}"
+                    )
+                try:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore" if as_json else "default")
+                        result = fit_campaign(
+                            system,
+                            campaign,
+                            method=method,  # type: ignore[arg-type]
+                            law=i,
+                            seed=seed,
+                            quick=quick,
+                            progress=not as_json,
+                        )
+                except ValueError as err:
+                    raise fail(str(err)) from None
+                folder = fit_folder(work, i, several)
+                result.save(folder, force=True)
+                figures = write_figures(result, system, campaign, folder, seed)
+                figures["files"] = {
+                    k: str(fit_folder(out, i, several) / Path(v).name)
+                    for k, v in figures["files"].items()
+                }
+                entry = {**result.to_json(), **figures, "folder": str(fit_folder(out, i, several))}
+                results[result.law] = result
+                payload["fits"].append(entry)
+                if not as_json:
+                    _err.print(summary_text(result))
+                    coverage = 100 * figures["predictive_coverage_90"]
+                    _err.print(f"predictive coverage (90 % band): {coverage:.1f} %")
+            if several:
+                from ..report import ablation_table
 
-        rows, table = ablation_table(results)
-        payload["ablation"] = rows
-        atomic_write(out / "ablation.md", lambda tmp: tmp.write_text(table), overwrite=force)
-        payload["ablation_table"] = str(out / "ablation.md")
-        if not as_json:
-            _err.print(table)
-    if len(payload["fits"]) == 1:
-        payload.update(payload["fits"][0])
-    text = json_module.dumps(payload, indent=2, default=float) + "\n"
-    atomic_write(out / "fit_summary.json", lambda tmp: tmp.write_text(text), overwrite=True)
+                rows, table = ablation_table(results)
+                payload["ablation"] = rows
+                (work / "ablation.md").write_text(table)
+                payload["ablation_table"] = str(out / "ablation.md")
+                if not as_json:
+                    _err.print(table)
+            if len(payload["fits"]) == 1:
+                payload.update(payload["fits"][0])
+            text = json_module.dumps(payload, indent=2, default=float) + "\n"
+            (work / "fit_summary.json").write_text(text)
+            _move_into(work, out)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+    if not as_json:
+        _err.print(f"wrote {out}")
     return payload

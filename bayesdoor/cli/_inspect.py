@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,21 +27,45 @@ _BAD_RUN = {"non_finite", "flat", "clipped", "bad_motion_window", "window_too_sh
 _LOW_BAND_HZ = 100.0
 
 
-def load(path: Path) -> tuple[xr.Dataset | None, list]:
+def load(
+    path: Path, *, v_max: Sequence[float] = (), state: Sequence[str] = ()
+) -> tuple[xr.Dataset | None, list]:
     """The campaign at ``path`` (NetCDF file or CSV folder), unchecked, or the problems that
-    stop it from being read as one."""
-    from ..io import CampaignError, from_csv, load_campaign
+    stop it from being read as one.
+
+    ``v_max`` and ``state`` (one value for every run, or one per run in file-name order) label
+    the runs of a CSV folder without the ``campaign.json`` sidecar, which carries no metadata.
+    """
+    from ..io import SIDECAR, CampaignError, from_csv, load_campaign
 
     if not path.exists():
         raise fail(f"no campaign at {path}: give a NetCDF file or a folder of CSV files")
+    given = {name: list(values) for name, values in (("v_max", v_max), ("state", state)) if values}
+    bare_csv = path.is_dir() and not (path / SIDECAR).is_file()
+    if given and not bare_csv:
+        options = " and ".join(f"--{name.replace('_', '-')}" for name in given)
+        where = f"its {SIDECAR}" if path.is_dir() else "the file"
+        raise fail(
+            f"{options} label the runs of a folder of CSV files without {SIDECAR}; {path} "
+            f"holds its own metadata in {where}: leave out {options} (or edit the metadata)"
+        )
+    if bare_csv:
+        runs = len(list(path.glob("*.csv")))
+        for name, values in given.items():
+            if len(values) not in (1, runs):
+                raise fail(
+                    f"--{name.replace('_', '-')} takes one value for all {runs} runs of {path} "
+                    f"or one per run (in file-name order), got {len(values)}"
+                )
+            given[name] = values * runs if len(values) == 1 else values
     try:
         if path.is_dir():
-            return from_csv(path, check=False), []
+            return from_csv(path, check=False, **given), []
         return load_campaign(path, check=False), []
     except CampaignError as err:
         return None, err.problems
     except (OSError, ValueError) as err:
-        raise fail(str(err).replace("\n", " ")) from None
+        raise fail(str(err)) from None
 
 
 def expectations(ds: xr.Dataset) -> tuple[dict, list[str]]:

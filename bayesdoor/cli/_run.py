@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import functools
 import time
 from pathlib import Path
 from typing import Any, cast
 
+import numpy as np
 import xarray as xr
 from rich.console import Console
 from rich.table import Table
@@ -38,6 +40,14 @@ def load(path: Path) -> xr.Dataset:
     if campaign.sizes["run"] == 0:
         raise fail(f"{path} holds no runs")
     return campaign
+
+
+def _fitted_runs(campaign: xr.Dataset) -> np.ndarray:
+    """Positions of the runs the job fits on (``bayesdoor.pipeline.calibration_runs``)."""
+    from ..pipeline import calibration_runs
+
+    chosen = calibration_runs(campaign)["run"].values
+    return np.flatnonzero(np.isin(campaign["run"].values, chosen))
 
 
 def _fmt(value: Any, digits: int = 4) -> str:
@@ -97,7 +107,8 @@ def run(
     json: bool,
 ) -> None:
     """Run the job, print its summary (or its JSON)."""
-    from ..pipeline import SOURCES, Source, run_job
+    from ..pipeline import SOURCES, Source, default_diagnose, run_job
+    from ._diagnose import catalogue_for
 
     if source not in SOURCES:
         raise fail(f"--source {source!r}: use one of {', '.join(SOURCES)}")
@@ -109,6 +120,10 @@ def run(
             f"(got --source {source})"
         )
     system = system_for(campaign)
+    check_writable(out)
+    check_for_job(
+        campaign, system, str(campaign.encoding.get("source", "the campaign")), _fitted_runs
+    )
     start = time.perf_counter()
 
     def line(text: str) -> None:
@@ -116,18 +131,20 @@ def run(
             _err.print(f"[{time.perf_counter() - start:6.1f} s] {text}")
 
     try:
-        result = run_job(
-            system,
-            campaign,
-            out,
-            quick=quick,
-            seed=seed,
-            source=cast(Source, source),
-            method=method,
-            progress=not json,
-            report=line,
-            overwrite=force,
-        )
+        with writing(out):
+            result = run_job(
+                system,
+                campaign,
+                out,
+                quick=quick,
+                seed=seed,
+                source=cast(Source, source),
+                method=method,
+                progress=not json,
+                report=line,
+                overwrite=force,
+                diagnose=functools.partial(default_diagnose, catalogue=catalogue_for(system)),
+            )
     except FileExistsError as err:
         raise fail(str(err)) from None
     except ValueError as err:

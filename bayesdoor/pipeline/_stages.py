@@ -129,6 +129,9 @@ def run_stage(
         compute(path)
         work = path
     else:
+        # the temporary folder of a run killed half way (SIGKILL, power loss) is garbage
+        for stale in out.glob(f".{name}.*.tmp"):
+            shutil.rmtree(stale, ignore_errors=True)
         work = out / f".{name}.{uuid.uuid4().hex}.tmp"
         work.mkdir(parents=True)
         try:

@@ -1,0 +1,381 @@
+"""Every command against the bad inputs users produce (issue 7, part 5).
+
+Each bad input must give a one-line reason on stderr that names the problem and the fix, a
+non-zero exit, no traceback, and leave every file as it was: the input untouched, no output
+folder created, no half-written result. A run killed half way (Ctrl-C, SIGKILL) must leave
+no half-written result files, and its rerun must complete.
+
+Nothing here fits or trains the door: ``run`` and ``demo`` go through the CLI to
+:func:`bayesdoor.pipeline.run_job`, which the ``fast_jobs`` fixture points at the small tone
+system of ``test_pipeline`` (given the door's channels and name) with a stand-in fit and tiny
+sizes; the commands' own checks, which are the point here, all run before that.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import xarray as xr
+from test_pipeline import DURATION, REST, SIZES, ToneSystem, stand_in_diagnose, stand_in_fit
+from typer.testing import CliRunner
+
+import bayesdoor.datasets
+import bayesdoor.pipeline
+from bayesdoor.cli import app
+from bayesdoor.io import make_campaign, save_campaign, to_csv
+from bayesdoor.pipeline import STAGES
+
+runner = CliRunner()
+CHANNELS = ("A1X", "A1Z", "A2X", "A2Z")
+FS = 2048.0
+ROOT = Path(__file__).resolve().parent.parent
+
+
+class DoorTones(ToneSystem):
+    """The tone system of ``test_pipeline`` under the door's name and four channels."""
+
+    @property
+    def name(self):
+        return "elevator_door"
+
+    @property
+    def channels(self):
+        return CHANNELS
+
+    def simulate_values(self, values, operating, **options):
+        res = super().simulate_values(values, operating, **options)
+        x, z = res.signals[:, 0], res.signals[:, 1]
+        return eqx.tree_at(lambda r: r.signals, res, jnp.stack([x, z, 0.7 * x, 1.3 * z], 1))
+
+
+SYSTEM = DoorTones()
+
+
+def campaign(states=None, *, split=True, channels=CHANNELS, seed=0) -> xr.Dataset:
+    """A door-like campaign of the tone system: 3 calibration runs, then 3 per state."""
+    states = states or ["healthy"] * 3 + ["healthy", "D1", "D2"] * 3
+    rng = np.random.default_rng(seed)
+    speeds = np.resize([0.3, 0.5], len(states))
+    signals = []
+    for state, v in zip(states, speeds, strict=True):
+        values = {"k": 0.5 + 0.02 * rng.standard_normal(), "m": 1.0, "law": 2.0}
+        sev = {n: rng.uniform(lo, hi) for n, (lo, hi) in SYSTEM.states[state].severity.items()}
+        res = SYSTEM.simulate_values(values, v, state=state, severity=sev)
+        signals.append(np.asarray(res.signals[0]))
+    acc = np.stack(signals)[:, [CHANNELS.index(c) for c in channels]]
+    calibration = min(3, len(states))
+    extra = {"split": ["calibration"] * calibration + ["test"] * (len(states) - calibration)}
+    return make_campaign(
+        acc,
+        channels=list(channels),
+        fs=FS,
+        state=states,
+        v_max=speeds,
+        t_start=np.full(len(states), REST),
+        # the last sample lies at DURATION - 1/FS: the window must end inside the record
+        t_stop=np.full(len(states), DURATION - 0.01),
+        **(extra if split else {}),
+    )
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    """Every file under ``folder`` (hidden ones included) with its bytes."""
+    if not folder.exists():
+        return {}
+    return {str(p.relative_to(folder)): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def invoke(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def refused(result, *phrases, code=2):
+    """A one-line reason that holds ``phrases``, exit ``code``, no traceback, no JSON."""
+    assert isinstance(result.exception, SystemExit), repr(result.exception)  # not a crash
+    assert result.exit_code == code, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+    for phrase in phrases:
+        assert phrase in lines[0], (phrase, lines[0])
+    assert "Traceback" not in result.output
+    return lines[0]
+
+
+def fast(monkeypatch, fit=stand_in_fit, interrupt: str | None = None):
+    """Point the CLI's ``run_job`` at the tone system, the stand-in fit and tiny sizes.
+
+    ``interrupt``: a stage at whose start Ctrl-C is pressed (``KeyboardInterrupt``).
+    """
+    real = bayesdoor.pipeline.run_job
+
+    def run_job(system, data, out, **options):
+        assert system.name == "elevator_door"  # the CLI picked the campaign's system
+        report = options["report"]
+
+        def line(text):
+            report(text)
+            if text.startswith(f"{interrupt}: computing"):
+                raise KeyboardInterrupt
+
+        options.update(
+            fit=fit, diagnose=stand_in_diagnose, sizes=SIZES, progress=False, report=line
+        )
+        return real(SYSTEM, data, out, **options)
+
+    monkeypatch.setattr(bayesdoor.pipeline, "run_job", run_job)
+
+
+@pytest.fixture
+def fast_jobs(monkeypatch):
+    fast(monkeypatch)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """The good campaign and the bad files users produce, by name."""
+    folder = tmp_path_factory.mktemp("inputs")
+    good = campaign()
+    paths = {"good": save_campaign(good, folder / "good.nc")}
+    paths["png"] = folder / "photo.nc"
+    paths["png"].write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 4)
+    paths["csv"] = folder / "run_0000.nc"
+    to_csv(good.isel(run=[0]), folder / "csv")
+    paths["csv"].write_bytes((folder / "csv" / "run_0000.csv").read_bytes())
+    whole = paths["good"].read_bytes()
+    paths["truncated"] = folder / "truncated.nc"
+    paths["truncated"].write_bytes(whole[: len(whole) // 2])
+    paths["zero_bytes"] = folder / "zero.nc"
+    paths["zero_bytes"].write_bytes(b"")
+    paths["folder"] = folder / "a_folder.nc"
+    paths["folder"].mkdir()
+    paths["missing_channel"] = save_campaign(
+        campaign(channels=CHANNELS[:3]), folder / "three_channels.nc"
+    )
+    nan = good.copy(deep=True)
+    nan["acceleration"][1, 2, 100:110] = np.nan  # a calibration run
+    paths["nan_calibration"] = save_campaign(nan, folder / "nan_calibration.nc")
+    nan_test = good.copy(deep=True)
+    nan_test["acceleration"][4, 0, 50] = np.inf  # a test run (D1)
+    paths["nan_test"] = save_campaign(nan_test, folder / "nan_test.nc")
+    paths["empty"] = save_campaign(good.isel(run=[]), folder / "empty.nc")
+    faulty = campaign(["D1", "D2", "D1", "D2"], split=False)
+    paths["faulty"] = save_campaign(faulty, folder / "faulty.nc")
+    return paths
+
+
+#: how each command is called on a campaign file, an output folder and a model folder
+COMMANDS = {
+    "inspect": lambda path, out, model: ["inspect", path, "--out", out],
+    "fit": lambda path, out, model: ["fit", path, "--out", out, "--method", "cmaes", "--quick"],
+    "run": lambda path, out, model: ["run", path, "--out", out, "--quick"],
+    "classify": lambda path, out, model: ["classify", path, "--model", model, "--out", out],
+    "diagnose": lambda path, out, model: ["diagnose", path, "--out", out, "--quick"],
+}
+#: the files that are not a campaign, and what the message must say about each
+NOT_A_CAMPAIGN = {
+    "png": "is a PNG image, not a NetCDF campaign file",
+    "csv": "is a text file (it starts 'time,A1X,A1Z,A2X,A2Z'), not a NetCDF campaign file; "
+    "a campaign in CSV files is a folder of them",
+    "truncated": "truncated by an interrupted copy or download",
+    "zero_bytes": "is empty (0 bytes)",
+    "folder": "is a folder, not a campaign file",
+}
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("case", NOT_A_CAMPAIGN)
+def test_a_file_that_is_not_a_campaign(files, tmp_path, command, case):
+    path = files[case]
+    before = snapshot(path.parent)
+    out = tmp_path / "out"
+    result = invoke(*COMMANDS[command](path, out, tmp_path))
+    if command == "inspect" and case == "folder":
+        refused(result, "no *.csv files in", str(path))  # a folder is read as CSV files
+    else:
+        refused(result, str(path), NOT_A_CAMPAIGN[case])
+    assert not out.exists()
+    assert snapshot(path.parent) == before
+
+
+#: what fit, run and diagnose say about campaigns they cannot use
+UNUSABLE = {
+    "missing_channel": {
+        command: "channels ['A2Z'] are missing" for command in ("fit", "run", "diagnose")
+    },
+    "nan_calibration": {
+        command: "a run the model is fitted on is unusable: run 1, channel A2X: 10 NaN"
+        for command in ("fit", "run", "diagnose")
+    },
+    "empty": {
+        "fit": "the campaign holds no runs",
+        "run": "holds no runs",
+        "diagnose": "holds no runs",
+    },
+    "faulty": {
+        "fit": "no healthy run to update the model on (its runs: 2 D1, 2 D2)",
+        "run": "no calibration runs",
+        "diagnose": "has no healthy run",
+    },
+}
+
+
+@pytest.mark.parametrize("command", ["fit", "run", "diagnose"])
+@pytest.mark.parametrize("case", UNUSABLE)
+def test_a_campaign_the_model_cannot_be_fitted_on(files, tmp_path, command, case):
+    path = files[case]
+    before = snapshot(path.parent)
+    out = tmp_path / "out"
+    refused(invoke(*COMMANDS[command](path, out, tmp_path)), UNUSABLE[case][command])
+    assert not out.exists()
+    assert snapshot(path.parent) == before
+
+
+@pytest.mark.parametrize(
+    ("case", "problem"),
+    [
+        ("missing_channel", "problem: channels ['A2Z'] are missing"),
+        ("nan_calibration", "problem: run 1, channel A2X: 10 NaN and 0 Inf samples"),
+        ("empty", "problem: the campaign holds no runs"),
+    ],
+)
+def test_inspect_lists_the_problems_and_exits_1(files, case, problem):
+    path = files[case]
+    before = path.read_bytes()
+    result = invoke("inspect", path, "--json")
+    assert result.exit_code == 1 and isinstance(result.exception, SystemExit)
+    assert json.loads(result.stdout)["valid"] is False
+    lines = result.stderr.strip().splitlines()
+    assert any(line.startswith(problem) for line in lines), result.stderr
+    assert lines[-1].startswith(f"error: {path} is not a valid campaign")
+    assert path.read_bytes() == before
+
+
+def test_fit_accepts_bad_records_outside_the_calibration_runs(files, tmp_path, monkeypatch):
+    """An Inf in a test run does not stop the fit (it reaches fit_campaign)."""
+    import bayesdoor.inference
+
+    def reached(system, data, **options):
+        raise ValueError("fit_campaign reached")
+
+    monkeypatch.setattr(bayesdoor.inference, "fit_campaign", reached)
+    out = tmp_path / "out"
+    result = invoke(*COMMANDS["fit"](files["nan_test"], out, None), "--json")
+    refused(result, "fit_campaign reached")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("law", "message"),
+    [
+        ("abc", "--law 'abc': give an integer in [1, 9] or 'all'"),
+        ("1.5", "--law '1.5': give an integer in [1, 9] or 'all'"),
+        ("99", "--law 99 lies outside [1, 9]"),
+        ("0", "--law 0 lies outside [1, 9]"),
+    ],
+)
+def test_fit_refuses_a_bad_law_before_any_work(files, tmp_path, law, message):
+    out = tmp_path / "out"
+    refused(invoke(*COMMANDS["fit"](files["good"], out, None), "--law", law), message)
+    assert not out.exists()
+
+
+#: a ``bayesdoor run`` (argv: campaign, job folder, tests folder) SIGKILLed as its fit stage
+#: writes its files
+KILLED_IN_THE_FIT = textwrap.dedent(
+    """
+    import os, signal, sys
+    from pathlib import Path
+
+    sys.path.insert(0, sys.argv[3])
+    import pytest
+    import test_robustness
+    from test_pipeline import stand_in_fit
+
+    def killed(*args, **options):
+        fit = stand_in_fit(*args, **options)
+
+        def save(folder):
+            Path(folder).mkdir(parents=True)
+            (Path(folder) / "point.json").write_text('{"k": 0.5, ')
+            os.kill(os.getpid(), signal.SIGKILL)
+
+        fit.save = save
+        return fit
+
+    with pytest.MonkeyPatch.context() as mp:
+        test_robustness.fast(mp, fit=killed)
+        test_robustness.invoke("run", sys.argv[1], "--out", sys.argv[2], "--quick")
+    """
+)
+
+
+def visible(files: dict[str, bytes]) -> list[str]:
+    """The files of a snapshot that are not inside a hidden (temporary) file or folder."""
+    return sorted(f for f in files if not any(part.startswith(".") for part in Path(f).parts))
+
+
+@pytest.fixture(scope="module")
+def story(files, tmp_path_factory):
+    """One job folder through three runs: SIGKILLed while the fit writes its files, then
+    interrupted by Ctrl-C as the classification starts, then run to the end."""
+    out = tmp_path_factory.mktemp("story") / "job"
+    seen = {}
+    killed = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            KILLED_IN_THE_FIT,
+            str(files["good"]),
+            str(out),
+            str(ROOT / "tests"),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        timeout=600,
+    )
+    seen["killed"] = (killed.returncode, snapshot(out), killed.stderr.decode())
+    with pytest.MonkeyPatch.context() as mp:
+        fast(mp, interrupt="classify")
+        seen["interrupted"] = (invoke("run", files["good"], "--out", out, "--quick"), snapshot(out))
+    with pytest.MonkeyPatch.context() as mp:
+        fast(mp)
+        seen["finished"] = (
+            invoke("run", files["good"], "--out", out, "--quick", "--json"),
+            snapshot(out),
+        )
+    return out, seen
+
+
+def test_a_killed_run_leaves_no_half_written_result_and_the_rerun_completes(story):
+    _, seen = story
+    code, after_kill, stderr = seen["killed"]
+    assert code == -signal.SIGKILL, stderr
+    # the half-written file lies in the fit stage's hidden temporary folder, nowhere else
+    assert any(f.startswith(".fit.") and f.endswith("point.json") for f in after_kill)
+    assert visible(after_kill) == []
+
+    interrupted, after_interrupt = seen["interrupted"]
+    # typer's answer to Ctrl-C: exit 130 (128 + SIGINT), no traceback
+    assert interrupted.exit_code == 130
+    assert "Traceback" not in interrupted.output
+    # the finished stages are kept whole (each with its record), nothing else; the temporary
+    # folder of the killed run is gone
+    names = visible(after_interrupt)
+    assert {Path(f).parts[0] for f in names} == {"fit", "generate", "train"}
+    assert {"fit/stage.json", "generate/stage.json", "train/stage.json"} <= set(names)
+    assert names == sorted(after_interrupt)
+
+    finished, after = seen["finished"]
+    assert finished.exit_code == 0, finished.output
+    stages = {s["name"]: s["reused"] for s in json.loads(finished.stdout)["stages"]}
+    assert stages == {name: name in ("fit", "generate", "train") for name in STAGES}
+    assert visible(after) == sorted(after) and "job.json" in after

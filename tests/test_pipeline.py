@@ -336,21 +336,26 @@ def test_changed_test_runs_recompute_only_the_stages_they_reach(finished, tmp_pa
     assert StandInFit.calls == 1 and StandInDiagnosis.calls == 1
 
 
-def test_a_changed_healthy_test_run_recomputes_the_diagnosis_not_the_fit(finished, tmp_path):
+def test_the_diagnosis_follows_the_calibration_runs_only(finished, tmp_path):
+    """It compares the healthy calibration runs with the fit: a test run does not reach it."""
     _, out = finished
-    copy = tmp_path / "job"
-    shutil.copytree(out, copy)
     campaign = tone_campaign()
-    # run 3 is the first test run, a healthy one: the diagnosis compares it with the model
-    assert (str(campaign["split"].values[3]), str(campaign["state"].values[3])) == (
-        "test",
-        "healthy",
-    )
-    campaign["acceleration"].values[3] *= 1.01
-    changed = job(copy, campaign=campaign, overwrite=True)
-    reused = {s.name: s.reused for s in changed.stages}
-    assert reused["fit"] and reused["train"]
-    assert not reused["diagnose"] and not reused["report"]
+    # run 3 is the first test run, a healthy one; run 0 a calibration run
+    assert [str(campaign["split"].values[i]) for i in (0, 3)] == ["calibration", "test"]
+    assert str(campaign["state"].values[3]) == "healthy"
+    test_run = campaign.copy(deep=True)
+    test_run["acceleration"].values[3] *= 1.01
+    copy = tmp_path / "test-run"
+    shutil.copytree(out, copy)
+    reused = {s.name: s.reused for s in job(copy, campaign=test_run, overwrite=True).stages}
+    assert reused["fit"] and reused["diagnose"] and not reused["classify"]
+    assert StandInDiagnosis.calls == 1
+    calibration = campaign.copy(deep=True)
+    calibration["acceleration"].values[0] *= 1.01
+    copy = tmp_path / "calibration-run"
+    shutil.copytree(out, copy)
+    reused = {s.name: s.reused for s in job(copy, campaign=calibration, overwrite=True).stages}
+    assert not reused["fit"] and not reused["diagnose"] and not reused["report"]
     assert StandInDiagnosis.calls == 2
 
 

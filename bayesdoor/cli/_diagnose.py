@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import typer
 import xarray as xr
 from rich.console import Console
@@ -55,31 +54,27 @@ def load_fit(folder: Path, system) -> Any:
     return fit
 
 
-def healthy_positions(campaign: xr.Dataset) -> list[int]:
-    """Positions of the healthy runs, which the diagnosis compares with the model.
+def catalogue_for(system):
+    """The system's catalogue of discrepancy causes: its own, else the one of its name."""
+    from ..systems.door import DOOR_CATALOGUE
 
-    Raises
-    ------
-    ValueError
-        When there is none.
-    """
-    if "state" not in campaign.coords:
-        raise ValueError("the campaign has no 'state' coordinate: label the healthy runs 'healthy'")
-    states = np.asarray(campaign["state"].values).astype(str)
-    if not (states == "healthy").any():
-        raise ValueError(
-            f"the campaign has no healthy runs (states: {', '.join(sorted(set(states)))}): the "
-            "diagnosis compares the model with measurements of the healthy system; label them "
-            "state 'healthy'"
-        )
-    return [int(i) for i in np.flatnonzero(states == "healthy")]
+    own = getattr(system, "catalogue", None)
+    return own if own is not None else {"elevator_door": DOOR_CATALOGUE}.get(system.name)
 
 
 def compute(system, campaign: xr.Dataset, fit, *, seed: int, quick: bool, progress: bool):
     """The diagnosis (:func:`bayesdoor.diagnose.diagnose_campaign`); ``fit=None`` fits here."""
     from ..diagnose import diagnose_campaign
 
-    return diagnose_campaign(system, campaign, fit=fit, seed=seed, quick=quick, progress=progress)
+    return diagnose_campaign(
+        system,
+        campaign,
+        fit=fit,
+        seed=seed,
+        quick=quick,
+        progress=progress,
+        catalogue=catalogue_for(system),
+    )
 
 
 def _value(value: Any) -> str:
@@ -126,12 +121,13 @@ def diagnose(
     json: bool,
 ) -> None:
     """The ``diagnose`` command: check the inputs, diagnose, write the two files, print."""
+    from ..inference import calibration_runs
     from ..pipeline import DIAGNOSIS_FILES, catalogue_of, save_diagnosis
     from ._run import load
 
     campaign = load(path)
     system = system_named(campaign)
-    check_for_job(campaign, system, str(path), healthy_positions)
+    check_for_job(campaign, system, str(path), calibration_runs)
     if out.exists() and not out.is_dir():
         raise fail(f"--out {out} is a file: pass a folder for the diagnosis")
     check_writable(out)

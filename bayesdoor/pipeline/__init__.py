@@ -22,7 +22,6 @@ from ._job import Source as Source
 from ._job import calibration_runs as calibration_runs
 from ._job import digest_runs as digest_runs
 from ._job import generation_settings as generation_settings
-from ._job import healthy_runs as healthy_runs
 from ._job import parameter_source as parameter_source
 from ._job import run_job as run_job
 from ._job import runs_to_classify as runs_to_classify

@@ -144,13 +144,25 @@ def default_diagnose(
     seed: int,
     quick: bool,
     progress: bool,
+    catalogue: Catalogue | None = None,
 ) -> DiagnosisLike:
-    """:func:`bayesdoor.diagnose.diagnose_campaign` under the fit saved in ``fit_folder``."""
+    """:func:`bayesdoor.diagnose.diagnose_campaign` under the fit saved in ``fit_folder``.
+
+    ``catalogue``: the system's causes (``None``: ``system.catalogue``).
+    """
     from ..diagnose import diagnose_campaign
     from ..inference import FitResult
 
     fit = FitResult.load(fit_folder)
-    return diagnose_campaign(system, campaign, fit=fit, seed=seed, quick=quick, progress=progress)
+    return diagnose_campaign(
+        system,
+        campaign,
+        fit=fit,
+        seed=seed,
+        quick=quick,
+        progress=progress,
+        catalogue=catalogue,
+    )
 
 
 def diagnosis_stage(

@@ -169,12 +169,6 @@ def calibration_runs(campaign: xr.Dataset) -> xr.Dataset:
     return campaign.isel(run=np.flatnonzero(keep))
 
 
-def healthy_runs(campaign: xr.Dataset) -> xr.Dataset:
-    """The runs a diagnosis compares with the model: ``state == "healthy"`` (maybe none)."""
-    keep = np.asarray(campaign["state"].values).astype(str) == "healthy"
-    return campaign.isel(run=np.flatnonzero(keep))
-
-
 def runs_to_classify(campaign: xr.Dataset) -> xr.Dataset:
     """The runs to classify: ``split == "test"`` when there are any, else all runs."""
     if "split" in campaign.coords:
@@ -192,6 +186,13 @@ def _versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             out[name] = "not installed"
     return out
+
+
+def _diagnosed_runs(campaign: xr.Dataset) -> np.ndarray:
+    """The runs a diagnosis compares with the model: the healthy calibration runs."""
+    from ..inference import calibration_runs as healthy_calibration_runs
+
+    return healthy_calibration_runs(campaign)
 
 
 def _default_fit(system, campaign, **options):
@@ -517,7 +518,7 @@ def run_job(
             "diagnose",
             {
                 "fit": fit_record.config_hash,
-                "healthy_runs": digest_runs(healthy_runs(campaign)),
+                "runs": digest_runs(campaign.isel(run=_diagnosed_runs(campaign))),
                 "seed": seed,
                 "quick": quick,
                 "versions": versions,

@@ -18,6 +18,7 @@ from bayesdoor.classify import (
     entropy,
     expected_entropy,
     fit_classifier,
+    fit_ood,
     load_ensemble,
     parameter_count,
     predict,
@@ -26,6 +27,7 @@ from bayesdoor.classify import (
     save_ensemble,
     train_ensemble,
 )
+from bayesdoor.datagen import model_error_draws
 
 CLASSES = ("zero", "peak", "ripple")
 FREQ = np.linspace(0.0, 1.0, 25)
@@ -169,6 +171,110 @@ def test_ood_flags_far_inputs_and_few_in_distribution(fitted):
     assert bool(pred.ood[1])
     np.testing.assert_array_equal(np.asarray(pred.ood)[[0, 2]], np.asarray(in_dist.ood)[[0, 2]])
     assert np.all(np.isfinite(np.asarray(pred.probabilities)[[0, 2]]))
+
+
+#: a structured discrepancy of the "measurements": a broad bump on channel 0 that the
+#: simulations never show (like a resonance the model lacks), amplitude varying per run
+BUMP = np.exp(-(((FREQ - 0.6) / 0.15) ** 2)) * np.array([1.0, 0.0, 0.0, 0.0])[:, None]
+
+
+def simulated_slab(n, seed):
+    """Inputs of a 'model' with three parameters: a thin slab of the 100-feature space.
+
+    Channel levels that differ by 0.4-1.2 decades, the class patterns of :func:`synthetic`
+    scaled by a severity, a level (sd 0.05) and a slope (sd 0.1) per run, plus 0.005 of
+    numerical scatter: 97 directions carry almost no variance, as in simulations of a model
+    with a few parameters.
+    """
+    rng = np.random.default_rng(seed)
+    y = rng.integers(0, 3, size=n)
+    level = rng.normal(0, 0.05, (n, 1, 1))
+    slope = rng.normal(0, 0.1, (n, 1, 1))
+    severity = rng.uniform(0.7, 1.3, (n, 1, 1))
+    channels = np.array([0.0, 0.8, -0.4, 0.4])[:, None]
+    x = -6.0 + channels + (2.0 + slope) * FREQ + level + severity * PATTERNS[y]
+    return x + 0.005 * rng.standard_normal((n, 4, 25)), y
+
+
+def measured(n, seed):
+    """Measurements of the slab's states: the usual model error on top of a simulation.
+
+    A bump of amplitude 0.3 +- 0.1 decades (BUMP) and independent 0.1-decade scatter per
+    feature (the Welch scatter of a finite record).
+    """
+    x, y = simulated_slab(n, seed)
+    rng = np.random.default_rng(seed + 1000)
+    x = x + rng.normal(0.3, 0.1, (n, 1, 1)) * BUMP + 0.1 * rng.standard_normal(x.shape)
+    return x, y
+
+
+@pytest.fixture(scope="module")
+def slab_detectors(fitted):
+    """OOD detectors on slab simulations: one on the simulations alone, one with model error.
+
+    The model-error draws come from ten 'calibration' measurements of class 0 (their
+    residuals about the simulated mean, as bayesdoor.datagen.calibration_residuals makes
+    them) plus the per-feature 0.1-decade scatter; nothing from the test measurements.
+    """
+    x_train, y_train = simulated_slab(1260, 20)
+    x_val, _ = simulated_slab(540, 21)
+    x_cal, y_cal = measured(40, 22)
+    x_cal = x_cal[y_cal == 0][:10]
+    residuals = x_cal - x_train[y_train == 0].mean(axis=0)
+    draws = model_error_draws(
+        2000, key=jax.random.key(3), residuals=residuals, variance=np.full((4, 25), 0.01)
+    )
+    plain = fit_ood(fitted, x_train, y_train, x_val)
+    aware = fit_ood(fitted, x_train, y_train, x_val, model_error=draws, key=jax.random.key(4))
+    return plain, aware
+
+
+def _flag_rate(ensemble, x):
+    return float(np.mean(np.asarray(predict(ensemble, jnp.asarray(x)).ood)))
+
+
+def test_ood_on_simulations_alone_flags_measurements_of_known_states(slab_detectors):
+    # the problem the model-error draws solve: the usual model error is far outside the slab
+    plain, _ = slab_detectors
+    x, _ = measured(400, 30)
+    assert _flag_rate(plain, x) > 0.9
+
+
+def test_ood_with_model_error_passes_known_states_and_flags_the_unknown(slab_detectors):
+    _, aware = slab_detectors
+    assert aware.ood is not None and aware.ood.model_error_draws == 2000
+    x, _ = measured(400, 30)
+    # the reference is simulation + model error, the threshold its 99th percentile: about 1 %
+    # of measurements of known states exceed it; 5 % lies far in the binomial tail (n = 400,
+    # p = 0.01), with room for the finite set of ten calibration residuals
+    assert _flag_rate(aware, x) <= 0.05
+    louder = x + np.log10(9.0)  # every amplitude 3 times larger: the PSD 9 times
+    assert _flag_rate(aware, louder) == 1.0
+    swapped = x[:, [2, 3, 0, 1]]  # the two sensors' cables swapped
+    assert _flag_rate(aware, swapped) == 1.0
+    hum = x + 1.5 * np.exp(-(((FREQ - 0.5) / 0.03) ** 2))  # a narrow line in every channel
+    assert _flag_rate(aware, hum) == 1.0
+
+
+def test_ood_model_error_is_checked(fitted):
+    x, y = simulated_slab(60, 40)
+    with pytest.raises(ValueError, match="model_error needs key="):
+        fit_ood(fitted, x, y, x, model_error=np.zeros((3, 4, 25)))
+    with pytest.raises(ValueError, match=r"model_error must hold draws of the inputs' shape"):
+        fit_ood(fitted, x, y, x, model_error=np.zeros((3, 4, 24)), key=jax.random.key(0))
+    with pytest.raises(ValueError, match="non-finite"):
+        fit_ood(fitted, x, y, x, model_error=np.full((3, 4, 25), np.nan), key=jax.random.key(0))
+
+
+def test_model_error_detector_round_trips(slab_detectors, tmp_path):
+    _, aware = slab_detectors
+    loaded = load_ensemble(save_ensemble(tmp_path / "aware.eqx", aware))
+    assert loaded.ood is not None and loaded.ood.model_error_draws == 2000
+    assert read_header(tmp_path / "aware.eqx")["ood"]["model_error_draws"] == 2000
+    x, _ = measured(50, 31)
+    a, b = predict(aware, jnp.asarray(x)), predict(loaded, jnp.asarray(x))
+    np.testing.assert_array_equal(a.ood_score, b.ood_score)
+    np.testing.assert_array_equal(a.ood, b.ood)
 
 
 def test_save_load_round_trip_gives_identical_predictions(fitted, tmp_path):

@@ -14,7 +14,7 @@ from ._calibration import fit_temperature
 from ._config import TrainConfig
 from ._ensemble import Ensemble
 from ._network import NetworkConfig
-from ._ood import fit_mahalanobis
+from ._ood import check_model_error, fit_mahalanobis
 from ._train import Progress, Training, train_ensemble
 
 
@@ -52,13 +52,15 @@ def fit_ood(
     added to each held-out input.
     """
     scale = np.asarray(ensemble.scale, dtype=np.float64)
+    if model_error is not None:
+        model_error = check_model_error(model_error, scale.shape) / scale
     detector = fit_mahalanobis(
         ensemble.standardise(jnp.asarray(x_train)),
         jnp.asarray(labels),
         ensemble.standardise(jnp.asarray(x_heldout)),
         ensemble.network.n_classes,
         quantile=quantile,
-        model_error=None if model_error is None else np.asarray(model_error) / scale,
+        model_error=model_error,
         key=key,
     )
     return eqx.tree_at(lambda e: e.ood, ensemble, detector, is_leaf=lambda v: v is None)

@@ -108,8 +108,9 @@ def fit_mahalanobis(
     in every feature but off the slab, gets a large score. With ``model_error`` the reference
     distribution is that of a measurement, simulation plus model error ``e``: the covariance
     becomes ``S + E[e e^T]`` (the second moment: a systematic offset counts as error of
-    either sign) and the threshold is the ``quantile`` of the score of held-out inputs with one
-    model-error draw added to each. Both stay fitted on simulated inputs; the draws describe
+    either sign), estimated from the first half of the draws, and the threshold is the
+    ``quantile`` of the score of held-out inputs with one draw of the second half added to
+    each. Both stay fitted on simulated inputs; the draws describe
     the error, not the inputs to be scored.
 
     Parameters
@@ -166,11 +167,20 @@ def fit_mahalanobis(
                 "model_error needs key=: it picks the draw added to each held-out input for "
                 "the threshold (e.g. key=jax.random.key(0))"
             )
-        e = _check_model_error(model_error, tuple(np.shape(z_train)[1:]))
+        e = check_model_error(model_error, tuple(np.shape(z_train)[1:]))
         n_draws = len(e)
-        flat = e.reshape(n_draws, -1)
-        cov = cov + flat.T @ flat / n_draws
-        pick = np.asarray(jax.random.randint(key, (len(heldout),), 0, n_draws))
+        if n_draws < 2:
+            raise ValueError(
+                f"model_error holds {n_draws} draw: give at least 2 (half for the covariance, "
+                "half for the threshold), better thousands"
+            )
+        # half of the draws for the covariance, the other half for the threshold: a draw
+        # scored against a covariance estimated from it looks closer than a fresh one (by a
+        # factor n / (n - p - 1) in the squared distance), which would bias the threshold low
+        half = n_draws // 2
+        flat = e[:half].reshape(half, -1)
+        cov = cov + flat.T @ flat / half
+        pick = np.asarray(jax.random.randint(key, (len(heldout),), half, n_draws))
         heldout = heldout + e[pick]
     eigval, eigvec = np.linalg.eigh(cov)
     whitening = (eigvec / np.sqrt(eigval)).T
@@ -187,7 +197,8 @@ def fit_mahalanobis(
     return eqx.tree_at(lambda d: d.threshold, detector, jnp.asarray(threshold, dtype=dtype))
 
 
-def _check_model_error(model_error, shape: tuple[int, ...]) -> np.ndarray:
+def check_model_error(model_error, shape: tuple[int, ...]) -> np.ndarray:
+    """``model_error`` as float64 draws of ``shape``, or a ``ValueError`` naming the problem."""
     e = np.asarray(model_error, dtype=np.float64)
     if e.ndim != 1 + len(shape) or tuple(e.shape[1:]) != shape or len(e) == 0:
         raise ValueError(

@@ -21,6 +21,7 @@ from ._job import Cause as Cause
 from ._job import Diagnosis as Diagnosis
 from ._job import DiagnosisSettings as DiagnosisSettings
 from ._job import diagnose_campaign as diagnose_campaign
+from ._job import extension_gain as extension_gain
 from ._rank import NONE as NONE
 from ._rank import Candidate as Candidate
 from ._rank import Catalogue as Catalogue

@@ -21,7 +21,14 @@ from ._features import Features, find_features
 from ._gain import RULE, Gain, compare_held_out, estimate_discrepancy, log_predictive
 from ._gain import objective_per_run as j_per_run
 from ._rank import NONE, Catalogue, CauseScore, Ranking, rank_causes
-from ._refit import SMOOTH_BINS, RefitResult, RefitSetup, Spectra, refit_extension
+from ._refit import (
+    SMOOTH_BINS,
+    ExtensionProposal,
+    RefitResult,
+    RefitSetup,
+    Spectra,
+    refit_extension,
+)
 
 if TYPE_CHECKING:
     from ..inference import FitResult
@@ -173,15 +180,88 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def _windows(campaign: xr.Dataset, signals: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
-    if "t_start" in campaign.variables and "t_stop" in campaign.variables:
-        return (
-            np.asarray(campaign["t_start"].values, dtype=float),
-            np.asarray(campaign["t_stop"].values, dtype=float),
+@dataclasses.dataclass(frozen=True)
+class _Measured:
+    """The diagnosed runs of a campaign: signals, operating points, motion windows."""
+
+    runs: np.ndarray
+    signals: np.ndarray
+    operating: np.ndarray
+    t_start: np.ndarray
+    t_stop: np.ndarray
+    fs: float
+    channels: tuple[str, ...]
+
+    @classmethod
+    def of(cls, system: AbstractSystem, campaign: xr.Dataset, runs: np.ndarray) -> _Measured:
+        fs = float(campaign.attrs.get("sampling_rate_hz", np.nan))
+        if fs != system.sampling_rate_hz:
+            raise ValueError(
+                f"the campaign's sampling_rate_hz={fs} differs from {system.name}'s "
+                f"{system.sampling_rate_hz} Hz: resample the measurements to the model's rate"
+            )
+        chosen = campaign.isel(run=np.asarray(runs))
+        channels = tuple(system.channels)
+        x = np.asarray(chosen["acceleration"].sel(channel=list(channels)).values, dtype=float)
+        if "t_start" in chosen.variables and "t_stop" in chosen.variables:
+            t0 = np.asarray(chosen["t_start"].values, dtype=float)
+            t1 = np.asarray(chosen["t_stop"].values, dtype=float)
+        else:
+            t = np.arange(x.shape[-1]) / fs
+            w = np.array([detect_motion_window(t, s) for s in x])
+            t0, t1 = w[:, 0], w[:, 1]
+        operating = np.asarray(chosen["v_max"].values, dtype=float)
+        return cls(np.asarray(runs), x, operating, t0, t1, fs, channels)
+
+    @property
+    def duration(self) -> float:
+        return self.signals.shape[-1] / self.fs
+
+    def setup(
+        self,
+        system: AbstractSystem,
+        point: Mapping[str, float],
+        base_signals: np.ndarray,
+        sample_times: np.ndarray,
+        band: tuple[float, float],
+    ) -> RefitSetup:
+        spectra = Spectra.of_measured(
+            self.signals, self.fs, self.t_start, self.t_stop, band, nperseg=int(self.fs)
         )
-    t = np.arange(signals.shape[-1]) / fs
-    w = np.array([detect_motion_window(t, s) for s in signals])
-    return w[:, 0], w[:, 1]
+        return RefitSetup(
+            system=system,
+            point=dict(point),
+            operating=self.operating,
+            duration=self.duration,
+            time=sample_times,
+            base_signals=base_signals,
+            spectra=spectra,
+        )
+
+
+def _simulate_rows(
+    system: AbstractSystem, measured: _Measured, rows: Sequence[Mapping[str, float]]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signals (row, run, channel, time) of every run for each parameter row, success per row."""
+    n_runs, n_time = len(measured.runs), measured.signals.shape[-1]
+    values = {
+        name: np.repeat([row[name] for row in rows], n_runs) for name in system.parameter_names()
+    }
+    result = system.simulate_values(
+        values, np.tile(measured.operating, len(rows)), duration=measured.duration
+    )
+    ok = np.all(np.asarray(result.status).reshape(len(rows), n_runs) == 0, axis=1)
+    signals = np.asarray(result.signals)[..., :n_time]
+    return (
+        signals.reshape(len(rows), n_runs, *signals.shape[1:]),
+        ok,
+        np.asarray(result.time)[:n_time],
+    )
+
+
+def _band(fit: FitResult) -> tuple[float, float]:
+    """The analysed band: the fit's feature band (where the base model was fitted)."""
+    return float(fit.feature_spec.f_low), float(fit.feature_spec.f_high)
 
 
 def _noise_rms(signals: np.ndarray, fs: float, t_start: np.ndarray) -> np.ndarray:
@@ -208,10 +288,14 @@ def _pairs(catalogue: Catalogue) -> tuple[tuple[str, str], ...]:
     return tuple(found)
 
 
-def _halves(operating: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two halves that each span the operating range: alternate runs sorted by speed."""
+def _folds(operating: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Two folds (train, test) whose halves each span the operating range (alternate runs
+    sorted by operating point); none with fewer than 2 runs in a half."""
     order = np.argsort(operating, kind="stable")
-    return np.sort(order[0::2]), np.sort(order[1::2])
+    first, second = np.sort(order[0::2]), np.sort(order[1::2])
+    if min(len(first), len(second)) < 2:
+        return []
+    return [(first, second), (second, first)]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -231,7 +315,7 @@ def _held_out(spectra: Spectra, model: np.ndarray, train: np.ndarray, test: np.n
 
 def _cross_validate(
     setup: RefitSetup,
-    proposal,
+    proposal: ExtensionProposal,
     folds: Sequence[tuple[np.ndarray, np.ndarray]],
     *,
     seed: int,
@@ -338,12 +422,6 @@ def diagnose_campaign(
         if settings is None
         else settings
     )
-    fs = float(campaign.attrs.get("sampling_rate_hz", np.nan))
-    if fs != system.sampling_rate_hz:
-        raise ValueError(
-            f"the campaign's sampling_rate_hz={fs} differs from {system.name}'s "
-            f"{system.sampling_rate_hz} Hz: resample the measurements to the model's rate"
-        )
     timings: dict[str, float] = {}
     notes: list[str] = []
     t0 = time.perf_counter()
@@ -353,48 +431,36 @@ def diagnose_campaign(
         )
         timings["fit"] = time.perf_counter() - t0
 
-    runs = calibration_runs(campaign)
-    chosen = campaign.isel(run=runs)
-    channels = tuple(system.channels)
-    x = np.asarray(chosen["acceleration"].sel(channel=list(channels)).values, dtype=float)
-    operating = np.asarray(chosen["v_max"].values, dtype=float)
-    t_start, t_stop = _windows(chosen, x, fs)
-    n_time = x.shape[-1]
-    duration = n_time / fs
+    measured = _Measured.of(system, campaign, calibration_runs(campaign))
+    runs, x, operating = measured.runs, measured.signals, measured.operating
+    t_start, t_stop = measured.t_start, measured.t_stop
 
     t0 = time.perf_counter()
     draws = fit.posterior_draws()
     total = len(next(iter(draws.values())))
     pick = np.unique(np.linspace(0, total - 1, min(settings.predictive_draws, total)).round())
     fixed = {k: v for k, v in fit.point.items() if k not in fit.names}
-    rows = [dict(fit.point)] + [
-        {**fixed, **{n: float(draws[n][int(i)]) for n in fit.names}} for i in pick
-    ]
-    values = {
-        name: np.repeat([row[name] for row in rows], len(runs)) for name in system.parameter_names()
-    }
-    result = system.simulate_values(values, np.tile(operating, len(rows)), duration=duration)
-    status = np.asarray(result.status).reshape(len(rows), len(runs))
-    if np.any(status[0] != 0):
+    rows = [dict(fit.point)]
+    if total > 1:
+        rows += [{**fixed, **{n: float(draws[n][int(i)]) for n in fit.names}} for i in pick]
+    sims, ok, sample_times = _simulate_rows(system, measured, rows)
+    if not ok[0]:
         raise RuntimeError(
-            f"the base model failed to simulate runs {np.flatnonzero(status[0]).tolist()} at the "
-            "fit's point: (a) the fit is not of this system, (b) the records are longer than "
-            "the solver's max_steps allow"
+            "the base model failed to simulate the runs at the fit's point: (a) the fit is not "
+            "of this system, (b) the records are longer than the solver's max_steps allow"
         )
-    sims = np.asarray(result.signals)[..., :n_time].reshape(len(rows), len(runs), len(channels), -1)
     base_signals = sims[0]
-    sims = sims[1:][np.all(status[1:] == 0, axis=1)]
-    if len(sims) < settings.predictive_draws:
-        sims = sims[np.resize(np.arange(len(sims)), settings.predictive_draws)]
+    sims = sims[1:][ok[1:]] if total > 1 else sims[:1]
+    sims = sims[np.resize(np.arange(len(sims)), settings.predictive_draws)]
     rng = np.random.default_rng(seed)
-    noise = _noise_rms(x, fs, t_start)
+    noise = _noise_rms(x, measured.fs, t_start)
     predictive = sims + noise[None, None, :, None] * rng.standard_normal(sims.shape)
-    band = (float(fit.feature_spec.f_low), float(fit.feature_spec.f_high))
+    band = _band(fit)
     features = find_features(
         x,
         predictive,
-        fs,
-        channels=channels,
+        measured.fs,
+        channels=measured.channels,
         t_start=t_start,
         t_stop=t_stop,
         speeds=operating,
@@ -406,16 +472,7 @@ def diagnose_campaign(
     timings["features"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    spectra = Spectra.of_measured(x, fs, t_start, t_stop, band, nperseg=int(fs))
-    setup = RefitSetup(
-        system=system,
-        point=dict(fit.point),
-        operating=operating,
-        duration=duration,
-        time=np.asarray(result.time)[:n_time],
-        base_signals=base_signals,
-        spectra=spectra,
-    )
+    setup = measured.setup(system, fit.point, base_signals, sample_times, band)
     recipes = {c.name: c.refit for c in catalogue.candidates}
     plausible = [
         c
@@ -424,17 +481,18 @@ def diagnose_campaign(
     ][: settings.max_candidates]
     if ranking.verdict == NONE:
         plausible = []
-    first, second = _halves(operating)
-    if plausible and min(len(first), len(second)) < 2:
+    folds = _folds(operating)
+    if plausible and not folds:
         notes.append(
             f"{len(runs)} healthy runs: too few to fit on half and hold out the other half "
             "(need 4); no candidate could be confirmed"
         )
         plausible = []
-    folds = [(first, second), (second, first)]
     refitted: dict[str, Cause] = {}
     for rank, score in enumerate(plausible):
-        proposals = recipes[score.name].propose(score.parameters)  # type: ignore[union-attr]
+        proposals = recipes[score.name].propose(  # type: ignore[union-attr]
+            score.parameters, band=band
+        )
         trials = []
         for k, proposal in enumerate(proposals):
             try:
@@ -501,3 +559,63 @@ def diagnose_campaign(
         notes=tuple(notes),
         timings=timings,
     )
+
+
+def extension_gain(
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    proposal: ExtensionProposal,
+    *,
+    fit: FitResult,
+    seed: int = 0,
+    quick: bool = False,
+) -> tuple[Gain, tuple[RefitResult, ...]]:
+    """The held-out gain of one model extension forced onto a campaign's healthy runs.
+
+    The refit and the test of :func:`diagnose_campaign`'s step 2 for an extension chosen by
+    the caller, whatever the residual features say: for example to check that a wrong
+    extension buys nothing.
+
+    Parameters
+    ----------
+    system
+        The base system.
+    campaign
+        The measurements; the healthy calibration runs are used.
+    proposal
+        The extension, its start and search boxes.
+    fit
+        The base model's fit.
+    seed
+        Seeds the refits.
+    quick
+        The refit budget of :meth:`DiagnosisSettings.quick`.
+
+    Returns
+    -------
+    gain
+        Held-out J and log predictive density, both folds together.
+    refits
+        The refit of each fold.
+
+    Raises
+    ------
+    ValueError
+        For fewer than 4 healthy calibration runs.
+    """
+    from ..inference import calibration_runs
+
+    settings = DiagnosisSettings.quick() if quick else DiagnosisSettings()
+    measured = _Measured.of(system, campaign, calibration_runs(campaign))
+    folds = _folds(measured.operating)
+    if not folds:
+        raise ValueError(
+            f"{len(measured.runs)} healthy calibration runs: need at least 4 to fit on half "
+            "and test on the other half"
+        )
+    sims, ok, sample_times = _simulate_rows(system, measured, [dict(fit.point)])
+    if not ok[0]:
+        raise RuntimeError("the base model failed to simulate the runs at the fit's point")
+    setup = measured.setup(system, fit.point, sims[0], sample_times, _band(fit))
+    fits, gain = _cross_validate(setup, proposal, folds, seed=seed, max_evals=settings.refit_evals)
+    return gain, tuple(fits)

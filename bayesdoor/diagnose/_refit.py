@@ -71,8 +71,11 @@ class AbstractRefit(eqx.Module):
     """A catalogue candidate's recipe: extensions to refit from its signature's estimate."""
 
     @abc.abstractmethod
-    def propose(self, parameters: Mapping[str, Any]) -> tuple[ExtensionProposal, ...]:
-        """The extensions worth refitting, given the parameters the signature estimated."""
+    def propose(
+        self, parameters: Mapping[str, Any], *, band: tuple[float, float]
+    ) -> tuple[ExtensionProposal, ...]:
+        """The extensions worth refitting, given the parameters the signature estimated and
+        the analysed band (Hz; what lies outside it cannot be fitted)."""
 
 
 @dataclasses.dataclass(frozen=True)

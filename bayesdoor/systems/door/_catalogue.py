@@ -53,7 +53,9 @@ class FrameModeRefit(AbstractRefit):
     of every channel (started at 0.02 on the channels that show the residual, 0 elsewhere).
     """
 
-    def propose(self, parameters: Mapping[str, Any]) -> tuple[ExtensionProposal, ...]:
+    def propose(
+        self, parameters: Mapping[str, Any], *, band: tuple[float, float]
+    ) -> tuple[ExtensionProposal, ...]:
         f = float(parameters["frequency_hz"])
         zeta = float(np.clip(parameters.get("damping_ratio", 0.02), 0.005, 0.1))
         shown = set(parameters.get("channels", ()))
@@ -86,7 +88,9 @@ class WheelRefit(AbstractRefit):
     refitted (each refit of a wheel needs new solves).
     """
 
-    def propose(self, parameters: Mapping[str, Any]) -> tuple[ExtensionProposal, ...]:
+    def propose(
+        self, parameters: Mapping[str, Any], *, band: tuple[float, float]
+    ) -> tuple[ExtensionProposal, ...]:
         found = [int(k) for k in parameters.get("labels_found", ())] or [int(parameters["label"])]
         harmonics = max(found)
         start = {f"wheel_eccentricity.amplitude_{k}": 5e-6 / k for k in found}
@@ -104,7 +108,9 @@ class WheelRefit(AbstractRefit):
 class RailRefit(AbstractRefit):
     """A rail irregularity near the residual's wavelength (4 %); free: wavelength, amplitude."""
 
-    def propose(self, parameters: Mapping[str, Any]) -> tuple[ExtensionProposal, ...]:
+    def propose(
+        self, parameters: Mapping[str, Any], *, band: tuple[float, float]
+    ) -> tuple[ExtensionProposal, ...]:
         lam = float(parameters["wavelength_m"])
         lo, hi = lam * (1.0 - _WAVELENGTH_BOX), lam * (1.0 + _WAVELENGTH_BOX)
         return (
@@ -122,7 +128,9 @@ class RailRefit(AbstractRefit):
 class CrossAxisRefit(AbstractRefit):
     """A leak into the coherent pair's receiving channel (and, as an alternative, the reverse)."""
 
-    def propose(self, parameters: Mapping[str, Any]) -> tuple[ExtensionProposal, ...]:
+    def propose(
+        self, parameters: Mapping[str, Any], *, band: tuple[float, float]
+    ) -> tuple[ExtensionProposal, ...]:
         receiver, source = str(parameters["receiver"]), str(parameters["source"])
         fraction = float(np.clip(parameters.get("fraction", 0.05), -0.3, 0.3))
         out = []
@@ -141,15 +149,22 @@ class CrossAxisRefit(AbstractRefit):
 
 
 class MainsRefit(AbstractRefit):
-    """Lines at the matched mains frequency and its 2nd and 3rd harmonics on every channel."""
+    """Lines at the matched mains frequency and its harmonics inside the band, every channel.
 
-    def propose(self, parameters: Mapping[str, Any]) -> tuple[ExtensionProposal, ...]:
+    Free: the fundamental's amplitude on every channel and the ratio of each harmonic that
+    lies inside the analysed band (the others cannot be seen, so they are left out).
+    """
+
+    def propose(
+        self, parameters: Mapping[str, Any], *, band: tuple[float, float]
+    ) -> tuple[ExtensionProposal, ...]:
         f0 = float(parameters["frequency_hz"])
+        harmonics = max(1, min(3, int(band[1] // f0)))
         start = {f"mains_hum.amplitude_{c}": 0.01 for c in g.CHANNELS}
-        start.update({"mains_hum.ratio_2": 0.2, "mains_hum.ratio_3": 0.2})
+        start.update({f"mains_hum.ratio_{h}": 0.2 for h in range(2, harmonics + 1)})
         return (
             ExtensionProposal(
-                extension=MainsHum(frequency_hz=f0, harmonics=3),
+                extension=MainsHum(frequency_hz=f0, harmonics=harmonics),
                 start=start,
                 free=tuple(start),
                 key=tuple(f"mains_hum.amplitude_{c}" for c in g.CHANNELS),

@@ -9,124 +9,41 @@ realistic-size generation).
 from __future__ import annotations
 
 import json
-import sys
 import time
 import warnings
 
 import arviz as az
-import cloudpickle
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.signal
+from _toy_system import CENTER, FS, ToySystem
 
 from bayesdoor.datagen import (
     GaussianScatter,
     GenerationConfig,
     ModelErrorDraws,
     PosteriorDraws,
+    calibration_residuals,
     campaign_features,
     featurize,
     generate,
     load_training_data,
     measured_features,
+    measurement_variance,
+    model_error_draws,
 )
+from bayesdoor.features import segment_weights
+from bayesdoor.inference import FeatureSpec, welch_log10_variance
 from bayesdoor.io import make_campaign
-from bayesdoor.systems import AbstractSystem, DamageSpec, ElevatorDoor, ParameterSpec
-
-FS = 2048.0
-REST = 0.1
-DURATION = 0.75
-
-# the Dask workers unpickle the toy system: ship its class by value, not by module name
-cloudpickle.register_pickle_by_value(sys.modules[__name__])
-
-
-class ToySystem(AbstractSystem):
-    """Two channels of tones during the 'motion' after REST s; fails for k > fail_above."""
-
-    fail_above: float = eqx.field(static=True, default=2.0)
-
-    @property
-    def name(self):
-        return "toy"
-
-    @property
-    def parameters(self):
-        return (
-            ParameterSpec("k", "-", 0.5, 0.0, 1.0, "tone frequency"),
-            ParameterSpec("m", "-", 1.0, 0.5, 2.0, "amplitude"),
-            ParameterSpec("law", "-", 2, 1, 3, "an integer index", integer=True),
-        )
-
-    @property
-    def states(self):
-        return {
-            "healthy": DamageSpec("healthy", "none"),
-            "D1": DamageSpec("D1", "a 48 Hz tone", {"a1": (0.5, 1.0)}),
-            "D2": DamageSpec("D2", "an 80 Hz tone", {"a2": (0.2, 0.4), "phase": (0.0, 6.28)}),
-        }
-
-    @property
-    def channels(self):
-        return ("X", "Z")
-
-    @property
-    def sampling_rate_hz(self):
-        return FS
-
-    def record_duration(self, operating):
-        return DURATION
-
-    def motion_window(self, operating, *, duration=None):
-        v = np.atleast_1d(np.asarray(operating, dtype=float))
-        stop = DURATION if duration is None else min(DURATION, duration)
-        return np.full(v.shape, REST), np.full(v.shape, stop)
-
-    def simulate(self, theta, damage, operating, *, duration=None):
-        return self.simulate_values(theta, operating, state=damage, duration=duration)
-
-    def simulate_values(
-        self, values, operating, *, state="healthy", severity=None, duration=None, check=True
-    ):
-        spec = self.check_state(state)
-        severity = dict(severity or {})
-        sev = {k: severity.get(k, 0.5 * (lo + hi)) for k, (lo, hi) in spec.severity.items()}
-        v = jnp.atleast_1d(jnp.asarray(operating, dtype=float))
-        k, m = (jnp.broadcast_to(jnp.asarray(values[n], dtype=float), v.shape) for n in "km")
-        sev = {n: jnp.broadcast_to(jnp.asarray(x, dtype=float), v.shape) for n, x in sev.items()}
-        n_time = round((duration or DURATION) * FS)
-        return _toy_signals(k, m, v, sev, n_time, self.fail_above)
-
-
-@eqx.filter_jit
-def _toy_signals(k, m, v, sev, n_time: int, fail_above: float):
-    t = jnp.arange(n_time, dtype=float) / FS
-    on = (t >= REST).astype(float)
-    x = m[:, None] * v[:, None] * jnp.sin(2 * jnp.pi * (20.0 + 40.0 * k[:, None]) * t)
-    if "a1" in sev:
-        x = x + sev["a1"][:, None] * jnp.sin(2 * jnp.pi * 48 * t)
-    if "a2" in sev:
-        x = x + sev["a2"][:, None] * jnp.sin(2 * jnp.pi * 80 * t + sev["phase"][:, None])
-    signals = jnp.stack([x * on, 0.5 * x * on + 0.01 * jnp.cos(2 * jnp.pi * 30 * t)], axis=1)
-    status = jnp.where(k > fail_above, 1, 0)
-    signals = jnp.where(status[:, None, None] == 0, signals, 0.0)
-    return _Result(signals, status)
-
-
-class _Result(eqx.Module):
-    signals: jax.Array
-    status: jax.Array
-
+from bayesdoor.systems import ElevatorDoor
 
 TOY = ToySystem()
-TOY_CENTER = {"k": 0.5, "m": 1.0, "law": 2.0}
 
 
 def toy_source(relative_sd=0.1):
-    return GaussianScatter.around(TOY, TOY_CENTER, relative_sd)
+    return GaussianScatter.around(TOY, CENTER, relative_sd)
 
 
 def toy_config(**kw):
@@ -479,6 +396,86 @@ def test_dask_scheduler_address_equals_local(tmp_path, key, monkeypatch):
 
 
 # --------------------------------------------------------------------------------- the door
+
+
+# ------------------------------------------------------- model error for the OOD detector
+
+
+@pytest.fixture(scope="module")
+def toy_data(tmp_path_factory):
+    config = toy_config(runs_per_state=12, chunk_size=12, validation_fraction=0.25)
+    out = tmp_path_factory.mktemp("toy_data")
+    return generate(TOY, toy_source(), config, out, key=jax.random.key(11), progress=False)
+
+
+def test_calibration_residuals_subtract_the_simulated_mean_at_the_speed(toy_data):
+    measured = toy_data.features[:3] + 0.5  # three runs, offset by half a decade
+    speeds = [0.5, 0.3, 0.5]
+    got = calibration_residuals(toy_data, measured, speeds, state="D1")
+    for i, v in enumerate(speeds):
+        same = [
+            j
+            for j in range(toy_data.labels.size)
+            if toy_data.labels[j] == 1 and toy_data.speeds[j] == v and not toy_data.validation[j]
+        ]
+        expected = measured[i] - np.mean([toy_data.features[j] for j in same], axis=0)
+        np.testing.assert_allclose(got[i], expected, rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match=r"speed 0\.4 but the training split holds no D1 run"):
+        calibration_residuals(toy_data, measured, [0.5, 0.4, 0.5], state="D1")
+    with pytest.raises(ValueError, match="state='D9'"):
+        calibration_residuals(toy_data, measured, speeds, state="D9")
+    with pytest.raises(ValueError, match=r"features must be \(run, 2, 25\)"):
+        calibration_residuals(toy_data, measured[:, :1], speeds, state="D1")
+
+
+def test_measurement_variance_is_the_welch_scatter_plus_the_model_error(toy_data):
+    welch = measurement_variance(toy_data)
+    # the segments inside the toy's window (0.1 to 0.75 s), counted by the featurizer's own
+    # weights: 4 whole segments of 512 samples at 256-sample steps
+    n_time = round(0.75 * FS)
+    segments = float(np.sum(segment_weights(n_time, FS, 0.1, 0.75, 512)))
+    assert segments == 4.0
+    bin_hz = FS / 512
+    one_bin = FeatureSpec(f_low=bin_hz, f_high=bin_hz, band_width=bin_hz)
+    np.testing.assert_allclose(welch, float(welch_log10_variance(segments, FS, one_bin)))
+    # an independent check of that value: the scatter of the log10 PSD of white noise over
+    # the same window, 4000 records, bins away from 0 Hz (whose periodogram has half the
+    # degrees of freedom); 4000 x 23 correlated bins estimate the variance to a few percent,
+    # and the chi-square approximation of overlapped Hann segments is good to about 10 %
+    noise = np.random.default_rng(0).standard_normal((4000, 1, n_time))
+    features = np.asarray(featurize(noise, FS, 0.1, 0.75))
+    scatter = np.var(features[:, 0, 1:24], axis=0).mean()
+    assert scatter == pytest.approx(welch[0, 0], rel=0.15)
+    # the model error adds its posterior mean of sigma^2, per channel
+    sigma = np.array([[0.1, 0.3], [0.3, 0.1]])
+    np.testing.assert_allclose(
+        measurement_variance(toy_data, sigma) - welch, np.full((2, 25), 0.05), rtol=1e-12
+    )
+    np.testing.assert_allclose(measurement_variance(toy_data, np.array([0.2, 0.2])) - welch, 0.04)
+    with pytest.raises(ValueError, match="does not fit features of shape"):
+        measurement_variance(toy_data, np.ones((5, 3)))
+
+
+def test_model_error_draws_have_the_residuals_plus_the_scatter(key):
+    rng = np.random.default_rng(1)
+    residuals = rng.normal(0.3, 0.2, (5, 2, 3))
+    variance = np.array([[0.01, 0.04, 0.09], [0.0, 0.01, 0.25]])
+    draws = model_error_draws(40_000, key=key, residuals=residuals, variance=variance)
+    # a uniform mixture of the residuals plus independent Gaussian scatter: its mean is the
+    # residuals' mean and its variance theirs (ddof 0) plus the scatter's; 40 000 draws give
+    # standard errors below 0.005
+    np.testing.assert_allclose(draws.mean(axis=0), residuals.mean(axis=0), atol=0.01)
+    np.testing.assert_allclose(draws.var(axis=0), residuals.var(axis=0) + variance, atol=0.01)
+    only = model_error_draws(50, key=key, residuals=residuals)
+    assert all(any(np.array_equal(d, r) for r in residuals) for d in only)
+    again = model_error_draws(40_000, key=key, residuals=residuals, variance=variance)
+    np.testing.assert_array_equal(draws, again)
+    with pytest.raises(ValueError, match="give residuals, variance or both"):
+        model_error_draws(3, key=key)
+    with pytest.raises(ValueError, match="describe other features"):
+        model_error_draws(3, key=key, residuals=residuals, variance=np.ones((2, 4)))
+    with pytest.raises(ValueError, match="non-negative"):
+        model_error_draws(3, key=key, variance=-variance)
 
 
 def test_door_generation_small(tmp_path, key):

@@ -14,11 +14,9 @@ import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
-import equinox as eqx
-import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
+from _toy_system import CENTER, DURATION, FS, REST, ToySystem
 
 from bayesdoor.classify import TrainConfig
 from bayesdoor.io import make_campaign
@@ -31,87 +29,15 @@ from bayesdoor.pipeline import (
     run_stage,
     runs_to_classify,
 )
-from bayesdoor.systems import AbstractSystem, DamageSpec, ParameterSpec
 
-FS = 2048.0
-REST = 0.1
-DURATION = 0.75
-CENTER = {"k": 0.5, "m": 1.0, "law": 2.0}
-
-
-class ToneSystem(AbstractSystem):
-    """Two channels: a tone at 20 + 40 k Hz of amplitude m v, plus 48 Hz (D1) or 80 Hz (D2)."""
-
-    @property
-    def name(self):
-        return "tones"
-
-    @property
-    def parameters(self):
-        return (
-            ParameterSpec("k", "-", 0.5, 0.0, 1.0, "tone frequency"),
-            ParameterSpec("m", "-", 1.0, 0.5, 2.0, "amplitude"),
-            ParameterSpec("law", "-", 2, 1, 3, "an integer index", integer=True),
-        )
-
-    @property
-    def states(self):
-        return {
-            "healthy": DamageSpec("healthy", "none"),
-            "D1": DamageSpec("D1", "a 48 Hz tone", {"a1": (0.5, 1.0)}),
-            "D2": DamageSpec("D2", "an 80 Hz tone", {"a2": (0.3, 0.6)}),
-        }
-
-    @property
-    def channels(self):
-        return ("X", "Z")
-
-    @property
-    def sampling_rate_hz(self):
-        return FS
-
-    def record_duration(self, operating):
-        return DURATION
-
-    def motion_window(self, operating, *, duration=None):
-        v = np.atleast_1d(np.asarray(operating, dtype=float))
-        return np.full(v.shape, REST), np.full(v.shape, DURATION)
-
-    def simulate(self, theta, damage, operating, *, duration=None):
-        return self.simulate_values(theta, operating, state=damage, duration=duration)
-
-    def simulate_values(
-        self, values, operating, *, state="healthy", severity=None, duration=None, check=True
-    ):
-        spec = self.check_state(state)
-        severity = dict(severity or {})
-        sev = {k: severity.get(k, 0.5 * (lo + hi)) for k, (lo, hi) in spec.severity.items()}
-        v = jnp.atleast_1d(jnp.asarray(operating, dtype=float))
-        k, m = (jnp.broadcast_to(jnp.asarray(values[n], dtype=float), v.shape) for n in "km")
-        sev = {n: jnp.broadcast_to(jnp.asarray(x, dtype=float), v.shape) for n, x in sev.items()}
-        return _tones(k, m, v, sev, round((duration or DURATION) * FS))
-
-
-class _Result(eqx.Module):
-    signals: jax.Array
-    status: jax.Array
-
-
-@eqx.filter_jit
-def _tones(k, m, v, sev, n_time: int):
-    t = jnp.arange(n_time, dtype=float) / FS
-    on = (t >= REST).astype(float)
-    x = m[:, None] * v[:, None] * jnp.sin(2 * jnp.pi * (20.0 + 40.0 * k[:, None]) * t)
-    if "a1" in sev:
-        x = x + sev["a1"][:, None] * jnp.sin(2 * jnp.pi * 48 * t)
-    if "a2" in sev:
-        x = x + sev["a2"][:, None] * jnp.sin(2 * jnp.pi * 80 * t)
-    noise = 0.02 * jnp.sin(2 * jnp.pi * 30 * t) + 0.01 * jnp.cos(2 * jnp.pi * 91 * t)
-    signals = jnp.stack([x * on + noise, 0.5 * x * on + noise], axis=1)
-    return _Result(signals, jnp.zeros(v.shape, dtype=jnp.int32))
-
-
-SYSTEM = ToneSystem()
+#: the tones present in both channels of every record
+BACKGROUND = (("sin", 30.0, 0.02), ("cos", 91.0, 0.01))
+SYSTEM = ToySystem(
+    label="tones",
+    d2_amplitude=(0.3, 0.6),
+    d2_phase=False,
+    background=tuple((c, kind, hz, a) for c in (0, 1) for kind, hz, a in BACKGROUND),
+)
 
 
 def tone_campaign(*, calibration=3, per_state=4, split=True, seed=0):

@@ -10,7 +10,7 @@ $(BIN)/bayesdoor: pyproject.toml
 	$(BIN)/python -m pip install --quiet -e ".[dev]"
 	touch $(BIN)/bayesdoor
 
-.PHONY: install demo test lint bench
+.PHONY: install demo test lint bench results
 install: $(BIN)/bayesdoor
 
 demo: install
@@ -26,3 +26,6 @@ lint: install
 
 bench: install
 	$(BIN)/python benchmarks/bench_simulate.py
+
+results: install
+	$(BIN)/python scripts/make_results.py

@@ -8,6 +8,7 @@ from ._cmaes import plot_cmaes_history as plot_cmaes_history
 from ._diagnostics import SamplingDiagnostics as SamplingDiagnostics
 from ._diagnostics import SamplingGateWarning as SamplingGateWarning
 from ._diagnostics import diagnose_sampling as diagnose_sampling
+from ._diagnostics import nested_rhat as nested_rhat
 from ._diagnostics import summary_table as summary_table
 from ._features import FeatureSpec as FeatureSpec
 from ._features import run_features as run_features

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import xarray as xr
@@ -21,7 +22,13 @@ from ..classify import (
     predict,
     save_ensemble,
 )
-from ..datagen import TrainingData, campaign_features
+from ..datagen import (
+    TrainingData,
+    calibration_residuals,
+    campaign_features,
+    measurement_variance,
+    model_error_draws,
+)
 from ..features import CNNInputSpec
 from ..io import atomic_write
 from ..report import diagnosis_section, write_damage_report
@@ -58,8 +65,12 @@ def train_stage(
     config: TrainConfig,
     ood_quantile: float,
     progress: bool,
+    ood_model_error: np.ndarray | None = None,
 ) -> None:
     """Train the ensemble on the training split, calibrate it and fit its OOD detector.
+
+    ``ood_model_error`` (draws from :func:`ood_model_error`) makes the detector compare
+    inputs with measurements of the simulated states rather than with simulations alone.
 
     Writes ``ensemble.eqx``, ``training.json`` (counts, temperature, OOD threshold, loss
     history, simulated validation metrics before and after the temperature) and ``bands.npz``
@@ -80,6 +91,7 @@ def train_stage(
         key=key,
         config=config,
         ood_quantile=ood_quantile,
+        ood_model_error=ood_model_error,
         progress="rich" if progress else "none",
     )
     ensemble = training.ensemble
@@ -97,6 +109,7 @@ def train_stage(
             "temperature": float(ensemble.temperature),
             "ood_threshold": None if ensemble.ood is None else float(ensemble.ood.threshold),
             "ood_quantile": ood_quantile,
+            "ood_model_error_draws": 0 if ensemble.ood is None else ensemble.ood.model_error_draws,
             "train_config": config.to_json(),
             "final_loss": np.asarray(training.loss[-1], dtype=float).tolist(),
             "validation": {
@@ -106,6 +119,39 @@ def train_stage(
                 "labels": val.labels.tolist(),
             },
         },
+    )
+
+
+def ood_model_error(
+    data: TrainingData,
+    calibration: xr.Dataset,
+    fit: FitSummary,
+    *,
+    key: jax.Array,
+    draws: int = 4000,
+) -> np.ndarray:
+    """Draws of the model error for the OOD detector, from the fit and its calibration runs.
+
+    Each draw is the residual of one healthy calibration run about the simulated healthy mean
+    at its speed (:func:`bayesdoor.datagen.calibration_residuals`: the structured
+    discrepancy the model leaves) plus independent per-feature scatter with the variance the
+    fit's likelihood gives a measured feature (Welch scatter and the posterior of the model
+    error, :func:`bayesdoor.datagen.measurement_variance`). Without healthy calibration runs
+    at the simulated speeds only the scatter is drawn.
+    """
+    healthy = calibration.isel(
+        run=np.flatnonzero(np.asarray(calibration["state"].values).astype(str) == "healthy")
+    )
+    speeds = np.asarray(healthy["v_max"].values, dtype=float)
+    simulated = set(np.asarray(data.subset("train").speeds).tolist())
+    residuals = None
+    if "healthy" in data.states and healthy.sizes["run"] and set(speeds.tolist()) <= simulated:
+        residuals = calibration_residuals(data, campaign_features(healthy), speeds, state="healthy")
+    return model_error_draws(
+        draws,
+        key=key,
+        residuals=residuals,
+        variance=measurement_variance(data, fit.sigma_model),
     )
 
 

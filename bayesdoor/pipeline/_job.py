@@ -40,7 +40,7 @@ from ..datagen import (
 )
 from ..io import atomic_write
 from ..systems import AbstractSystem
-from ._classify import classify_stage, report_stage, train_stage
+from ._classify import classify_stage, ood_model_error, report_stage, train_stage
 from ._diagnose import DIAGNOSIS_HTML, DIAGNOSIS_JSON, default_diagnose, diagnosis_stage
 from ._fit import FitSummary
 from ._stages import StageRecord, configuration_hash, run_stage
@@ -486,18 +486,30 @@ def run_job(
     )
     records.append(gen_record)
 
-    train_record = run_stage(
-        out,
-        "train",
-        {"data": gen_record.config_hash, "sizes": sizes.to_json(), "seed": seed},
-        lambda folder: train_stage(
-            load_training_data(gen_record.path / "data"),
+    def compute_train(folder: Path) -> None:
+        data = load_training_data(gen_record.path / "data")
+        train_stage(
+            data,
             folder,
             key=jax.random.fold_in(key, 2),
             config=sizes.train,
             ood_quantile=sizes.ood_quantile,
             progress=progress,
-        ),
+            ood_model_error=ood_model_error(
+                data, calibration, summary, key=jax.random.fold_in(key, 3)
+            ),
+        )
+
+    train_record = run_stage(
+        out,
+        "train",
+        {
+            "data": gen_record.config_hash,
+            "sizes": sizes.to_json(),
+            "seed": seed,
+            "ood": "model-error draws",
+        },
+        compute_train,
         report=report,
     )
     records.append(train_record)

@@ -39,7 +39,9 @@ def fit_ood(
     x_heldout: Float[Array, "heldout channel freq"],
     *,
     quantile: float = 0.99,
-    model_error: Float[Array, "draw channel freq"] | None = None,
+    model_error: Float[Array, "draw channel freq"]
+    | Float[np.ndarray, "draw channel freq"]
+    | None = None,
     key: Array | None = None,
 ) -> Ensemble:
     """The ensemble with a Mahalanobis OOD detector (see :func:`fit_mahalanobis`).
@@ -52,15 +54,16 @@ def fit_ood(
     added to each held-out input.
     """
     scale = np.asarray(ensemble.scale, dtype=np.float64)
+    standardised = None
     if model_error is not None:
-        model_error = check_model_error(model_error, scale.shape) / scale
+        standardised = check_model_error(model_error, scale.shape) / scale
     detector = fit_mahalanobis(
         ensemble.standardise(jnp.asarray(x_train)),
         jnp.asarray(labels),
         ensemble.standardise(jnp.asarray(x_heldout)),
         ensemble.network.n_classes,
         quantile=quantile,
-        model_error=model_error,
+        model_error=standardised,
         key=key,
     )
     return eqx.tree_at(lambda e: e.ood, ensemble, detector, is_leaf=lambda v: v is None)
@@ -77,7 +80,9 @@ def fit_classifier(
     network: NetworkConfig | None = None,
     config: TrainConfig | None = None,
     ood_quantile: float = 0.99,
-    ood_model_error: Float[Array, "draw channel freq"] | None = None,
+    ood_model_error: Float[Array, "draw channel freq"]
+    | Float[np.ndarray, "draw channel freq"]
+    | None = None,
     progress: Progress = "rich",
 ) -> Training:
     """Train the ensemble, fit its temperature and its OOD threshold on the validation split.

@@ -96,7 +96,9 @@ def fit_mahalanobis(
     n_classes: int,
     *,
     quantile: float = 0.99,
-    model_error: Float[Array, "draw channel freq"] | None = None,
+    model_error: Float[Array, "draw channel freq"]
+    | Float[np.ndarray, "draw channel freq"]
+    | None = None,
     key: Array | None = None,
 ) -> MahalanobisOOD:
     """Fit class means and a tied shrunk covariance on training data; threshold on held-out data.

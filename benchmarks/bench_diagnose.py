@@ -4,9 +4,9 @@ The campaign is 12 healthy runs of the virtual rig at speeds spread over 0.25-0.
 hidden frame mode (``FrameMode.from_seed(0)``), so that the diagnosis has a candidate to refit
 (the expensive path). The command is timed as a user runs it: the base fit (CMA-ES), the
 posterior-predictive simulations and residual features, the refits and the report. The
-baseline, measured in the same process, is the base fit alone (``fit_campaign``, what
-``bayesdoor fit --method cmaes`` computes): the ratio says what the diagnosis adds to a fit.
-Recording the rig campaign is not counted.
+baseline is the base fit inside the same call (the diagnosis's own ``timings["fit"]``, what
+``bayesdoor fit --method cmaes`` computes): the ratio says what the diagnosis costs next to a
+fit. Recording the rig campaign is not counted.
 
 Usage: python benchmarks/bench_diagnose.py [--runs 12] [--quick] [--json]
 """
@@ -48,9 +48,7 @@ def main() -> None:
     from typer.testing import CliRunner
 
     from bayesdoor.cli import app
-    from bayesdoor.inference import fit_campaign
     from bayesdoor.io import save_campaign
-    from bayesdoor.systems import ElevatorDoor
 
     t0 = time.perf_counter()
     campaign = record(args.runs, args.seed)
@@ -67,22 +65,14 @@ def main() -> None:
         if result.exit_code != 0:
             raise SystemExit(f"bayesdoor diagnose failed: {result.output}")
         payload = json.loads(result.stdout)
-    t0 = time.perf_counter()
-    fit_campaign(
-        ElevatorDoor(),
-        campaign,
-        method="cmaes",
-        seed=args.seed,
-        quick=args.quick,
-        progress=False,
-    )
-    fit_s = time.perf_counter() - t0
+    stages = payload.get("timings", {})
+    fit_s = float(stages.get("fit", float("nan")))
     out = {
         "runs": args.runs,
         "quick": args.quick,
         "record_s": record_s,
         "diagnose_s": diagnose_s,
-        "stages_s": payload.get("timings", {}),
+        "stages_s": stages,
         "baseline_fit_s": fit_s,
         "diagnose_over_fit": diagnose_s / fit_s,
         "target_s": TARGET_S,
@@ -103,7 +93,8 @@ def main() -> None:
     for stage, seconds in out["stages_s"].items():
         print(f"  {stage:10s} {seconds:7.1f} s")
     print(
-        f"baseline, the CMA-ES fit alone: {fit_s:.0f} s; diagnose / fit = {diagnose_s / fit_s:.2f}"
+        f"baseline, the base fit inside it: {fit_s:.0f} s; diagnose / fit = "
+        f"{diagnose_s / fit_s:.2f}"
     )
     print(f"load average {out['load_average']:.1f} on {out['cpus']} CPUs")
 

@@ -164,6 +164,7 @@ def nuts_sbc(y_scale):
             num_warmup=300,
             num_samples=300,
             num_chains=2,
+            jit_model_args=True,  # as scripts/sbc.py: the data are arguments, not constants
             progress=False,
         )
 

@@ -126,6 +126,7 @@ def sample_nuts(
     target_accept: float = 0.8,
     max_tree_depth: int = 10,
     chain_method: str = "vectorized",
+    jit_model_args: bool = False,
     progress: bool = True,
 ) -> az.InferenceData:
     """Sample a numpyro model's posterior with NUTS.
@@ -155,6 +156,11 @@ def sample_nuts(
         Maximum tree depth (at most ``2**max_tree_depth - 1`` leapfrog steps per draw).
     chain_method
         ``"vectorized"`` (chains vmapped in one program) or ``"sequential"``.
+    jit_model_args
+        Pass ``model_kwargs`` to the compiled sampler as arguments rather than constants
+        (numpyro's ``jit_model_args``), so fits of many data sets of one shape compile once
+        and share the persistent compilation cache (simulation-based calibration); every
+        keyword argument must then be an array.
     progress
         Show numpyro's progress bar.
 
@@ -199,6 +205,7 @@ def sample_nuts(
         num_chains=num_chains,
         chain_method=chain_method,
         progress_bar=progress,
+        jit_model_args=jit_model_args,
     )
     mcmc.run(key, extra_fields=_NUTS_FIELDS, **model_kwargs)
     fields = {k: np.asarray(v) for k, v in mcmc.get_extra_fields(group_by_chain=True).items()}
@@ -220,6 +227,7 @@ def sample_nuts(
         "target_accept": target_accept,
         "max_tree_depth": max_tree_depth,
         "chain_method": chain_method,
+        "jit_model_args": jit_model_args,
         "init_values": dict(init_values) if init_values is not None else None,
     }
     return to_inference_data(

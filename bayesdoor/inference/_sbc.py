@@ -571,11 +571,14 @@ def plot_sbc_ranks(
     rows = -(-len(result.names) // cols)
     fig = Figure(figsize=(3.2 * cols, 2.6 * rows), layout="constrained")
     axes = np.atleast_1d(fig.subplots(rows, cols)).reshape(-1)
-    centres = 0.5 * (edges[:-1] + edges[1:] - 1)
+    left, width = edges[:-1] - 0.5, np.diff(edges)
     for i, name in enumerate(result.names):
         ax = axes[i]
-        ax.fill_between(centres, lo, hi, step="mid", color="grey", alpha=0.3, label="99 % band")
-        ax.bar(centres, test.counts[i], width=np.diff(edges) * 0.9, color="C0")
+        for b in range(test.bins):
+            ax.fill_between(
+                [left[b], left[b] + width[b]], lo[b], hi[b], color="grey", alpha=0.3, linewidth=0
+            )
+        ax.bar(left, test.counts[i], width=0.9 * width, align="edge", color="C0")
         ax.axhline(n / test.bins, color="k", linewidth=0.8)
         ax.set_title(
             f"{name}: chi2 p={test.chi2_pvalue[i]:.2f}, KS p={test.ks_pvalue[i]:.2f}", fontsize=8

@@ -1,0 +1,246 @@
+"""Training-data speed: the paper's 1800 simulated door runs, the ensemble, one run to a report.
+
+1. **Generation**: ``bayesdoor.datagen.generate`` of the paper's sizes (600 runs per state,
+   healthy / D1 / D2, chunks of 100 vmapped runs, speeds 0.3 / 0.4 / 0.5 m/s, Gaussian scatter
+   of 5 % around the paper's optimum), float64, in a fresh folder; the wall time includes
+   compiling the solve of each state (reported apart from the chunk times) unless the
+   persistent compilation cache already holds them. Baseline in the same process: the same
+   solver one run at a time (``--single`` runs, after compiling).
+2. **float32 against float64**: the same draws (same key, same configuration) generated with
+   ``SolverConfig(dtype="float32")``: seconds per run of both and the largest difference of
+   the log10 features (decades).
+3. **Training**: the 10-member ensemble (the paper's network, 80 epochs, batch 100) on the
+   generated training split (1260 runs), with and without compiling; ``fit_classifier`` also
+   calibrates and fits the OOD detector.
+4. **One run to a report**: a 3.7 s four-channel record at 2048 Hz through ``featurize`` (its
+   motion window) and ``predict`` (all members, temperature, entropies, OOD score): two jitted
+   calls, against one jitted function of both (baseline: the two calls).
+
+Timings are medians of repeated calls, each waited for with ``block_until_ready``.
+
+Usage: python benchmarks/bench_datagen.py [--runs-per-state 600] [--chunk-size 100] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bayesdoor.classify import fit_classifier, predict
+from bayesdoor.datagen import GaussianScatter, GenerationConfig, featurize, generate
+from bayesdoor.systems import ElevatorDoor, SolverConfig
+
+jax.config.update("jax_enable_x64", True)
+SPEEDS = (0.3, 0.4, 0.5)
+
+
+def _median_s(fn, calls: int) -> float:
+    times = []
+    for _ in range(calls):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def _source(door: ElevatorDoor) -> GaussianScatter:
+    optimum = {p.name: p.reference_value for p in door.parameters}
+    return GaussianScatter.around(door, optimum, 0.05)
+
+
+def time_generation(runs_per_state: int, chunk_size: int, folder: Path) -> tuple[dict, object]:
+    door = ElevatorDoor()
+    config = GenerationConfig(SPEEDS, runs_per_state=runs_per_state, chunk_size=chunk_size)
+    t0 = time.perf_counter()
+    data = generate(door, _source(door), config, folder, key=jax.random.key(0), progress=False)
+    wall_s = time.perf_counter() - t0
+    summary = json.loads((folder / "summary.json").read_text())
+    chunks = np.asarray(summary["chunk_seconds"])
+    per_state = config.chunks_per_state
+    first = chunks[::per_state]  # the first chunk of every state compiles its solve
+    rest = np.delete(chunks, np.arange(0, chunks.size, per_state))
+    steady = float(np.median(rest)) if rest.size else float(np.median(chunks))
+    return {
+        "runs": int(data.labels.size),
+        "chunk_size": chunk_size,
+        "wall_s": wall_s,
+        "first_chunk_of_each_state_s": first.tolist(),
+        "steady_chunk_s": steady,
+        "steady_ms_per_run": 1e3 * steady / chunk_size,
+        "compile_overhead_s": float(np.sum(first) - first.size * steady),
+        "dropped_runs": int(data.dropped_run_ids.size),
+    }, data
+
+
+def time_single(runs: int) -> dict:
+    """The same solver one run at a time (the baseline of the vmapped chunks)."""
+    door = ElevatorDoor()
+    draws = _source(door).sample(runs, key=jax.random.key(1))
+    duration = float(door.record_duration(np.asarray(SPEEDS)))
+
+    def one(i: int):
+        values = {k: v[i : i + 1] for k, v in draws.items()}
+        res = door.simulate_values(values, np.asarray([0.4]), duration=duration)
+        return jax.block_until_ready(res.signals)
+
+    one(0)  # compile the batch-of-one solve
+    t0 = time.perf_counter()
+    for i in range(runs):
+        one(i)
+    return {"runs": runs, "ms_per_run": 1e3 * (time.perf_counter() - t0) / runs}
+
+
+def compare_float32(runs_per_state: int, folder: Path) -> dict:
+    """The same draws in float64 and float32: seconds per run and the feature difference."""
+    out = {}
+    features = {}
+    for dtype in ("float64", "float32"):
+        door = ElevatorDoor(config=SolverConfig(dtype=dtype))
+        config = GenerationConfig(SPEEDS, runs_per_state=runs_per_state, chunk_size=runs_per_state)
+        # twice: the first compiles the three states' solves
+        for attempt in ("compile", "timed"):
+            target = folder / f"{dtype}-{attempt}"
+            t0 = time.perf_counter()
+            data = generate(
+                door, _source(door), config, target, key=jax.random.key(2), progress=False
+            )
+            seconds = time.perf_counter() - t0
+        out[f"{dtype}_ms_per_run"] = 1e3 * seconds / data.labels.size
+        features[dtype] = (data.run_ids, np.asarray(data.features, dtype=np.float64))
+    ids64, f64 = features["float64"]
+    ids32, f32 = features["float32"]
+    common, i64, i32 = np.intersect1d(ids64, ids32, return_indices=True)
+    diff = np.abs(f64[i64] - f32[i32])
+    out.update(
+        runs_compared=int(common.size),
+        feature_max_abs_diff_decades=float(diff.max()),
+        feature_mean_abs_diff_decades=float(diff.mean()),
+        feature_p99_abs_diff_decades=float(np.quantile(diff, 0.99)),
+        feature_sd_decades=float(f64.std(axis=0).mean()),
+    )
+    return out
+
+
+def time_training(data) -> tuple[dict, object]:
+    train, val = data.subset("train"), data.subset("validation")
+
+    def fit(seed: int):
+        return fit_classifier(
+            train.features,
+            train.labels,
+            val.features,
+            val.labels,
+            data.states,
+            key=jax.random.key(seed),
+            progress="none",
+        ).ensemble
+
+    t0 = time.perf_counter()
+    ensemble = fit(0)
+    first_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fit(1)
+    second_s = time.perf_counter() - t0
+    c0 = time.process_time()
+    fit(2)
+    cpu_s = time.process_time() - c0
+    return {
+        "train_runs": int(train.labels.size),
+        "first_call_s": first_s,
+        "second_call_s": second_s,
+        "cpu_s": cpu_s,
+    }, ensemble
+
+
+def time_one_run(ensemble, calls: int) -> dict:
+    fs = 2048.0
+    signals = jnp.asarray(np.random.default_rng(3).standard_normal((1, 4, round(3.7 * fs))))
+    t_start, t_stop = jnp.asarray([0.25]), jnp.asarray([2.6])
+
+    def two_calls():
+        return jax.block_until_ready(predict(ensemble, featurize(signals, fs, t_start, t_stop)))
+
+    fused = jax.jit(lambda s, a, b: predict(ensemble, featurize(s, fs, a, b)).probabilities)
+
+    def one_call():
+        return jax.block_until_ready(fused(signals, t_start, t_stop))
+
+    two_calls()
+    one_call()
+    two_us = 1e6 * _median_s(two_calls, calls)
+    fused_us = 1e6 * _median_s(one_call, calls)
+    return {
+        "two_jitted_calls_us": two_us,
+        "one_fused_jit_us": fused_us,
+        "fused_speedup": two_us / fused_us,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs-per-state", type=int, default=600)
+    parser.add_argument("--chunk-size", type=int, default=100)
+    parser.add_argument("--single", type=int, default=8, help="runs of the one-at-a-time baseline")
+    parser.add_argument(
+        "--compare-runs", type=int, default=16, help="runs per state of the float32 comparison"
+    )
+    parser.add_argument("--calls", type=int, default=500, help="timed one-run calls")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON only")
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp_path = Path(tmp)
+        generation, data = time_generation(args.runs_per_state, args.chunk_size, tmp_path / "gen")
+        single = time_single(args.single)
+        training, ensemble = time_training(data)
+        one_run = time_one_run(ensemble, args.calls)
+        precision = compare_float32(args.compare_runs, tmp_path / "precision")
+    generation["speedup_vs_one_at_a_time"] = single["ms_per_run"] / generation["steady_ms_per_run"]
+    result = {
+        "load_average_at_end": list(os.getloadavg()),
+        "cpu_count": os.cpu_count(),
+        "generation": generation,
+        "one_at_a_time": single,
+        "float32_vs_float64": precision,
+        "training": training,
+        "one_run_features_and_members": one_run,
+    }
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return
+    g, p, t, o = generation, precision, training, one_run
+    print(f"generation of {g['runs']} runs (chunks of {g['chunk_size']}): {g['wall_s']:.1f} s wall")
+    print(
+        f"  steady: {g['steady_ms_per_run']:.1f} ms per run; "
+        f"compiling: {g['compile_overhead_s']:.1f} s"
+    )
+    print(
+        f"  one run at a time: {single['ms_per_run']:.1f} ms per run "
+        f"({g['speedup_vs_one_at_a_time']:.1f}x slower than the chunks)"
+    )
+    print(
+        f"float32: {p['float32_ms_per_run']:.1f} ms per run against {p['float64_ms_per_run']:.1f}; "
+        f"features differ by at most {p['feature_max_abs_diff_decades']:.3g} decades "
+        f"(mean {p['feature_mean_abs_diff_decades']:.3g})"
+    )
+    print(
+        f"training on {t['train_runs']} runs: {t['second_call_s']:.1f} s "
+        f"(first call {t['first_call_s']:.1f} s, {t['cpu_s']:.1f} s CPU)"
+    )
+    print(
+        f"one run, features + 10 members: {o['two_jitted_calls_us']:.0f} us "
+        f"(one fused jit: {o['one_fused_jit_us']:.0f} us)"
+    )
+    print(f"load average: {result['load_average_at_end']}")
+
+
+if __name__ == "__main__":
+    main()

@@ -8,20 +8,30 @@ serves every job: its stage folder is copied into each job folder, where the sta
 configuration hash makes the job reuse it. The test runs are used for nothing but the final
 scores.
 
+The out-of-distribution flag of every job is also applied to probes that no training state
+explains: the test runs 3 times louder, with the two sensors' cables swapped, with a 50 Hz
+mains line added, and (``--rig-probes N``) N healthy runs recorded by the virtual rig with
+an extra frame mode (``FrameMode.from_seed(0..N-1)``), at the campaign's speeds in turn.
+
+With ``--jobs N`` the jobs after the first (which makes the shared fit) run in N worker
+processes; the tables are the same.
+
 Usage::
 
     .venv/bin/python scripts/classification.py [--seeds 0 1 2] [--out out/classification]
-        [--runs-per-state 600] [--method nuts]
+        [--runs-per-state 600] [--method nuts] [--jobs 1] [--rig-probes 12]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import platform
 import shutil
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +43,17 @@ LABELS = {
     "gaussian": "Gaussian scatter around the CMA-ES optimum (paper's baseline, 5 %)",
     "posterior": "posterior draws",
     "posterior+model_error": "posterior draws + model-error offsets",
+}
+#: the channel each channel reads when the two sensors' cables are swapped
+SENSOR_SWAP = {"A1X": "A2X", "A1Z": "A2Z", "A2X": "A1X", "A2Z": "A1Z"}
+#: the OOD probes, in the order of the table (the measured test runs first)
+PROBES = {
+    "test": "measured test runs (known states)",
+    "louder_3x": "test runs, every amplitude x 3",
+    "sensors_swapped": "test runs, sensors A1 and A2 swapped",
+    "hum_0.03": "test runs + 50 Hz line of 0.03 m/s^2 (the rig's strongest mains_hum)",
+    "hum_0.3": "test runs + 50 Hz line of 0.3 m/s^2",
+    "frame_mode": "rig runs (healthy) with an extra frame mode",
 }
 
 
@@ -55,83 +76,200 @@ def main(argv: list[str] | None = None) -> None:
         "--campaign", type=Path, default=None, help="a campaign file instead of the demo's"
     )
     parser.add_argument("--results", type=Path, default=ROOT / "results" / "classification.md")
+    parser.add_argument(
+        "--jobs", type=int, default=1, help="worker processes for the jobs after the first"
+    )
+    parser.add_argument(
+        "--rig-probes", type=int, default=12, help="rig runs with a frame mode (OOD probes)"
+    )
     args = parser.parse_args(argv)
+    if args.jobs < 1:
+        parser.error(f"--jobs must be at least 1, got {args.jobs}")
 
     from bayesdoor.cli._common import configure_jax
 
     configure_jax()
-    from bayesdoor.datasets import demo_paths, load_demo_campaign
-    from bayesdoor.inference import FitSettings
-    from bayesdoor.io import load_campaign
-    from bayesdoor.pipeline import Sizes, run_job
-    from bayesdoor.systems import ElevatorDoor
+    from bayesdoor.pipeline import FitSummary
 
-    if args.campaign is None:
-        campaign, campaign_name = load_demo_campaign(), demo_paths()[0].name
-    else:
-        campaign, campaign_name = load_campaign(args.campaign), args.campaign.name
-    system = ElevatorDoor()
-    sizes = Sizes(runs_per_state=args.runs_per_state)
+    campaign, campaign_name = _campaign(args.campaign)
     start = time.perf_counter()
 
     def line(text: str) -> None:
         print(f"[{time.perf_counter() - start:7.1f} s] {text}", flush=True)
 
-    changes = {"cmaes_max_evals": args.fit_evals, "max_motion_s": args.fit_motion}
-    fit_settings = FitSettings(**{k: v for k, v in changes.items() if v is not None})
+    args.out.mkdir(parents=True, exist_ok=True)
+    probes_file = args.out / "probes.npz"
+    if not probes_file.exists():
+        line(f"OOD probes ({args.rig_probes} rig runs with a frame mode)")
+        probes = ood_probes(campaign, args.rig_probes)
+        np.savez(probes_file, **probes)
+    settings = {k: getattr(args, k) for k in _JOB_SETTINGS}
+    jobs = [(seed, source) for seed in args.seeds for source in args.sources]
     shared_fit = args.out / "shared-fit"
     rows = []
-    for seed in args.seeds:
-        for source in args.sources:
-            folder = args.out / f"{source}-seed{seed}"
-            if shared_fit.is_dir() and not (folder / "fit").exists():
-                folder.mkdir(parents=True, exist_ok=True)
-                shutil.copytree(shared_fit, folder / "fit")
-            line(f"job {folder.name}")
 
-            def stage_line(text: str, name: str = folder.name) -> None:
-                line(f"  {name}: {text}")
+    def finished(row: dict) -> None:
+        rows.append(row)
+        rows.sort(key=lambda r: (args.seeds.index(r["seed"]), args.sources.index(r["source"])))
+        line(
+            f"  {row['source']}-seed{row['seed']}: accuracy {row['accuracy']:.4f}, "
+            f"ECE {row['ece']:.4f}, NLL {row['nll']:.3f}, Brier {row['brier']:.3f}, "
+            f"OOD {row['ood']} of {row['runs']}"
+        )
+        (args.out / "rows.json").write_text(json.dumps(rows, indent=1))
+        # after every job, so that an interrupted study still leaves its table
+        write_markdown(
+            args,
+            rows,
+            FitSummary.load(shared_fit),
+            _fit_settings(settings),
+            time.perf_counter() - start,
+            campaign_name,
+        )
 
-            result = run_job(
-                system,
-                campaign,
-                folder,
-                seed=seed,
-                fit_seed=0,
-                source=source,
-                method=args.method,
-                sizes=sizes,
-                fit_options={"settings": fit_settings},
-                progress=False,
-                report=stage_line,
-                html=False,
-                overwrite=True,
+    if not shared_fit.is_dir():
+        seed, source = jobs.pop(0)
+        line(f"job {source}-seed{seed} (makes the shared fit)")
+        finished(run_one(settings, seed, source))
+    if args.jobs == 1:
+        for seed, source in jobs:
+            line(f"job {source}-seed{seed}")
+            finished(run_one(settings, seed, source))
+        return
+    line(f"{len(jobs)} jobs in {args.jobs} worker processes")
+    context = multiprocessing.get_context("spawn")  # JAX does not survive a fork
+    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=context) as pool:
+        futures = [pool.submit(run_one, settings, seed, source) for seed, source in jobs]
+        for future in as_completed(futures):
+            finished(future.result())
+
+
+#: the command-line settings a job needs (passed to the worker processes)
+_JOB_SETTINGS = ("out", "runs_per_state", "method", "fit_evals", "fit_motion", "campaign")
+
+
+def _campaign(path: Path | None):
+    from bayesdoor.datasets import demo_paths, load_demo_campaign
+    from bayesdoor.io import load_campaign
+
+    if path is None:
+        return load_demo_campaign(), demo_paths()[0].name
+    return load_campaign(path), path.name
+
+
+def _fit_settings(settings: dict):
+    from bayesdoor.inference import FitSettings
+
+    changes = {"cmaes_max_evals": settings["fit_evals"], "max_motion_s": settings["fit_motion"]}
+    return FitSettings(**{k: v for k, v in changes.items() if v is not None})
+
+
+def run_one(settings: dict, seed: int, source: str) -> dict:
+    """One job (in this process or a worker): run it, score it, apply its flag to the probes."""
+    from bayesdoor.cli._common import configure_jax
+
+    configure_jax()
+    import jax.numpy as jnp
+
+    from bayesdoor.classify import load_ensemble, predict
+    from bayesdoor.pipeline import Sizes, run_job
+    from bayesdoor.systems import ElevatorDoor
+
+    out = settings["out"]
+    campaign, _ = _campaign(settings["campaign"])
+    folder = out / f"{source}-seed{seed}"
+    shared_fit = out / "shared-fit"
+    if shared_fit.is_dir() and not (folder / "fit").exists():
+        folder.mkdir(parents=True, exist_ok=True)
+        shutil.copytree(shared_fit, folder / "fit")
+
+    def stage_line(text: str) -> None:
+        print(f"  {folder.name}: {text}", flush=True)
+
+    result = run_job(
+        ElevatorDoor(),
+        campaign,
+        folder,
+        seed=seed,
+        fit_seed=0,
+        source=source,
+        method=settings["method"],
+        sizes=Sizes(runs_per_state=settings["runs_per_state"]),
+        fit_options={"settings": _fit_settings(settings)},
+        progress=False,
+        report=stage_line,
+        html=False,
+        overwrite=True,
+    )
+    if not shared_fit.is_dir():
+        shutil.copytree(folder / "fit", shared_fit)
+    m = result.classification["metrics"]
+    training = json.loads((folder / "train" / "training.json").read_text())
+    ensemble = load_ensemble(folder / "train" / "ensemble.eqx")
+    with np.load(out / "probes.npz") as probes:
+        flagged = {
+            name: float(np.mean(np.asarray(predict(ensemble, jnp.asarray(probes[name])).ood)))
+            for name in probes.files
+        }
+    return {
+        "source": source,
+        "seed": seed,
+        **{k: m[k] for k in ("accuracy", "ece", "ece_mass", "nll", "brier")},
+        "ood": m["ood_runs"],
+        "runs": m["runs"],
+        "ood_rates": flagged,
+        "ood_model_error_draws": training.get("ood_model_error_draws", 0),
+        "confusion": m["confusion"],
+        "temperature": training["temperature"],
+        "val_accuracy": training["validation"]["calibrated"]["accuracy"],
+        "val_ece": training["validation"]["calibrated"]["ece"],
+    }
+
+
+def ood_probes(campaign, rig_runs: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """Classifier features of the test runs and of inputs no training state explains."""
+    import jax
+
+    from bayesdoor.datagen import campaign_features
+    from bayesdoor.pipeline import runs_to_classify
+    from bayesdoor.rig import Effects, FrameMode, VirtualRig
+
+    test = runs_to_classify(campaign)
+    acc = test["acceleration"].transpose("run", "channel", "time")
+    signals = np.asarray(acc.values, dtype=float)
+    t = np.asarray(test["time"].values, dtype=float)
+    channels = [str(c) for c in test["channel"].values]
+    swap = [channels.index(SENSOR_SWAP[c]) for c in channels]
+    rng = np.random.default_rng(seed)
+
+    def features(x: np.ndarray) -> np.ndarray:
+        return campaign_features(test.assign(acceleration=(acc.dims, x)))
+
+    def hum(amplitude: float) -> np.ndarray:
+        phase = rng.uniform(0.0, 2.0 * np.pi, (len(signals), 1, 1))
+        return features(signals + amplitude * np.cos(2.0 * np.pi * 50.0 * t + phase))
+
+    probes = {
+        "test": features(signals),
+        "louder_3x": features(3.0 * signals),
+        "sensors_swapped": features(signals[:, swap]),
+        "hum_0.03": hum(0.03),
+        "hum_0.3": hum(0.3),
+    }
+    if rig_runs:
+        speeds = np.unique(np.asarray(campaign["v_max"].values, dtype=float))
+        duration = float(t[-1] - t[0]) + 1.0 / float(campaign.attrs["sampling_rate_hz"])
+        runs = [
+            VirtualRig(effects=Effects(frame_mode=FrameMode.from_seed(i))).record(
+                ["healthy"],
+                [speeds[i % len(speeds)]],
+                key=jax.random.key(1000 + i),
+                duration=duration,
             )
-            if not shared_fit.is_dir():
-                shutil.copytree(folder / "fit", shared_fit)
-            m = result.classification["metrics"]
-            training = json.loads((folder / "train" / "training.json").read_text())
-            rows.append(
-                {
-                    "source": source,
-                    "seed": seed,
-                    **{k: m[k] for k in ("accuracy", "ece", "ece_mass", "nll", "brier")},
-                    "ood": m["ood_runs"],
-                    "confusion": m["confusion"],
-                    "temperature": training["temperature"],
-                    "val_accuracy": training["validation"]["calibrated"]["accuracy"],
-                    "val_ece": training["validation"]["calibrated"]["ece"],
-                }
-            )
-            line(
-                f"  {folder.name}: accuracy {m['accuracy']:.4f}, ECE {m['ece']:.4f}, "
-                f"NLL {m['nll']:.3f}, Brier {m['brier']:.3f}"
-            )
-            (args.out / "rows.json").write_text(json.dumps(rows, indent=1))
-            # after every job, so that an interrupted study still leaves its table
-            write_markdown(
-                args, rows, result.fit, fit_settings, time.perf_counter() - start, campaign_name
-            )
+            for i in range(rig_runs)
+        ]
+        probes["frame_mode"] = np.concatenate([campaign_features(r) for r in runs])
+    return probes
 
 
 def _mean_sd(values: list[float], digits: int = 3, scale: float = 1.0) -> str:
@@ -194,6 +332,7 @@ def write_markdown(args, rows, fit, fit_settings, seconds: float, campaign_name:
             f"{r['nll']:.3f} | {r['brier']:.3f} | {r['ood']} | {r['temperature']:.2f} | "
             f"{r['confusion']} |"
         )
+    lines += ["", *_ood_section(args.sources, rows)]
     j = "-" if fit.j is None else f"{fit.j:.4g}"
     lines += [
         "",
@@ -217,6 +356,34 @@ def write_markdown(args, rows, fit, fit_settings, seconds: float, campaign_name:
         ]
     lines += ["", *_comparison(args.sources, rows), ""]
     args.results.write_text("\n".join(lines))
+
+
+def _ood_section(sources, rows) -> list[str]:
+    """Flag rates of the OOD detector on the test runs and on the probes, per source."""
+    used = [src for src in sources if any(r["source"] == src for r in rows)]
+    draws = sorted({r["ood_model_error_draws"] for r in rows})
+    out = [
+        "## The out-of-distribution flag",
+        "",
+        "Share of runs flagged (mean over seeds). The detector is the Mahalanobis distance to the "
+        "nearest simulated class; its covariance and its threshold (the 99th percentile on the "
+        "simulated validation runs) include draws of the model error (model-error draws per "
+        f"job: {', '.join(map(str, draws))}): the residuals of the healthy calibration runs "
+        "about the simulated healthy mean at their speed plus the per-feature scatter the fit's "
+        "likelihood gives a measured feature. The test runs are not used.",
+        "",
+        "| input | " + " | ".join(LABELS[src] for src in used) + " |",
+        "|---|" + "---|" * len(used),
+    ]
+    for name, label in PROBES.items():
+        cells = []
+        for src in used:
+            rates = [
+                r["ood_rates"][name] for r in rows if r["source"] == src and name in r["ood_rates"]
+            ]
+            cells.append(_mean_sd(rates, 1, 100) + " %" if rates else "-")
+        out.append(f"| {label} | " + " | ".join(cells) + " |")
+    return out
 
 
 def _comparison(sources, rows) -> list[str]:

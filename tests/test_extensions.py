@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from bayesdoor.datagen import describe_system
+from bayesdoor.datagen import GaussianScatter, GenerationConfig, describe_system, generate
+from bayesdoor.inference import FitSettings, fit_campaign
+from bayesdoor.io import make_campaign
 from bayesdoor.systems import DoorDamage, DoorParameters, ElevatorDoor, SolverConfig
 from bayesdoor.systems.door import (
     EXTENSIONS,
@@ -413,3 +415,51 @@ def test_gradients_through_the_solve_of_surface_extensions_match_central_differe
         fd.append((float(f(x0.at[i].add(h))) - float(f(x0.at[i].add(-h)))) / (2 * h))
     assert np.all(np.isfinite(grad))
     np.testing.assert_allclose(grad, fd, rtol=1e-3, atol=1e-6 * np.abs(fd).max())
+
+
+# ---------------------------------------------------------------------------------------------
+# the generic layers take the extended parameters
+
+
+def test_fit_campaign_updates_the_extension_parameters_with_table_2(base_runs):
+    """Smoke: a campaign with a 60 Hz hum on every channel, fitted by a tiny CMA-ES with the
+    extended door. The generic layer sees only names: the point names every parameter and
+    stays within the bounds, and J is finite."""
+    door = ElevatorDoor().with_extensions(MainsHum(frequency_hz=60.0, harmonics=2))
+    hum = {f"mains_hum.amplitude_{c}": 0.03 for c in door.channels}
+    signals = door.apply_output_extensions(base_runs.signals, base_runs.time, _values(door, **hum))
+    campaign = make_campaign(
+        np.asarray(signals), channels=door.channels, fs=FS, state=["healthy"] * 2, v_max=SPEEDS
+    )
+    settings = FitSettings(max_motion_s=0.5, cmaes_max_evals=8, cmaes_restarts=0, cmaes_popsize=4)
+    fit = fit_campaign(door, campaign, law=6, settings=settings, progress=False)
+    assert set(fit.point) == set(door.parameter_names())
+    for p in door.parameters:
+        assert p.lower <= fit.point[p.name] <= p.upper
+    assert np.isfinite(fit.j)
+    assert "mains_hum.amplitude_A2Z" in fit.to_json()["parameters"]
+
+
+@pytest.mark.slow
+def test_training_data_generation_draws_the_extension_parameters(tmp_path, key):
+    """Smoke: posterior-predictive data generation with an extended door; its draws name the
+    extension parameters and its manifest describes the extended system."""
+    door = ElevatorDoor().with_extensions(FrameMode(), "mains_hum")
+    center = _values(
+        door,
+        **{
+            "frame_mode.frequency_hz": 140.0,
+            "frame_mode.participation_A1X": 0.4,
+            "mains_hum.amplitude_A1Z": 0.02,
+        },
+    )
+    config = GenerationConfig([0.3, 0.5], runs_per_state=2, chunk_size=2, duration=1.0)
+    data = generate(
+        door, GaussianScatter.around(door, center), config, tmp_path, key=key, progress=False
+    )
+    assert np.all(np.isfinite(data.features))
+    assert set(data.parameters) == set(door.parameter_names())
+    drawn = data.parameters["frame_mode.frequency_hz"]
+    assert np.all((drawn >= 10.0) & (drawn <= 300.0)) and np.std(drawn) > 0
+    manifest = (tmp_path / "manifest.json").read_text()
+    assert "frame_mode.participation_A1X" in manifest and "MainsHum" in manifest

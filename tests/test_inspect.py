@@ -198,10 +198,8 @@ def test_speed_outside_the_model_range_is_a_warning_not_a_failure(tmp_path):
     assert result.exit_code == 0, result.output
     warnings = json.loads(result.stdout)["warnings"]
     assert len(warnings) == 1 and "cannot simulate runs at 0.05 m/s" in warnings[0]
-    # the value as check_speed prints it (a numpy scalar's repr shows as np.float64(0.05))
-    assert re.search(
-        r"v_max=(np\.float64\()?0\.05\)? m/s is outside the allowed range", warnings[0]
-    )
+    # the value as check_speed prints it: a plain number, as simulate --v-max shows it
+    assert "v_max=0.05 m/s is outside the allowed range [0.1, 0.761] m/s" in warnings[0]
 
 
 def test_csv_folder(tmp_path):
@@ -213,6 +211,67 @@ def test_csv_folder(tmp_path):
     payload = json.loads(result.stdout)
     assert payload["runs"] == 7 and payload["states"] == {"healthy": 3, "D1": 2, "D2": 2}
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def _states(states):
+    return [a for s in states for a in ("--state", s)]
+
+
+def test_csv_folder_without_sidecar_takes_v_max_and_state(tmp_path):
+    """Plain CSV files carry no speeds or labels: --v-max and --state give them."""
+    folder = tmp_path / "csv"
+    to_csv(synthetic(), folder)
+    (folder / "campaign.json").unlink()
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    bare = invoke(folder, "--json")
+    assert bare.exit_code == 1
+    assert json.loads(bare.stdout)["problem_codes"] == ["missing_v_max"]
+
+    one = invoke(folder, "--json", "--v-max", "0.4")
+    assert one.exit_code == 0, one.output
+    payload = json.loads(one.stdout)
+    assert payload["v_max"] == {"0.4": 7} and payload["states"] == {"unknown": 7}
+
+    per_run = [a for v in SPEEDS for a in ("--v-max", str(v))]
+    each = invoke(folder, "--json", *per_run, *_states(STATES))
+    assert each.exit_code == 0, each.output
+    payload = json.loads(each.stdout)
+    assert payload["v_max"] == {"0.3": 2, "0.4": 4, "0.5": 1}
+    assert payload["states"] == {"healthy": 3, "D1": 2, "D2": 2}
+    # the runs are the files in name order: run_0000.csv is the first healthy run
+    assert payload["runs_by_state_and_split"]["healthy"] == {"(none)": 3}
+    assert payload["motion_window"] == "detected"
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--v-max", "0.4", "--v-max", "0.5"], "--v-max takes one value for all 7 runs of "),
+        (_states(["healthy", "D1"]), "--state takes one value for all 7 runs of "),
+        (["--v-max", "0.4", "--state", "D3"], "unknown state labels ['D3']"),
+    ],
+)
+def test_csv_labels_that_do_not_fit_the_runs(tmp_path, extra, message):
+    folder = tmp_path / "csv"
+    to_csv(synthetic(), folder)
+    (folder / "campaign.json").unlink()
+    result = invoke(folder, *extra)
+    assert result.exit_code == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], result.stderr
+
+
+def test_v_max_and_state_are_refused_where_the_metadata_is_stored(valid, tmp_path):
+    folder = tmp_path / "csv"
+    to_csv(synthetic(), folder)
+    for path, where in ((valid, "the file"), (folder, "its campaign.json")):
+        result = invoke(path, "--v-max", "0.4")
+        assert result.exit_code == 2
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1, result.stderr
+        assert "--v-max label the runs of a folder of CSV files without campaign.json" in lines[0]
+        assert f"holds its own metadata in {where}" in lines[0]
 
 
 def test_csv_files_that_do_not_form_a_campaign(tmp_path):
@@ -245,7 +304,7 @@ def test_unreadable_or_missing_file_fails_with_one_line(tmp_path):
     result = invoke(bogus)
     assert result.exit_code != 0
     assert len(result.stderr.strip().splitlines()) == 1
-    assert "not a readable NetCDF campaign file" in result.stderr
+    assert "bogus.nc is a text file (it starts 'not netcdf'), not a NetCDF" in result.stderr
     assert bogus.read_text() == "not netcdf"
     missing = invoke(tmp_path / "nothing.nc")
     assert missing.exit_code != 0 and "no campaign at" in missing.stderr

@@ -14,6 +14,8 @@ sizes; the commands' own checks, which are the point here, all run before that.
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -25,7 +27,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import xarray as xr
-from test_pipeline import DURATION, REST, SIZES, ToneSystem, stand_in_diagnose, stand_in_fit
+from _toy_system import DURATION, REST, ToySystem
+from test_pipeline import SIZES, stand_in_diagnose, stand_in_fit
+from test_pipeline import SYSTEM as TONES
 from typer.testing import CliRunner
 
 import bayesdoor.datasets
@@ -40,12 +44,8 @@ FS = 2048.0
 ROOT = Path(__file__).resolve().parent.parent
 
 
-class DoorTones(ToneSystem):
-    """The tone system of ``test_pipeline`` under the door's name and four channels."""
-
-    @property
-    def name(self):
-        return "elevator_door"
+class DoorTones(ToySystem):
+    """The tone system of ``test_pipeline`` with the door's four channels (name it so)."""
 
     @property
     def channels(self):
@@ -57,7 +57,12 @@ class DoorTones(ToneSystem):
         return eqx.tree_at(lambda r: r.signals, res, jnp.stack([x, z, 0.7 * x, 1.3 * z], 1))
 
 
-SYSTEM = DoorTones()
+SYSTEM = DoorTones(
+    label="elevator_door",
+    d2_amplitude=TONES.d2_amplitude,
+    d2_phase=TONES.d2_phase,
+    background=TONES.background,
+)
 
 
 def campaign(states=None, *, split=True, channels=CHANNELS, seed=0) -> xr.Dataset:
@@ -110,7 +115,14 @@ def refused(result, *phrases, code=2):
     return lines[0]
 
 
-def fast(monkeypatch, fit=stand_in_fit, interrupt: str | None = None):
+def door_fit(*args, **options):
+    """The stand-in fit of ``test_pipeline`` with a model-error scale per door channel."""
+    fit = stand_in_fit(*args, **options)
+    fit.model_error_draws = lambda: np.full((200, len(CHANNELS)), 0.05)
+    return fit
+
+
+def fast(monkeypatch, fit=door_fit, interrupt: str | None = None):
     """Point the CLI's ``run_job`` at the tone system, the stand-in fit and tiny sizes.
 
     ``interrupt``: a stage at whose start Ctrl-C is pressed (``KeyboardInterrupt``).
@@ -298,10 +310,8 @@ KILLED_IN_THE_FIT = textwrap.dedent(
     sys.path.insert(0, sys.argv[3])
     import pytest
     import test_robustness
-    from test_pipeline import stand_in_fit
-
     def killed(*args, **options):
-        fit = stand_in_fit(*args, **options)
+        fit = test_robustness.door_fit(*args, **options)
 
         def save(folder):
             Path(folder).mkdir(parents=True)
@@ -379,3 +389,139 @@ def test_a_killed_run_leaves_no_half_written_result_and_the_rerun_completes(stor
     stages = {s["name"]: s["reused"] for s in json.loads(finished.stdout)["stages"]}
     assert stages == {name: name in ("fit", "generate", "train") for name in STAGES}
     assert visible(after) == sorted(after) and "job.json" in after
+
+
+@pytest.fixture
+def demo_is(files, monkeypatch):
+    """``bayesdoor demo`` on the good tone campaign (no recording by the virtual rig)."""
+    from bayesdoor.io import load_campaign
+
+    monkeypatch.setattr(
+        bayesdoor.datasets, "load_demo_campaign", lambda **kw: load_campaign(files["good"])
+    )
+
+
+#: per command: its arguments (campaign, output, model) and the files of a previous result
+PREVIOUS = {
+    "simulate": (lambda path, out, model: ["simulate", "--out", out / "runs.nc"], ["runs.nc"]),
+    "inspect": (COMMANDS["inspect"], ["inspect.json", "psd_0-100Hz.png", "psd_0-1024Hz.png"]),
+    "fit": (COMMANDS["fit"], ["fit.json", "posterior.nc", "fit_summary.json"]),
+    "run": (COMMANDS["run"], ["job.json", "fit/stage.json"]),
+    "demo": (lambda path, out, model: ["demo", "--out", out, "--quick"], ["job.json"]),
+    "classify": (COMMANDS["classify"], ["classify/stage.json", "classify/classification.json"]),
+    "diagnose": (COMMANDS["diagnose"], ["diagnosis.json", "diagnosis.html"]),
+}
+
+
+@pytest.mark.parametrize("command", PREVIOUS)
+def test_a_previous_result_is_refused_without_force_and_left_as_it_was(
+    files, story, tmp_path, command, demo_is
+):
+    arguments, previous = PREVIOUS[command]
+    out = tmp_path / "out"
+    for name in previous:
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        # another job's record, another classification's: the same names, other settings
+        text = json.dumps({"job_hash": "another", "config_hash": "another", "seed": 7})
+        (out / name).write_text(text if name.endswith(".json") else "a previous result")
+    before = snapshot(out)
+    line = refused(invoke(*arguments(files["good"], out, story[0])))
+    assert "--force" in line
+    assert snapshot(out) == before
+
+
+@pytest.mark.parametrize("command", PREVIOUS)
+def test_an_output_path_below_a_file_is_refused_before_any_work(
+    files, story, tmp_path, command, demo_is
+):
+    arguments, _ = PREVIOUS[command]
+    blocker = tmp_path / "notes.txt"
+    blocker.write_text("mine")
+    line = refused(invoke(*arguments(files["good"], blocker / "out", story[0])))
+    assert f"{blocker} is a file" in line
+    assert blocker.read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+@pytest.mark.parametrize("command", PREVIOUS)
+def test_a_read_only_output_folder_is_refused_before_any_work(
+    files, story, tmp_path, command, demo_is
+):
+    arguments, _ = PREVIOUS[command]
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o555)
+    try:
+        line = refused(invoke(*arguments(files["good"], locked / "out", story[0])))
+        assert "no permission to write" in line
+        assert list(locked.iterdir()) == []
+    finally:
+        locked.chmod(0o755)
+
+
+def test_a_full_disk_while_writing_is_one_line_and_leaves_nothing(files, tmp_path, monkeypatch):
+    """The figures of ``inspect --out`` fail half way: nothing is left, not even the folder."""
+    import errno
+
+    import matplotlib.figure
+
+    def full(self, path, **options):
+        Path(path).write_bytes(b"\x89PNG half")
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", full)
+    out = tmp_path / "report"
+    line = refused(invoke("inspect", files["good"], "--out", out))
+    assert "No space left on device; pass a writable --out with free space" in line
+    assert not out.exists()
+
+
+def test_classify_refuses_a_model_of_another_version(files, story, tmp_path):
+    model = tmp_path / "old_model"
+    shutil.copytree(story[0] / "train", model)
+    ensemble = model / "ensemble.eqx"
+    header, weights = ensemble.read_bytes().split(b"\n", 1)
+    old = {**json.loads(header), "format_version": 0, "library_version": "0.0.1"}
+    ensemble.write_bytes(json.dumps(old).encode() + b"\n" + weights)
+    out = tmp_path / "report"
+    line = refused(invoke("classify", files["good"], "--model", model, "--out", out))
+    assert "ensemble format version 0 (written by bayesdoor 0.0.1)" in line
+    assert "retrain and save the ensemble with this version" in line
+    assert not out.exists()
+
+
+def test_classify_refuses_a_truncated_model_before_any_work(files, story, tmp_path):
+    model = tmp_path / "cut_model"
+    shutil.copytree(story[0] / "train", model)
+    ensemble = model / "ensemble.eqx"
+    ensemble.write_bytes(ensemble.read_bytes()[:-100])
+    out = tmp_path / "report"
+    line = refused(invoke("classify", files["good"], "--model", model, "--out", out))
+    assert "the file is truncated or corrupted" in line
+    assert not out.exists()
+
+
+def test_classify_refuses_a_campaign_without_the_models_channels(files, story, tmp_path):
+    out = tmp_path / "report"
+    args = ["classify", files["missing_channel"], "--model", story[0], "--out", out]
+    line = refused(invoke(*args))
+    assert "takes 4 channels, the campaign has 3 (A1X, A1Z, A2X)" in line
+    assert not out.exists()
+
+
+def test_classify_refuses_an_empty_campaign(files, story, tmp_path):
+    out = tmp_path / "report"
+    refused(invoke("classify", files["empty"], "--model", story[0], "--out", out), "no runs")
+    assert not out.exists()
+
+
+def test_classify_reports_a_bad_record_run_by_run(files, story, tmp_path):
+    """Issue 5: corrupted runs are reported per run, not crashed on."""
+    out = tmp_path / "report"
+    result = invoke("classify", files["nan_test"], "--model", story[0], "--out", out, "--json")
+    assert result.exit_code == 0, result.output
+    runs = json.loads(result.stdout)["runs"]
+    assert runs[4]["problem"] == "the record holds non-finite samples"
+    assert runs[4]["predicted"] is None
+    assert all(r["problem"] is None and r["predicted"] for i, r in enumerate(runs) if i != 4)

@@ -21,7 +21,7 @@ def classify(campaign: xr.Dataset, model: Path, out: Path, *, force: bool, json:
     ``out/classify`` (the JSON and the features) and ``out/report`` (the HTML) are stages:
     the same model and runs reuse them; other ones replace them only with ``force``.
     """
-    from ..classify import NetworkConfig, read_header
+    from ..classify import load_ensemble
     from ..pipeline import (
         classify_stage,
         configuration_hash,
@@ -33,10 +33,10 @@ def classify(campaign: xr.Dataset, model: Path, out: Path, *, force: bool, json:
 
     try:
         ensemble = model_file(model)
-        header = read_header(ensemble)
+        # the header's version and the weights, before any work
+        expected = load_ensemble(ensemble).network.input_shape[0]
     except ValueError as err:
         raise fail(str(err)) from None
-    expected = NetworkConfig.from_json(header["architecture"]).input_shape[0]
     channels = [str(c) for c in campaign["channel"].values]
     if len(channels) != expected:
         raise fail(

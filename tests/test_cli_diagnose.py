@@ -1,10 +1,11 @@
 """``bayesdoor diagnose``: the command-line contract and the HTML report.
 
 The diagnosis itself (``bayesdoor.diagnose.diagnose_campaign``) is tested in
-``test_diagnose_job.py``; here it is replaced by a stand-in whose causes are ranked by the real
-signatures on the synthetic records of ``test_diagnose`` (a hidden frame mode, a hidden
-cross-axis leak), so the report draws real residual maps and evidence. The door campaign the
-command reads is a few runs of noise: the stand-in does not look at it.
+``test_diagnose_job.py``; here the command gets a :class:`Diagnosis` whose causes are ranked
+by the real signatures on the synthetic records of ``test_diagnose`` (a hidden frame mode, a
+hidden cross-axis leak) and whose gain is made up, so the report draws real residual maps and
+evidence in seconds. The door campaign the command reads is a few runs of noise: the stand-in
+does not look at it. The real command end to end on rig data is under ``slow``.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from test_diagnose import diagnose_case, make_case
 from typer.testing import CliRunner
 
 from bayesdoor.cli import app
+from bayesdoor.diagnose import Cause, Diagnosis, Gain
 from bayesdoor.inference import FitResult
 from bayesdoor.io import make_campaign, save_campaign
 from bayesdoor.report import diagnosis_page
@@ -35,39 +37,49 @@ def invoke(*args):
     return runner.invoke(app, [str(a) for a in args])
 
 
-class StandIn:
-    """A diagnosis: the ranking of a synthetic case, with a made-up gain for the named cause."""
-
-    def __init__(self, ranking):
-        self.features = ranking.features
-        self.ranking = ranking
-
-    def to_json(self):
-        causes = []
-        for c in self.ranking.causes:
-            gain = {"delta_j": -0.25, "delta_elpd": 12.5} if c.name == self.ranking.verdict else {}
-            causes.append(
-                {
-                    "name": c.name,
-                    "description": c.description,
-                    "score": c.score,
-                    "evidence": c.evidence,
-                    "parameters": dict(c.parameters),
-                    "feature": c.feature,
-                    "gain": gain,
-                }
-            )
-        return {"verdict": self.ranking.verdict, "causes": causes}
+def as_diagnosis(ranking):
+    """A :class:`Diagnosis` of the signature ranking, the named cause with a made-up gain."""
+    gain = Gain(
+        j_before=0.5,
+        j_after=0.25,
+        elpd_before=-100.0,
+        elpd_after=-87.5,
+        elpd_difference=12.5,
+        elpd_se=2.0,
+        n_runs=6,
+        decisive=True,
+    )
+    causes = tuple(
+        Cause(
+            name=c.name,
+            description=c.description,
+            score=c.score,
+            evidence=c.evidence,
+            parameters=dict(c.parameters),
+            gain=gain if c.name == ranking.verdict else None,
+            confirmed=c.name == ranking.verdict,
+            feature=c.feature,
+        )
+        for c in ranking.causes
+    )
+    return Diagnosis(
+        verdict=ranking.verdict,
+        causes=causes,
+        ranking=ranking,
+        catalogue=DOOR_CATALOGUE,
+        rule="a stand-in rule",
+        runs=np.arange(ranking.features.n_runs),
+    )
 
 
 @pytest.fixture(scope="module")
 def frame_mode():
-    return StandIn(diagnose_case(make_case("frame_mode", 0)))
+    return as_diagnosis(diagnose_case(make_case("frame_mode", 0)))
 
 
 @pytest.fixture(scope="module")
 def cross_axis():
-    return StandIn(diagnose_case(make_case("sensor_cross_axis", 0)))
+    return as_diagnosis(diagnose_case(make_case("sensor_cross_axis", 0)))
 
 
 @pytest.fixture
@@ -113,7 +125,8 @@ def test_json_alone_on_stdout_and_both_files_under_out(calls, campaign, tmp_path
     for cause in payload["causes"]:
         assert {"name", "evidence", "parameters", "gain"} <= set(cause)
     assert payload["causes"][0]["name"] == "frame_mode"
-    assert payload["causes"][0]["gain"] == {"delta_j": -0.25, "delta_elpd": 12.5}
+    gain = payload["causes"][0]["gain"]
+    assert (gain["delta_j"], gain["delta_elpd"], gain["decisive"]) == (-0.25, 12.5, True)
     assert payload["report"] == str(out / "diagnosis.html")
     assert sorted(p.name for p in out.iterdir()) == ["diagnosis.html", "diagnosis.json"]
     on_disk = json.loads((out / "diagnosis.json").read_text())
@@ -324,6 +337,57 @@ def test_report_shows_the_speed_dependence_of_a_tracking_tone():
     ranking = diagnose_case(make_case("rail_waviness", 1))
     assert ranking.verdict == "rail_waviness"
     page = diagnosis_page(
-        StandIn(ranking).to_json(), features=ranking.features, catalogue=DOOR_CATALOGUE
+        as_diagnosis(ranking).to_json(), features=ranking.features, catalogue=DOOR_CATALOGUE
     )
     assert "a tone from a spatial period tracks the speed" in page
+
+
+# ------------------------------------------------------------------------------- end to end
+
+
+@pytest.fixture(scope="module")
+def rig_file(tmp_path_factory):
+    """Six healthy rig runs at spread speeds with a hidden mains hum (seed 0)."""
+    import jax
+
+    from bayesdoor.rig import Effects, MainsHum, VirtualRig
+
+    rig = VirtualRig(effects=Effects(mains_hum=MainsHum.from_seed(0)))
+    campaign = rig.record(["healthy"] * 6, np.linspace(0.25, 0.5, 6), key=jax.random.key(0))
+    path = tmp_path_factory.mktemp("rig") / "rig.nc"
+    save_campaign(campaign, path)
+    return path
+
+
+@pytest.mark.slow
+def test_diagnose_quick_end_to_end_on_rig_runs(rig_file, tmp_path):
+    out = tmp_path / "diag"
+    result = invoke("diagnose", rig_file, "--out", out, "--quick", "--json")
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    names = {c.name for c in DOOR_CATALOGUE.candidates}
+    assert payload["verdict"] in names
+    assert [c["name"] for c in payload["causes"]] and set(
+        c["name"] for c in payload["causes"]
+    ) <= names
+    assert "fit" in payload["timings"]  # no --posterior: fitted here
+    page = (out / "diagnosis.html").read_text()
+    assert len(images(page)) >= 1 and "Where the model is wrong" in page
+
+
+@pytest.mark.slow
+def test_diagnose_reuses_the_fit_of_bayesdoor_fit(rig_file, tmp_path):
+    fitted = invoke(
+        "fit", rig_file, "--method", "cmaes", "--quick", "--out", tmp_path / "fit", "--json"
+    )
+    assert fitted.exit_code == 0, fitted.output
+    out = tmp_path / "diag"
+    result = invoke(
+        "diagnose", rig_file, "--posterior", tmp_path / "fit", "--out", out, "--quick", "--json"
+    )
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    assert "fit" not in payload["timings"]  # the fit was reused, not redone
+    assert payload["posterior"] == str(tmp_path / "fit")
+    page = (out / "diagnosis.html").read_text()
+    assert "Base model" in page and "cmaes" in page

@@ -95,7 +95,8 @@ def save_diagnosis(
     catalogue
         The system's catalogue (chooses the figure of each cause's evidence).
     fit
-        The base model's fit (``method``, ``j``, ``parameters``) for the report.
+        The base model's fit (``method``, ``j``, ``parameters``) for the report; ``None``:
+        the diagnosis's own ``fit`` when it keeps one.
     extra
         Further entries of the JSON (for example the campaign's path).
     title
@@ -122,6 +123,9 @@ def save_diagnosis(
                     f"{path} already exists; pass --force (overwrite=True) to replace it"
                 )
     payload = json_safe({**dict(extra or {}), **diagnosis.to_json(), "report": html_path.name})
+    own_fit = getattr(diagnosis, "fit", None)
+    if fit is None and hasattr(own_fit, "to_json"):
+        fit = own_fit.to_json()
     write_diagnosis_report(
         html_path,
         payload,

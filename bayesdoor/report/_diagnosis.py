@@ -407,7 +407,8 @@ def diagnosis_page(
         The diagnosis JSON (DESIGN.md section 5): ``verdict`` and ``causes``, each cause with
         ``name``, ``evidence``, ``parameters`` (numbers or summaries with ``mean``, ``sd``,
         ``q5``, ``q95``) and ``gain``; optional per cause: ``description``, ``score``,
-        ``feature``; optional at the top: ``notes``.
+        ``feature``, ``confirmed``, ``configuration``; optional at the top: ``rule``,
+        ``notes``.
     features
         The residual features the causes were scored on, for the figures (``None``: text and
         tables only).
@@ -454,6 +455,8 @@ def diagnosis_page(
         if top is not None and top.get("description"):
             text += f": {top['description']}"
         parts.append(H.note(text + "."))
+    if diagnosis.get("rule"):
+        parts.append(H.note(f"Decision rule: {diagnosis['rule']}"))
     for message in diagnosis.get("notes", []) or []:
         parts.append(H.warning(str(message)))
 
@@ -476,9 +479,13 @@ def diagnosis_page(
         header = f"{rank}. {name}"
         if cause.get("score") is not None:
             header += f" (signature score {_number(cause['score'])})"
+        if cause.get("confirmed"):
+            header += ", confirmed by its refit"
         body = [f"<h3>{html.escape(header)}</h3>"]
         if cause.get("description"):
             body.append(H.note(str(cause["description"])))
+        if cause.get("configuration"):
+            body.append(H.note(f"Extension refitted: {cause['configuration']}"))
         body.append(_evidence_list(cause.get("evidence", "")))
         body.append(_parameters_table(cause.get("parameters") or {}))
         if features is not None and name != "none":

@@ -16,6 +16,8 @@ import matplotlib
 import numpy as np
 import pytest
 
+from bayesdoor.systems.door import DOOR_CATALOGUE
+
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
 
@@ -62,12 +64,14 @@ def test_01_simulate_and_contact_laws(tiny):
     # at rtol 1e-8 leave ~1e-10 decades); 1e-6 decades is far below any physical difference
     # (the unmatched laws differ by 0.2-0.8 decades) and far above round-off
     assert g["matched_spread"].max() < 1e-6
-    assert g["spread"].max() > 10 * g["welch_sd"]
+    # ... while at one nominal c_r they differ by "several times the Welch scatter" (7.6 times
+    # at the tiny size's 0.5 m/s when written)
+    assert g["spread"].max() > 5 * g["welch_sd"]
     # delivered restitution: a physical fraction, and Lankarani-Nikravesh at c_r = 0.9 within
     # 2 % of nominal (its factor is exact to first order in 1 - c_r; docs/model.md)
     assert np.all((g["delivered"] > 0) & (g["delivered"] < 1))
     assert abs(g["delivered"][5, -1] - 0.9) < 0.02
-    assert len(list((tiny / "01").glob("*.png"))) == 6
+    assert len(list((tiny / "01").glob("*.png"))) == 5
 
 
 def test_02_03_04_update_train_report_diagnose(tiny):
@@ -85,6 +89,9 @@ def test_02_03_04_update_train_report_diagnose(tiny):
     assert classification["metrics"]["accuracy"] == pytest.approx(g3["metrics"]["accuracy"])
 
     g4 = _run("04_diagnosing_a_discrepancy.py")
-    assert g4["predictive"].shape[:2] == (4, 3)
-    assert g4["ranking"].verdict in {*g4["DOOR_CATALOGUE"].names, None}
+    for diagnosis in (g4["diagnosis"], g4["reference"]):
+        assert diagnosis.verdict in DOOR_CATALOGUE.names
+    # the four rig runs with the effect were diagnosed, with the fit's band
+    assert g4["diagnosis"].runs.tolist() == [0, 1, 2, 3]
+    assert g4["residuals"].freqs.min() >= g2["fit"].feature_spec.f_low
     assert (tiny / "04" / "residual_map.png").is_file()

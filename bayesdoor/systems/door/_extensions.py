@@ -65,7 +65,7 @@ class AbstractDoorExtension(eqx.Module):
     def parameters(self) -> tuple[ParameterSpec, ...]:
         """The fitted parameters, names prefixed with ``"<name>."``; nominal values are inert."""
 
-    def local(self, values: Mapping[str, Array]) -> dict[str, Array]:
+    def local(self, values: Mapping[str, Array | float]) -> dict[str, Array | float]:
         """This extension's values from a mapping of full names, keyed by the unprefixed names.
 
         Raises
@@ -83,7 +83,7 @@ class AbstractDoorExtension(eqx.Module):
         prefix = len(self.name) + 1
         return {n[prefix:]: values[n] for n in names}
 
-    def full(self, values: Mapping[str, Array]) -> dict[str, Array]:
+    def full(self, values: Mapping[str, Array | float]) -> dict[str, Array | float]:
         """This extension's values from a mapping of full names, keyed by the full names."""
         return {f"{self.name}.{k}": v for k, v in self.local(values).items()}
 
@@ -92,8 +92,12 @@ class AbstractDoorExtension(eqx.Module):
         return {p.name: p.nominal for p in self.parameters}
 
     def surface(
-        self, zeta, wheel: int, values: Mapping[str, Array], xp: ModuleType = jnp
-    ) -> tuple[Array, Array] | None:
+        self,
+        zeta: Float[Array, ""],
+        wheel: int,
+        values: Mapping[str, Float[Array, ""]],
+        xp: ModuleType = jnp,
+    ) -> tuple[Float[Array, ""], Float[Array, ""]] | None:
         """Extra running-surface height under ``wheel`` at rail coordinate ``zeta``, and d/dzeta.
 
         A positive height pushes the wheel up (it adds to the contact's indentation). ``None``

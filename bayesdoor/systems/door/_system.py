@@ -159,7 +159,12 @@ class ElevatorDoor(AbstractSystem):
             for v in np.atleast_1d(np.asarray(value, dtype=float)).ravel():
                 specs[name].check(v)
 
-    def apply_output_extensions(self, signals, time, values):
+    def apply_output_extensions(
+        self,
+        signals: Float[Array, "*batch channel time"],
+        time: Float[Array, " time"],
+        values: Mapping[str, Float[Array, "*batch"] | float],
+    ) -> Float[Array, "*batch channel time"]:
         """Signals of :meth:`without_output_extensions` with the output extensions applied.
 
         ``frame_mode``, ``sensor_cross_axis`` and ``mains_hum`` act on the sensor signals

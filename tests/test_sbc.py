@@ -3,6 +3,9 @@ posteriors (which must pass) and deliberately wrong ones (which must fail), NUTS
 ``sample_nuts`` on a conjugate target, and (slow) the reduced door itself."""
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import arviz as az
 import jax
@@ -194,3 +197,42 @@ def test_an_overconfident_likelihood_fails_sbc():
     assert test.messages[0].startswith("mu:") and "too narrow" in test.messages[0]
     # lam does not involve y: its ranks stay uniform
     assert min(test.chi2_pvalue[1], test.ks_pvalue[1]) > test.alpha / 4
+
+
+# --- the reduced door (slow) -------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_door_sbc_on_twenty_data_sets(tmp_path):
+    """``scripts/sbc.py`` with the surrogate forward: 20 data sets from the reduced door model.
+
+    K, C and mu_d free with the Table 2 prior, the library's likelihood (shared discrepancy
+    and run scatter per channel), NUTS 2 x (300 + 300); every ranked scalar must pass at the
+    family-wise level 0.01. The exact-simulator version is the same command with
+    ``--forward exact`` (hours on two cores; see results/sbc.md).
+    """
+    root = Path(__file__).resolve().parent.parent
+    report = tmp_path / "sbc.md"
+    run = subprocess.run(
+        [
+            sys.executable,
+            str(root / "scripts" / "sbc.py"),
+            "--forward",
+            "surrogate",
+            "--n-datasets",
+            "20",
+            "--workers",
+            "2",
+            "--work",
+            str(tmp_path / "work"),
+            "--report",
+            str(report),
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=root,
+    )
+    assert json.loads(run.stdout.strip().splitlines()[-1])["passed"], run.stderr[-3000:]
+    assert "ranks consistent with uniform" in report.read_text()
+    assert (tmp_path / "sbc_ranks.png").stat().st_size > 0

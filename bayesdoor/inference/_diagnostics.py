@@ -294,10 +294,14 @@ def diagnose_sampling(
     posterior = idata["posterior"] if names is None else idata["posterior"][names]
     constant = posterior.max(("chain", "draw")) == posterior.min(("chain", "draw"))
     stats_group = idata["sample_stats"] if "sample_stats" in idata.groups() else xr.Dataset()
+    # emcee's independent ensembles (one label per walker); a single ensemble has none
     superchain = np.asarray(stats_group["ensemble"].values) if "ensemble" in stats_group else None
     nested = superchain is not None and np.unique(superchain).size > 1
     with np.errstate(invalid="ignore", divide="ignore"):  # constant elements give NaN
-        rhat_ds = _nested_rhat_dataset(posterior, superchain) if nested else az.rhat(posterior)
+        if superchain is not None and nested:
+            rhat_ds = _nested_rhat_dataset(posterior, superchain)
+        else:
+            rhat_ds = az.rhat(posterior)
         bulk_ds = az.ess(posterior, method="bulk")
         tail_ds = az.ess(posterior, method="tail")
     rhat, rhat_at = _extreme(rhat_ds, largest=True, constant=constant)

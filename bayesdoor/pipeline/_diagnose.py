@@ -124,7 +124,7 @@ def save_diagnosis(
                 )
     payload = json_safe({**dict(extra or {}), **diagnosis.to_json(), "report": html_path.name})
     own_fit = getattr(diagnosis, "fit", None)
-    if fit is None and hasattr(own_fit, "to_json"):
+    if fit is None and own_fit is not None and hasattr(own_fit, "to_json"):
         fit = own_fit.to_json()
     write_diagnosis_report(
         html_path,

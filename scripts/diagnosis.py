@@ -14,8 +14,9 @@ saved under ``--work`` (one JSON file), so an interrupted run continues where it
 
 Usage::
 
-    .venv/bin/python scripts/diagnosis.py [--quick] [--seeds 0 1 2 ...] [--jobs N]
-        [--runs 8] [--work out/diagnosis] [--results results/diagnosis.md]
+    .venv/bin/python scripts/diagnosis.py [--quick] [--seeds 0 1 2 ...] [--none-seeds N]
+        [--diagnosis quick|full] [--jobs N] [--runs 8] [--work out/diagnosis]
+        [--results results/diagnosis.md]
 """
 
 from __future__ import annotations
@@ -358,6 +359,12 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="1 seed, 6 runs, quick diagnosis")
+    parser.add_argument(
+        "--diagnosis",
+        choices=("quick", "full"),
+        default=None,
+        help="sizes of diagnose_campaign (default: quick with --quick, else full)",
+    )
     parser.add_argument("--seeds", type=int, nargs="+", default=None, help="default 0-9 (quick: 0)")
     parser.add_argument("--none-seeds", type=int, default=None, help="cases of nothing hidden")
     parser.add_argument("--effects", nargs="+", default=list(EFFECTS), choices=EFFECTS)
@@ -373,7 +380,7 @@ def main(argv: list[str] | None = None) -> None:
         runs=args.runs if args.runs is not None else (6 if args.quick else 8),
         v_low=0.25,
         v_high=0.5,
-        quick=args.quick,
+        quick=args.quick if args.diagnosis is None else args.diagnosis == "quick",
     )
     cases = [(e, s) for e in args.effects for s in seeds] + [(NONE, s) for s in range(n_none)]
     args.work.mkdir(parents=True, exist_ok=True)

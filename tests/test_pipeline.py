@@ -310,6 +310,35 @@ def test_a_job_without_html_skips_the_diagnosis(tmp_path):
     assert not (tmp_path / "batch" / "diagnose").exists()
 
 
+def test_a_failed_diagnosis_leaves_the_job_whole_and_is_retried(finished, tmp_path):
+    _, out = finished
+    copy = tmp_path / "job"
+    shutil.copytree(out, copy)
+    shutil.rmtree(copy / "diagnose")
+
+    def refuse(system, campaign, fit_folder, *, seed, quick, progress):
+        raise ValueError("3 runs cannot be split\ninto halves of 2")
+
+    lines = []
+    result = job(copy, lines=lines, diagnose=refuse)
+    assert result.diagnosis == {
+        "verdict": None,
+        "causes": [],
+        "error": "3 runs cannot be split into halves of 2",
+        "report": None,
+    }
+    assert "diagnose" not in [s.name for s in result.stages]
+    assert any("diagnose: not made" in line for line in lines)
+    assert (
+        "could not be made: 3 runs cannot be split" in (copy / "report" / "index.html").read_text()
+    )
+    assert not (copy / "diagnose").exists()
+    again = job(copy)
+    reused = {s.name: s.reused for s in again.stages}
+    assert not reused["diagnose"] and not reused["report"] and reused["classify"]
+    assert again.diagnosis["verdict"] == "none"
+
+
 def test_every_setting_reaches_the_generation_hash():
     """Seed, source and sizes change the generation's configuration, hence its hash."""
     from bayesdoor.pipeline import generation_settings

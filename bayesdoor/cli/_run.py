@@ -91,7 +91,10 @@ def print_summary(result: dict[str, Any], console: Console) -> None:
     if diagnosis is not None:
         verdict = diagnosis["verdict"]
         shown = "undecided (no cause has decisive evidence)" if verdict is None else verdict
-        console.print(f"discrepancy diagnosis: {shown} ({diagnosis['report']})")
+        if diagnosis.get("error"):
+            console.print(f"discrepancy diagnosis not made: {diagnosis['error']}")
+        else:
+            console.print(f"discrepancy diagnosis: {shown} ({diagnosis['report']})")
     console.print(f"report: {result['report']}")
 
 

@@ -345,7 +345,9 @@ def report_stage(
     )
 
 
-def _sibling(diagnosis: dict[str, Any]) -> str:
+def _sibling(diagnosis: dict[str, Any]) -> str | None:
     """The diagnosis report's address from the report's page: both are stages of one job."""
+    if diagnosis.get("report") is None:
+        return None
     target = Path(diagnosis["report"])
     return f"../{target.parent.name}/{target.name}"

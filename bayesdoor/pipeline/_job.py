@@ -121,11 +121,7 @@ class JobResult:
         return {
             "out": str(self.out),
             "report": None if self.report is None else str(self.report),
-            "fit": {
-                "method": self.fit.method,
-                "j": self.fit.j,
-                "parameters": self.fit.table(),
-            },
+            "fit": self.fit.to_json(),
             **self.classification,
             "diagnosis": self.diagnosis,
             "stages": [
@@ -383,7 +379,10 @@ def run_job(
         progress=)`` with the folder of the saved fit and returning an object with
         ``to_json()`` (:class:`bayesdoor.diagnose.Diagnosis`); ``None`` means
         :func:`bayesdoor.pipeline.default_diagnose`
-        (:func:`bayesdoor.diagnose.diagnose_campaign`).
+        (:func:`bayesdoor.diagnose.diagnose_campaign`). When it raises ``ValueError`` (a
+        campaign it cannot diagnose, for example too few runs), the job goes on: the
+        diagnosis JSON holds ``error`` and no verdict, the report says why, and the next run
+        tries again.
     overwrite
         Let a job of other settings replace the finished job in ``out`` (stages whose
         configuration did not change are still reused).
@@ -523,34 +522,44 @@ def run_job(
         report=report,
     )
     records.append(classify_record)
-    diagnosis_json = None
+    diagnosis_json: dict[str, Any] | None = None
+    diagnosis_hash = None
     if html if diagnosis is None else diagnosis:
-        diagnose_record = run_stage(
-            out,
-            "diagnose",
-            {
-                "fit": fit_record.config_hash,
-                "runs": digest_runs(campaign.isel(run=_diagnosed_runs(campaign))),
-                "seed": seed,
-                "quick": quick,
-                "versions": versions,
-            },
-            lambda folder: diagnosis_stage(
-                system,
-                campaign,
-                fit_record.path / "result",
-                folder,
-                diagnose=default_diagnose if diagnose is None else diagnose,
-                seed=seed,
-                quick=quick,
-                progress=progress,
-                fit={"method": summary.method, "j": summary.j, "parameters": summary.table()},
-            ),
-            report=report,
-        )
-        records.append(diagnose_record)
-        diagnosis_json = json.loads((diagnose_record.path / DIAGNOSIS_JSON).read_text())
-        diagnosis_json["report"] = str(diagnose_record.path / DIAGNOSIS_HTML)
+        try:
+            diagnose_record = run_stage(
+                out,
+                "diagnose",
+                {
+                    "fit": fit_record.config_hash,
+                    "runs": digest_runs(campaign.isel(run=_diagnosed_runs(campaign))),
+                    "seed": seed,
+                    "quick": quick,
+                    "versions": versions,
+                },
+                lambda folder: diagnosis_stage(
+                    system,
+                    campaign,
+                    fit_record.path / "result",
+                    folder,
+                    diagnose=default_diagnose if diagnose is None else diagnose,
+                    seed=seed,
+                    quick=quick,
+                    progress=progress,
+                    fit={"method": summary.method, "j": summary.j, "parameters": summary.table()},
+                ),
+                report=report,
+            )
+        except ValueError as err:
+            # the classification stands without it: the job reports why and retries next time
+            reason = " ".join(str(err).split())
+            report(f"diagnose: not made: {reason}")
+            diagnosis_json = {"verdict": None, "causes": [], "error": reason, "report": None}
+            diagnosis_hash = configuration_hash({"error": reason})
+        else:
+            records.append(diagnose_record)
+            diagnosis_json = json.loads((diagnose_record.path / DIAGNOSIS_JSON).read_text())
+            diagnosis_json["report"] = str(diagnose_record.path / DIAGNOSIS_HTML)
+            diagnosis_hash = diagnose_record.config_hash
     report_path = None
     if html:
         report_record = run_stage(
@@ -559,7 +568,7 @@ def run_job(
             {
                 "classification": classify_record.config_hash,
                 "fit": fit_record.config_hash,
-                "diagnosis": None if diagnosis_json is None else records[-1].config_hash,
+                "diagnosis": diagnosis_hash,
                 "versions": versions,
             },
             lambda folder: report_stage(

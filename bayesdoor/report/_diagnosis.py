@@ -530,18 +530,21 @@ def _fit_table(fit: Mapping[str, Any]) -> str:
     return H.note(caption) + H.table(("parameter", "value ± sd [90 % interval]"), rows)
 
 
-def diagnosis_section(diagnosis: Mapping[str, Any], href: str) -> str:
+def diagnosis_section(diagnosis: Mapping[str, Any], href: str | None) -> str:
     """A short section for another page: the verdict, the leading causes, a link to the report.
 
     Parameters
     ----------
     diagnosis
-        The diagnosis JSON (``verdict``, ``causes``).
+        The diagnosis JSON (``verdict``, ``causes``; ``error`` when it could not be made).
     href
-        The diagnosis report's address relative to the page that shows the section.
+        The diagnosis report's address relative to the page that shows the section
+        (``None``: no report to link).
     """
     verdict = diagnosis.get("verdict")
-    if verdict == "none":
+    if diagnosis.get("error"):
+        text = f"The diagnosis could not be made: {diagnosis['error']}"
+    elif verdict == "none":
         text = "The model explains the healthy measurements within its uncertainty (verdict none)."
     elif verdict is None:
         text = "Significant residuals, but no cause with decisive evidence (no verdict)."
@@ -551,7 +554,7 @@ def diagnosis_section(diagnosis: Mapping[str, Any], href: str) -> str:
         (str(c.get("name")), _number(c.get("score")), str(c.get("evidence", ""))[:160])
         for c in list(diagnosis.get("causes", []))[:3]
     ]
-    link = f'<p><a href="{html.escape(href)}">the diagnosis report</a></p>'
+    link = "" if href is None else f'<p><a href="{html.escape(href)}">the diagnosis report</a></p>'
     return H.section(
         "Discrepancy diagnosis",
         H.note(text),

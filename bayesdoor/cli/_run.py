@@ -63,15 +63,9 @@ def print_summary(result: dict[str, Any], console: Console) -> None:
         table = Table(title=f"model updating ({fit['method']}, J = {_fmt(fit['j'])})")
         for column in ("parameter", "CMA-ES optimum", "posterior mean", "sd", "90 % interval"):
             table.add_column(column, justify="left" if column == "parameter" else "right")
-        for row in fit["parameters"]:
-            interval = "-" if "q05" not in row else f"{row['q05']:.4g} .. {row['q95']:.4g}"
-            table.add_row(
-                row["parameter"],
-                _fmt(row["point"]),
-                _fmt(row.get("mean")),
-                _fmt(row.get("sd"), 2),
-                interval,
-            )
+        for name, row in fit["parameters"].items():
+            interval = "-" if row["q5"] is None else f"{row['q5']:.4g} .. {row['q95']:.4g}"
+            table.add_row(name, _fmt(row["point"]), _fmt(row["mean"]), _fmt(row["sd"], 2), interval)
         console.print(table)
     metrics = result.get("metrics")
     table = Table(title=f"classification of {len(result['runs'])} runs")

@@ -41,6 +41,9 @@ class FitSummary:
     sigma_model
         Posterior draws of the model-error scale, ``(sample, channel)`` in log10 decades, or
         ``None`` when the fit has no model-error posterior.
+    diagnostics
+        The sampling diagnostics as JSON (max R-hat, min bulk ESS, divergences, ...), ``None``
+        for a point fit.
     """
 
     method: str
@@ -49,6 +52,7 @@ class FitSummary:
     j: float | None
     draws: dict[str, np.ndarray]
     sigma_model: np.ndarray | None
+    diagnostics: dict[str, Any] | None = None
 
     @classmethod
     def from_result(cls, result: Any, method: str) -> FitSummary:
@@ -74,6 +78,7 @@ class FitSummary:
             draws, sigma = {}, None
         if sigma is not None and sigma.shape[0] < 2:
             sigma = None
+        diagnostics = getattr(result, "diagnostics", None)
         return cls(
             method=method,
             point=point,
@@ -81,6 +86,7 @@ class FitSummary:
             j=_finite_or_none(result.j),
             draws=draws,
             sigma_model=sigma,
+            diagnostics=None if diagnostics is None else diagnostics.to_json(),
         )
 
     def save(self, folder: Path) -> None:
@@ -90,6 +96,7 @@ class FitSummary:
             "point": self.point,
             "optimum": self.optimum,
             "j": self.j,
+            "diagnostics": self.diagnostics,
         }
         text = json.dumps(header, indent=1) + "\n"
         atomic_write(folder / "summary.json", lambda tmp: tmp.write_text(text), overwrite=True)
@@ -116,6 +123,7 @@ class FitSummary:
             j=header["j"],
             draws={k.split("/", 1)[1]: v for k, v in arrays.items() if k.startswith("draw/")},
             sigma_model=arrays.get("sigma_model"),
+            diagnostics=header.get("diagnostics"),
         )
 
     def table(self) -> list[dict[str, Any]]:
@@ -129,3 +137,27 @@ class FitSummary:
                 row.update(mean=float(d.mean()), sd=float(d.std()), q05=float(lo), q95=float(hi))
             rows.append(row)
         return rows
+
+    def to_json(self) -> dict[str, Any]:
+        """The fit's JSON of DESIGN.md section 5, keyed as ``bayesdoor fit --json`` keys it.
+
+        Per parameter the CMA-ES optimum (``point``) and, when it was sampled, the posterior
+        ``mean``, ``sd`` and 90 % interval (``q5``, ``q95``; ``None`` otherwise); the sampling
+        ``diagnostics``; ``j``.
+        """
+        parameters = {
+            row["parameter"]: {
+                "point": row["point"],
+                "mean": row.get("mean"),
+                "sd": row.get("sd"),
+                "q5": row.get("q05"),
+                "q95": row.get("q95"),
+            }
+            for row in self.table()
+        }
+        return {
+            "method": self.method,
+            "j": self.j,
+            "parameters": parameters,
+            "diagnostics": self.diagnostics,
+        }

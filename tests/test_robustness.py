@@ -122,8 +122,9 @@ def door_fit(*args, **options):
     return fit
 
 
-def fast(monkeypatch, fit=door_fit, interrupt: str | None = None):
-    """Point the CLI's ``run_job`` at the tone system, the stand-in fit and tiny sizes.
+def fast(monkeypatch, fit=door_fit, diagnose=stand_in_diagnose, interrupt: str | None = None):
+    """Point the CLI's ``run_job`` at the tone system, stand-ins of the fit and the diagnosis,
+    and tiny sizes.
 
     ``interrupt``: a stage at whose start Ctrl-C is pressed (``KeyboardInterrupt``).
     """
@@ -138,9 +139,7 @@ def fast(monkeypatch, fit=door_fit, interrupt: str | None = None):
             if text.startswith(f"{interrupt}: computing"):
                 raise KeyboardInterrupt
 
-        options.update(
-            fit=fit, diagnose=stand_in_diagnose, sizes=SIZES, progress=False, report=line
-        )
+        options.update(fit=fit, diagnose=diagnose, sizes=SIZES, progress=False, report=line)
         return real(SYSTEM, data, out, **options)
 
     monkeypatch.setattr(bayesdoor.pipeline, "run_job", run_job)
@@ -525,3 +524,16 @@ def test_classify_reports_a_bad_record_run_by_run(files, story, tmp_path):
     assert runs[4]["problem"] == "the record holds non-finite samples"
     assert runs[4]["predicted"] is None
     assert all(r["problem"] is None and r["predicted"] for i, r in enumerate(runs) if i != 4)
+
+
+def test_simulate_interrupted_while_writing_leaves_no_file(tmp_path, monkeypatch):
+    """Ctrl-C half way through the NetCDF write: no file, no temporary file."""
+
+    def interrupted(self, path, **options):
+        Path(path).write_bytes(b"\x89HDF\r\n\x1a\n half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(xr.Dataset, "to_netcdf", interrupted)
+    result = invoke("simulate", "--out", tmp_path / "runs.nc", "--v-max", "0.3")
+    assert result.exit_code == 130 and "Traceback" not in result.output
+    assert list(tmp_path.iterdir()) == []

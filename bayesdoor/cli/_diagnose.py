@@ -31,8 +31,8 @@ def load_fit(folder: Path, system) -> Any:
     if not (folder / "fit.json").is_file():
         if laws:
             raise fail(
-                f"--posterior {folder} holds one fit per contact law ({', '.join(laws[:4])}...): "
-                f"pass one of them, e.g. --posterior {folder / laws[0]}"
+                f"--posterior {folder} holds one fit per contact law ({', '.join(laws)}): pass "
+                f"one of them, e.g. --posterior {folder / laws[0]}"
             )
         raise fail(
             f"--posterior {folder} holds no fit.json: pass the --out folder of bayesdoor fit"
@@ -77,22 +77,10 @@ def compute(system, campaign: xr.Dataset, fit, *, seed: int, quick: bool, progre
     )
 
 
-def _value(value: Any) -> str:
-    if isinstance(value, dict):
-        centre = value.get("mean", value.get("point", value.get("value")))
-        text = _value(centre)
-        if value.get("sd") is not None:
-            text += f" ± {_value(value['sd'])}"
-        return text
-    if isinstance(value, float):
-        return f"{value:.4g}"
-    if isinstance(value, list | tuple):
-        return ", ".join(_value(v) for v in value)
-    return "-" if value is None else str(value)
-
-
 def summary_lines(payload: dict[str, Any]) -> list[str]:
     """The verdict, the ranked causes with their evidence, parameters and gain, the report."""
+    from ..report import parameter_text
+
     verdict = payload.get("verdict")
     shown = "undecided (no cause has decisive evidence)" if verdict is None else str(verdict)
     lines = [f"verdict: {shown}", "ranked causes:"]
@@ -102,10 +90,13 @@ def summary_lines(payload: dict[str, Any]) -> list[str]:
         lines.append(f"{rank:3d}. {cause.get('name')}: {cause.get('evidence', '')}")
         if parameters:
             lines.append(
-                "     parameters: " + ", ".join(f"{k} = {_value(v)}" for k, v in parameters.items())
+                "     parameters: "
+                + ", ".join(f"{k} = {parameter_text(v)}" for k, v in parameters.items())
             )
         if gain:
-            lines.append("     gain: " + ", ".join(f"{k} = {_value(v)}" for k, v in gain.items()))
+            lines.append(
+                "     gain: " + ", ".join(f"{k} = {parameter_text(v)}" for k, v in gain.items())
+            )
     lines.append(f"report: {payload['report']}")
     return lines
 

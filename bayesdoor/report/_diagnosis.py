@@ -56,8 +56,8 @@ def _number(value: Any) -> str:
     return str(value)
 
 
-def _with_uncertainty(value: Any) -> str:
-    """A parameter as text: a number, or ``mean +- sd [q5, q95]`` from a summary mapping."""
+def parameter_text(value: Any) -> str:
+    """A parameter as text: a number, or ``mean ± sd [q5, q95]`` from a summary mapping."""
     if not isinstance(value, Mapping):
         return _number(value)
     centre = value.get("mean", value.get("point", value.get("value")))
@@ -376,9 +376,7 @@ def _evidence_list(evidence: Any) -> str:
 def _parameters_table(parameters: Mapping[str, Any]) -> str:
     if not parameters:
         return ""
-    return H.table(
-        ("parameter", "value"), [(k, _with_uncertainty(v)) for k, v in parameters.items()]
-    )
+    return H.table(("parameter", "value"), [(k, parameter_text(v)) for k, v in parameters.items()])
 
 
 def gain_rows(causes: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[list[str]]]:
@@ -523,9 +521,9 @@ def _feature_list(features: Features) -> str:
 def _fit_table(fit: Mapping[str, Any]) -> str:
     params = fit.get("parameters", {})
     if isinstance(params, Mapping):
-        rows = [(str(k), _with_uncertainty(v)) for k, v in params.items()]
+        rows = [(str(k), parameter_text(v)) for k, v in params.items()]
     else:
-        rows = [(str(r["parameter"]), _with_uncertainty(r)) for r in params]
+        rows = [(str(r["parameter"]), parameter_text(r)) for r in params]
     caption = f"{fit.get('method', 'fit')}, J = {_number(fit.get('j'))}"
     return H.note(caption) + H.table(("parameter", "value ± sd [90 % interval]"), rows)
 

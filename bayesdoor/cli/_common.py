@@ -7,7 +7,7 @@ import errno
 import json
 import os
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -109,7 +109,7 @@ def check_for_job(
     campaign: xr.Dataset,
     system: AbstractSystem,
     source: str,
-    fitted: Callable[[xr.Dataset], Sequence[int]],
+    fitted: Callable[[xr.Dataset], Iterable[int]],
 ) -> None:
     """Refuse a campaign a job cannot use, before it writes anything, in one line.
 

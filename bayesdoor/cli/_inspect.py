@@ -40,27 +40,31 @@ def load(
 
     if not path.exists():
         raise fail(f"no campaign at {path}: give a NetCDF file or a folder of CSV files")
-    given = {name: list(values) for name, values in (("v_max", v_max), ("state", state)) if values}
+    given = {"--v-max": len(v_max), "--state": len(state)}
+    options = " and ".join(name for name, n in given.items() if n)
     bare_csv = path.is_dir() and not (path / SIDECAR).is_file()
-    if given and not bare_csv:
-        options = " and ".join(f"--{name.replace('_', '-')}" for name in given)
+    if options and not bare_csv:
         where = f"its {SIDECAR}" if path.is_dir() else "the file"
         raise fail(
             f"{options} label the runs of a folder of CSV files without {SIDECAR}; {path} "
             f"holds its own metadata in {where}: leave out {options} (or edit the metadata)"
         )
-    if bare_csv:
-        runs = len(list(path.glob("*.csv")))
-        for name, values in given.items():
-            if len(values) not in (1, runs):
-                raise fail(
-                    f"--{name.replace('_', '-')} takes one value for all {runs} runs of {path} "
-                    f"or one per run (in file-name order), got {len(values)}"
-                )
-            given[name] = values * runs if len(values) == 1 else values
+    runs = len(list(path.glob("*.csv"))) if bare_csv else 0
+    for name, n in given.items():
+        if n not in (0, 1, runs):
+            raise fail(
+                f"{name} takes one value for all {runs} runs of {path} or one per run (in "
+                f"file-name order), got {n}"
+            )
     try:
         if path.is_dir():
-            return from_csv(path, check=False, **given), []
+            campaign = from_csv(
+                path,
+                check=False,
+                v_max=list(v_max) * (runs // len(v_max)) if v_max else None,
+                state=list(state) * (runs // len(state)) if state else None,
+            )
+            return campaign, []
         return load_campaign(path, check=False), []
     except CampaignError as err:
         return None, err.problems

@@ -537,3 +537,45 @@ def test_simulate_interrupted_while_writing_leaves_no_file(tmp_path, monkeypatch
     result = invoke("simulate", "--out", tmp_path / "runs.nc", "--v-max", "0.3")
     assert result.exit_code == 130 and "Traceback" not in result.output
     assert list(tmp_path.iterdir()) == []
+
+
+def test_fit_killed_half_way_keeps_the_previous_fit_and_the_rerun_completes(
+    files, tmp_path, monkeypatch
+):
+    """``fit --force`` over a finished fit, interrupted after the new fit wrote part of its
+    files: the old fit stays whole; the rerun replaces it and leaves no hidden leftovers."""
+    from test_json_contract import made_up_fit, made_up_predictive
+
+    import bayesdoor.inference
+
+    out = tmp_path / "fit"
+    out.mkdir()
+    for name in ("fit.json", "posterior.nc", "fit_summary.json", "trace.png"):
+        (out / name).write_text(f"the previous {name}")
+    before = snapshot(out)
+
+    def interrupted(*args, **options):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(bayesdoor.inference, "fit_campaign", made_up_fit)
+    monkeypatch.setattr(bayesdoor.inference, "posterior_predictive", interrupted)
+    args = ["fit", files["good"], "--out", out, "--method", "nuts", "--force"]
+    assert invoke(*args).exit_code == 130
+    assert snapshot(out) == before
+
+    monkeypatch.setattr(bayesdoor.inference, "posterior_predictive", made_up_predictive)
+    result = invoke(*args, "--json")
+    assert result.exit_code == 0, result.output
+    after = snapshot(out)
+    assert visible(after) == sorted(after)  # no hidden leftovers
+    assert set(after) == {
+        "fit.json",
+        "posterior.nc",
+        "fit_summary.json",
+        "cmaes_history.png",
+        "pairs.png",
+        "trace.png",
+        "predictive_psd.png",
+    }
+    assert all(after[name] != before[name] for name in before)
+    assert json.loads(after["fit_summary.json"])["method"] == "nuts"

@@ -391,3 +391,26 @@ def test_diagnose_reuses_the_fit_of_bayesdoor_fit(rig_file, tmp_path):
     assert payload["posterior"] == str(tmp_path / "fit")
     page = (out / "diagnosis.html").read_text()
     assert "Base model" in page and "cmaes" in page
+
+
+def test_parameter_text_reads_every_summary_the_reports_meet():
+    from bayesdoor.report import parameter_text
+
+    # a refitted parameter, a CMA-ES point keyed as fit --json keys it, a job's table row
+    assert parameter_text({"mean": 0.1, "sd": 0.01, "q5": 0.084, "q95": 0.116}) == (
+        "0.1 ± 0.01 [0.084, 0.116]"
+    )
+    assert (
+        parameter_text({"point": 1.5, "mean": None, "sd": None, "q5": None, "q95": None}) == "1.5"
+    )
+    row = {
+        "parameter": "K",
+        "point": 1800.0,
+        "mean": 1850.0,
+        "sd": 20.0,
+        "q05": 1820.0,
+        "q95": 1880.0,
+    }
+    assert parameter_text(row) == "1850 ± 20 [1820, 1880]"
+    assert parameter_text(3) == "3" and parameter_text("A1X") == "A1X"
+    assert parameter_text(float("nan")) == "-" and parameter_text([1.0, 2.5]) == "1, 2.5"

@@ -545,7 +545,7 @@ def run_job(
                     seed=seed,
                     quick=quick,
                     progress=progress,
-                    fit={"method": summary.method, "j": summary.j, "parameters": summary.table()},
+                    fit=summary.to_json(),
                 ),
                 report=report,
             )

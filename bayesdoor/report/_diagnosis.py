@@ -56,19 +56,27 @@ def _number(value: Any) -> str:
     return str(value)
 
 
+def _first(value: Mapping[str, Any], *keys: str) -> Any:
+    """The first of ``keys`` that ``value`` holds and is not ``None``."""
+    return next((value[k] for k in keys if value.get(k) is not None), None)
+
+
 def parameter_text(value: Any) -> str:
-    """A parameter as text: a number, or ``mean ± sd [q5, q95]`` from a summary mapping."""
+    """A parameter as text: a number, or ``mean ± sd [q5, q95]`` from a summary mapping.
+
+    A summary's centre is its ``mean``, else its ``point`` (a CMA-ES optimum), else ``value``.
+    """
     if not isinstance(value, Mapping):
         return _number(value)
-    centre = value.get("mean", value.get("point", value.get("value")))
+    centre = _first(value, "mean", "point", "value")
+    if centre is None:
+        return ", ".join(f"{k} {_number(v)}" for k, v in value.items())
     text = _number(centre)
     if value.get("sd") is not None:
         text += f" ± {_number(value['sd'])}"
-    lo = value.get("q5", value.get("q05"))
-    if lo is not None and value.get("q95") is not None:
-        text += f" [{_number(lo)}, {_number(value['q95'])}]"
-    if centre is None:
-        text = ", ".join(f"{k} {_number(v)}" for k, v in value.items())
+    lo, hi = _first(value, "q5", "q05"), value.get("q95")
+    if lo is not None and hi is not None:
+        text += f" [{_number(lo)}, {_number(hi)}]"
     return text
 
 

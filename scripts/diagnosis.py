@@ -289,6 +289,13 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
         "the verdict is its effect; the key parameter is that of the effect's cause in the "
         "diagnosis (named or not), compared with the rig's truth.",
         "",
+        "The verdict is decided by the refits' held-out gain (`rule` in the diagnosis JSON); "
+        "the *signature verdict* is what the residual features alone point to (before any "
+        "refit). The key parameter's error is absolute for frequencies and relative for "
+        "lengths and fractions; *within tolerance* applies the tolerance stated with it. "
+        "Times are the diagnosis's (base fit, predictive simulations, features, refits), "
+        "without recording the rig runs.",
+        "",
         "| effect | cases | named | detection rate | other verdicts | key parameter "
         "(tolerance) | median / max error | within tolerance | median time (s) |",
         "|---|---|---|---|---|---|---|---|---|",

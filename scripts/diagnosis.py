@@ -274,13 +274,15 @@ def _error_text(effect: str, errors: Sequence[float]) -> str:
 
 def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, wall: float) -> str:
     """The markdown of ``results/diagnosis.md``."""
+    total = sum(c.get("diagnose_seconds", 0.0) for c in cases)
     lines = [
         "# Discrepancy diagnosis on hidden rig effects",
         "",
         f"Made by `{command}` ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
         f"{platform.node() or 'this machine'}, {os.cpu_count()} CPUs, load average "
-        f"{os.getloadavg()[0]:.1f} at the end, wall {wall / 60:.1f} min for the cases computed "
-        "in this call; the times are per case, in one process).",
+        f"{os.getloadavg()[0]:.1f} at the end; {len(cases)} cases, {total / 60:.0f} min of "
+        f"diagnosis in all, {wall / 60:.1f} min wall in the last call, which computed the "
+        "cases not already saved; the times are per case, in one process).",
         "",
         f"Each case: {settings.runs} healthy runs of the virtual rig at speeds drawn uniformly "
         f"in {settings.v_low}-{settings.v_high} m/s, one effect drawn by `from_seed(seed)` "

@@ -468,15 +468,15 @@ EXTENSIONS: dict[str, type[AbstractDoorExtension]] = {
 def extension(name_or_module: str | AbstractDoorExtension, **config) -> AbstractDoorExtension:
     """The extension of a catalogue name (default configuration, or ``config``), or the module.
 
-    Examples
-    --------
-    >>> extension("mains_hum", frequency_hz=60.0)
-    MainsHum(frequency_hz=60.0)
-
     Raises
     ------
     ValueError
         For a name outside the catalogue, or ``"none"`` (the base model has no extension).
+
+    Examples
+    --------
+    >>> extension("mains_hum", frequency_hz=60.0)
+    MainsHum(frequency_hz=60.0)
     """
     if isinstance(name_or_module, AbstractDoorExtension):
         if config:

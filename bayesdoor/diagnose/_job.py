@@ -54,13 +54,13 @@ class DiagnosisSettings:
     """
 
     predictive_draws: int = 8
-    max_candidates: int = 3
+    max_candidates: int = 5
     refit_evals: int = 240
 
     @classmethod
     def quick(cls) -> DiagnosisSettings:
-        """Small sizes for tests and demos: 4 draws, 2 candidates, 96 evaluations per refit."""
-        return cls(predictive_draws=4, max_candidates=2, refit_evals=96)
+        """Small sizes for tests and demos: 4 draws, 4 candidates, 96 evaluations per refit."""
+        return cls(predictive_draws=4, max_candidates=4, refit_evals=96)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -320,12 +320,15 @@ def _cross_validate(
     *,
     seed: int,
     max_evals: int,
+    bases: dict[tuple[float, ...], np.ndarray],
 ) -> tuple[list[RefitResult], Gain]:
     base = setup.base_spectra
     before, after = [], []
     fits = []
     for k, (train, test) in enumerate(folds):
-        fit = refit_extension(setup, proposal, train, seed=seed + k, max_evals=max_evals)
+        fit = refit_extension(
+            setup, proposal, train, seed=seed + k, max_evals=max_evals, bases=bases
+        )
         fits.append(fit)
         before.append(_held_out(setup.spectra, base, train, test))
         after.append(_held_out(setup.spectra, fit.spectra, train, test))
@@ -495,6 +498,7 @@ def diagnose_campaign(
         )
         trials = []
         for k, proposal in enumerate(proposals):
+            bases: dict[tuple[float, ...], np.ndarray] = {}
             try:
                 fits, gain = _cross_validate(
                     setup,
@@ -502,14 +506,16 @@ def diagnose_campaign(
                     folds,
                     seed=seed + 101 * (rank + 1) + 7 * k,
                     max_evals=settings.refit_evals,
+                    bases=bases,
                 )
             except (ValueError, RuntimeError) as err:
                 notes.append(f"{score.name} ({proposal.label}): refit failed: {err}")
                 continue
-            trials.append((sum(f.train_lpd for f in fits), proposal, fits, gain))
+            trials.append((sum(f.train_lpd for f in fits), proposal, fits, gain, bases))
         if not trials:
             continue
-        _, proposal, fits, gain = max(trials, key=lambda t: t[0])
+        _, proposal, fits, gain, bases = max(trials, key=lambda t: t[0])
+        held = {n: {"mean": m, "sd": sd} for n, (m, sd) in proposal.held.items()}
         parameters: dict[str, Any] = {
             n: {"mean": float(np.mean([f.values[n] for f in fits])), "sd": None}
             for n in proposal.free
@@ -526,8 +532,10 @@ def diagnose_campaign(
                 seed=seed + 997,
                 max_evals=settings.refit_evals,
                 uncertainty=True,
+                bases=bases,
             )
             parameters = {n: {"mean": final.values[n], "sd": final.sd[n]} for n in proposal.free}
+        parameters.update(held)
         words = (
             f"refit of {score.name} ({proposal.label}) on half of the runs, tested on the other "
             f"half both ways: {gain.describe()}"

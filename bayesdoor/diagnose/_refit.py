@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from collections.abc import Callable, Mapping, Sequence
+import itertools
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
@@ -57,6 +58,18 @@ class ExtensionProposal:
         The parameters the verdict names (with their uncertainty).
     label
         The configuration in words (``"A2: Z reads X"``).
+    linear
+        Free parameters whose effect on the signals is linear, zero being "off" (an amplitude
+        of a few micrometres on a contact preloaded by a fraction of a millimetre). For an
+        extension that needs a new solve, naming them turns the refit into a few solves: each
+        one's signal change is simulated once at its start value and scaled.
+    grid
+        For an extension that needs a new solve: the values searched of each free parameter
+        that is not linear (a profile over the grid; each point costs one solve per linear
+        parameter).
+    held
+        Parameters held at an estimate made from the residual features, as (value, standard
+        error): reported with the refit, not refitted (their value is in ``start``).
     """
 
     extension: Any
@@ -65,6 +78,9 @@ class ExtensionProposal:
     bounds: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     key: tuple[str, ...] = ()
     label: str = ""
+    linear: tuple[str, ...] = ()
+    grid: Mapping[str, tuple[float, ...]] = dataclasses.field(default_factory=dict)
+    held: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
 
 
 class AbstractRefit(eqx.Module):
@@ -202,6 +218,8 @@ class RefitResult:
         Log predictive density of the training runs at the optimum (discrepancy profiled).
     evaluations
         Objective evaluations spent.
+    solves
+        Simulated runs spent on new solves (0 for extensions that act on the outputs).
     """
 
     proposal: ExtensionProposal
@@ -211,6 +229,7 @@ class RefitResult:
     spectra: Float[np.ndarray, "run channel freq"]
     train_lpd: float
     evaluations: int
+    solves: int = 0
 
 
 def _boxes(
@@ -235,65 +254,119 @@ def _boxes(
     return extended, list(proposal.free), lower, upper, fixed
 
 
-def _simulator(
-    setup: RefitSetup, extended: AbstractSystem, free: Sequence[str], fixed: Mapping[str, float]
-) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-    """``f(X, runs)``: the extended model's signals of ``runs`` for each row of ``X``."""
-    output_only = (
-        extended.without_output_extensions().extension_names == setup.system.extension_names
-    )
-    n_time = setup.base_signals.shape[-1]
+class _Model:
+    """The extended model's signals for rows of free parameters, and the solves it spent.
 
-    def values_for(x: np.ndarray, n_runs: int) -> dict[str, Any]:
+    Output extensions act on the base signals. Extensions that need a solve are simulated
+    directly, or, when the proposal names its linear parameters, as the base signals plus the
+    scaled signal change of each linear parameter, simulated once per grid point (``bases``,
+    shared by every fold of one proposal).
+    """
+
+    def __init__(
+        self,
+        setup: RefitSetup,
+        proposal: ExtensionProposal,
+        extended: AbstractSystem,
+        fixed: Mapping[str, float],
+        bases: dict[tuple[float, ...], np.ndarray],
+    ):
+        self.setup, self.proposal, self.extended, self.fixed = setup, proposal, extended, fixed
+        self.free = list(proposal.free)
+        self.output_only = (
+            extended.without_output_extensions().extension_names == setup.system.extension_names
+        )
+        self.nonlinear = [n for n in self.free if n not in proposal.linear]
+        self.surrogate = not self.output_only and bool(proposal.linear)
+        missing = [n for n in self.nonlinear if n not in proposal.grid]
+        if self.surrogate and missing:
+            raise ValueError(
+                f"the proposal's free parameters {missing} are neither linear nor gridded: a "
+                "refit through linear signal changes needs a grid for every other parameter"
+            )
+        self.reference = {n: float(proposal.start.get(n, 0.0)) or 1e-6 for n in proposal.linear}
+        self.bases = bases
+        self.solves = 0
+
+    def values(self, x: np.ndarray, n_runs: int) -> dict[str, np.ndarray]:
         pop = x.shape[0]
-        vals: dict[str, Any] = {k: np.full((pop, n_runs), v) for k, v in fixed.items()}
-        for i, name in enumerate(free):
+        vals = {k: np.full((pop, n_runs), v) for k, v in self.fixed.items()}
+        for i, name in enumerate(self.free):
             vals[name] = np.repeat(x[:, i : i + 1], n_runs, axis=1)
         return vals
 
-    if output_only:
-
-        def simulate(x: np.ndarray, runs: np.ndarray) -> np.ndarray:
-            base = np.broadcast_to(
-                setup.base_signals[runs], (x.shape[0], *setup.base_signals[runs].shape)
-            )
-            out = extended.apply_output_extensions(
-                jnp.asarray(base), jnp.asarray(setup.time), values_for(x, len(runs))
-            )
-            return np.asarray(out)
-
-        return simulate
-
-    def simulate(x: np.ndarray, runs: np.ndarray) -> np.ndarray:
-        pop, n_runs = x.shape[0], len(runs)
-        vals = {k: np.asarray(v).reshape(-1) for k, v in values_for(x, n_runs).items()}
-        vals.update({k: np.full(pop * n_runs, float(v)) for k, v in setup.point.items()})
-        result = extended.simulate_values(
-            vals,
-            np.tile(setup.operating[runs], pop),
-            duration=setup.duration,
+    def solve(self, vals: Mapping[str, np.ndarray], runs: np.ndarray) -> np.ndarray:
+        """Signals (row, run, channel, time) of a direct solve; NaN where it failed."""
+        pop, n_runs = next(iter(vals.values())).shape
+        flat = {k: np.asarray(v, dtype=float).reshape(-1) for k, v in vals.items()}
+        flat.update({k: np.full(pop * n_runs, float(v)) for k, v in self.setup.point.items()})
+        result = self.extended.simulate_values(
+            flat,
+            np.tile(self.setup.operating[runs], pop),
+            duration=self.setup.duration,
             check=False,
         )
-        signals = np.asarray(result.signals)[..., :n_time]
+        self.solves += pop * n_runs
+        signals = np.asarray(result.signals)[..., : self.setup.base_signals.shape[-1]]
         failed = np.asarray(result.status) != 0
         signals = np.where(failed[:, None, None], np.nan, signals)
         return signals.reshape(pop, n_runs, *signals.shape[1:])
 
-    return simulate
+    def basis(self, point: tuple[float, ...]) -> np.ndarray:
+        """Signal change per unit of each linear parameter at a grid point, every run."""
+        if point not in self.bases:
+            every = np.arange(len(self.setup.operating))
+            rows = []
+            for name in self.proposal.linear:
+                x = np.array(
+                    [
+                        [
+                            self.reference[n]
+                            if n == name
+                            else (point[self.nonlinear.index(n)] if n in self.nonlinear else 0.0)
+                            for n in self.free
+                        ]
+                    ]
+                )
+                rows.append(
+                    (self.solve(self.values(x, len(every)), every)[0] - self.setup.base_signals)
+                    / self.reference[name]
+                )
+            self.bases[point] = np.stack(rows)
+        return self.bases[point]
+
+    def signals(self, x: np.ndarray, runs: np.ndarray, *, exact: bool = False) -> np.ndarray:
+        """Signals (row, run, channel, time) of ``runs`` for every row of free parameters."""
+        if self.output_only:
+            base = np.broadcast_to(
+                self.setup.base_signals[runs], (x.shape[0], *self.setup.base_signals[runs].shape)
+            )
+            out = self.extended.apply_output_extensions(
+                jnp.asarray(base), jnp.asarray(self.setup.time), self.values(x, len(runs))
+            )
+            return np.asarray(out)
+        if exact or not self.surrogate:
+            return self.solve(self.values(x, len(runs)), runs)
+        out = []
+        lin = [self.free.index(n) for n in self.proposal.linear]
+        for row in x:
+            point = tuple(float(row[self.free.index(n)]) for n in self.nonlinear)
+            b = self.basis(point)[:, runs]
+            out.append(self.setup.base_signals[runs] + np.tensordot(row[lin], b, axes=1))
+        return np.stack(out)
 
 
 def _batched(
-    simulate: Callable[[np.ndarray, np.ndarray], np.ndarray],
-    spectra: Spectra,
-    x: np.ndarray,
-    runs: np.ndarray,
+    model: _Model, spectra: Spectra, x: np.ndarray, runs: np.ndarray, *, exact: bool = False
 ) -> np.ndarray:
     """The model spectra of ``runs`` for every row of ``x``, in padded batches of POPULATION."""
     out = []
     for start in range(0, len(x), POPULATION):
         block = x[start : start + POPULATION]
-        padded = np.concatenate([block, np.repeat(block[-1:], POPULATION - len(block), axis=0)])
-        out.append(spectra.model(simulate(padded, runs), runs)[: len(block)])
+        if not exact:
+            block = np.concatenate([block, np.repeat(block[-1:], POPULATION - len(block), axis=0)])
+        signals = model.signals(block, runs, exact=exact)
+        out.append(spectra.model(signals, runs)[: min(POPULATION, len(x) - start)])
     return np.concatenate(out)
 
 
@@ -344,6 +417,22 @@ def _laplace_sd(
     return np.where(var > 0, np.sqrt(np.abs(var)) * width, np.nan)
 
 
+def _parabola(points: np.ndarray, values: np.ndarray, best: int) -> tuple[float, float]:
+    """Vertex and standard deviation of a negative log density sampled on a 1-D grid.
+
+    The parabola through the best point and its two neighbours; the sd is the inverse square
+    root of its curvature. At an edge of the grid (or without curvature): the best point and
+    NaN.
+    """
+    if best == 0 or best == len(points) - 1:
+        return float(points[best]), float("nan")
+    x, y = points[best - 1 : best + 2], values[best - 1 : best + 2]
+    a, b, _ = np.polyfit(x, y, 2)
+    if not a > 0:
+        return float(points[best]), float("nan")
+    return float(np.clip(-b / (2 * a), x[0], x[2])), float(1.0 / np.sqrt(2.0 * a))
+
+
 def refit_extension(
     setup: RefitSetup,
     proposal: ExtensionProposal,
@@ -353,12 +442,19 @@ def refit_extension(
     max_evals: int,
     uncertainty: bool = False,
     progress: bool = False,
+    bases: dict[tuple[float, ...], np.ndarray] | None = None,
 ) -> RefitResult:
     """Fit one extension's free parameters on the training runs (base parameters held).
 
     The objective is the training runs' log predictive density with the extended model's
     discrepancy estimated on the same runs (:func:`estimate_discrepancy`), maximised by
-    CMA-ES from the proposal's start within its search boxes.
+    CMA-ES from the proposal's start within its search boxes. For an extension that needs a
+    new solve and names its linear parameters, the signals are the base signals plus the
+    scaled signal change of each linear parameter (one solve of every run per linear
+    parameter and grid point), CMA-ES fits the linear parameters at every grid point of the
+    others, the best point is refined by a parabola (its curvature gives the sd), and the
+    extended model is then solved exactly at the optimum: the spectra returned (and judged)
+    are the exact ones.
 
     Parameters
     ----------
@@ -371,11 +467,14 @@ def refit_extension(
     seed
         Seeds CMA-ES and the design of the uncertainty.
     max_evals
-        CMA-ES budget.
+        CMA-ES budget (per grid point).
     uncertainty
-        Also estimate each free parameter's Laplace standard deviation.
+        Also estimate each free parameter's Laplace standard deviation (gridded ones: from
+        the profile's curvature).
     progress
         Show CMA-ES's progress bar.
+    bases
+        A cache of the linear signal changes, shared by refits of one proposal on one setup.
 
     Returns
     -------
@@ -384,41 +483,73 @@ def refit_extension(
     from ..inference import minimize_cmaes
 
     extended, free, lower, upper, fixed = _boxes(setup.system, proposal)
-    simulate = _simulator(setup, extended, free, fixed)
+    model = _Model(setup, proposal, extended, fixed, {} if bases is None else bases)
     train = np.asarray(train, dtype=int)
+    gridded = model.nonlinear if model.surrogate else []
+    search = [i for i, n in enumerate(free) if n not in gridded]
 
-    def objective(x: np.ndarray) -> np.ndarray:
-        model = _batched(simulate, setup.spectra, np.atleast_2d(x), train)
-        return -_profile_lpd(setup.spectra, model, train)
+    def objective_at(point: Mapping[str, float]) -> Callable[[np.ndarray], np.ndarray]:
+        def objective(x: np.ndarray) -> np.ndarray:
+            x = np.atleast_2d(x)
+            full = np.empty((len(x), len(free)))
+            full[:, search] = x
+            for n, v in point.items():
+                full[:, free.index(n)] = v
+            spectra = _batched(model, setup.spectra, full, train)
+            return -_profile_lpd(setup.spectra, spectra, train)
 
-    x0 = np.clip([float(proposal.start.get(n, fixed[n])) for n in free], lower, upper)
-    result = minimize_cmaes(
-        objective,
-        x0,
-        lower=lower,
-        upper=upper,
-        seed=seed + 1,
-        sigma0=0.2,
-        max_evals=max_evals,
-        popsize=POPULATION,
-        progress=progress,
-    )
-    best = np.asarray(result.x_best, dtype=float)
+        return objective
+
+    start = np.clip([float(proposal.start.get(n, fixed[n])) for n in free], lower, upper)
+    grid = list(itertools.product(*(proposal.grid[n] for n in gridded))) or [()]
+    outcomes = []
+    evaluations = 0
+    for g_index, point in enumerate(grid):
+        objective = objective_at(dict(zip(gridded, point, strict=True)))
+        result = minimize_cmaes(
+            objective,
+            start[search],
+            lower=lower[search],
+            upper=upper[search],
+            seed=seed + 1 + g_index,
+            sigma0=0.2,
+            max_evals=max_evals,
+            popsize=POPULATION,
+            progress=progress,
+        )
+        evaluations += result.evaluations
+        outcomes.append((float(result.f_best), np.asarray(result.x_best, dtype=float), point))
+    values_f = np.array([o[0] for o in outcomes])
+    best = int(np.argmin(values_f))
+    _, x_search, point = outcomes[best]
+    optimum = np.empty(len(free))
+    optimum[search] = x_search
     sd = np.full(len(free), np.nan)
-    evaluations = result.evaluations
-    if uncertainty:
-        sd = _laplace_sd(objective, best, lower, upper, np.random.default_rng(seed))
-        d = len(free)
+    for n, v in zip(gridded, point, strict=True):
+        optimum[free.index(n)] = v
+    if len(gridded) == 1:
+        axis = np.array([p[0] for p in grid])
+        refined, sd_grid = _parabola(axis, values_f, best)
+        optimum[free.index(gridded[0])] = refined
+        sd[free.index(gridded[0])] = sd_grid
+    if uncertainty and search:
+        objective = objective_at(dict(zip(gridded, point, strict=True)))
+        sd[search] = _laplace_sd(
+            objective, x_search, lower[search], upper[search], np.random.default_rng(seed)
+        )
+        d = len(search)
         evaluations += 3 * (1 + d + d * (d + 1) // 2)
     every = np.arange(len(setup.operating))
-    spectra = _batched(simulate, setup.spectra, best[None], every)[0]
-    values = {**fixed, **dict(zip(free, map(float, best), strict=True))}
+    spectra = _batched(model, setup.spectra, optimum[None], every, exact=True)[0]
+    train_lpd = float(_profile_lpd(setup.spectra, spectra[None, train], train)[0])
+    values = {**fixed, **dict(zip(free, map(float, optimum), strict=True))}
     return RefitResult(
         proposal=proposal,
         values=values,
         sd=dict(zip(free, map(float, sd), strict=True)),
         train=train,
         spectra=spectra,
-        train_lpd=float(-result.f_best),
+        train_lpd=train_lpd,
         evaluations=evaluations,
+        solves=model.solves,
     )

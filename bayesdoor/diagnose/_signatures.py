@@ -209,6 +209,15 @@ class FixedFrequency(AbstractSignature):
         return _best(matches)
 
 
+def _wavelength_sd(region: Region) -> float:
+    """Standard error of the tracking fit's wavelength: ``lambda`` times that of the mean of
+    ``ln(f / v)`` over the affected runs (NaN with fewer than three)."""
+    fit = region.speed
+    if fit.n_runs < 3 or not np.isfinite(fit.rss_tracking):
+        return float("nan")
+    return float(fit.wavelength_m * np.sqrt(fit.rss_tracking / (fit.n_runs - 1) / fit.n_runs))
+
+
 class SpeedTracking(AbstractSignature):
     """A tone whose frequency is the speed over a spatial period: ``f = v / wavelength``.
 
@@ -221,8 +230,9 @@ class SpeedTracking(AbstractSignature):
     follows the speed; it is in most runs; its
     wavelength is one of ``wavelengths`` (when given) and none of ``excluded`` (when given);
     no line at rest before the motion at its frequencies. Parameters: ``wavelength_m`` (of
-    the speed fit), and with ``wavelengths`` the matched ``label`` and every label found
-    among the tracking regions (``labels_found``).
+    the speed fit) and ``wavelength_sd_m`` (its standard error over the runs' peaks), and with
+    ``wavelengths`` the matched ``label`` and every label found among the tracking regions
+    (``labels_found``).
     """
 
     wavelengths: tuple[float, ...] = eqx.field(static=True, default=())
@@ -273,7 +283,10 @@ class SpeedTracking(AbstractSignature):
                 _speed_check(features, region, TRACKING),
                 _in_most_runs(region, features.n_runs),
             ]
-            params: dict[str, float | str | tuple] = {"wavelength_m": lam}
+            params: dict[str, float | str | tuple] = {
+                "wavelength_m": lam,
+                "wavelength_sd_m": _wavelength_sd(region),
+            }
             if self.wavelengths:
                 i = self._nearest(lam, self.wavelengths)
                 checks.append(

@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+import equinox as eqx
 import numpy as np
 
 from ...diagnose import (
@@ -38,9 +39,8 @@ MAINS_HZ = (50.0, 60.0)
 FRAME_MODE_BAND = (10.0, 300.0)
 
 _WHEEL_WAVELENGTHS = tuple(WHEEL_CIRCUMFERENCE / k for k in WHEEL_HARMONICS)
-#: search box of a refit around the signature's estimate: frequency (Hz), relative wavelength
+#: search box of a frame mode's refit around the signature's frequency, Hz
 _FREQUENCY_BOX_HZ = 3.0
-_WAVELENGTH_BOX = 0.04
 #: largest participation of a frame mode searched (the mode's relative acceleration is about
 #: 1 / (2 zeta) times the drive at resonance, so 0.2 already exceeds any channel's own level)
 _PARTICIPATION_BOX = 0.2
@@ -84,7 +84,8 @@ class WheelRefit(AbstractRefit):
     """An out-of-round right wheel with the harmonics the residual shows.
 
     Free: the radius amplitude of every harmonic found (phases at their nominal values: the
-    spectra barely see them). The left wheel gives the same tones; only the right one is
+    spectra barely see them), each acting linearly (micrometres on a contact preloaded by a
+    fraction of a millimetre). The left wheel gives the same tones; only the right one is
     refitted (each refit of a wheel needs new solves).
     """
 
@@ -100,51 +101,69 @@ class WheelRefit(AbstractRefit):
                 start=start,
                 free=tuple(start),
                 key=tuple(start),
+                linear=tuple(start),
                 label=f"right wheel, harmonics {found}",
             ),
         )
 
 
 class RailRefit(AbstractRefit):
-    """A rail irregularity near the residual's wavelength (4 %); free: wavelength, amplitude."""
+    """A rail irregularity at the residual's wavelength; free: its amplitude.
+
+    The wavelength is held at the signature's estimate (the tone's frequency over the runs'
+    speeds, with its standard error): the spectra locate a tone to a fraction of a bin, while
+    a refit of the wavelength would be pulled by the interference of the two wheels 0.7 m
+    apart (20 periods of a 35 mm wavelength: 1 % changes their relative phase by a fifth of a
+    cycle) more than by the tone's frequency. The amplitude (micrometres on a contact
+    preloaded by a fraction of a millimetre) acts linearly: one solve per run.
+    """
 
     def propose(
         self, parameters: Mapping[str, Any], *, band: tuple[float, float]
     ) -> tuple[ExtensionProposal, ...]:
         lam = float(parameters["wavelength_m"])
-        lo, hi = lam * (1.0 - _WAVELENGTH_BOX), lam * (1.0 + _WAVELENGTH_BOX)
+        sd = float(parameters.get("wavelength_sd_m", float("nan")))
         return (
             ExtensionProposal(
                 extension=RailWaviness(),
                 start={"rail_waviness.wavelength_m": lam, "rail_waviness.amplitude_m": 5e-6},
-                free=("rail_waviness.wavelength_m", "rail_waviness.amplitude_m"),
-                bounds={"rail_waviness.wavelength_m": (lo, hi)},
+                free=("rail_waviness.amplitude_m",),
                 key=("rail_waviness.wavelength_m",),
-                label=f"wavelength near {1e3 * lam:.2f} mm",
+                label=f"wavelength {1e3 * lam:.2f} mm",
+                linear=("rail_waviness.amplitude_m",),
+                held={"rail_waviness.wavelength_m": (lam, sd)},
             ),
         )
 
 
 class CrossAxisRefit(AbstractRefit):
-    """A leak into the coherent pair's receiving channel (and, as an alternative, the reverse)."""
+    """A leak between the two channels of one sensor: every direction of every pair.
+
+    One free parameter each (the fraction), refitted on signals already simulated, so all
+    directions are tried (the refit keeps the one that fits the training runs best): the
+    coherence signature names the pair whose excess is the most uniform, which need not be
+    the leaking one when the base model misses some coherence of another pair.
+    """
+
+    pairs: tuple[tuple[str, str], ...] = eqx.field(static=True)
 
     def propose(
         self, parameters: Mapping[str, Any], *, band: tuple[float, float]
     ) -> tuple[ExtensionProposal, ...]:
-        receiver, source = str(parameters["receiver"]), str(parameters["source"])
-        fraction = float(np.clip(parameters.get("fraction", 0.05), -0.3, 0.3))
+        named = (str(parameters.get("receiver", "")), str(parameters.get("source", "")))
         out = []
-        for into, start in ((receiver, fraction), (source, 0.0)):
-            other = source if into == receiver else receiver
-            out.append(
-                ExtensionProposal(
-                    extension=SensorCrossAxis(sensor=into[:-1], into=into[-1]),
-                    start={"sensor_cross_axis.fraction": start},
-                    free=("sensor_cross_axis.fraction",),
-                    key=("sensor_cross_axis.fraction",),
-                    label=f"{into} reads {other}",
+        for pair in self.pairs:
+            for into, other in (pair, pair[::-1]):
+                start = parameters.get("fraction", 0.02) if (into, other) == named else 0.02
+                out.append(
+                    ExtensionProposal(
+                        extension=SensorCrossAxis(sensor=into[:-1], into=into[-1]),
+                        start={"sensor_cross_axis.fraction": float(np.clip(start, -0.3, 0.3))},
+                        free=("sensor_cross_axis.fraction",),
+                        key=("sensor_cross_axis.fraction",),
+                        label=f"{into} reads {other}",
+                    )
                 )
-            )
         return tuple(out)
 
 
@@ -199,7 +218,7 @@ DOOR_CATALOGUE = Catalogue(
             name="sensor_cross_axis",
             description="cross-axis sensitivity or misalignment of one accelerometer",
             signature=CrossAxisCoherence(pairs=SENSOR_PAIRS),
-            refit=CrossAxisRefit(),
+            refit=CrossAxisRefit(pairs=SENSOR_PAIRS),
         ),
         Candidate(
             name="mains_hum",

@@ -180,6 +180,16 @@ def files(tmp_path_factory):
     paths["empty"] = save_campaign(good.isel(run=[]), folder / "empty.nc")
     faulty = campaign(["D1", "D2", "D1", "D2"], split=False)
     paths["faulty"] = save_campaign(faulty, folder / "faulty.nc")
+    slow = good.assign_coords(time=good["time"] * FS / 1000.0)
+    paths["other_rate"] = save_campaign(
+        slow.assign_attrs(sampling_rate_hz=1000.0), folder / "other_rate.nc"
+    )
+    in_g = good.copy(deep=True)
+    in_g["acceleration"].attrs["units"] = "g"
+    paths["in_g"] = save_campaign(in_g.assign_attrs(units="g"), folder / "in_g.nc")
+    paths["other_system"] = save_campaign(
+        good.assign_attrs(system="robot_arm"), folder / "other_system.nc"
+    )
     return paths
 
 
@@ -230,6 +240,18 @@ UNUSABLE = {
         "fit": "the campaign holds no runs",
         "run": "holds no runs",
         "diagnose": "holds no runs",
+    },
+    "other_rate": {
+        command: "sampling_rate_hz is 1000 Hz but 2048 Hz is expected"
+        for command in ("fit", "run", "diagnose")
+    },
+    "in_g": {
+        command: "convert the samples to m/s^2 by multiplying by 9.80665"
+        for command in ("fit", "run", "diagnose")
+    },
+    "other_system": {
+        command: "the campaign's system attribute is 'robot_arm'; bayesdoor simulates elevator_door"
+        for command in ("fit", "run", "diagnose")
     },
     "faulty": {
         "fit": "no healthy run to update the model on (its runs: 2 D1, 2 D2)",

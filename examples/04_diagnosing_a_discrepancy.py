@@ -45,7 +45,7 @@ from bayesdoor.datasets import load_demo_campaign
 from bayesdoor.diagnose import DiagnosisSettings, diagnose_campaign
 from bayesdoor.inference import FitResult
 from bayesdoor.rig import Effects, FrameMode, VirtualRig
-from bayesdoor.systems.door import ElevatorDoor
+from bayesdoor.systems.door import DOOR_CATALOGUE, ElevatorDoor
 
 SIZE = os.environ.get("BAYESDOOR_EXAMPLE_SIZE", "quick")
 SIZES = {
@@ -130,7 +130,9 @@ if not (fit_folder / "fit.json").is_file():
     )
 fit = FitResult.load(fit_folder)
 door = ElevatorDoor()
-diagnosis = diagnose_campaign(door, campaign, fit=fit, settings=size["diagnosis"], seed=0)
+diagnosis = diagnose_campaign(
+    door, campaign, fit=fit, catalogue=DOOR_CATALOGUE, settings=size["diagnosis"], seed=0
+)
 print({stage: round(seconds, 1) for stage, seconds in diagnosis.timings.items()})
 
 # %% [markdown]
@@ -194,7 +196,9 @@ demo = load_demo_campaign(calibration_runs=n_calibration, test_runs_per_state=n_
 healthy = (demo.split.values == "test") & (demo.state.values == "healthy")
 clean = demo.isel(run=np.flatnonzero(healthy)[: len(speeds)])
 clean = clean.assign_coords(split=("run", ["calibration"] * clean.sizes["run"]))
-reference = diagnose_campaign(door, clean, fit=fit, settings=size["diagnosis"], seed=0)
+reference = diagnose_campaign(
+    door, clean, fit=fit, catalogue=DOOR_CATALOGUE, settings=size["diagnosis"], seed=0
+)
 print(f"{clean.sizes['run']} runs without the effect at v_max {clean.v_max.values.tolist()}")
 print(f"{len(reference.features.summary())} significant features")
 print("signature verdict:", reference.ranking.verdict, "  verdict:", reference.verdict)

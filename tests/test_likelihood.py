@@ -5,6 +5,7 @@ import itertools
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpyro
 import numpyro.distributions as dist
 import pytest
 import scipy.signal
@@ -253,29 +254,32 @@ def test_discrepancy_normal_samples_share_the_discrepancy(key):
     assert np.all(np.abs(np.cov(x.T) - expected) < 5 * se)
 
 
-@pytest.mark.parametrize("slope", [False, True])
-def test_shared_model_density_is_the_marginal_over_the_discrepancy(key, slope):
+@pytest.mark.parametrize(("slope", "per_operating"), [(False, True), (True, True), (True, False)])
+def test_shared_model_density_is_the_marginal_over_the_discrepancy(key, slope, per_operating):
     """The numpyro model's log density less its priors is the dense joint Gaussian; its
     pointwise log likelihood the leave-one-out conditionals (the reference as above)."""
     k1, k2 = jax.random.split(key)
     data = _data(k1)
     forward = _forward(data, k2)
     transform = SamplingTransform.box(("a", "b"), [0.0, 0.0], [1.0, 2.0])
-    error = ModelError(slope=slope)
+    error = ModelError(slope=slope, per_operating=per_operating)
     model = make_model(data, forward, transform, error)
     theta = np.array([0.25, 1.5])
-    sigma, rho, beta = np.array([0.2, 0.05]), np.array([0.5, 1.3]), np.array([0.7, -1.2])
+    # per operating point (0.3 and 0.5 m/s) and channel, or per channel
+    sigma = np.array([[0.2, 0.05], [0.1, 0.3]]) if per_operating else np.array([0.2, 0.05])
+    rho, beta = np.array([0.5, 1.3]), np.array([0.7, -1.2])
+    site = "sigma_operating" if per_operating else "sigma_model"
     params = {
         "z": transform.to_sampling(jnp.asarray(theta)),
-        "sigma_model": jnp.asarray(sigma),
+        site: jnp.asarray(sigma),
         "run_scatter": jnp.asarray(rho),
     }
     if slope:
         params["sigma_slope"] = jnp.asarray(beta)
     x = (np.arange(4.0, 97.0, 4.0) - 50.0) / 92.0
-    s = (sigma[:, None] * (np.exp(beta[:, None] * x) if slope else 1.0)) ** 2
+    s = (sigma[..., None] * (np.exp(beta[:, None] * x) if slope else 1.0)) ** 2
     # the forward model's own error variance (0.01) is shared too
-    shared = np.broadcast_to(s[None] + 0.01, (2, 2, 24))
+    shared = np.broadcast_to(s + 0.01, (2, 2, 24))
     run_variance = np.asarray(data.welch_variance)[:, None, None] * rho[None, :, None] ** 2
     loc = np.asarray(forward.features)[[0, 1, 0]] + theta.sum()
     y = np.asarray(data.y)
@@ -283,7 +287,7 @@ def test_shared_model_density_is_the_marginal_over_the_discrepancy(key, slope):
         y, loc, np.broadcast_to(run_variance, y.shape), shared, np.array([0, 1, 0])
     )
     priors = float(transform.prior().log_prob(params["z"]))
-    priors += float(dist.HalfNormal(error.scale).log_prob(params["sigma_model"]).sum())
+    priors += float(dist.HalfNormal(error.scale).log_prob(params[site]).sum())
     priors += float(dist.LogNormal(0.0, error.scatter_scale).log_prob(params["run_scatter"]).sum())
     if slope:
         priors += float(dist.Normal(0.0, error.slope_scale).log_prob(params["sigma_slope"]).sum())
@@ -291,6 +295,11 @@ def test_shared_model_density_is_the_marginal_over_the_discrepancy(key, slope):
     assert density - priors == pytest.approx(joint, rel=1e-10)
     pointwise = numpyro_log_likelihood(model, {k: v[None] for k, v in params.items()})["y"][0]
     np.testing.assert_allclose(np.asarray(pointwise), conditional, rtol=1e-10)
+    if per_operating:  # the per-channel summary: the root mean square over operating points
+        trace = numpyro.handlers.trace(numpyro.handlers.substitute(model, params)).get_trace()
+        np.testing.assert_allclose(
+            trace["sigma_model"]["value"], np.sqrt(np.mean(sigma**2, axis=0)), rtol=1e-12
+        )
     value = log_likelihood(
         jnp.asarray(theta),
         jnp.asarray(sigma),
@@ -316,12 +325,15 @@ def test_replicate_runs_do_not_average_the_discrepancy_away(key):
             run_operating=jnp.zeros(n, dtype=jnp.int32),
             band_centres=jnp.arange(4.0, 97.0, 4.0),
         )
-        forward = TableForward(("a",), data.operating, jnp.zeros((1, 1, 24)), 0.0, True)
+        flat = jnp.zeros((1, 1, 24))
+        forward = TableForward(("a",), data.operating, flat, flat, True)
 
         def loglik(theta):
             return log_likelihood(theta, jnp.asarray([sigma]), data, forward, shared=shared)
 
-        return -float(jax.hessian(loglik)(jnp.zeros(1))[0, 0])
+        # the log likelihood is quadratic in theta: the second difference is exact
+        low, mid, high = np.asarray(jax.vmap(loglik)(jnp.asarray([[-1.0], [0.0], [1.0]])))
+        return -(low - 2.0 * mid + high)
 
     for n in (1, 10, 100):
         # 24 features, each a Gaussian whose mean moves one for one with theta
@@ -343,7 +355,7 @@ def test_failed_forward_gives_minus_inf_with_finite_gradients(key):
     model = make_model(data, broken, transform)
     params = {
         "z": jnp.array([0.1, -0.3]),
-        "sigma_model": jnp.array([0.1, 0.2]),
+        "sigma_operating": jnp.array([[0.1, 0.2], [0.3, 0.1]]),
         "run_scatter": jnp.array([0.5, 1.0]),
     }
 

@@ -133,7 +133,7 @@ def test_surrogate_log_density_has_finite_gradients(door_case, key):
     zs = 3.0 * jax.random.normal(key, (20, len(FREE)))  # out to the box's edges
 
     def logp(z):
-        params = {"z": z, "sigma_model": jnp.full(4, 0.05), "run_scatter": jnp.ones(4)}
+        params = {"z": z, "sigma_operating": jnp.full((1, 4), 0.05), "run_scatter": jnp.ones(4)}
         return log_density(model, (), {}, params)[0]
 
     values, grads = jax.vmap(jax.value_and_grad(logp))(zs)

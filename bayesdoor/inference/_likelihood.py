@@ -3,14 +3,16 @@
 For run ``r`` at operating point ``o(r)``, channel ``c`` and band ``b``,
 
     y_rcb = m_o(r)cb(theta) + delta_o(r)cb + eps_rcb,
-    delta_ocb ~ Normal(0, sigma_c(f_b)^2 + e_ocb^2),   eps_rcb ~ Normal(0, rho_c^2 s_r^2)
+    delta_ocb ~ Normal(0, sigma_oc(f_b)^2 + e_ocb^2),   eps_rcb ~ Normal(0, rho_c^2 s_r^2)
 
 with ``m`` the simulated feature vector (:func:`~bayesdoor.inference.run_features` of a
 simulated run, or a surrogate of it), ``delta`` the model's discrepancy, shared by every run at
 one operating point (Kennedy and O'Hagan 2001: the model misses the system the same way in
 each repetition, so replicate runs average the scatter away, never the discrepancy), with
-``sigma_c(f) = sigma_c exp(beta_c x(f))`` per channel (``x`` the band centre scaled to [-1/2,
-1/2], ``beta = 0`` unless the slope is on) and ``e^2`` the surrogate's held-out error variance
+``sigma_oc(f) = sigma_oc exp(beta_c x(f))`` per operating point and channel (``x`` the band
+centre scaled to [-1/2, 1/2], ``beta = 0`` unless the slope is on; with
+``ModelError(per_operating=False)`` one ``sigma_c`` for every operating point) and ``e^2`` the
+surrogate's held-out error variance
 (zero for the exact simulator; also shared, it is an error of ``m``), and ``eps`` the scatter
 of one run, ``s_r^2`` the Welch variance of its features (from its number of segments) scaled
 by the inferred ``rho_c^2`` per channel (1 for a Gaussian random response, below 1 for a mostly
@@ -265,8 +267,13 @@ class ModelError(eqx.Module):
     analysis band.
 
     With ``shared`` (the default) the discrepancy is one draw per operating point, channel and
-    band, common to every run there, and each run scatters about it by ``rho_c`` Welch standard
-    deviations, ``rho_c ~ LogNormal(0, scatter_scale)``: the Welch variance is the scatter of a
+    band, common to every run there, with a scale ``sigma_oc`` per operating point and channel
+    (``per_operating``, the default; each ``~ HalfNormal(scale)``; the site ``sigma_model`` is
+    then their root mean square over the operating points): a reduced model can match a
+    system closely at one speed and poorly at another, and one scale per channel would let the
+    worst speed set the tolerance of every other. Each run scatters about the discrepancy by
+    ``rho_c`` Welch standard deviations, ``rho_c ~ LogNormal(0, scatter_scale)``: the Welch
+    variance is the scatter of a
     Gaussian random response (``rho = 1``), a response mostly set by a deterministic excitation
     (a rail's fixed profile) scatters less, one whose parameters vary from run to run more.
     Replicate runs at an operating point identify ``rho_c``; with one run per operating point
@@ -278,6 +285,7 @@ class ModelError(eqx.Module):
     slope: bool = eqx.field(static=True, default=False)
     slope_scale: float = eqx.field(static=True, default=1.0)
     shared: bool = eqx.field(static=True, default=True)
+    per_operating: bool = eqx.field(static=True, default=True)
     scatter_scale: float = eqx.field(static=True, default=1.0)
 
     def __check_init__(self):
@@ -413,7 +421,7 @@ def _frequency_position(band_centres: Float[Array, " band"]) -> Float[Array, " b
 
 def feature_distribution(
     theta: Float[Array, " param"],
-    sigma_model: Float[Array, " channel"],
+    sigma_model: Float[Array, "*op channel"],
     data: CalibrationData,
     forward: AbstractForward,
     slope: Float[Array, " channel"] | None = None,
@@ -431,7 +439,8 @@ def feature_distribution(
     theta
         The parameters, in the forward model's order.
     sigma_model
-        The discrepancy scale of each channel (decades).
+        The discrepancy scale of each channel (decades), one for every operating point or one
+        per operating point (a leading axis in the order of ``data.operating``).
     data
         The measured runs.
     forward
@@ -454,11 +463,12 @@ def feature_distribution(
     out = forward(theta)
     loc = out.features[data.run_operating]
     x = _frequency_position(data.band_centres)
-    slope = jnp.zeros_like(sigma_model) if slope is None else slope
-    rho = jnp.ones_like(sigma_model) if run_scatter is None else run_scatter
-    discrepancy = (sigma_model[:, None] * jnp.exp(slope[:, None] * x[None, :])) ** 2
+    n_channel = data.y.shape[1]
+    slope = jnp.zeros(n_channel) if slope is None else slope
+    rho = jnp.ones(n_channel) if run_scatter is None else run_scatter
+    discrepancy = (sigma_model[..., None] * jnp.exp(slope[:, None] * x[None, :])) ** 2
     run_variance = data.welch_variance[:, None, None] * rho[None, :, None] ** 2
-    shared_variance = discrepancy[None] + out.variance
+    shared_variance = jnp.broadcast_to(discrepancy + out.variance, out.features.shape)
     if not shared:
         run_variance = run_variance + shared_variance[data.run_operating]
         shared_variance = jnp.zeros_like(shared_variance)
@@ -473,7 +483,7 @@ def feature_distribution(
 
 def predictive_normal(
     theta: Float[Array, " param"],
-    sigma_model: Float[Array, " channel"],
+    sigma_model: Float[Array, "*op channel"],
     data: CalibrationData,
     forward: AbstractForward,
     slope: Float[Array, " channel"] | None = None,
@@ -502,7 +512,7 @@ def predictive_normal(
 
 def log_likelihood(
     theta: Float[Array, " param"],
-    sigma_model: Float[Array, " channel"],
+    sigma_model: Float[Array, "*op channel"],
     data: CalibrationData,
     forward: AbstractForward,
     slope: Float[Array, " channel"] | None = None,
@@ -529,7 +539,9 @@ def make_model(
     """The numpyro model of the calibration runs.
 
     Sites: ``z`` (the sampling coordinates of :class:`SamplingTransform`, uniform box prior),
-    one deterministic site per parameter name, ``sigma_model`` (per channel), ``sigma_slope``
+    one deterministic site per parameter name, ``sigma_operating`` (per operating point and
+    channel, with ``per_operating``), ``sigma_model`` (per channel: sampled, or the root mean
+    square of ``sigma_operating`` over the operating points), ``sigma_slope``
     (when the slope is on), ``run_scatter`` (per channel, with a shared discrepancy),
     ``solver_failed`` (a ``-inf`` factor when the forward model failed), ``shared_discrepancy``
     (a factor: the joint density less the sum of the pointwise terms, zero for the independent
@@ -575,6 +587,7 @@ def make_model(
             "model on data.operating"
         )
     n_run, n_channel, n_band = data.y.shape
+    n_op = data.operating.shape[0]
 
     def model(y: Float[Array, "run channel band"] | None = data.y) -> None:
         z = numpyro.sample("z", transform.prior())
@@ -582,7 +595,12 @@ def make_model(
         for i, name in enumerate(transform.names):
             numpyro.deterministic(name, theta[i])
         with numpyro.plate("channel", n_channel):
-            sigma = numpyro.sample("sigma_model", dist.HalfNormal(error.scale))
+            if error.shared and error.per_operating:
+                with numpyro.plate("operating", n_op, dim=-2):
+                    sigma = numpyro.sample("sigma_operating", dist.HalfNormal(error.scale))
+                numpyro.deterministic("sigma_model", jnp.sqrt(jnp.mean(sigma**2, axis=0)))
+            else:
+                sigma = numpyro.sample("sigma_model", dist.HalfNormal(error.scale))
             slope = (
                 numpyro.sample("sigma_slope", dist.Normal(0.0, error.slope_scale))
                 if error.slope

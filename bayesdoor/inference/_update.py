@@ -61,6 +61,12 @@ METHODS: tuple[str, ...] = ("cmaes", "nuts", "emcee")
 #: smallest model-error scale (decades) used to start the sampler and for a CMA-ES point
 _SIGMA_FLOOR = 0.01
 
+#: a surrogate box face that is not a bound must lie this many posterior sds from the mean;
+#: a moved box reaches at least _BOX_NEW_SD sds each side (the quadratic is fitted where the
+#: posterior lives, and a Gaussian's mass beyond 4 sd is 6e-5)
+_BOX_ROOM_SD = 4.0
+_BOX_NEW_SD = 6.0
+
 
 @dataclasses.dataclass(frozen=True)
 class FitSettings:
@@ -76,9 +82,10 @@ class FitSettings:
     box_fraction
         Half-width of the surrogate's box around the optimum, as a fraction of each range.
     box_moves
-        How often the box may move to the posterior mean (surrogate refitted, posterior
-        resampled) when more than 5 % of the draws of a parameter lie at a face of the box
-        that is not one of its bounds.
+        How often the box may move to the posterior mean and widen (surrogate refitted,
+        posterior resampled) when a face of the box that is not a bound lies within 4
+        posterior sds of a parameter's mean, or more than 5 % of its draws lie at such a
+        face.
     insensitive
         A parameter whose move from its lower to its upper bound changes no feature by more
         than this many Welch standard deviations spans its whole range in the surrogate's box
@@ -99,7 +106,7 @@ class FitSettings:
     cmaes_popsize: int | None = None
     cmaes_sigma0: float = 0.25
     box_fraction: float = 0.25
-    box_moves: int = 1
+    box_moves: int = 2
     insensitive: float = 0.5
     train_per_term: int = 7
     n_test: int = 64
@@ -420,8 +427,10 @@ class FitResult:
     names
         The sampled (continuous) parameters, in order.
     sigma_point
-        Model-error (discrepancy) scale per channel at the CMA-ES optimum (decades), a moment
-        estimate from the residuals there.
+        Model-error (discrepancy) scale at the CMA-ES optimum (decades), per operating point
+        (in the order of the calibration runs' distinct operating points) and channel, or per
+        channel (``ModelError(per_operating=False)``); a moment estimate from the residuals
+        there.
     scatter_point
         Run scatter per channel at the CMA-ES optimum (Welch standard deviations; 1 for the
         independent model error), likewise.
@@ -475,11 +484,22 @@ class FitResult:
         return {n: np.asarray(post[n].values).reshape(-1) for n in self.names}
 
     def model_error_draws(self) -> np.ndarray | None:
-        """Model-error scales, (draw, channel), decades (``cmaes``: the ML estimate once)."""
+        """Model-error scales per channel, (draw, channel), decades (``cmaes``: the point once).
+
+        With scales per operating point, their root mean square over the operating points.
+        """
+        sigma = self.discrepancy_draws()
+        return np.sqrt(np.mean(sigma**2, axis=1)) if sigma.ndim == 3 else sigma
+
+    def discrepancy_draws(self) -> np.ndarray:
+        """Discrepancy scales as fitted: (draw, op, channel) per operating point, else
+        (draw, channel); decades (``cmaes``: the point once)."""
         if self.idata is None:
             return np.asarray(self.sigma_point)[None]
-        sigma = np.asarray(self.idata["posterior"]["sigma_model"].values)
-        return sigma.reshape(-1, sigma.shape[-1])
+        post = self.idata["posterior"]
+        name = "sigma_operating" if "sigma_operating" in post else "sigma_model"
+        sigma = np.asarray(post[name].values)
+        return sigma.reshape(-1, *sigma.shape[2:])
 
     def run_scatter_draws(self) -> np.ndarray:
         """Run scatter in Welch sds, (draw, channel) (``cmaes`` or independent: one row)."""
@@ -560,7 +580,14 @@ class FitResult:
             "scatter_point": np.asarray(self.scatter_point).tolist(),
             "model_error": {
                 f: getattr(self.model_error, f)
-                for f in ("scale", "slope", "slope_scale", "shared", "scatter_scale")
+                for f in (
+                    "scale",
+                    "slope",
+                    "slope_scale",
+                    "shared",
+                    "per_operating",
+                    "scatter_scale",
+                )
             },
             "bounds": [np.asarray(b).tolist() for b in self.bounds],
             "surrogate_box": None
@@ -696,24 +723,39 @@ def _integer_parameter(system: AbstractSystem, law: int | None) -> tuple[str | N
     return spec.name, law
 
 
+def _box_room(
+    draws: Float[np.ndarray, "sample param"],
+    box: tuple[np.ndarray, np.ndarray],
+    bounds: tuple[np.ndarray, np.ndarray],
+) -> np.ndarray:
+    """Per parameter: posterior sds from the mean to the nearer box face that is not a bound."""
+    mean, sd = draws.mean(axis=0), np.maximum(draws.std(axis=0), 1e-300)
+    lo, hi = np.asarray(box[0]), np.asarray(box[1])
+    width = np.asarray(bounds[1]) - np.asarray(bounds[0])
+    below = np.where(lo > np.asarray(bounds[0]) + 1e-12 * width, (mean - lo) / sd, np.inf)
+    above = np.where(hi < np.asarray(bounds[1]) - 1e-12 * width, (hi - mean) / sd, np.inf)
+    return np.minimum(below, above)
+
+
 def _point_error(
     residual: Float[np.ndarray, "run channel band"],
     data: CalibrationData,
-    shared: bool,
+    error: ModelError,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per channel: the discrepancy scale and the run scatter the residuals at a point call for.
+    """The discrepancy scales and the run scatter the residuals at a point call for.
 
-    Moment estimates. Shared: the run scatter (in Welch sds) from the spread of the runs about
-    their operating point's mean (1 without replicate runs), the discrepancy from the
-    operating points' mean residuals less the part of their variance the scatter explains.
-    Independent: the excess of the mean squared residual over the Welch variance, scatter 1.
-    The discrepancy scale is floored at ``_SIGMA_FLOOR``.
+    Moment estimates. Shared: the run scatter (in Welch sds, per channel) from the spread of
+    the runs about their operating point's mean (1 without replicate runs), the discrepancy
+    (per operating point and channel, or per channel) from the operating points' mean
+    residuals less the part of their variance the scatter explains. Independent: the excess
+    of the mean squared residual over the Welch variance, scatter 1. The discrepancy scale is
+    floored at ``_SIGMA_FLOOR``.
     """
     welch = np.asarray(data.welch_variance)
     index = np.asarray(data.run_operating)
     n_op = data.operating.shape[0]
     rho = np.ones(residual.shape[1])
-    if not shared:
+    if not error.shared:
         excess = np.mean(residual**2, axis=(0, 2)) - np.mean(welch)
         return np.sqrt(np.maximum(excess, _SIGMA_FLOOR**2)), rho
     counts = np.bincount(index, minlength=n_op)
@@ -726,7 +768,14 @@ def _point_error(
         rho = np.sqrt(np.maximum(ratio / (dof * residual.shape[2]), _SIGMA_FLOOR**2))
     scatter = rho[None, :] ** 2 * np.array([welch[index == o].mean() for o in range(n_op)])[:, None]
     excess = np.mean(means**2, axis=2) - scatter / counts[:, None]
-    return np.sqrt(np.maximum(excess.mean(axis=0), _SIGMA_FLOOR**2)), rho
+    if not error.per_operating:
+        excess = excess.mean(axis=0)
+    return np.sqrt(np.maximum(excess, _SIGMA_FLOOR**2)), rho
+
+
+def _sigma_site(error: ModelError) -> str:
+    """The sampled site of the discrepancy scales."""
+    return "sigma_operating" if error.shared and error.per_operating else "sigma_model"
 
 
 def fit_campaign(
@@ -849,7 +898,7 @@ def fit_campaign(
     sim, _ = _simulate(population, _full(system, theta_opt, free, fixed_law))
     residual = np.asarray(data.y) - sim[0][np.asarray(data.run_operating)]
     error = ModelError() if error is None else error
-    sigma_point, scatter_point = _point_error(residual, data, error.shared)
+    sigma_point, scatter_point = _point_error(residual, data, error)
 
     common = dict(
         law=law,
@@ -924,7 +973,7 @@ def fit_campaign(
         except ValueError as err:
             notes.append(f"Laplace whitening failed ({err}); sampling in plain logit coordinates")
         model = make_model(data, surrogate, transform, error)
-        init = {"z": transform.to_sampling(jnp.asarray(inside)), "sigma_model": sigma_init}
+        init = {"z": transform.to_sampling(jnp.asarray(inside)), _sigma_site(error): sigma_init}
         if error.shared:
             init["run_scatter"] = rho_init
         if method == "nuts":
@@ -953,19 +1002,31 @@ def fit_campaign(
         timings["sampling"] += time.perf_counter() - t0
         post = idata["posterior"]
         draws = np.stack([np.asarray(post[n].values).reshape(-1) for n in free], axis=-1)
+        room = _box_room(draws, box, bounds)
         edge = surrogate.edge_fraction(jnp.asarray(draws), bounds)
-        cut = [f"{n} ({100 * e:.0f} %)" for n, e in zip(free, edge, strict=True) if e > 0.05]
+        cut = [
+            f"{n} ({r:.1f} sd, {100 * e:.0f} % of the draws at the face)"
+            for n, r, e in zip(free, room, edge, strict=True)
+            if r < _BOX_ROOM_SD or e > 0.05
+        ]
         if not cut:
             break
         message = (
-            f"surrogate box {stage + 1}: draws of {', '.join(cut)} lie at a face of the box "
-            "that is not a bound: the box, not the data, cuts the posterior"
+            f"surrogate box {stage + 1}: a face of the box that is not a bound lies within "
+            f"{_BOX_ROOM_SD:g} posterior sds of the mean for {', '.join(cut)}: the box, not "
+            "the data, may cut the posterior"
         )
         if stage < settings.box_moves:
-            message += "; the box was moved to the posterior mean and the posterior resampled"
+            message += (
+                "; the box was moved to the posterior mean, widened to at least "
+                f"{_BOX_NEW_SD:g} sds each side, and the posterior resampled"
+            )
             centre = draws.mean(axis=0)
-            sigma = np.asarray(post["sigma_model"].values)
-            sigma_init = jnp.asarray(sigma.reshape(-1, sigma.shape[-1]).mean(axis=0))
+            span = bounds[1] - bounds[0]
+            wider = np.minimum(1.0, _BOX_NEW_SD * draws.std(axis=0) / span)
+            fractions = jnp.maximum(fractions, jnp.asarray(wider))
+            sigma = np.asarray(post[_sigma_site(error)].values)
+            sigma_init = jnp.asarray(sigma.reshape(-1, *sigma.shape[2:]).mean(axis=0))
             if error.shared:
                 rho = np.asarray(post["run_scatter"].values)
                 rho_init = jnp.asarray(rho.reshape(-1, rho.shape[-1]).mean(axis=0))
@@ -1008,7 +1069,7 @@ def _add_predictive(idata: az.InferenceData, model, n_draws: int, key: jax.Array
     keep = slice(None, None, step)
     samples = {
         name: jnp.asarray(np.asarray(post[name].values)[:, keep]).reshape(-1, *post[name].shape[2:])
-        for name in ("z", "sigma_model", "run_scatter")
+        for name in ("z", "sigma_model", "sigma_operating", "run_scatter")
         if name in post
     }
     kept = len(range(n_draw)[keep])
@@ -1082,6 +1143,8 @@ def posterior_predictive(
     pick = np.resize(np.linspace(0, total - 1, min(n_draws, total)).round().astype(int), n_draws)
     sigma = np.asarray(result.model_error_draws())
     sigma = sigma[pick % len(sigma)]
+    sigma_op = result.discrepancy_draws()
+    sigma_op = sigma_op[pick % len(sigma_op)]
     rho = np.asarray(result.run_scatter_draws())
     rho = rho[pick % len(rho)]
     mean, ok = _draw_features(result, system, data, duration, draws, pick)
@@ -1095,7 +1158,7 @@ def posterior_predictive(
             max_motion_s=result.settings.max_motion_s,
         )
         cal_mean, cal_ok = _draw_features(result, system, calibration, cal_duration, draws, pick)
-        delta_mean, delta_var = _discrepancy_posterior(calibration, cal_mean, sigma, rho)
+        delta_mean, delta_var = _discrepancy_posterior(calibration, cal_mean, sigma_op, rho)
         ok = ok & cal_ok
         ops = np.asarray(data.operating)[np.asarray(data.run_operating)]
         measured = np.asarray(calibration.operating)
@@ -1136,7 +1199,7 @@ def _draw_features(
 def _discrepancy_posterior(
     data: CalibrationData,
     simulated: Float[np.ndarray, "draw run channel band"],
-    sigma: Float[np.ndarray, "draw channel"],
+    sigma: Float[np.ndarray, "draw *op channel"],
     rho: Float[np.ndarray, "draw channel"],
 ) -> tuple[Float[np.ndarray, "draw op channel band"], Float[np.ndarray, "draw op channel band"]]:
     """Per draw, mean and variance of the discrepancy at each operating point of ``data``."""
@@ -1145,7 +1208,7 @@ def _discrepancy_posterior(
         features = DiscrepancyNormal(
             jnp.asarray(loc),
             data.welch_variance[:, None, None] * r[None, :, None] ** 2,
-            jnp.broadcast_to(s[None, :, None] ** 2, (data.operating.shape[0], *loc.shape[1:])),
+            jnp.broadcast_to(s[..., None] ** 2, (data.operating.shape[0], *loc.shape[1:])),
             data.run_operating,
         )
         return features.discrepancy_posterior(data.y)

@@ -383,3 +383,86 @@ def test_bad_inputs_are_refused_with_the_fix(fitted):
         train_ensemble(np.full_like(x, np.nan), y, CLASSES, key=jax.random.key(0))
     with pytest.raises(ValueError, match="class names"):
         train_ensemble(x, y, ("a", "b", "c", "d"), key=jax.random.key(0), network=NetworkConfig())
+
+
+#: posterior mean of the model-error scale per channel (log10 decades) of the NUTS fit of the
+#: demo campaign's calibration runs in results/classification.md (a fit takes minutes)
+FIT_SIGMA_MODEL = np.array([0.307, 0.081, 0.014, 0.013])
+
+
+@pytest.mark.slow
+def test_ood_on_the_demo_campaign(tmp_path):
+    """The door and the virtual rig: measured runs of known states pass, altered ones do not.
+
+    Training data: 150 simulated runs per state, 5 % Gaussian scatter around the rig's true
+    parameters (so that no fit is needed; the reduced model still differs from the rig). Model
+    error: the 10 healthy calibration runs' residuals plus the Welch scatter and the fit's
+    model-error scale. The 300 test runs are scored only.
+    """
+    from bayesdoor.datagen import (
+        GaussianScatter,
+        GenerationConfig,
+        calibration_residuals,
+        campaign_features,
+        generate,
+        measurement_variance,
+    )
+    from bayesdoor.datasets import load_demo_campaign, load_demo_truth
+    from bayesdoor.systems import ElevatorDoor
+
+    campaign = load_demo_campaign()
+    truth = load_demo_truth()["parameters"]
+    door = ElevatorDoor()
+    center = {p.name: float(truth[p.name]) for p in door.parameters}
+    split = np.asarray(campaign["split"].values).astype(str)
+    calibration = campaign.isel(run=np.flatnonzero(split == "calibration"))
+    test = campaign.isel(run=np.flatnonzero(split == "test"))
+    config = GenerationConfig(np.unique(campaign["v_max"].values), runs_per_state=150)
+    data = generate(
+        door,
+        GaussianScatter.around(door, center),
+        config,
+        tmp_path,
+        key=jax.random.key(0),
+        progress=False,
+    )
+    train, val = data.subset("train"), data.subset("validation")
+    ensemble = train_ensemble(
+        train.features,
+        train.labels,
+        data.states,
+        key=jax.random.key(1),
+        config=TrainConfig(members=2, epochs=2),
+        progress="none",
+    ).ensemble
+    residuals = calibration_residuals(
+        data,
+        campaign_features(calibration),
+        calibration["v_max"].values,
+        state="healthy",
+    )
+    variance = measurement_variance(data, FIT_SIGMA_MODEL[None, :])
+    draws = model_error_draws(4000, key=jax.random.key(2), residuals=residuals, variance=variance)
+    plain = fit_ood(ensemble, train.features, train.labels, val.features)
+    aware = fit_ood(
+        ensemble,
+        train.features,
+        train.labels,
+        val.features,
+        model_error=draws,
+        key=jax.random.key(3),
+    )
+    acc = test["acceleration"].transpose("run", "channel", "time")
+    signals = np.asarray(acc.values)
+
+    def features(x):
+        return campaign_features(test.assign(acceleration=(acc.dims, x)))
+
+    measured_runs = features(signals)
+    assert _flag_rate(plain, measured_runs) > 0.9  # simulations alone: everything is flagged
+    # with the model error: few (the D1 runs the healthy residuals do not cover, a few %)
+    assert _flag_rate(aware, measured_runs) <= 0.1
+    assert _flag_rate(aware, features(signals[:, [2, 3, 0, 1]])) >= 0.95  # sensors swapped
+    t = np.asarray(test["time"].values)
+    hum = 0.3 * np.cos(2 * np.pi * 50.0 * t)  # a strong 50 Hz line on every channel
+    assert _flag_rate(aware, features(signals + hum)) >= 0.95

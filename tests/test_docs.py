@@ -67,6 +67,9 @@ def test_strict_build_renders_the_re_exported_api(site):
     page = (site / "api" / "inference" / "index.html").read_text()
     for name in ("fit_campaign", "sample_nuts", "minimize_cmaes", "SamplingTransform"):
         assert f'id="bayesdoor.inference.{name}"' in page, name
+    # Sphinx roles in the docstrings (``:meth:`from_covariance```) are shown as inline code
+    assert ":meth:" not in page and ":func:" not in page
+    assert "<code>from_covariance</code>" in page
 
 
 def test_results_tables_are_published_and_linked(site):

@@ -7,9 +7,9 @@ the ``Parameters`` section of its docstring (which documents the fields, as nump
 constructor) is reported as naming parameters that do not exist.
 
 The rules follow ``dataclasses`` as equinox applies them: fields are the annotated class
-attributes of the class and of its ``eqx.Module`` bases (bases first), a class attribute
-annotated ``ClassVar``, a property or an ``eqx.field(init=False)`` is no parameter, and a class that defines
-``__init__`` itself, or inherits one from a module base, keeps it.
+attributes of the class and of its ``eqx.Module`` bases (bases first); a class attribute
+annotated ``ClassVar``, a property or an ``eqx.field(init=False)`` is no parameter; a class
+that defines ``__init__`` itself, or inherits one from a module base, keeps it.
 """
 
 from __future__ import annotations

@@ -17,9 +17,10 @@ from .._types import Array, Float, Int
 class MahalanobisOOD(eqx.Module):
     """Distance of a (standardised, flattened) input to the nearest training class mean.
 
-    The features are whitened with a shared (tied) within-class covariance, so the score is
+    The features are whitened with a shared (tied) within-class covariance, plus the second
+    moment of the model error when it was given (:func:`fit_mahalanobis`), so the score is
     ``min_k sqrt((f - mu_k)^T Sigma^-1 (f - mu_k))``: the Mahalanobis distance to the closest
-    class, in units of the training data's own scatter. An input is flagged when its score
+    class, in units of the reference distribution's scatter. An input is flagged when its score
     exceeds ``threshold``, a high quantile of the score on held-out in-distribution data.
 
     Parameters

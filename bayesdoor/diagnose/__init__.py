@@ -8,6 +8,10 @@ features and ranks the candidates.
 from ._coherence import CoherenceMap as CoherenceMap
 from ._coherence import PairCoherence as PairCoherence
 from ._coherence import coherence_map as coherence_map
+from ._extend import HeldExtension as HeldExtension
+from ._extend import VerdictExtension as VerdictExtension
+from ._extend import extend_system as extend_system
+from ._extend import verdict_extension as verdict_extension
 from ._features import Features as Features
 from ._features import find_features as find_features
 from ._gain import DECISIVE_SE as DECISIVE_SE

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+import scipy.optimize
 
 from .._types import Float, Int
 from ._gain import estimate_discrepancy, log_predictive
@@ -417,6 +418,27 @@ def _laplace_sd(
     return np.where(var > 0, np.sqrt(np.abs(var)) * width, np.nan)
 
 
+def _minimize_scalar(
+    objective: Callable[[np.ndarray], np.ndarray], lower: float, upper: float, max_evals: int
+) -> tuple[float, np.ndarray, int]:
+    """One bounded parameter (pycma needs two or more): a grid of ``2 POPULATION`` points,
+    then bounded Brent within the best point's neighbours."""
+    grid = np.linspace(lower, upper, 2 * POPULATION)
+    values = objective(grid[:, None])
+    i = int(np.argmin(values))
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    budget = max(max_evals - len(grid), 8)
+    result = scipy.optimize.minimize_scalar(
+        lambda u: float(objective(np.array([[u]]))[0]),
+        bounds=(lo, hi),
+        method="bounded",
+        options={"maxiter": budget, "xatol": 1e-4 * (upper - lower)},
+    )
+    if result.fun <= values[i]:
+        return float(result.fun), np.array([result.x]), len(grid) + int(result.nfev)
+    return float(values[i]), np.array([grid[i]]), len(grid) + int(result.nfev)
+
+
 def _parabola(points: np.ndarray, values: np.ndarray, best: int) -> tuple[float, float]:
     """Vertex and standard deviation of a negative log density sampled on a 1-D grid.
 
@@ -506,19 +528,25 @@ def refit_extension(
     evaluations = 0
     for g_index, point in enumerate(grid):
         objective = objective_at(dict(zip(gridded, point, strict=True)))
-        result = minimize_cmaes(
-            objective,
-            start[search],
-            lower=lower[search],
-            upper=upper[search],
-            seed=seed + 1 + g_index,
-            sigma0=0.2,
-            max_evals=max_evals,
-            popsize=POPULATION,
-            progress=progress,
-        )
-        evaluations += result.evaluations
-        outcomes.append((float(result.f_best), np.asarray(result.x_best, dtype=float), point))
+        if len(search) == 1:
+            f_best, x_best, spent = _minimize_scalar(
+                objective, float(lower[search][0]), float(upper[search][0]), max_evals
+            )
+        else:
+            result = minimize_cmaes(
+                objective,
+                start[search],
+                lower=lower[search],
+                upper=upper[search],
+                seed=seed + 1 + g_index,
+                sigma0=0.2,
+                max_evals=max_evals,
+                popsize=POPULATION,
+                progress=progress,
+            )
+            f_best, x_best, spent = result.f_best, result.x_best, result.evaluations
+        evaluations += spent
+        outcomes.append((float(f_best), np.asarray(x_best, dtype=float), point))
     values_f = np.array([o[0] for o in outcomes])
     best = int(np.argmin(values_f))
     _, x_search, point = outcomes[best]

@@ -192,7 +192,7 @@ def test_bad_campaigns_fail_in_one_line_before_any_work(calls, tmp_path):
     one_line_failure(invoke("diagnose", tmp_path / "nope.nc", "--out", out), "no such file")
     text = tmp_path / "text.nc"
     text.write_text("not netcdf")
-    one_line_failure(invoke("diagnose", text, "--out", out), "not a readable campaign")
+    one_line_failure(invoke("diagnose", text, "--out", out), "not a readable NetCDF campaign file")
     faulty = door_file(tmp_path / "faulty.nc", ["D1", "D2"])
     one_line_failure(invoke("diagnose", faulty, "--out", out), "no healthy run", "1 D1, 1 D2")
     assert not out.exists() and calls == []

@@ -133,7 +133,7 @@ def test_run_bad_options_and_files(tmp_path):
     text = tmp_path / "text.nc"
     text.write_text("not netcdf")
     garbled = invoke("run", text, "--out", tmp_path / "j")
-    assert garbled.exit_code == 2 and "not a readable campaign" in garbled.output
+    assert garbled.exit_code == 2 and "not a readable NetCDF campaign file" in garbled.output
     assert not (tmp_path / "j").exists()
 
 

@@ -304,7 +304,7 @@ def test_unreadable_or_missing_file_fails_with_one_line(tmp_path):
     result = invoke(bogus)
     assert result.exit_code != 0
     assert len(result.stderr.strip().splitlines()) == 1
-    assert "bogus.nc is a text file (it starts 'not netcdf'), not a NetCDF" in result.stderr
+    assert "bogus.nc is not a readable NetCDF campaign file: it is a text file" in result.stderr
     assert bogus.read_text() == "not netcdf"
     missing = invoke(tmp_path / "nothing.nc")
     assert missing.exit_code != 0 and "no campaign at" in missing.stderr

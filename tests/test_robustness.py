@@ -203,11 +203,11 @@ COMMANDS = {
 }
 #: the files that are not a campaign, and what the message must say about each
 NOT_A_CAMPAIGN = {
-    "png": "is a PNG image, not a NetCDF campaign file",
-    "csv": "is a text file (it starts 'time,A1X,A1Z,A2X,A2Z'), not a NetCDF campaign file; "
-    "a campaign in CSV files is a folder of them",
-    "truncated": "truncated by an interrupted copy or download",
-    "zero_bytes": "is empty (0 bytes)",
+    "png": "is not a readable NetCDF campaign file: it is a PNG image; pass the campaign's .nc",
+    "csv": "is not a readable NetCDF campaign file: it is a text file (it starts "
+    "'time,A1X,A1Z,A2X,A2Z'); a campaign in CSV files is a folder of them",
+    "truncated": "it is NetCDF but cannot be read",
+    "zero_bytes": "is not a readable NetCDF campaign file: it is empty (0 bytes)",
     "folder": "is a folder, not a campaign file",
 }
 
@@ -222,7 +222,10 @@ def test_a_file_that_is_not_a_campaign(files, tmp_path, command, case):
     if command == "inspect" and case == "folder":
         refused(result, "no *.csv files in", str(path))  # a folder is read as CSV files
     else:
-        refused(result, str(path), NOT_A_CAMPAIGN[case])
+        line = refused(result, str(path), NOT_A_CAMPAIGN[case])
+        if case == "truncated":
+            size = path.stat().st_size
+            assert f"(a) truncated by an interrupted copy or download (it has {size} bytes)" in line
     assert not out.exists()
     assert snapshot(path.parent) == before
 

@@ -34,7 +34,7 @@ def load(path: Path) -> xr.Dataset:
     try:
         campaign = load_campaign(path, check=False)
     except (OSError, ValueError) as err:
-        raise fail(f"not a readable campaign: {err}") from None
+        raise fail(str(err)) from None
     if "acceleration" not in campaign or "run" not in campaign["acceleration"].dims:
         raise fail(f"{path} has no 'acceleration' (run, channel, time) variable: not a campaign")
     if campaign.sizes["run"] == 0:

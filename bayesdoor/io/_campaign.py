@@ -210,21 +210,22 @@ def _unreadable(path: Path, err: Exception) -> str:
     size = path.stat().st_size
     with open(path, "rb") as f:
         head = f.read(512)
+    start = f"{path} is not a readable NetCDF campaign file"
     if size == 0:
         return (
-            f"{path} is empty (0 bytes): (a) an interrupted copy or download, (b) a failed "
+            f"{start}: it is empty (0 bytes): (a) an interrupted copy or download, (b) a failed "
             "write; copy or record it again"
         )
     if head.startswith(_NETCDF_MAGIC):
         reason = str(err).splitlines()[0] if str(err) else type(err).__name__
         return (
-            f"{path} is a NetCDF file that cannot be read ({reason}): (a) truncated by an "
+            f"{start}: it is NetCDF but cannot be read ({reason}): (a) truncated by an "
             f"interrupted copy or download (it has {size} bytes), (b) corrupted; copy or "
             "record it again"
         )
     for magic, kind in _OTHER_MAGIC.items():
         if head.startswith(magic):
-            return f"{path} is {kind}, not a NetCDF campaign file: pass the campaign's .nc file"
+            return f"{start}: it is {kind}; pass the campaign's .nc file"
     # a cut multi-byte character at the end of the head is dropped, not a sign of binary
     text = head.decode("utf-8", errors="ignore")
     if all(c.isprintable() or c in "\t\r\n" for c in text):
@@ -233,10 +234,10 @@ def _unreadable(path: Path, err: Exception) -> str:
             "; a campaign in CSV files is a folder of them: read it with from_csv (or "
             "'bayesdoor inspect FOLDER')"
             if "," in first
-            else ""
+            else "; pass the campaign's .nc file"
         )
-        return f"{path} is a text file (it starts {first!r}), not a NetCDF campaign file{hint}"
+        return f"{start}: it is a text file (it starts {first!r}){hint}"
     return (
-        f"{path} is not a NetCDF file (its first bytes are {head[:8]!r}): pass a campaign "
-        "written by save_campaign or 'bayesdoor simulate'"
+        f"{start}: its first bytes are {head[:8]!r}; pass a campaign written by "
+        "save_campaign or 'bayesdoor simulate'"
     )

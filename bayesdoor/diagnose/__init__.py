@@ -8,10 +8,6 @@ features and ranks the candidates.
 from ._coherence import CoherenceMap as CoherenceMap
 from ._coherence import PairCoherence as PairCoherence
 from ._coherence import coherence_map as coherence_map
-from ._extend import HeldExtension as HeldExtension
-from ._extend import VerdictExtension as VerdictExtension
-from ._extend import extend_system as extend_system
-from ._extend import verdict_extension as verdict_extension
 from ._features import Features as Features
 from ._features import find_features as find_features
 from ._gain import DECISIVE_SE as DECISIVE_SE
@@ -64,3 +60,11 @@ from ._welch_stats import welch_dof as welch_dof
 from ._welch_stats import windowed_log_psd as windowed_log_psd
 from ._within import WithinRunFit as WithinRunFit
 from ._within import within_run_speed as within_run_speed
+
+# isort: split
+# last: the extended systems subclass bayesdoor.systems.AbstractSystem, and importing
+# bayesdoor.systems imports the door catalogue, which needs the names above
+from ._extend import HeldExtension as HeldExtension
+from ._extend import VerdictExtension as VerdictExtension
+from ._extend import extend_system as extend_system
+from ._extend import verdict_extension as verdict_extension

@@ -199,3 +199,42 @@ def test_gain_script_runs_one_tiny_case(tmp_path):
     for key in ("verdict", "base", "extended"):
         assert key in row
     assert 0.0 <= row["base"]["accuracy"] <= 1.0
+
+
+# ---------------------------------------------------------------------------------------------
+# provenance: an extended fit is never taken for a base one
+
+
+@pytest.fixture(scope="module")
+def base_fit():
+    """A made-up fit of the base door (``test_json_contract``) that records its system."""
+    from test_json_contract import made_up_fit
+
+    door = ElevatorDoor()
+    fit = made_up_fit(door, None, seed=0)
+    return dataclasses.replace(fit, system=door.describe())
+
+
+def test_a_fit_records_its_system_and_refuses_another(base_fit, tmp_path):
+    from bayesdoor.inference import FitResult, load_posterior, posterior_system, record_system
+
+    door = ElevatorDoor()
+    record_system(base_fit.idata, door.describe())
+    base_fit.save(tmp_path / "fit")
+    loaded = FitResult.load(tmp_path / "fit")
+    assert loaded.system == json.loads(json.dumps(door.describe()))
+    assert posterior_system(load_posterior(tmp_path / "fit" / "posterior.nc")) == loaded.system
+    loaded.check_system(door)
+    extended = door.with_extensions(SensorCrossAxis(sensor="A2", into="Z"))
+    with pytest.raises(ValueError, match=r"without extensions, not with extensions \[sensor_cro"):
+        loaded.check_system(extended)
+    held = HeldExtension(extended, (("sensor_cross_axis.fraction", 0.1),))
+    with pytest.raises(ValueError, match=r"held at \{'sensor_cross_axis.fraction': 0.1\}"):
+        loaded.check_system(held)
+    # the same held system, rebuilt, is accepted; a fit without a record is judged by names
+    dataclasses.replace(loaded, system=held.describe()).check_system(
+        HeldExtension(door.with_extensions(SensorCrossAxis(sensor="A2", into="Z")), held.held)
+    )
+    dataclasses.replace(loaded, system=None).check_system(held)
+    with pytest.raises(ValueError, match="with the parameters"):
+        dataclasses.replace(loaded, system=None).check_system(extended)

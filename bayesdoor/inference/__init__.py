@@ -28,6 +28,8 @@ from ._parameterisation import SamplingTransform as SamplingTransform
 from ._posterior import POSTERIOR_GROUPS as POSTERIOR_GROUPS
 from ._posterior import configuration_hash as configuration_hash
 from ._posterior import load_posterior as load_posterior
+from ._posterior import posterior_system as posterior_system
+from ._posterior import record_system as record_system
 from ._posterior import save_posterior as save_posterior
 from ._samplers import sample_emcee as sample_emcee
 from ._samplers import sample_nuts as sample_nuts

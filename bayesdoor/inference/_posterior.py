@@ -203,6 +203,27 @@ def to_inference_data(
     return idata
 
 
+#: the provenance attribute holding the fitted system's description (JSON)
+SYSTEM_ATTR = "system"
+
+
+def record_system(idata: az.InferenceData, description: Mapping[str, Any]) -> None:
+    """Record the fitted system's ``describe()`` on every group (attribute :data:`SYSTEM_ATTR`).
+
+    An extended system (a model extension switched on, or held at values) has another
+    description than the base one, so its posterior is never taken for the base model's.
+    """
+    text = json.dumps(dict(description), sort_keys=True)
+    for group in idata.groups():
+        idata[group].attrs[SYSTEM_ATTR] = text
+
+
+def posterior_system(idata: az.InferenceData) -> dict[str, Any] | None:
+    """The system description :func:`record_system` recorded (``None``: not recorded)."""
+    text = idata["posterior"].attrs.get(SYSTEM_ATTR)
+    return None if text is None else json.loads(text)
+
+
 def save_posterior(idata: az.InferenceData, path: str | Path, *, overwrite: bool = False) -> Path:
     """Write a posterior to NetCDF atomically (a temporary file in the folder, then a rename).
 

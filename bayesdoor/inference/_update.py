@@ -51,7 +51,7 @@ from ._likelihood import (
     make_model,
 )
 from ._parameterisation import SamplingTransform
-from ._posterior import load_posterior, save_posterior
+from ._posterior import load_posterior, record_system, save_posterior
 from ._samplers import sample_emcee, sample_nuts
 from ._surrogate import box_around, fit_surrogate
 
@@ -452,6 +452,9 @@ class FitResult:
         Seconds spent per stage.
     seed
         The seed.
+    system
+        The fitted system's :meth:`~bayesdoor.systems.AbstractSystem.describe` (its
+        extensions and their configuration); ``None`` for fits written before it was recorded.
     """
 
     method: str
@@ -475,6 +478,32 @@ class FitResult:
     notes: tuple[str, ...]
     timings: dict[str, float]
     seed: int
+    system: dict[str, Any] | None = None
+
+    def check_system(self, system: AbstractSystem, *, source: str = "the fit") -> None:
+        """Refuse a fit of another system configuration (an extended system for a base one).
+
+        Fits recorded without a description are compared by their parameter names.
+
+        Raises
+        ------
+        ValueError
+            In one line, naming both descriptions' extensions and the fix.
+        """
+        if self.system is None:
+            if set(self.point) == set(system.parameter_names()):
+                return
+            recorded: Any = sorted(self.point)
+            expected: Any = list(system.parameter_names())
+        else:
+            recorded, expected = _described(self.system), _described(system.describe())
+            if recorded == expected:
+                return
+        raise ValueError(
+            f"{source} was made for {system.name} {_extensions_text(recorded)}, not "
+            f"{_extensions_text(expected)} as given: refit with this system, or pass the "
+            "system the fit was made for"
+        )
 
     def posterior_draws(self) -> dict[str, np.ndarray]:
         """Draws of every continuous parameter, chains flattened (``cmaes``: the point once)."""
@@ -599,6 +628,7 @@ class FitResult:
             "notes": list(self.notes),
             "timings": self.timings,
             "seed": self.seed,
+            "system": self.system,
             "diagnostics": None if self.diagnostics is None else self.diagnostics.to_json(),
             "cmaes": {
                 "x_best": self.cmaes.x_best.tolist(),
@@ -683,7 +713,26 @@ class FitResult:
             notes=tuple(r["notes"]),
             timings=dict(r["timings"]),
             seed=int(r["seed"]),
+            system=r.get("system"),
         )
+
+
+def _described(description: dict[str, Any]) -> Any:
+    """A description as plain JSON values (tuples as lists), for comparison."""
+    return json.loads(json.dumps(description, sort_keys=True, default=_json_default))
+
+
+def _extensions_text(described: Any) -> str:
+    """The extensions (and held values) of a description, or its parameter names, in words."""
+    if not isinstance(described, dict):
+        return f"with the parameters {described}"
+    parts = [
+        f"{e['name']}({', '.join(f'{k}={v!r}' for k, v in e.get('config', {}).items())})"
+        for e in described.get("extensions", [])
+    ]
+    text = f"with extensions [{', '.join(parts)}]" if parts else "without extensions"
+    held = described.get("held")
+    return f"{text} held at {held}" if held else text
 
 
 def _json_default(value: Any) -> Any:
@@ -913,6 +962,7 @@ def fit_campaign(
         runs=runs,
         duration=duration,
         seed=seed,
+        system=system.describe(),
     )
     if method == "cmaes":
         return FitResult(
@@ -1044,6 +1094,7 @@ def fit_campaign(
             warnings.warn(w.message, w.category, stacklevel=2)
 
     _add_predictive(idata, model, settings.predictive_draws, key_pred)
+    record_system(idata, system.describe())
     point = {n: float(np.mean(draws[:, i])) for i, n in enumerate(free)}
     point.update(fixed_law)
     j = float(batch(np.array([point[n] for n in search]))[0])

@@ -610,3 +610,34 @@ def test_fit_killed_half_way_keeps_the_previous_fit_and_the_rerun_completes(
     }
     assert all(after[name] != before[name] for name in before)
     assert json.loads(after["fit_summary.json"])["method"] == "nuts"
+
+
+def test_a_forced_point_fit_removes_the_posterior_it_replaces(files, tmp_path, monkeypatch):
+    """After ``--force`` the folder describes the new fit alone: a CMA-ES fit over a NUTS fit
+    leaves no ``posterior.nc``, pair or trace plot of the old one."""
+    import dataclasses
+
+    from test_json_contract import made_up_fit, made_up_predictive
+
+    import bayesdoor.inference
+
+    def point_fit(*args, **options):
+        fit = made_up_fit(*args, **options)
+        return dataclasses.replace(fit, method="cmaes", idata=None, diagnostics=None)
+
+    monkeypatch.setattr(bayesdoor.inference, "posterior_predictive", made_up_predictive)
+    out = tmp_path / "fit"
+    monkeypatch.setattr(bayesdoor.inference, "fit_campaign", made_up_fit)
+    assert invoke("fit", files["good"], "--out", out, "--method", "nuts").exit_code == 0
+    assert {"posterior.nc", "pairs.png", "trace.png"} <= set(snapshot(out))
+    monkeypatch.setattr(bayesdoor.inference, "fit_campaign", point_fit)
+    args = ["fit", files["good"], "--out", out, "--method", "cmaes", "--force", "--json"]
+    result = invoke(*args)
+    assert result.exit_code == 0, result.output
+    assert set(snapshot(out)) == {
+        "fit.json",
+        "fit_summary.json",
+        "cmaes_history.png",
+        "predictive_psd.png",
+    }
+    assert json.loads(result.stdout)["method"] == "cmaes"

@@ -641,3 +641,20 @@ def test_a_forced_point_fit_removes_the_posterior_it_replaces(files, tmp_path, m
         "predictive_psd.png",
     }
     assert json.loads(result.stdout)["method"] == "cmaes"
+
+
+def test_demo_with_a_damaged_cache_says_how_to_record_it_again(tmp_path, monkeypatch):
+    """A demo campaign cut short in the cache (a full disk, a copy gone wrong)."""
+    from bayesdoor.datasets import demo_paths
+
+    monkeypatch.setenv("BAYESDOOR_DATA", str(tmp_path / "cache"))
+    nc, truth = demo_paths()
+    nc.parent.mkdir()
+    good = save_campaign(campaign(), tmp_path / "good.nc").read_bytes()
+    nc.write_bytes(good[: len(good) // 3])
+    truth.write_text("{}")
+    out = tmp_path / "demo"
+    line = refused(invoke("demo", "--out", out, "--quick"))
+    assert "is not a readable NetCDF campaign file" in line
+    assert f"delete {nc} and run the demo again to record it anew" in line
+    assert not out.exists()

@@ -144,11 +144,18 @@ def demo(
 ) -> None:
     """`run` on the embedded demo campaign (recorded by the virtual rig on first use)."""
     configure_jax()
-    from ..datasets import load_demo_campaign
+    from ..datasets import demo_paths, load_demo_campaign
     from . import _run
 
+    try:
+        campaign = load_demo_campaign(show_progress=not json)
+    except (OSError, ValueError) as err:
+        raise fail(
+            f"the cached demo campaign cannot be read ({err}): delete {demo_paths()[0]} and run "
+            "the demo again to record it anew"
+        ) from None
     _run.run(
-        load_demo_campaign(show_progress=not json),
+        campaign,
         out,
         quick=quick,
         seed=seed,

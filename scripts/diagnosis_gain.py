@@ -1,0 +1,426 @@
+"""The downstream gain of a diagnosed extension -> results/diagnosis_gain.md.
+
+Each case hides one catalogue effect, drawn by the rig's ``from_seed(seed)`` (parameters the
+seed's, not chosen to suit anything), in every run of a virtual-rig campaign planned like the
+demo campaign (healthy calibration runs; healthy, D1 and D2 test runs at 0.3, 0.4 and 0.5 m/s,
+severities from their priors), then:
+
+1. the main job (``bayesdoor.pipeline.run_job``) with the base door: fit on the calibration
+   runs, training data, ensemble; accuracy and ECE on the test runs;
+2. ``bayesdoor.diagnose.diagnose_campaign`` under that job's fit: the verdict and its held-out
+   J and ELPD gain on the calibration runs;
+3. the main job again with ``bayesdoor.diagnose.extend_system(door, diagnosis)``: the
+   verdict's extension as its refit configured it, held at the refitted values (the door's
+   own parameters refitted); accuracy and ECE on the same test runs. A verdict ``none``
+   leaves the door as it is (the base job's numbers are repeated).
+
+The test runs are never used by the fits, the diagnosis or the training. Every step is saved
+under ``--work`` (the campaign, both jobs' stages, the diagnosis, one JSON per finished case),
+so an interrupted command continues where it stopped. Cases run in parallel processes
+(``--jobs``), one CPU thread each.
+
+Usage::
+
+    .venv/bin/python scripts/diagnosis_gain.py [--quick] [--effects frame_mode ...]
+        [--seeds 0 1 ...] [--test-per-state N] [--jobs N] [--work out/diagnosis_gain]
+        [--out results/diagnosis_gain.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import dataclasses
+import hashlib
+import json
+import multiprocessing
+import os
+import pickle
+import platform
+import sys
+import time
+import traceback
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+#: effects that act on what the classifier sees without a new solve (the ones named by the
+#: issue first); the others can be asked for with --effects
+EFFECTS = ("frame_mode", "sensor_cross_axis", "mains_hum", "wheel_eccentricity", "rail_waviness")
+DEFAULT_EFFECTS = ("frame_mode", "sensor_cross_axis", "mains_hum")
+SPEEDS = (0.3, 0.4, 0.5)
+#: record length of the demo campaign (s): rest, the slowest stroke, rest
+DURATION_S = 3.7
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """What a case depends on (its hash names the case's folder)."""
+
+    quick: bool
+    calibration_runs: int
+    test_per_state: int
+    method: str
+    source: str
+    runs_per_state: int
+
+    def digest(self) -> str:
+        text = json.dumps(dataclasses.asdict(self), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:10]
+
+
+# ------------------------------------------------------------------------------ one case
+
+
+def hidden_effect(effect: str, seed: int):
+    """The rig's ``Effects`` with ``effect`` drawn from ``seed``."""
+    from bayesdoor import rig
+
+    kinds = {
+        "frame_mode": rig.FrameMode,
+        "wheel_eccentricity": rig.WheelEccentricity,
+        "rail_waviness": rig.RailWaviness,
+        "sensor_cross_axis": rig.SensorCrossAxis,
+        "mains_hum": rig.MainsHum,
+    }
+    return rig.Effects(**{effect: kinds[effect].from_seed(seed)})
+
+
+def plan(settings: Settings, seed: int) -> tuple[list[str], np.ndarray, list[str]]:
+    """States, commanded speeds and splits, as the demo campaign plans them (seeded)."""
+    rng = np.random.default_rng(7_000 + seed)
+    test = np.repeat(["healthy", "D1", "D2"], settings.test_per_state)
+    test = test[rng.permutation(test.size)]
+    states = ["healthy"] * settings.calibration_runs + [str(s) for s in test]
+    speeds = np.resize(np.asarray(SPEEDS), len(states))
+    speeds = speeds[rng.permutation(speeds.size)]
+    split = ["calibration"] * settings.calibration_runs + ["test"] * test.size
+    return states, speeds, split
+
+
+def record(effect: str, seed: int, settings: Settings, path: Path):
+    """The case's campaign (recorded by the rig once, then read) and the rig's truth."""
+    import jax
+
+    from bayesdoor.io import load_campaign, save_campaign
+    from bayesdoor.rig import VirtualRig
+
+    effects = hidden_effect(effect, seed)
+    if not path.is_file():
+        states, speeds, split = plan(settings, seed)
+        index = EFFECTS.index(effect) + 1
+        recording = VirtualRig(effects=effects).run(
+            states,
+            speeds,
+            key=jax.random.key(100_000 * index + seed),
+            split=split,
+            duration=DURATION_S,
+        )
+        save_campaign(recording.campaign, path, overwrite=True)
+    return load_campaign(path), effects.to_dict()[effect]
+
+
+def job(system, campaign, out: Path, settings: Settings, seed: int, label: str):
+    """The main job without its report or diagnosis stages; its metrics and wall time."""
+    from bayesdoor.inference import FitSettings
+    from bayesdoor.pipeline import Sizes, run_job
+
+    start = time.perf_counter()
+    sizes = Sizes(runs_per_state=settings.runs_per_state, chunk_size=50)
+    fit = FitSettings.quick() if settings.quick else FitSettings()
+    result = run_job(
+        system,
+        campaign,
+        out,
+        quick=settings.quick,
+        seed=seed,
+        fit_seed=seed,
+        source=settings.source,  # type: ignore[arg-type]
+        method=settings.method,
+        sizes=sizes,
+        fit_options={"settings": fit},
+        progress=False,
+        report=lambda text: print(f"  {label}: {text}", flush=True),
+        html=False,
+        diagnosis=False,
+        overwrite=True,
+    )
+    m = result.classification["metrics"]
+    return {
+        "accuracy": float(m["accuracy"]),
+        "ece": float(m["ece"]),
+        "runs": int(m["runs"]),
+        "fit_j": result.fit.j,
+        "seconds": time.perf_counter() - start,
+        "reused": [s.name for s in result.stages if s.reused],
+    }
+
+
+def diagnose(campaign, fit_folder: Path, path: Path, settings: Settings, seed: int):
+    """The diagnosis under the base job's fit (made once, then read) and its wall time."""
+    from bayesdoor.diagnose import diagnose_campaign
+    from bayesdoor.inference import FitResult
+    from bayesdoor.systems import ElevatorDoor
+    from bayesdoor.systems.door import DOOR_CATALOGUE
+
+    if path.is_file():
+        with open(path, "rb") as f:
+            return pickle.load(f), 0.0
+    start = time.perf_counter()
+    diagnosis = diagnose_campaign(
+        ElevatorDoor(),
+        campaign,
+        fit=FitResult.load(fit_folder),
+        seed=seed,
+        quick=settings.quick,
+        progress=False,
+        catalogue=DOOR_CATALOGUE,
+    )
+    seconds = time.perf_counter() - start
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "wb") as f:
+        pickle.dump(diagnosis, f)
+    os.replace(tmp, path)
+    return diagnosis, seconds
+
+
+def run_case(effect: str, seed: int, settings: Settings, folder: Path) -> dict[str, Any]:
+    """Record, base job, diagnosis, extended job: the case's row."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    jax.config.update("jax_compilation_cache_dir", str(ROOT / ".jax_cache"))
+
+    from bayesdoor.diagnose import extend_system, verdict_extension
+    from bayesdoor.pipeline import json_safe
+    from bayesdoor.systems import ElevatorDoor
+
+    folder.mkdir(parents=True, exist_ok=True)
+    name = f"{effect}-{seed}"
+    start = time.perf_counter()
+    campaign, truth = record(effect, seed, settings, folder / "campaign.nc")
+    recorded = time.perf_counter() - start
+    door = ElevatorDoor()
+    base = job(door, campaign, folder / "base", settings, seed, f"{name} base")
+    diagnosis, diagnose_seconds = diagnose(
+        campaign, folder / "base" / "fit" / "result", folder / "diagnosis.pkl", settings, seed
+    )
+    found = verdict_extension(door, diagnosis)
+    if found is None:
+        extended = dict(base, seconds=0.0, reused=["same as base: verdict none"])
+        configuration, values = None, {}
+    else:
+        extended = job(
+            extend_system(door, diagnosis), campaign, folder / "extended", settings, seed, name
+        )
+        configuration = {"label": found.proposal.label, "extension": repr(found.proposal.extension)}
+        values = found.values
+    cause = next((c for c in diagnosis.causes if c.name == diagnosis.verdict), None)
+    return json_safe(
+        {
+            "effect": effect,
+            "seed": seed,
+            "truth": truth,
+            "verdict": diagnosis.verdict,
+            "signature_verdict": diagnosis.ranking.verdict,
+            "configuration": configuration,
+            "held": values,
+            "gain": None if cause is None or cause.gain is None else cause.gain.to_json(),
+            "notes": list(diagnosis.notes),
+            "base": base,
+            "extended": extended,
+            "record_seconds": recorded,
+            "diagnose_seconds": diagnose_seconds,
+        }
+    )
+
+
+def _case_folder(work: Path, effect: str, seed: int, settings: Settings) -> Path:
+    return work / f"{effect}-{seed}-{settings.digest()}"
+
+
+def _run_and_save(effect: str, seed: int, settings: Settings, folder: str) -> dict[str, Any]:
+    path = Path(folder) / "case.json"
+    try:
+        result = run_case(effect, seed, settings, Path(folder))
+    except Exception as err:  # a failed case is a result too: it is counted, not hidden
+        result = {
+            "effect": effect,
+            "seed": seed,
+            "verdict": None,
+            "error": f"{type(err).__name__}: {err}",
+            "traceback": traceback.format_exc(),
+        }
+        print(result["traceback"], file=sys.stderr, flush=True)
+        return result
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(result, indent=1) + "\n")
+    os.replace(tmp, path)
+    return result
+
+
+# ---------------------------------------------------------------------------------- table
+
+
+def _fmt(value: Any, spec: str = ".3f") -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def _truth_text(effect: str, truth: Mapping[str, Any]) -> str:
+    if effect == "frame_mode":
+        return f"{truth['frequency_hz']:.1f} Hz, zeta {truth['damping_ratio']:.3f}"
+    if effect == "sensor_cross_axis":
+        other = "Z" if truth["into"] == "X" else "X"
+        return f"{truth['sensor']}{truth['into']} reads {truth['fraction']:.3f} {other}"
+    if effect == "mains_hum":
+        return f"{truth['frequency_hz']:g} Hz, {1e3 * truth['amplitude']:.0f} mm/s^2"
+    if effect == "rail_waviness":
+        return f"wavelength {1e3 * truth['wavelength_m']:.1f} mm"
+    return f"{truth.get('wheel', '')} wheel"
+
+
+def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, wall: float) -> str:
+    done = [c for c in cases if c.get("error") is None]
+    failed = [c for c in cases if c.get("error") is not None]
+    lines = [
+        "# Downstream gain of a diagnosed extension",
+        "",
+        f"Command: `{command}`",
+        "",
+        f"Machine: {platform.machine()}, {os.cpu_count()} CPUs; wall time of the command "
+        f"{wall:.0f} s (cases in parallel; finished cases are read, not rerun). Settings: "
+        f"{json.dumps(dataclasses.asdict(settings))}.",
+        "",
+        "Per case: a rig campaign with one effect (``from_seed(seed)``) in every run, "
+        f"{settings.calibration_runs} healthy calibration runs and {settings.test_per_state} "
+        "test runs per state (healthy, D1, D2); the main job with the base door; the diagnosis "
+        "under its fit; the main job with the extended door (the verdict's extension held at "
+        "its refitted values). Accuracy and ECE (15 bins) on the test runs; held-out J and "
+        "ELPD on the calibration runs (the diagnosis's two folds; ELPD difference with its "
+        "standard error). Times in seconds: recording, base job, diagnosis, extended job.",
+        "",
+        "| effect | seed | truth | verdict (configuration) | base acc. | base ECE | "
+        "ext. acc. | ext. ECE | held-out J before -> after | ELPD gain +- se | times |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for c in done:
+        gain = c.get("gain") or {}
+        verdict = c["verdict"]
+        if c.get("configuration"):
+            verdict += f" ({c['configuration']['label']})"
+        j = (
+            f"{gain['j_before']:.4f} -> {gain['j_after']:.4f}"
+            if gain.get("j_before") is not None
+            else "-"
+        )
+        elpd = (
+            f"{gain['delta_elpd']:+.1f} +- {gain['elpd_se']:.1f}"
+            if gain.get("delta_elpd") is not None
+            else "-"
+        )
+        b, e = c["base"], c["extended"]
+        times = (
+            f"{c['record_seconds']:.0f} / {b['seconds']:.0f} / {c['diagnose_seconds']:.0f} / "
+            f"{e['seconds']:.0f}"
+        )
+        lines.append(
+            f"| {c['effect']} | {c['seed']} | {_truth_text(c['effect'], c['truth'])} | "
+            f"{verdict} | {100 * b['accuracy']:.1f} % | {_fmt(b['ece'])} | "
+            f"{100 * e['accuracy']:.1f} % | {_fmt(e['ece'])} | {j} | {elpd} | {times} |"
+        )
+    for c in failed:
+        lines.append(f"| {c['effect']} | {c['seed']} | failed: {c['error'][:200]} |")
+    changed = [c for c in done if c.get("configuration")]
+    if changed:
+        d_acc = np.array([c["extended"]["accuracy"] - c["base"]["accuracy"] for c in changed])
+        d_ece = np.array([c["extended"]["ece"] - c["base"]["ece"] for c in changed])
+        lines += [
+            "",
+            f"Over the {len(changed)} cases with an extension: accuracy change "
+            f"{100 * d_acc.mean():+.1f} points (range {100 * d_acc.min():+.1f} to "
+            f"{100 * d_acc.max():+.1f}), ECE change {d_ece.mean():+.3f} (range "
+            f"{d_ece.min():+.3f} to {d_ece.max():+.3f}); "
+            f"{sum(c['verdict'] == c['effect'] for c in done)} of {len(done)} verdicts name the "
+            "hidden effect.",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="quick fits and diagnosis, 10 test runs per state, 60 training runs per state",
+    )
+    parser.add_argument("--effects", nargs="+", default=None, choices=EFFECTS)
+    parser.add_argument("--seeds", type=int, nargs="+", default=None, help="default 0-2 (quick 0)")
+    parser.add_argument("--test-per-state", type=int, default=None, help="default 30 (quick 10)")
+    parser.add_argument("--calibration-runs", type=int, default=10)
+    parser.add_argument(
+        "--runs-per-state", type=int, default=None, help="training runs (default 600, quick 60)"
+    )
+    parser.add_argument("--method", default="nuts", choices=("nuts", "emcee"))
+    parser.add_argument("--source", default="posterior")
+    parser.add_argument("--jobs", type=int, default=1, help="cases in parallel (processes)")
+    parser.add_argument("--work", type=Path, default=ROOT / "out" / "diagnosis_gain")
+    parser.add_argument("--out", type=Path, default=ROOT / "results" / "diagnosis_gain.md")
+    args = parser.parse_args(argv)
+
+    effects = args.effects or (["sensor_cross_axis"] if args.quick else list(DEFAULT_EFFECTS))
+    seeds = args.seeds if args.seeds is not None else ([0] if args.quick else [0, 1, 2])
+    settings = Settings(
+        quick=args.quick,
+        calibration_runs=args.calibration_runs,
+        test_per_state=args.test_per_state or (10 if args.quick else 30),
+        method=args.method,
+        source=args.source,
+        runs_per_state=args.runs_per_state or (60 if args.quick else 600),
+    )
+    cases = [(e, s) for e in effects for s in seeds]
+    args.work.mkdir(parents=True, exist_ok=True)
+    folders = {c: _case_folder(args.work, *c, settings) for c in cases}
+    todo = [c for c in cases if not (folders[c] / "case.json").is_file()]
+    print(f"{len(cases)} cases, {len(cases) - len(todo)} done, {args.jobs} jobs", flush=True)
+    start = time.perf_counter()
+    results: dict[tuple[str, int], dict[str, Any]] = {}
+
+    def finished(case: tuple[str, int], row: dict[str, Any]) -> None:
+        results[case] = row
+        print(
+            f"[{time.perf_counter() - start:6.0f} s] {case[0]} seed {case[1]}: verdict "
+            f"{row.get('verdict')} {row.get('error', '')}",
+            flush=True,
+        )
+
+    if args.jobs > 1:
+        # one CPU thread per process, so that the cases do not fight over the cores
+        os.environ.setdefault(
+            "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+        )
+        os.environ.setdefault("JAX_PLATFORMS", "cpu")
+        context = multiprocessing.get_context("spawn")
+        with concurrent.futures.ProcessPoolExecutor(args.jobs, mp_context=context) as pool:
+            futures = {pool.submit(_run_and_save, *c, settings, str(folders[c])): c for c in todo}
+            for future in concurrent.futures.as_completed(futures):
+                finished(futures[future], future.result())
+    else:
+        for c in todo:
+            finished(c, _run_and_save(*c, settings, str(folders[c])))
+    rows = [
+        results[c] if c in results else json.loads((folders[c] / "case.json").read_text())
+        for c in cases
+    ]
+    (args.work / "cases.json").write_text(json.dumps(rows, indent=1) + "\n")
+    command = "python scripts/diagnosis_gain.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    text = table(rows, command.strip(), settings, time.perf_counter() - start)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

@@ -85,14 +85,19 @@ class WheelRefit(AbstractRefit):
 
     Free: the radius amplitude of every harmonic found (phases at their nominal values: the
     spectra barely see them), each acting linearly (micrometres on a contact preloaded by a
-    fraction of a millimetre). The left wheel gives the same tones; only the right one is
-    refitted (each refit of a wheel needs new solves).
+    fraction of a millimetre). Nothing is proposed when no tone lies at a wheel harmonic. The
+    left wheel gives the same tones; only the right one is refitted (each refit of a wheel
+    needs new solves).
     """
 
     def propose(
         self, parameters: Mapping[str, Any], *, band: tuple[float, float]
     ) -> tuple[ExtensionProposal, ...]:
-        found = [int(k) for k in parameters.get("labels_found", ())] or [int(parameters["label"])]
+        found = [int(k) for k in parameters.get("labels_found", ())]
+        if "label" in parameters and int(parameters["label"]) not in found:
+            found.append(int(parameters["label"]))
+        if not found:
+            return ()
         harmonics = max(found)
         start = {f"wheel_eccentricity.amplitude_{k}": 5e-6 / k for k in found}
         return (

@@ -493,9 +493,13 @@ def diagnose_campaign(
         plausible = []
     refitted: dict[str, Cause] = {}
     for rank, score in enumerate(plausible):
-        proposals = recipes[score.name].propose(  # type: ignore[union-attr]
-            score.parameters, band=band
-        )
+        try:
+            proposals = recipes[score.name].propose(  # type: ignore[union-attr]
+                score.parameters, band=band
+            )
+        except (KeyError, ValueError) as err:
+            notes.append(f"{score.name}: its recipe proposed no extension ({err!r})")
+            continue
         trials = []
         for k, proposal in enumerate(proposals):
             bases: dict[tuple[float, ...], np.ndarray] = {}

@@ -166,6 +166,8 @@ def files(tmp_path_factory):
     paths["truncated"].write_bytes(whole[: len(whole) // 2])
     paths["zero_bytes"] = folder / "zero.nc"
     paths["zero_bytes"].write_bytes(b"")
+    paths["other_netcdf"] = folder / "temperatures.nc"
+    xr.Dataset({"temperature": ("x", [20.5, 21.0])}).to_netcdf(paths["other_netcdf"])
     paths["folder"] = folder / "a_folder.nc"
     paths["folder"].mkdir()
     paths["missing_channel"] = save_campaign(
@@ -228,6 +230,21 @@ def test_a_file_that_is_not_a_campaign(files, tmp_path, command, case):
             assert f"(a) truncated by an interrupted copy or download (it has {size} bytes)" in line
     assert not out.exists()
     assert snapshot(path.parent) == before
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_a_netcdf_file_of_something_else(files, tmp_path, command):
+    path = files["other_netcdf"]
+    before = path.read_bytes()
+    out = tmp_path / "out"
+    result = invoke(*COMMANDS[command](path, out, tmp_path))
+    if command == "inspect":  # the problems listed, exit 1
+        assert result.exit_code == 1 and isinstance(result.exception, SystemExit)
+        assert "problem: a campaign needs a variable 'acceleration'" in result.stderr
+    else:
+        refused(result, str(path), "acceleration")
+    assert not out.exists() or command == "inspect"
+    assert path.read_bytes() == before
 
 
 #: what fit, run and diagnose say about campaigns they cannot use

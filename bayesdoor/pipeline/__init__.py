@@ -3,6 +3,7 @@
 from ._bands import PredictiveBands as PredictiveBands
 from ._classify import classify_stage as classify_stage
 from ._classify import model_file as model_file
+from ._classify import ood_model_error as ood_model_error
 from ._classify import report_stage as report_stage
 from ._classify import train_stage as train_stage
 from ._diagnose import DIAGNOSIS_FILES as DIAGNOSIS_FILES

@@ -12,6 +12,7 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+import jax.numpy as jnp
 import numpy as np
 import scipy.signal
 import xarray as xr
@@ -245,10 +246,11 @@ def _simulate_rows(
     """Signals (row, run, channel, time) of every run for each parameter row, success per row."""
     n_runs, n_time = len(measured.runs), measured.signals.shape[-1]
     values = {
-        name: np.repeat([row[name] for row in rows], n_runs) for name in system.parameter_names()
+        name: jnp.asarray(np.repeat([row[name] for row in rows], n_runs))
+        for name in system.parameter_names()
     }
     result = system.simulate_values(
-        values, np.tile(measured.operating, len(rows)), duration=measured.duration
+        values, jnp.asarray(np.tile(measured.operating, len(rows))), duration=measured.duration
     )
     ok = np.all(np.asarray(result.status).reshape(len(rows), n_runs) == 0, axis=1)
     signals = np.asarray(result.signals)[..., :n_time]
@@ -629,5 +631,7 @@ def extension_gain(
     if not ok[0]:
         raise RuntimeError("the base model failed to simulate the runs at the fit's point")
     setup = measured.setup(system, fit.point, sims[0], sample_times, _band(fit))
-    fits, gain = _cross_validate(setup, proposal, folds, seed=seed, max_evals=settings.refit_evals)
+    fits, gain = _cross_validate(
+        setup, proposal, folds, seed=seed, max_evals=settings.refit_evals, bases={}
+    )
     return gain, tuple(fits)

@@ -299,11 +299,13 @@ class _Model:
     def solve(self, vals: Mapping[str, np.ndarray], runs: np.ndarray) -> np.ndarray:
         """Signals (row, run, channel, time) of a direct solve; NaN where it failed."""
         pop, n_runs = next(iter(vals.values())).shape
-        flat = {k: np.asarray(v, dtype=float).reshape(-1) for k, v in vals.items()}
-        flat.update({k: np.full(pop * n_runs, float(v)) for k, v in self.setup.point.items()})
+        flat = {k: jnp.asarray(np.reshape(v, -1), dtype=float) for k, v in vals.items()}
+        flat.update(
+            {k: jnp.full(pop * n_runs, float(v), dtype=float) for k, v in self.setup.point.items()}
+        )
         result = self.extended.simulate_values(
             flat,
-            np.tile(self.setup.operating[runs], pop),
+            jnp.asarray(np.tile(self.setup.operating[runs], pop)),
             duration=self.setup.duration,
             check=False,
         )
@@ -342,19 +344,20 @@ class _Model:
             base = np.broadcast_to(
                 self.setup.base_signals[runs], (x.shape[0], *self.setup.base_signals[runs].shape)
             )
-            out = self.extended.apply_output_extensions(
-                jnp.asarray(base), jnp.asarray(self.setup.time), self.values(x, len(runs))
+            vals = {k: jnp.asarray(v) for k, v in self.values(x, len(runs)).items()}
+            extended = self.extended.apply_output_extensions(
+                jnp.asarray(base), jnp.asarray(self.setup.time), vals
             )
-            return np.asarray(out)
+            return np.asarray(extended)
         if exact or not self.surrogate:
             return self.solve(self.values(x, len(runs)), runs)
-        out = []
+        rows = []
         lin = [self.free.index(n) for n in self.proposal.linear]
         for row in x:
             point = tuple(float(row[self.free.index(n)]) for n in self.nonlinear)
             b = self.basis(point)[:, runs]
-            out.append(self.setup.base_signals[runs] + np.tensordot(row[lin], b, axes=1))
-        return np.stack(out)
+            rows.append(self.setup.base_signals[runs] + np.tensordot(row[lin], b, axes=1))
+        return np.stack(rows)
 
 
 def _batched(

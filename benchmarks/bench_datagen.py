@@ -36,7 +36,7 @@ import numpy as np
 
 from bayesdoor.classify import fit_classifier, predict
 from bayesdoor.datagen import GaussianScatter, GenerationConfig, featurize, generate
-from bayesdoor.systems import ElevatorDoor, SolverConfig
+from bayesdoor.systems import DoorParameters, ElevatorDoor, SolverConfig
 
 jax.config.update("jax_enable_x64", True)
 SPEEDS = (0.3, 0.4, 0.5)
@@ -52,7 +52,7 @@ def _median_s(fn, calls: int) -> float:
 
 
 def _source(door: ElevatorDoor) -> GaussianScatter:
-    optimum = {p.name: p.reference_value for p in door.parameters}
+    optimum = {k: float(v) for k, v in DoorParameters.paper_optimum().to_dict().items()}
     return GaussianScatter.around(door, optimum, 0.05)
 
 

@@ -33,6 +33,7 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -172,7 +173,7 @@ def run_one(settings: dict, seed: int, source: str) -> dict:
     import jax.numpy as jnp
 
     from bayesdoor.classify import load_ensemble, predict
-    from bayesdoor.pipeline import Sizes, run_job
+    from bayesdoor.pipeline import Sizes, Source, run_job
     from bayesdoor.systems import ElevatorDoor
 
     out = settings["out"]
@@ -192,7 +193,7 @@ def run_one(settings: dict, seed: int, source: str) -> dict:
         folder,
         seed=seed,
         fit_seed=0,
-        source=source,
+        source=cast(Source, source),
         method=settings["method"],
         sizes=Sizes(runs_per_state=settings["runs_per_state"]),
         fit_options={"settings": _fit_settings(settings)},
@@ -226,7 +227,7 @@ def run_one(settings: dict, seed: int, source: str) -> dict:
     }
 
 
-def ood_probes(campaign, rig_runs: int, seed: int = 0) -> dict[str, np.ndarray]:
+def ood_probes(campaign, rig_runs: int, seed: int = 0) -> dict[str, Any]:
     """Classifier features of the test runs and of inputs no training state explains."""
     import jax
 
@@ -249,7 +250,7 @@ def ood_probes(campaign, rig_runs: int, seed: int = 0) -> dict[str, np.ndarray]:
         phase = rng.uniform(0.0, 2.0 * np.pi, (len(signals), 1, 1))
         return features(signals + amplitude * np.cos(2.0 * np.pi * 50.0 * t + phase))
 
-    probes = {
+    probes: dict[str, Any] = {
         "test": features(signals),
         "louder_3x": features(3.0 * signals),
         "sensors_swapped": features(signals[:, swap]),

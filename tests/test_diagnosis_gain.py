@@ -238,3 +238,31 @@ def test_a_fit_records_its_system_and_refuses_another(base_fit, tmp_path):
     dataclasses.replace(loaded, system=None).check_system(held)
     with pytest.raises(ValueError, match="with the parameters"):
         dataclasses.replace(loaded, system=None).check_system(extended)
+
+
+def test_diagnose_refuses_a_posterior_of_an_extended_door(base_fit, tmp_path, monkeypatch):
+    from test_cli_diagnose import door_file
+    from test_robustness import invoke, refused
+
+    monkeypatch.setattr("bayesdoor.cli._diagnose.compute", lambda *a, **k: pytest.fail("ran"))
+    campaign = door_file(tmp_path / "door.nc", ["healthy", "healthy", "D1"])
+    extended = ElevatorDoor().with_extensions(SensorCrossAxis(sensor="A2", into="Z"))
+    held = HeldExtension(extended, (("sensor_cross_axis.fraction", 0.1),))
+    dataclasses.replace(base_fit, system=held.describe()).save(tmp_path / "fit")
+    # the held fit has the base door's parameter names: only its description tells it apart
+    result = invoke("diagnose", campaign, "--out", tmp_path / "d", "--posterior", tmp_path / "fit")
+    refused(result, "--posterior", "held at {'sensor_cross_axis.fraction': 0.1}")
+    assert not (tmp_path / "d" / "diagnosis.json").exists()
+
+
+def test_run_refuses_a_job_folder_of_the_base_system_for_an_extended_one(tmp_path):
+    from test_pipeline import SIZES, SYSTEM, stand_in_fit, tone_campaign
+
+    from bayesdoor.pipeline import run_job
+
+    campaign = tone_campaign()
+    options = dict(seed=0, sizes=SIZES, fit=stand_in_fit, progress=False, html=False)
+    run_job(SYSTEM, campaign, tmp_path / "job", report=lambda line: None, **options)
+    held = HeldExtension(SYSTEM, (("m", 1.0),))
+    with pytest.raises(FileExistsError, match="other settings"):
+        run_job(held, campaign, tmp_path / "job", report=lambda line: None, **options)

@@ -10,6 +10,7 @@ import xarray as xr
 from rich.console import Console
 
 from ._common import check_for_job, check_writable, emit_json, fail, system_named, writing
+from ._fit import check_fit_system
 
 _err = Console(stderr=True)
 
@@ -51,6 +52,7 @@ def load_fit(folder: Path, system) -> Any:
             f"{system.name}: {extra or 'none'}; missing: {missing or 'none'}): pass a fit of "
             "this campaign's system, or leave out --posterior to fit here"
         )
+    check_fit_system(fit, system, folder)
     return fit
 
 

@@ -41,6 +41,30 @@ def parse_law(law: str, lower: float, upper: float) -> list[int | None]:
     return [value]
 
 
+def check_fit_system(fit: Any, system: Any, folder: Path) -> None:
+    """Refuse, in one line, a saved fit made for another configuration of the system.
+
+    A fit of a door with a model extension held at values (``bayesdoor.diagnose.
+    extend_system``) has the base door's parameter names, so only the system description the
+    fit recorded (:attr:`bayesdoor.inference.FitResult.system`) tells them apart. Fits
+    written before descriptions were recorded pass (their parameter names are compared by
+    the caller).
+
+    Raises
+    ------
+    typer.Exit
+        (through :func:`fail`) when the recorded description is not ``system.describe()``.
+    """
+    from ..inference import FitResult
+
+    if getattr(fit, "system", None) is None:
+        return
+    try:
+        FitResult.check_system(fit, system, source=f"--posterior {folder}: the fit")
+    except ValueError as err:
+        raise fail(str(err)) from None
+
+
 def fit_folder(out: Path, law: int | None, several: bool) -> Path:
     """Where one fit goes: ``out`` itself, or ``out/law_I`` when several laws are fitted."""
     return out / f"law_{law}" if several else out

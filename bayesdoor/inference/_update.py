@@ -501,8 +501,8 @@ class FitResult:
                 return
         raise ValueError(
             f"{source} was made for {system.name} {_extensions_text(recorded)}, not "
-            f"{_extensions_text(expected)} as given: refit with this system, or pass the "
-            "system the fit was made for"
+            f"{_extensions_text(expected)} as given: refit with this system, or use the fit "
+            "only with the system it was made for"
         )
 
     def posterior_draws(self) -> dict[str, np.ndarray]:

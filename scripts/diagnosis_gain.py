@@ -60,7 +60,8 @@ DURATION_S = 3.7
 class Settings:
     """What a case depends on (its hash names the case's folder)."""
 
-    quick: bool
+    fit: str
+    diagnosis: str
     calibration_runs: int
     test_per_state: int
     method: str
@@ -128,20 +129,20 @@ def job(system, campaign, out: Path, settings: Settings, seed: int, label: str):
     from bayesdoor.inference import FitSettings
     from bayesdoor.pipeline import Sizes, run_job
 
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     sizes = Sizes(runs_per_state=settings.runs_per_state, chunk_size=50)
-    fit = FitSettings.quick() if settings.quick else FitSettings()
+    quick = settings.fit == "quick"
     result = run_job(
         system,
         campaign,
         out,
-        quick=settings.quick,
+        quick=quick,
         seed=seed,
         fit_seed=seed,
         source=settings.source,  # type: ignore[arg-type]
         method=settings.method,
         sizes=sizes,
-        fit_options={"settings": fit},
+        fit_options={"settings": FitSettings.quick() if quick else FitSettings()},
         progress=False,
         report=lambda text: print(f"  {label}: {text}", flush=True),
         html=False,
@@ -155,6 +156,7 @@ def job(system, campaign, out: Path, settings: Settings, seed: int, label: str):
         "runs": int(m["runs"]),
         "fit_j": result.fit.j,
         "seconds": time.perf_counter() - start,
+        "cpu_seconds": time.process_time() - cpu,
         "reused": [s.name for s in result.stages if s.reused],
     }
 
@@ -168,18 +170,18 @@ def diagnose(campaign, fit_folder: Path, path: Path, settings: Settings, seed: i
 
     if path.is_file():
         with open(path, "rb") as f:
-            return pickle.load(f), 0.0
-    start = time.perf_counter()
+            return pickle.load(f), (0.0, 0.0)
+    start, cpu = time.perf_counter(), time.process_time()
     diagnosis = diagnose_campaign(
         ElevatorDoor(),
         campaign,
         fit=FitResult.load(fit_folder),
         seed=seed,
-        quick=settings.quick,
+        quick=settings.diagnosis == "quick",
         progress=False,
         catalogue=DOOR_CATALOGUE,
     )
-    seconds = time.perf_counter() - start
+    seconds = (time.perf_counter() - start, time.process_time() - cpu)
     tmp = path.with_suffix(".tmp")
     with open(tmp, "wb") as f:
         pickle.dump(diagnosis, f)
@@ -200,9 +202,9 @@ def run_case(effect: str, seed: int, settings: Settings, folder: Path) -> dict[s
 
     folder.mkdir(parents=True, exist_ok=True)
     name = f"{effect}-{seed}"
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     campaign, truth = record(effect, seed, settings, folder / "campaign.nc")
-    recorded = time.perf_counter() - start
+    recorded = (time.perf_counter() - start, time.process_time() - cpu)
     door = ElevatorDoor()
     base = job(door, campaign, folder / "base", settings, seed, f"{name} base")
     diagnosis, diagnose_seconds = diagnose(
@@ -210,7 +212,7 @@ def run_case(effect: str, seed: int, settings: Settings, folder: Path) -> dict[s
     )
     found = verdict_extension(door, diagnosis)
     if found is None:
-        extended = dict(base, seconds=0.0, reused=["same as base: verdict none"])
+        extended = dict(base, seconds=0.0, cpu_seconds=0.0, reused=["same as base: verdict none"])
         configuration, values = None, {}
     else:
         extended = job(
@@ -232,8 +234,10 @@ def run_case(effect: str, seed: int, settings: Settings, folder: Path) -> dict[s
             "notes": list(diagnosis.notes),
             "base": base,
             "extended": extended,
-            "record_seconds": recorded,
-            "diagnose_seconds": diagnose_seconds,
+            "record_seconds": recorded[0],
+            "record_cpu_seconds": recorded[1],
+            "diagnose_seconds": diagnose_seconds[0],
+            "diagnose_cpu_seconds": diagnose_seconds[1],
         }
     )
 
@@ -300,7 +304,8 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
         "under its fit; the main job with the extended door (the verdict's extension held at "
         "its refitted values). Accuracy and ECE (15 bins) on the test runs; held-out J and "
         "ELPD on the calibration runs (the diagnosis's two folds; ELPD difference with its "
-        "standard error). Times in seconds: recording, base job, diagnosis, extended job.",
+        "standard error). Times: wall (process CPU) seconds of the recording, the base job, the "
+        "diagnosis and the extended job (0 where a step was read from an earlier run).",
         "",
         "| effect | seed | truth | verdict (configuration) | base acc. | base ECE | "
         "ext. acc. | ext. ECE | held-out J before -> after | ELPD gain +- se | times |",
@@ -322,9 +327,14 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
             else "-"
         )
         b, e = c["base"], c["extended"]
-        times = (
-            f"{c['record_seconds']:.0f} / {b['seconds']:.0f} / {c['diagnose_seconds']:.0f} / "
-            f"{e['seconds']:.0f}"
+        times = " / ".join(
+            f"{wall:.0f} ({cpu:.0f})"
+            for wall, cpu in (
+                (c["record_seconds"], c["record_cpu_seconds"]),
+                (b["seconds"], b["cpu_seconds"]),
+                (c["diagnose_seconds"], c["diagnose_cpu_seconds"]),
+                (e["seconds"], e["cpu_seconds"]),
+            )
         )
         lines.append(
             f"| {c['effect']} | {c['seed']} | {_truth_text(c['effect'], c['truth'])} | "
@@ -356,6 +366,19 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="quick fits and diagnosis, 10 test runs per state, 60 training runs per state",
     )
+    parser.add_argument(
+        "--fit",
+        choices=("quick", "full"),
+        default=None,
+        help="sizes of the jobs' fits (FitSettings.quick or the default; default: quick with "
+        "--quick, else full)",
+    )
+    parser.add_argument(
+        "--diagnosis",
+        choices=("quick", "full"),
+        default=None,
+        help="sizes of diagnose_campaign (default: quick with --quick, else full)",
+    )
     parser.add_argument("--effects", nargs="+", default=None, choices=EFFECTS)
     parser.add_argument("--seeds", type=int, nargs="+", default=None, help="default 0-2 (quick 0)")
     parser.add_argument("--test-per-state", type=int, default=None, help="default 30 (quick 10)")
@@ -372,8 +395,10 @@ def main(argv: list[str] | None = None) -> None:
 
     effects = args.effects or (["sensor_cross_axis"] if args.quick else list(DEFAULT_EFFECTS))
     seeds = args.seeds if args.seeds is not None else ([0] if args.quick else [0, 1, 2])
+    default = "quick" if args.quick else "full"
     settings = Settings(
-        quick=args.quick,
+        fit=args.fit or default,
+        diagnosis=args.diagnosis or default,
         calibration_runs=args.calibration_runs,
         test_per_state=args.test_per_state or (10 if args.quick else 30),
         method=args.method,

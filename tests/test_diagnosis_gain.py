@@ -189,7 +189,7 @@ def test_gain_script_runs_one_tiny_case(tmp_path):
         ],
         check=True,
         cwd=ROOT,
-        timeout=3000,
+        timeout=7200,
     )
     text = out.read_text()
     assert "sensor_cross_axis" in text

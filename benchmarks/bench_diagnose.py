@@ -62,6 +62,8 @@ def main() -> None:
             app, ["diagnose", str(path), "--out", str(Path(tmp) / "diag"), "--json", *options]
         )
         diagnose_s = time.perf_counter() - t0
+        if result.exception is not None and not isinstance(result.exception, SystemExit):
+            raise result.exception
         if result.exit_code != 0:
             raise SystemExit(f"bayesdoor diagnose failed: {result.output}")
         payload = json.loads(result.stdout)

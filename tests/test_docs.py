@@ -75,7 +75,10 @@ def test_strict_build_renders_the_re_exported_api(site):
 def test_results_tables_are_published_and_linked(site):
     page = (site / "features" / "index.html").read_text()
     assert 'href="../results/performance/"' in page
-    assert (site / "results" / "performance" / "index.html").is_file()
+    home = (site / "index.html").read_text()
+    for table in (ROOT / "results").glob("*.md"):
+        assert (site / "results" / table.stem / "index.html").is_file(), table.name
+        assert f'href="results/{table.stem}/"' in home, f"{table.name} is not in the nav"
 
 
 def _equinox_classes():

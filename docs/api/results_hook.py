@@ -3,7 +3,9 @@
 The pages in ``docs/`` link the measured tables as ``../results/NAME.md`` so that the links work
 where the repository is read as files. The site has no ``..``: this hook adds every Markdown file
 of ``results/`` to the site under ``results/`` and rewrites those links to point there, so the
-strict build still checks that each linked table exists.
+strict build still checks that each linked table exists. The ``Results`` section of the nav is
+filled with every such file (titled by its first heading), so a new table needs no edit of
+``mkdocs.yml``.
 """
 
 from __future__ import annotations
@@ -22,6 +24,25 @@ _LINK = re.compile(r"\]\((?:\.\./)+results/")
 
 def _results_dir(config: MkDocsConfig) -> Path:
     return Path(config.config_file_path).parent / _RESULTS
+
+
+def _title(path: Path) -> str:
+    for line in path.read_text().splitlines():
+        if line.startswith("# "):
+            return line[2:].strip()
+    return path.stem.replace("_", " ")
+
+
+def on_config(config: MkDocsConfig, **kwargs: Any) -> MkDocsConfig:
+    """Fill the nav's ``Results`` section with every Markdown file of ``results/``."""
+    pages = [
+        {_title(path): f"{_RESULTS}/{path.name}"}
+        for path in sorted(_results_dir(config).glob("*.md"))
+    ]
+    for entry in config.nav or []:
+        if isinstance(entry, dict) and "Results" in entry:
+            entry["Results"] = pages
+    return config
 
 
 def on_files(files: Files, *, config: MkDocsConfig, **kwargs: Any) -> Files:

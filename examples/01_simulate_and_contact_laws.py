@@ -128,9 +128,12 @@ fig.savefig(OUT / "hysteresis_factors.png", dpi=120)
 # %% [markdown]
 # What a law really does is the restitution it *delivers*. `single_impact` integrates one impact
 # of a point mass on a flat through the law (scipy DOP853, tight tolerances) and returns
-# `v_out / v_in`. Only Hunt-Crossley and Lankarani-Nikravesh tend to the nominal value as
-# `c_r -> 1`; Herbert-McWhannell and Hu-Guo stay close to it over the range (see
-# [the model page](../docs/model.md) for the closed form behind this).
+# `v_out / v_in`. It depends on `xi` alone, not on the stiffness, the exponent, the mass or the
+# speed (the closed form is in [the model page](../docs/model.md)). Hu-Guo delivers within a
+# few per cent of the nominal value over the whole range and Herbert-McWhannell from about
+# `c_r = 0.7` up; Hunt-Crossley and Lankarani-Nikravesh only as `c_r -> 1`; Lee-Wang and
+# Gharib-Hurmuzlu dissipate less than their nominal `c_r` says, Flores, Zhiying-Qishao and
+# Gonthier more (`results/contact_laws.md` tabulates it).
 
 # %%
 c_r_values = size["c_r"]

@@ -109,6 +109,12 @@ def main() -> int:
         "--campaign", type=Path, help="a campaign file (default: the cached demo campaign)"
     )
     parser.add_argument(
+        "--out",
+        type=Path,
+        default=OUT,
+        help=f"the Markdown file to write (default {OUT.relative_to(ROOT)}; a .json beside it)",
+    )
+    parser.add_argument(
         "--workers",
         type=int,
         default=None,
@@ -177,16 +183,17 @@ def main() -> int:
         + table
         + ("\nNotes raised by the fits:\n\n" + "\n".join(notes) + "\n" if notes else "")
     )
+    out = args.out
     text = (
-        OUT.read_text()
-        if OUT.exists()
+        out.read_text()
+        if out.exists()
         else "# Contact-law ablation\n\n" + BEGIN + "\n" + END + "\n"
     )
     before, _, rest = text.partition(BEGIN)
     _, _, after = rest.partition(END)
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(before + BEGIN + "\n" + block + END + after)
-    OUT.with_suffix(".json").write_text(json.dumps(rows, indent=1) + "\n")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(before + BEGIN + "\n" + block + END + after)
+    out.with_suffix(".json").write_text(json.dumps(rows, indent=1) + "\n")
     print(table)
     return 0
 

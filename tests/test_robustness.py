@@ -104,7 +104,7 @@ def invoke(*args):
 
 
 def refused(result, *phrases, code=2):
-    """A one-line reason that holds ``phrases``, exit ``code``, no traceback, no JSON."""
+    """A one-line reason that holds ``phrases``, exit ``code``, no traceback, no output."""
     assert isinstance(result.exception, SystemExit), repr(result.exception)  # not a crash
     assert result.exit_code == code, result.output
     lines = result.stderr.strip().splitlines()
@@ -112,6 +112,7 @@ def refused(result, *phrases, code=2):
     for phrase in phrases:
         assert phrase in lines[0], (phrase, lines[0])
     assert "Traceback" not in result.output
+    assert result.stdout == ""  # nothing a pipe could take for a result
     return lines[0]
 
 

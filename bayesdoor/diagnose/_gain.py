@@ -108,7 +108,10 @@ class Gain:
     Attributes
     ----------
     j_before, j_after
-        Mean J over the held-out runs (the paper's objective on the diagnosis spectra).
+        Mean J over the held-out runs: the paper's objective on the diagnosis spectra, of
+        each model's prediction with its smooth discrepancy (estimated on the training runs;
+        without it, J of a model whose spectrum lies broadly above the measured one rises when
+        a correct resonance adds power there).
     elpd_before, elpd_after
         Sum over the held-out runs of the log predictive density.
     elpd_difference, elpd_se

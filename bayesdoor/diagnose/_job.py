@@ -311,7 +311,7 @@ def _held_out(spectra: Spectra, model: np.ndarray, train: np.ndarray, test: np.n
     disc = estimate_discrepancy(model[train], y[train], lv[train], SMOOTH_BINS)
     return _HeldOut(
         lpd=log_predictive(model[test], y[test], lv[test], disc),
-        j=j_per_run(model[test], y[test]),
+        j=j_per_run(model[test] + disc.smooth, y[test]),
     )
 
 

@@ -109,8 +109,10 @@ def residual_map_figure(residuals: ResidualMap) -> bytes:
     )
     rows, cols = np.nonzero(residuals.significant)
     ax.plot(f[cols], rows, ".", color="black", ms=2.5)
-    frequency_regions = [r for r in residuals.regions if r.domain == "frequency"]
-    for k, region in enumerate(frequency_regions, start=1):
+    # numbered as the feature list under the figure lists them (wavenumber regions included)
+    for k, region in enumerate(residuals.regions, start=1):
+        if region.domain != "frequency":
+            continue
         c = channels.index(region.channel)
         ax.add_patch(_box(region.low - step / 2, c, region.high - region.low + step))
         ax.annotate(str(k), (region.peak, c - 0.42), ha="center", va="top", fontsize=8)
@@ -519,10 +521,15 @@ def diagnosis_page(
 
 
 def _feature_list(features: Features) -> str:
+    """The significant features in words; the residual regions numbered as in the figure."""
     lines = features.summary()
     if not lines:
         return H.note("No significant residual: nothing departs from the predictive band.")
-    items = "".join(f"<li>{html.escape(line)}</li>" for line in lines)
+    n = len(features.residuals.regions)
+    items = "".join(
+        f"<li>{f'[{i + 1}] ' if i < n else ''}{html.escape(line)}</li>"
+        for i, line in enumerate(lines)
+    )
     return f"<ul>{items}</ul>"
 
 

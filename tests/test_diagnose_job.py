@@ -1,0 +1,189 @@
+"""Tests of the diagnosis job on virtual-rig data with one catalogue effect hidden in it.
+
+The rig (``bayesdoor.rig.VirtualRig``) is a separate, higher-fidelity simulator of the door; each
+test records a few healthy runs at several speeds with one effect drawn by its ``from_seed``
+(parameters drawn from a seed, not chosen to suit the detector) or with none, and asks
+:func:`diagnose_campaign` for the cause. The base model is fitted once, by CMA-ES, on a
+campaign of the same rig with nothing hidden (the cheap path: the effect campaigns are
+diagnosed under that fit, as a model calibrated earlier would be); under ``slow`` every
+campaign is larger and fitted on its own.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+from bayesdoor.diagnose import (
+    DECISIVE_SE,
+    NONE,
+    ExtensionProposal,
+    compare_held_out,
+    diagnose_campaign,
+    extension_gain,
+)
+from bayesdoor.inference import FitSettings, fit_campaign
+from bayesdoor.rig import (
+    Effects,
+    FrameMode,
+    MainsHum,
+    RailWaviness,
+    SensorCrossAxis,
+    VirtualRig,
+    WheelEccentricity,
+)
+from bayesdoor.systems import ElevatorDoor
+from bayesdoor.systems.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE
+from bayesdoor.systems.door import FrameMode as FrameModeExtension
+
+DOOR = ElevatorDoor()
+EFFECTS = {
+    "frame_mode": FrameMode,
+    "wheel_eccentricity": WheelEccentricity,
+    "rail_waviness": RailWaviness,
+    "sensor_cross_axis": SensorCrossAxis,
+    "mains_hum": MainsHum,
+}
+#: default suite: eight runs over 0.3-0.5 m/s (four per half; with four runs in all, two per
+#: half, a frame mode measured +47 +- 47 and a rail irregularity +54 +- 20 in held-out log
+#: predictive density: too few held-out runs to be decisive)
+SPEEDS = tuple(np.round(np.linspace(0.30, 0.50, 8), 3))
+#: slow suite: twelve runs over the whole speed range
+SPEEDS_SLOW = tuple(np.round(np.linspace(0.25, 0.50, 12), 3))
+#: a quick CMA-ES fit of the base model (the effects are judged against it, not tuned to it)
+FIT = FitSettings(max_motion_s=1.0, cmaes_max_evals=80, cmaes_restarts=0)
+
+
+def record(name: str, seed: int, speeds=SPEEDS):
+    """A campaign of healthy runs with the effect ``name`` (or none) drawn from ``seed``."""
+    effects = Effects() if name == NONE else Effects(**{name: EFFECTS[name].from_seed(seed)})
+    rig = VirtualRig(effects=effects)
+    return rig.run(["healthy"] * len(speeds), list(speeds), key=jax.random.key(1000 + seed)), rig
+
+
+@pytest.fixture(scope="module")
+def base_fit():
+    recording, _ = record(NONE, 99)
+    return fit_campaign(DOOR, recording.campaign, settings=FIT, seed=0, progress=False)
+
+
+def diagnose(campaign, fit, seed=0):
+    return diagnose_campaign(
+        DOOR, campaign, fit=fit, seed=seed, quick=True, progress=False, catalogue=DOOR_CATALOGUE
+    )
+
+
+def _mean(parameters, name):
+    value = parameters[name]
+    return float(value["mean"] if isinstance(value, dict) else value)
+
+
+def check_parameters(name: str, cause, recording, rig) -> None:
+    """The named cause's key parameter against the truth, with the tolerance's reason."""
+    truth = recording.truth["effects"][name]
+    p = cause.parameters
+    if name == "frame_mode":
+        # the rig's mode is coupled to the door through the rail lift: its installed frequency
+        # (the linearised rig at rest) is the reference; 1 Hz is one bin of the spectra
+        installed = rig.rest_state().frequencies_hz
+        reference = installed[np.argmin(np.abs(installed - truth["frequency_hz"]))]
+        assert abs(_mean(p, "frame_mode.frequency_hz") - reference) < 1.0, (p, reference)
+    elif name == "rail_waviness":
+        # a tone at 4-60 Hz refined to a fraction of a 1 Hz bin over runs 0.3-0.5 m/s
+        got = _mean(p, "rail_waviness.wavelength_m")
+        assert got == pytest.approx(truth["wavelength_m"], rel=0.02), p
+    elif name == "wheel_eccentricity":
+        # every tone named is a harmonic of the rig's wheel (it has harmonics 1-6), and the
+        # wavelength is the wheel circumference over that harmonic (the signature's 4 %)
+        k = int(p["label"])
+        assert 1 <= k <= len(truth["amplitudes"]), p
+        assert _mean(p, "wavelength_m") == pytest.approx(WHEEL_CIRCUMFERENCE / k, rel=0.04), p
+    elif name == "sensor_cross_axis":
+        # the extension is the rig's leak exactly (same definition): the right channel and
+        # the fraction within 20 % (a fraction of a few % is seen through a few dB of excess)
+        receiver = f"{truth['sensor']}{truth['into']}"
+        assert cause.label.startswith(receiver), (cause.label, truth)
+        got = _mean(p, "sensor_cross_axis.fraction")
+        assert abs(got) == pytest.approx(truth["fraction"], rel=0.2), (p, truth)
+    elif name == "mains_hum":
+        # 50 or 60 Hz is the cause's identity; its line must be within one bin of it
+        assert _mean(p, "frequency_hz") == truth["frequency_hz"], p
+        assert abs(_mean(p, "line_frequency_hz") - truth["frequency_hz"]) <= 1.0, p
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("name", list(EFFECTS))
+def test_hidden_effect_is_named(name, seed, base_fit):
+    recording, rig = record(name, seed)
+    diagnosis = diagnose(recording.campaign, base_fit, seed)
+    assert diagnosis.verdict == name, diagnosis.to_json()
+    cause = diagnosis.cause(name)
+    assert cause.confirmed and cause.gain.elpd_difference > DECISIVE_SE * cause.gain.elpd_se
+    assert cause.gain.j_after < cause.gain.j_before
+    check_parameters(name, cause, recording, rig)
+    payload = diagnosis.to_json()
+    assert payload["verdict"] == name and payload["causes"][0]["name"] == name
+    assert {"name", "evidence", "parameters", "gain"} <= set(payload["causes"][0])
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_nothing_hidden_gives_none(seed, base_fit):
+    recording, _ = record(NONE, seed)
+    diagnosis = diagnose(recording.campaign, base_fit, seed)
+    assert diagnosis.verdict == NONE, diagnosis.to_json()
+    assert not any(c.confirmed for c in diagnosis.causes)
+
+
+def test_wrong_extension_shows_no_gain(base_fit):
+    """A frame mode forced onto a campaign whose hidden effect is a rail irregularity (tones at
+    41-51 Hz; the mode is searched at 72-78 Hz)."""
+    recording, _ = record("rail_waviness", 3)
+    f = 75.0
+    proposal = ExtensionProposal(
+        extension=FrameModeExtension(),
+        start={"frame_mode.frequency_hz": f, "frame_mode.damping_ratio": 0.02},
+        free=(
+            "frame_mode.frequency_hz",
+            "frame_mode.damping_ratio",
+            *(f"frame_mode.participation_{c}" for c in DOOR.channels),
+        ),
+        bounds={"frame_mode.frequency_hz": (f - 3.0, f + 3.0)},
+    )
+    gain, refits = extension_gain(
+        DOOR, recording.campaign, proposal, fit=base_fit, seed=0, quick=True
+    )
+    assert not gain.decisive, gain
+    assert gain.elpd_difference < 2.0 * gain.elpd_se, gain
+    assert len(refits) == 2
+
+
+def test_decision_rule():
+    """The rule on per-run values: decisive only beyond 4 standard errors with J lower."""
+    before = np.array([-100.0, -110.0, -105.0, -95.0])
+    gain = compare_held_out(
+        before, before + 10.0 + np.array([0.5, -0.5, 0.2, -0.2]), np.ones(4), np.full(4, 0.9)
+    )
+    assert gain.decisive and gain.elpd_difference == pytest.approx(40.0)
+    noisy = compare_held_out(
+        before, before + np.array([30.0, -25.0, 20.0, -15.0]), np.ones(4), np.full(4, 0.9)
+    )
+    assert not noisy.decisive
+    worse_j = compare_held_out(before, before + 10.0, np.ones(4), np.full(4, 1.1))
+    assert not worse_j.decisive
+    with pytest.raises(ValueError, match="at least 2"):
+        compare_held_out(before[:1], before[:1], np.ones(1), np.ones(1))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(2, 7))
+@pytest.mark.parametrize("name", [*EFFECTS, NONE])
+def test_full_size(name, seed):
+    """Eight runs over the whole speed range, the base model fitted on each campaign."""
+    recording, rig = record(name, seed, SPEEDS_SLOW)
+    diagnosis = diagnose_campaign(
+        DOOR, recording.campaign, seed=seed, progress=False, catalogue=DOOR_CATALOGUE
+    )
+    assert diagnosis.verdict == name, diagnosis.to_json()
+    if name != NONE:
+        check_parameters(name, diagnosis.cause(name), recording, rig)

@@ -222,8 +222,9 @@ def main() -> None:
     load = os.getloadavg()
     data, exact, surrogate, transform, truth, surrogate_fit_s = problem()
     _log(f"problem built, surrogate fitted in {surrogate_fit_s:.0f} s")
-    sigma0 = jnp.full(data.y.shape[1], 0.05)
-    init = {"z": transform.to_sampling(jnp.asarray(truth)), "sigma_model": sigma0}
+    # the default ModelError: discrepancy scales per operating point and channel
+    sigma0 = jnp.full((data.operating.shape[0], data.y.shape[1]), 0.05)
+    init = {"z": transform.to_sampling(jnp.asarray(truth)), "sigma_operating": sigma0}
     densities = {
         name: time_density(make_model(data, forward, transform), init, repeats)
         for name, forward in (("exact", exact), ("surrogate", surrogate))

@@ -43,6 +43,7 @@ import jax
 import matplotlib.pyplot as plt
 import numpy as np
 
+from bayesdoor.contact import hysteresis_factor
 from bayesdoor.datasets import load_demo_campaign, load_demo_truth
 from bayesdoor.inference import (
     FitSettings,
@@ -184,6 +185,17 @@ for name in fit.names:
     q5, q95 = np.quantile(draws[name], [0.05, 0.95])
     true = truth["parameters"][name]
     print(f"{name:>10} {true:9.4g} {q5:9.4g} {q95:9.4g}  {'yes' if q5 <= true <= q95 else 'no'}")
+
+# %% [markdown]
+# The law and `c_r` act on the contact force only through the hysteresis factor `xi` (notebook
+# 1), so compare `xi`, not the law's index:
+
+# %%
+xi_fit = np.asarray(hysteresis_factor(fit.law, draws["c_r"]))
+xi_rig = float(hysteresis_factor(truth["parameters"]["I"], truth["parameters"]["c_r"]))
+q5, q95 = np.quantile(xi_fit, [0.05, 0.95])
+print(f"xi: rig {xi_rig:.3f} (law {truth['parameters']['I']}, c_r {truth['parameters']['c_r']})")
+print(f"xi: fit {q5:.3f} to {q95:.3f} (90 %, law {fit.law})")
 
 # %% [markdown]
 # ## The posterior predictive on held-out runs

@@ -302,14 +302,16 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
         f"{settings.calibration_runs} healthy calibration runs and {settings.test_per_state} "
         "test runs per state (healthy, D1, D2); the main job with the base door; the diagnosis "
         "under its fit; the main job with the extended door (the verdict's extension held at "
-        "its refitted values). Accuracy and ECE (15 bins) on the test runs; held-out J and "
+        "its refitted values). Accuracy and ECE (15 bins) on the test runs; the jobs' fits' J "
+        "on the calibration runs (the paper's objective at the fit's point); held-out J and "
         "ELPD on the calibration runs (the diagnosis's two folds; ELPD difference with its "
         "standard error). Times: wall (process CPU) seconds of the recording, the base job, the "
         "diagnosis and the extended job (0 where a step was read from an earlier run).",
         "",
         "| effect | seed | truth | verdict (configuration) | base acc. | base ECE | "
-        "ext. acc. | ext. ECE | held-out J before -> after | ELPD gain +- se | times |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "ext. acc. | ext. ECE | job's fit J base -> ext. | held-out J before -> after | "
+        "ELPD gain +- se | times |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for c in done:
         gain = c.get("gain") or {}
@@ -339,7 +341,8 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
         lines.append(
             f"| {c['effect']} | {c['seed']} | {_truth_text(c['effect'], c['truth'])} | "
             f"{verdict} | {100 * b['accuracy']:.1f} % | {_fmt(b['ece'])} | "
-            f"{100 * e['accuracy']:.1f} % | {_fmt(e['ece'])} | {j} | {elpd} | {times} |"
+            f"{100 * e['accuracy']:.1f} % | {_fmt(e['ece'])} | "
+            f"{_fmt(b['fit_j'], '.4f')} -> {_fmt(e['fit_j'], '.4f')} | {j} | {elpd} | {times} |"
         )
     for c in failed:
         lines.append(f"| {c['effect']} | {c['seed']} | failed: {c['error'][:200]} |")
@@ -354,7 +357,8 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
             f"{100 * d_acc.max():+.1f}), ECE change {d_ece.mean():+.3f} (range "
             f"{d_ece.min():+.3f} to {d_ece.max():+.3f}); "
             f"{sum(c['verdict'] == c['effect'] for c in done)} of {len(done)} verdicts name the "
-            "hidden effect.",
+            f"hidden effect. With {changed[0]['base']['runs']} test runs per case, one run "
+            f"is {100 / changed[0]['base']['runs']:.1f} points of accuracy.",
         ]
     return "\n".join(lines) + "\n"
 

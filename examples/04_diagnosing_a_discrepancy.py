@@ -210,7 +210,10 @@ for cause in reference.causes:
 # Read the two together. A residual feature that also shows without the effect is a
 # difference between the rig and the reduced model (the model is not the rig), not the hidden
 # cause: the signatures alone may name it, and only the held-out gain of a refit tells a cause
-# the data support from one they merely resemble. At the `tiny` size (a poor fit, few runs, a
-# short refit) neither verdict means much; how often the diagnosis names the right cause over
+# the data support from one they merely resemble. The rule is strict on purpose: with few runs
+# the standard error of the held-out gain is large, and a real cause can show a clear signature
+# and a positive gain yet fall short of 4 standard errors (at the `quick` size, 6 runs, that
+# is what happened when this was written); more runs narrow it. At the `tiny` size (a poor fit,
+# a short refit) neither verdict means much. How often the diagnosis names the right cause over
 # many hidden effects, and stays at `none` without one, is what its own tests and benchmarks
-# measure (`docs/diagnosis.md`).
+# measure (`docs/diagnosis.md`, `results/diagnosis.md`).

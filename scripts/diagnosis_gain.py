@@ -80,7 +80,7 @@ def hidden_effect(effect: str, seed: int):
     """The rig's ``Effects`` with ``effect`` drawn from ``seed``."""
     from bayesdoor import rig
 
-    kinds = {
+    kinds: dict[str, Any] = {
         "frame_mode": rig.FrameMode,
         "wheel_eccentricity": rig.WheelEccentricity,
         "rail_waviness": rig.RailWaviness,

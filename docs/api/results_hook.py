@@ -1,11 +1,11 @@
-"""MkDocs hook: publish ``results/*.md`` with the documentation.
+"""MkDocs hook: publish ``results/`` with the documentation.
 
 The pages in ``docs/`` link the measured tables as ``../results/NAME.md`` so that the links work
-where the repository is read as files. The site has no ``..``: this hook adds every Markdown file
-of ``results/`` to the site under ``results/`` and rewrites those links to point there, so the
-strict build still checks that each linked table exists. The ``Results`` section of the nav is
-filled with every such file (titled by its first heading), so a new table needs no edit of
-``mkdocs.yml``.
+where the repository is read as files. The site has no ``..``: this hook adds every file of
+``results/`` (the tables and the figures they show) to the site under ``results/`` and rewrites
+those links to point there, so the strict build still checks that each linked table exists.
+The ``Results`` section of the nav is filled with every Markdown file there (titled by its
+first heading), so a new table needs no edit of ``mkdocs.yml``.
 """
 
 from __future__ import annotations
@@ -46,8 +46,10 @@ def on_config(config: MkDocsConfig, **kwargs: Any) -> MkDocsConfig:
 
 
 def on_files(files: Files, *, config: MkDocsConfig, **kwargs: Any) -> Files:
-    """Add the Markdown files of ``results/`` to the site as ``results/NAME.md``."""
-    for path in sorted(_results_dir(config).glob("*.md")):
+    """Add the files of ``results/`` (tables and the figures they show) under ``results/``."""
+    for path in sorted(_results_dir(config).iterdir()):
+        if not path.is_file() or path.name.startswith("."):
+            continue
         files.append(
             File.generated(config, f"{_RESULTS}/{path.name}", abs_src_path=str(path.resolve()))
         )

@@ -10,7 +10,7 @@ $(BIN)/bayesdoor: pyproject.toml
 	$(BIN)/python -m pip install --quiet -e ".[dev]"
 	touch $(BIN)/bayesdoor
 
-.PHONY: install demo test lint bench results
+.PHONY: install demo test lint bench results docs
 install: $(BIN)/bayesdoor
 
 demo: install
@@ -20,8 +20,8 @@ test: install
 	$(BIN)/python -m pytest -n 2 -q
 
 lint: install
-	$(BIN)/ruff check bayesdoor tests benchmarks scripts
-	$(BIN)/ruff format --check bayesdoor tests benchmarks scripts
+	$(BIN)/ruff check bayesdoor tests benchmarks scripts examples docs/api
+	$(BIN)/ruff format --check bayesdoor tests benchmarks scripts examples docs/api
 	$(BIN)/mypy
 
 bench: install
@@ -29,3 +29,6 @@ bench: install
 
 results: install
 	$(BIN)/python scripts/make_results.py
+
+docs: install
+	$(BIN)/mkdocs build --strict

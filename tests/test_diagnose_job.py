@@ -120,12 +120,24 @@ _MEASURED_FAILING = {
     ("frame_mode", 0): "frame mode: gain under 4 SE (+208 +- 88 forced, 8 runs at 0.40-0.50 m/s)",
     ("frame_mode", 1): "frame mode near the model's 58 Hz racking mode: gain under 4 SE",
     ("wheel_eccentricity", 0): "wheel tones about 20 dB under the vibration: no feature",
+    # measured in the full default suite of session 3 (09:35 UTC, shared base fit, 8 runs):
+    # verdict none, the refits' held-out gain not decisive at this size
+    ("wheel_eccentricity", 1): "verdict none at 8 runs (session 3 suite)",
+    ("rail_waviness", 0): "verdict none at 8 runs (session 3 suite; named at 12 runs)",
+    ("rail_waviness", 1): "verdict none at 8 runs (session 3 suite)",
+    ("sensor_cross_axis", 0): "verdict none at 8 runs (session 3 suite)",
+    ("sensor_cross_axis", 1): "verdict none at 8 runs (session 3 suite)",
 }
+#: the cases that pass at this size stay in the default suite; the measured failures run
+#: under ``slow`` (they cost 15-50 s each), as strict expected failures so that a fix shows
 CASES = [
     pytest.param(
         name,
         seed,
-        marks=[pytest.mark.xfail(strict=True, reason=_MEASURED_FAILING[(name, seed)])]
+        marks=[
+            pytest.mark.slow,
+            pytest.mark.xfail(strict=True, reason=_MEASURED_FAILING[(name, seed)]),
+        ]
         if (name, seed) in _MEASURED_FAILING
         else [],
     )

@@ -45,7 +45,12 @@ class Step:
 STEPS: tuple[Step, ...] = (
     Step("contact_laws", "scripts/contact_laws.py", quick_args=()),
     Step("contact_law_ablation", "scripts/contact_law_ablation.py"),
-    Step("sbc", "scripts/sbc.py"),
+    Step(
+        "sbc",
+        "scripts/sbc.py",
+        args=("--forward", "surrogate", "--n-datasets", "20"),
+        quick_args=(),
+    ),
     Step(
         "classification",
         "scripts/classification.py",
@@ -53,13 +58,14 @@ STEPS: tuple[Step, ...] = (
         quick_args=("--fit-evals", "300", "--fit-motion", "1.5", "--runs-per-state", "200"),
     ),
     Step("diagnosis", "scripts/diagnosis.py"),
+    Step("diagnosis_gain", "scripts/diagnosis_gain.py"),
     *(
         Step(name, f"benchmarks/{name}.py", ("--json",), ("--quick",) if quick else (), name)
         for name, quick in (
             ("bench_simulate", False),
             ("bench_features", False),
             ("bench_classify", False),
-            ("bench_datagen", True),
+            ("bench_datagen", False),
             ("bench_inference", True),
             ("bench_diagnose", True),
         )

@@ -822,6 +822,36 @@ def _point_error(
     return np.sqrt(np.maximum(excess, _SIGMA_FLOOR**2)), rho
 
 
+def _start_point(
+    x0: dict[str, float] | None,
+    search: Sequence[str],
+    specs: dict[str, Any],
+    lower: np.ndarray,
+    upper: np.ndarray,
+) -> np.ndarray:
+    """CMA-ES's start: ``x0``'s values of the searched parameters, else mid-range."""
+    start = 0.5 * (lower + upper)
+    if x0 is None:
+        return start
+    unknown = sorted(set(x0) - set(specs))
+    if unknown:
+        raise ValueError(
+            f"x0 names {unknown}, which are not parameters of the system: use some of {list(specs)}"
+        )
+    outside = {
+        n: v for n, v in x0.items() if n in search and not specs[n].lower <= v <= specs[n].upper
+    }
+    if outside:
+        raise ValueError(
+            f"x0 holds {outside}, outside the bounds "
+            f"{ {n: (specs[n].lower, specs[n].upper) for n in outside} }: clip it to them"
+        )
+    for i, n in enumerate(search):
+        if n in x0:
+            start[i] = float(x0[n])
+    return start
+
+
 def _sigma_site(error: ModelError) -> str:
     """The sampled site of the discrepancy scales."""
     return "sigma_operating" if error.shared and error.per_operating else "sigma_model"
@@ -839,6 +869,7 @@ def fit_campaign(
     settings: FitSettings | None = None,
     spec: FeatureSpec | None = None,
     error: ModelError | None = None,
+    x0: dict[str, float] | None = None,
 ) -> FitResult:
     """Update a system's parameters on the healthy calibration runs of a campaign.
 
@@ -868,6 +899,11 @@ def fit_campaign(
         The feature definition; ``None`` means ``FeatureSpec()``.
     error
         The model-error prior; ``None`` means ``ModelError()``.
+    x0
+        CMA-ES start point by parameter name (a warm start, e.g. another fit's ``point``,
+        with a smaller ``settings.cmaes_sigma0``); a searched parameter it lacks starts in
+        the middle of its range, and a held one (the integer parameter when ``law`` is
+        given) is ignored. ``None``: the middle of every range.
 
     Returns
     -------
@@ -877,8 +913,9 @@ def fit_campaign(
     Raises
     ------
     ValueError
-        For an unknown method, an invalid ``law`` or ``seed``, or a campaign without a
-        usable healthy run (see :func:`calibration_runs`).
+        For an unknown method, an invalid ``law`` or ``seed``, an ``x0`` with an unknown
+        name or a value outside its bounds, or a campaign without a usable healthy run (see
+        :func:`calibration_runs`).
     RuntimeError
         When every CMA-ES candidate failed to simulate.
 
@@ -914,12 +951,12 @@ def fit_campaign(
         return _j(*_simulate(population, _full(system, x, search, fixed)), data)
 
     integers = [len(search) - 1] if integer_name in search else []
-    x0 = 0.5 * (lower + upper)
-    x0[integers] = np.round(x0[integers])
+    start = _start_point(x0, search, specs, lower, upper)
+    start[integers] = np.round(start[integers])
     t0 = time.perf_counter()
     cmaes = minimize_cmaes(
         batch,
-        x0,
+        start,
         lower=lower,
         upper=upper,
         seed=seed + 1,

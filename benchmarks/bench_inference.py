@@ -1,94 +1,257 @@
-"""Inference costs: likelihood and gradient, NUTS and emcee ESS per second, CMA-ES on the demo.
+"""Inference costs on the demo campaign: the log density and its gradient, NUTS and emcee ESS/s.
 
-All figures in one process, so the ratios compare like with like on this machine:
+The problem is the one ``fit_campaign(door, load_demo_campaign(), method="nuts"|"emcee")``
+samples: the features of the demo campaign's 10 healthy calibration runs (3 speeds, so one
+evaluation of the exact simulator solves 3 records), the seven continuous Table 2 parameters
+free, the default ``ModelError()`` (a discrepancy shared by the runs of a speed, one scale per
+speed and channel, a run scatter per channel; 23 sampled dimensions) and ``FitSettings()``
+(``--quick``: ``FitSettings.quick()``, 1 s of motion per run and short chains). Two
+departures, so that the figures come in minutes and not after a CMA-ES run:
 
-1. one evaluation of the log density (priors and likelihood, numpyro's potential) and of its
-   value and gradient, through the diffrax simulator (the reduced door, the seven continuous
-   Table 2 parameters free, contact law 6, 2 runs at 0.5 m/s, 1 s records) and through a
-   quadratic surrogate of it (+-25 % box around the paper's optimum); ratios gradient/value
-   and exact/surrogate;
-2. NUTS and emcee (independent ensembles) on the same surrogate likelihood, started at the
-   truth: smallest bulk ESS over the parameters and model-error scales per second of wall
-   time (the second call of each, so compilation is mostly cached; the first call's time is
-   reported too); ratio NUTS/emcee;
-3. CMA-ES on the paper's J over the 10 calibration runs of the demo campaign
-   (``fit_campaign(method="cmaes")``, law searched): wall time, evaluations, and the time
-   until J came within 1 % of its final best (from the history, at the mean cost of an
-   evaluation).
+* the fit's CMA-ES optimum is replaced by the rig's true parameters and contact law
+  (``load_demo_truth()["parameters"]``, inside the Table 2 bounds): the surrogate box, the
+  sampler start and the Laplace whitening are built there exactly as ``fit_campaign`` builds
+  them at its optimum (first box only: the box-moving loop is left out);
+* the quadratic surrogate, the expensive part (``train_per_term`` x 36 + ``n_test`` exact
+  simulations), is cached in ``bayesdoor.datasets.cache_dir() / "bench"`` under a hash of
+  the demo campaign, the settings and the source of the simulator, features and surrogate;
+  the fit time of a cached surrogate is the one measured when it was fitted.
 
-Usage: python benchmarks/bench_inference.py [--quick] [--json]
-(``--quick``: fewer repeats, shorter chains, ``FitSettings.quick()`` for CMA-ES: 120
-evaluations on 1 s of motion per run). Wall and process CPU times are both reported: on a
-shared machine the CPU time is the steadier figure. Progress goes to stderr.
+Then, in one process:
+
+1. one evaluation of the log density (priors and likelihood: numpyro's potential, what both
+   samplers evaluate) and of its value and gradient, jitted, warm, median of repeats with
+   ``block_until_ready``, through (a) the exact diffrax simulator and (b) the surrogate;
+   ratios gradient/value and exact/surrogate;
+2. NUTS (numpyro) and emcee (``n_ensembles`` independent ensembles) on the same surrogate
+   model from the same start, each called twice with the same sizes (the first call
+   compiles; the second is timed, and still re-traces its jitted functions): wall time, min
+   bulk and tail ESS over every posterior variable (ArviZ, through ``diagnose_sampling``,
+   whose gates the fit applies), ESS per second, ESS per 1000 evaluations in the kept draws
+   (NUTS: leapfrog steps, each a value and gradient; emcee: walker proposals, each a value),
+   R-hat (emcee: nested over ensembles), divergences, and whether the gates passed; ratio
+   NUTS/emcee of ESS per second.
+
+Usage: python benchmarks/bench_inference.py [--quick] [--json] [--refit-surrogate]
+Wall and process CPU times are both reported (on a shared machine CPU time is the steadier
+figure), with the load average at each stage. Progress goes to stderr.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import hashlib
 import json
 import os
 import sys
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from numpyro.infer import init_to_value
 from numpyro.infer.util import initialize_model
 
+from bayesdoor.datasets import cache_dir, demo_paths, load_demo_campaign, load_demo_truth
 from bayesdoor.inference import (
     CalibrationData,
+    FitSettings,
+    ModelError,
+    QuadraticSurrogate,
     SamplingTransform,
     SimulatorForward,
     box_around,
+    calibration_runs,
+    campaign_data,
     diagnose_sampling,
-    fit_campaign,
     fit_surrogate,
+    log_likelihood,
     make_model,
     sample_emcee,
     sample_nuts,
+    simulate_design,
 )
-from bayesdoor.systems import DoorParameters, ElevatorDoor
+from bayesdoor.io import atomic_write
+from bayesdoor.systems import ElevatorDoor
 
 jax.config.update("jax_enable_x64", True)
+ROOT = Path(__file__).resolve().parent.parent
 jax.config.update(
-    "jax_compilation_cache_dir",
-    os.environ.get(
-        "BAYESDOOR_JAX_CACHE", str(Path(__file__).resolve().parent.parent / ".jax_cache")
-    ),
+    "jax_compilation_cache_dir", os.environ.get("BAYESDOOR_JAX_CACHE", str(ROOT / ".jax_cache"))
 )
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
-SPEED, RUNS, DURATION, LAW = 0.5, 2, 1.0, 6
+#: the code a cached surrogate depends on: a change to any of it refits the surrogate
+SURROGATE_SOURCES = (
+    *sorted((ROOT / "bayesdoor" / "systems").rglob("*.py")),
+    *sorted((ROOT / "bayesdoor" / "contact").glob("*.py")),
+    *sorted((ROOT / "bayesdoor" / "features").glob("*.py")),
+    *(
+        ROOT / "bayesdoor" / "inference" / f"_{name}.py"
+        for name in ("features", "likelihood", "surrogate")
+    ),
+)
+#: the seed fit_campaign uses by default; its surrogate design key derives from it the same way
+SEED = 0
 
 
-def problem():
-    """Data simulated at the paper's optimum (plus 1e-3 m/s^2 sensor noise), both forwards."""
-    door = ElevatorDoor()
-    truth = {k: float(v) for k, v in DoorParameters.paper_optimum().to_dict().items()}
-    free = tuple(p.name for p in door.parameters if not p.integer)
-    ops = np.full(RUNS, SPEED)
-    signals = np.asarray(door.simulate_values(truth, ops, duration=DURATION).signals)
-    signals = signals + 1e-3 * np.random.default_rng(0).standard_normal(signals.shape)
-    t_start, t_stop = door.motion_window(ops, duration=DURATION)
-    data = CalibrationData.from_signals(signals, door.sampling_rate_hz, ops, t_start, t_stop)
-    fixed = {"I": float(LAW)}
-    exact = SimulatorForward.build(door, free, fixed, data.operating, duration=DURATION)
-    specs = {p.name: p for p in door.parameters}
-    centre = np.array([truth[n] for n in free])
-    lo, hi = box_around(
-        centre, [specs[n].lower for n in free], [specs[n].upper for n in free], 0.25
+def _log(message: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')} load {os.getloadavg()[0]:.1f}] {message}", file=sys.stderr)
+
+
+@dataclasses.dataclass(frozen=True)
+class Problem:
+    """The demo fit's likelihood at the rig's truth, with both forward models."""
+
+    data: CalibrationData
+    exact: SimulatorForward
+    surrogate: QuadraticSurrogate
+    transform: SamplingTransform
+    init: dict[str, jax.Array]
+    law: int
+    box_fractions: list[float]
+    surrogate_info: dict[str, Any]
+
+
+def _surrogate_path(settings: FitSettings, truth: dict[str, float]) -> Path:
+    digest = hashlib.sha256()
+    for path in SURROGATE_SOURCES:
+        digest.update(path.read_bytes())
+    digest.update(demo_paths()[0].name.encode())
+    digest.update(json.dumps([dataclasses.asdict(settings), truth, SEED], sort_keys=True).encode())
+    return cache_dir() / "bench" / f"bench-inference-surrogate-{digest.hexdigest()[:16]}.npz"
+
+
+def _fit_or_load_surrogate(
+    exact: SimulatorForward,
+    box: tuple[np.ndarray, np.ndarray],
+    settings: FitSettings,
+    path: Path,
+    refit: bool,
+) -> tuple[QuadraticSurrogate, dict[str, Any]]:
+    """The surrogate ``fit_campaign`` fits on its first box, from the cache when it is there."""
+    if path.is_file() and not refit:
+        stored = np.load(path)
+        surrogate = QuadraticSurrogate(
+            names=exact.names,
+            operating=exact.operating,
+            lower=jnp.asarray(stored["lower"]),
+            upper=jnp.asarray(stored["upper"]),
+            coef=jnp.asarray(stored["coef"]),
+            error_variance=jnp.asarray(stored["error_variance"]),
+            ridge=jnp.asarray(stored["ridge"]),
+            n_train=int(stored["n_train"]),
+        )
+        return surrogate, {"cached": True, "path": str(path), **json.loads(str(stored["info"]))}
+    d = len(exact.names)
+    n_terms = 1 + d + d * (d + 1) // 2
+    key_surrogate = jax.random.split(jax.random.key(SEED), 3)[0]
+    t0, c0, load = time.perf_counter(), time.process_time(), os.getloadavg()[0]
+    surrogate = fit_surrogate(
+        exact,
+        jnp.asarray(box[0]),
+        jnp.asarray(box[1]),
+        key=jax.random.fold_in(key_surrogate, 0),
+        n_train=settings.train_per_term * n_terms,
+        n_test=settings.n_test,
     )
-    t0 = time.perf_counter()
-    surrogate = fit_surrogate(exact, lo, hi, key=jax.random.key(1), n_train=72, n_test=16)
-    fit_s = time.perf_counter() - t0
-    return data, exact, surrogate, SamplingTransform.box(free, lo, hi), centre, fit_s
+    info = {
+        "fit_s": time.perf_counter() - t0,
+        "fit_cpu_s": time.process_time() - c0,
+        "fit_load_average": load,
+        "simulations": settings.train_per_term * n_terms + settings.n_test,
+        "fitted_at": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+    }
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            np.savez(
+                f,
+                lower=np.asarray(surrogate.lower),
+                upper=np.asarray(surrogate.upper),
+                coef=np.asarray(surrogate.coef),
+                error_variance=np.asarray(surrogate.error_variance),
+                ridge=np.asarray(surrogate.ridge),
+                n_train=surrogate.n_train,
+                info=json.dumps(info),
+            )
+
+    atomic_write(path, write, overwrite=True)
+    return surrogate, {"cached": False, "path": str(path), **info}
 
 
-def _median_time(fn, arg, repeats: int) -> tuple[float, float]:
-    """Median wall and process CPU seconds of ``fn(arg)`` after a first (compiling) call."""
-    jax.block_until_ready(fn(arg))
+def build_problem(settings: FitSettings, refit: bool) -> Problem:
+    """Data, exact forward, surrogate, whitened transform and start, as ``fit_campaign``.
+
+    The steps after CMA-ES in ``fit_campaign`` with the rig's truth for the optimum: a
+    parameter whose move across its whole range changes no feature by ``settings.insensitive``
+    Welch sds spans its whole range in the box, the others ``settings.box_fraction``; the
+    transform is whitened at the box point nearest the truth (2 % inside each face). The
+    discrepancy scales start at the RMS over bands of each speed's mean residual (floored at
+    0.01 decades), the run scatter at 1 (its prior median), a simpler moment estimate than
+    the fit's, shared by both samplers.
+    """
+    door = ElevatorDoor()
+    campaign = load_demo_campaign(show_progress=False)
+    truth_all = load_demo_truth(show_progress=False)["parameters"]
+    data, duration = campaign_data(
+        door, campaign, calibration_runs(campaign), max_motion_s=settings.max_motion_s
+    )
+    specs = {p.name: p for p in door.parameters}
+    free = tuple(p.name for p in door.parameters if not p.integer)
+    integer = next(p.name for p in door.parameters if p.integer)
+    law = int(truth_all[integer])
+    truth = np.array([float(truth_all[n]) for n in free])
+    lower = np.array([specs[n].lower for n in free])
+    upper = np.array([specs[n].upper for n in free])
+    exact = SimulatorForward.build(
+        door, free, {integer: float(law)}, data.operating, duration=duration
+    )
+    # the fit's sensitivity test: each parameter moved to its two bounds, the others at truth
+    ends = np.repeat(truth[None], 2 * len(free), axis=0)
+    ends[2 * np.arange(len(free)), np.arange(len(free))] = lower
+    ends[2 * np.arange(len(free)) + 1, np.arange(len(free))] = upper
+    end_features, _ = simulate_design(exact, ends, chunk=2 * len(free))
+    reach = np.max(np.abs(end_features[0::2] - end_features[1::2]), axis=(1, 2, 3))
+    welch_sd = float(np.sqrt(np.median(np.asarray(data.welch_variance))))
+    fractions = np.where(reach < settings.insensitive * welch_sd, 1.0, settings.box_fraction)
+    box = box_around(truth, lower, upper, fractions)
+    truth_named = dict(zip(free, truth.tolist(), strict=True))
+    surrogate, info = _fit_or_load_surrogate(
+        exact, box, settings, _surrogate_path(settings, truth_named), refit
+    )
+    _log(f"surrogate {'loaded' if info['cached'] else 'fitted'} ({info['fit_s']:.0f} s to fit)")
+
+    sim = np.asarray(exact(jnp.asarray(truth)).features)[np.asarray(data.run_operating)]
+    residual = np.asarray(data.y) - sim
+    index = np.asarray(data.run_operating)
+    means = np.stack([residual[index == o].mean(axis=0) for o in range(data.operating.shape[0])])
+    sigma = jnp.asarray(np.maximum(np.sqrt(np.mean(means**2, axis=-1)), 0.01))
+    rho = jnp.ones(data.y.shape[1])
+    inside = box[0] + np.clip((truth - box[0]) / (box[1] - box[0]), 0.02, 0.98) * (box[1] - box[0])
+
+    def density(theta):
+        return log_likelihood(theta, sigma, data, surrogate, run_scatter=rho)
+
+    transform = SamplingTransform.box(free, box[0].tolist(), box[1].tolist()).whitened_at(
+        density, jnp.asarray(inside)
+    )
+    init = {
+        "z": transform.to_sampling(jnp.asarray(inside)),
+        "sigma_operating": sigma,
+        "run_scatter": rho,
+    }
+    info["heldout_rms"] = float(np.sqrt(np.mean(np.asarray(surrogate.error_variance))))
+    return Problem(data, exact, surrogate, transform, init, law, fractions.tolist(), info)
+
+
+def _median_time(fn: Callable, arg: Any, repeats: int) -> tuple[float, float]:
+    """Median wall and process CPU seconds of ``fn(arg)``, each call waited for."""
     walls, cpus = [], []
     for _ in range(repeats):
         t0, c0 = time.perf_counter(), time.process_time()
@@ -98,58 +261,54 @@ def _median_time(fn, arg, repeats: int) -> tuple[float, float]:
     return float(np.median(walls)), float(np.median(cpus))
 
 
-def _log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
-
-
-def time_density(model, init: dict, repeats: int) -> dict:
-    """Seconds per log density, and per value and gradient, at the unconstrained ``init``."""
-    info = initialize_model(jax.random.key(0), model, init_strategy=_init_to(init))
+def time_density(model: Callable, init: dict, repeats: int) -> dict[str, Any]:
+    """Seconds per log density, and per value and gradient, at the start point."""
+    info = initialize_model(
+        jax.random.key(0),
+        model,
+        init_strategy=init_to_value(values={k: jnp.asarray(v) for k, v in init.items()}),
+    )
     z = info.param_info.z
     value = jax.jit(info.potential_fn)
     both = jax.jit(jax.value_and_grad(info.potential_fn))
-    t0 = time.perf_counter()
-    jax.block_until_ready(both(z))
-    compile_s = time.perf_counter() - t0
-    v, g = both(z)
-    finite = bool(np.isfinite(v)) and all(
-        bool(np.all(np.isfinite(x))) for x in jax.tree_util.tree_leaves(g)
-    )
-    value_s, value_cpu = _median_time(value, z, repeats)
-    both_s, both_cpu = _median_time(both, z, repeats)
+    out: dict[str, Any] = {"repeats": repeats}
+    for name, fn in (("value", value), ("value_and_grad", both)):
+        t0 = time.perf_counter()
+        first = jax.block_until_ready(fn(z))
+        out[f"first_{name}_s"] = time.perf_counter() - t0
+        out[f"{name}_s"], out[f"{name}_cpu_s"] = _median_time(fn, z, repeats)
+        out["finite"] = out.get("finite", True) and all(
+            bool(np.all(np.isfinite(x))) for x in jax.tree_util.tree_leaves(first)
+        )
+    out["log_density"] = -float(value(z))
+    return out
+
+
+def _sampler_settings(settings: FitSettings, ndim: int) -> dict[str, dict[str, Any]]:
+    """The fit's sampler sizes; emcee's walkers raised to twice the dimension plus two."""
     return {
-        "value_s": value_s,
-        "value_cpu_s": value_cpu,
-        "value_and_grad_s": both_s,
-        "value_and_grad_cpu_s": both_cpu,
-        "first_value_and_grad_s": compile_s,
-        "finite": finite,
+        "nuts": {
+            "num_warmup": settings.num_warmup,
+            "num_samples": settings.num_samples,
+            "num_chains": settings.num_chains,
+            "target_accept": settings.target_accept,
+        },
+        "emcee": {
+            "n_walkers": max(settings.emcee_walkers, 2 * ndim + 2),
+            "n_steps": settings.emcee_steps,
+            "burn": settings.emcee_burn,
+            "thin": settings.emcee_thin,
+            "init_scale": 0.1,
+        },
     }
 
 
-def _init_to(values: dict):
-    from numpyro.infer import init_to_value
-
-    return init_to_value(values={k: jnp.asarray(v) for k, v in values.items()})
-
-
-def time_samplers(model, init: dict, quick: bool) -> dict:
-    """ESS per second of NUTS and emcee on ``model``, each called twice (the second timed)."""
-    nuts_kw = (
-        dict(num_warmup=200, num_samples=200, num_chains=2)
-        if quick
-        else dict(num_warmup=500, num_samples=500, num_chains=4)
-    )
-    emcee_kw = (
-        dict(n_walkers=32, n_ensembles=4, n_steps=1500, burn=500)
-        if quick
-        else dict(n_walkers=32, n_ensembles=4, n_steps=6000, burn=1000)
-    )
-    out = {}
-    for name, sampler, kw in (
-        ("nuts", sample_nuts, nuts_kw),
-        ("emcee", sample_emcee, {**emcee_kw, "init_scale": 0.1}),
-    ):
+def time_samplers(model: Callable, init: dict, settings: FitSettings) -> dict[str, Any]:
+    """ESS per second and per evaluation of NUTS and emcee, each called twice (second timed)."""
+    ndim = sum(int(np.size(v)) for v in init.values())
+    out: dict[str, Any] = {}
+    for name, kw in _sampler_settings(settings, ndim).items():
+        sampler = sample_nuts if name == "nuts" else sample_emcee
         walls, cpus = [], []
         for seed in (0, 1):
             t0, c0 = time.perf_counter(), time.process_time()
@@ -161,121 +320,160 @@ def time_samplers(model, init: dict, quick: bool) -> dict:
             walls.append(time.perf_counter() - t0)
             cpus.append(time.process_time() - c0)
             _log(f"{name} call {seed + 1}: {walls[-1]:.1f} s wall, {cpus[-1]:.1f} s CPU")
-        # the parameters (deterministic sites), model-error scales and run scatters
-        names = [v for v in idata.posterior.data_vars if v != "z"]
-        diag = diagnose_sampling(idata, var_names=names, warn=False)
+        diag = diagnose_sampling(idata, warn=False)
+        stats = idata["sample_stats"]
+        if name == "nuts":
+            evaluations = int(np.sum(stats["n_steps"].values))
+            per_draw = evaluations / stats["n_steps"].size
+        else:
+            evaluations = int(stats["lp"].size * kw["thin"])
+            per_draw = float(kw["thin"])
         out[name] = {
-            "settings": {k: v for k, v in kw.items()},
+            "settings": {k: v for k, v in kw.items() if k != "init_values"},
+            "dimensions": ndim,
             "first_call_s": walls[0],
             "wall_s": walls[1],
             "cpu_s": cpus[1],
+            "draws": diag.draws,
             "min_ess_bulk": diag.ess_bulk_min,
-            "worst": diag.ess_bulk_worst,
+            "worst_bulk": diag.ess_bulk_worst,
+            "min_ess_tail": diag.ess_tail_min,
+            "worst_tail": diag.ess_tail_worst,
+            "ess_bulk_per_s": diag.ess_bulk_min / walls[1],
+            "ess_tail_per_s": diag.ess_tail_min / walls[1],
+            "ess_bulk_per_cpu_s": diag.ess_bulk_min / cpus[1],
+            "kept_evaluations": evaluations,
+            "evaluations_per_draw": per_draw,
+            "ess_bulk_per_1000_evaluations": 1e3 * diag.ess_bulk_min / evaluations,
             "rhat_max": diag.rhat_max,
+            "rhat_worst": diag.rhat_worst,
             "rhat_method": diag.rhat_method,
+            "divergences": diag.divergences,
+            "autocorr_lengths": diag.autocorr_lengths,
             "gates_passed": diag.passed,
-            "ess_per_s": diag.ess_bulk_min / walls[1],
-            "ess_per_cpu_s": diag.ess_bulk_min / cpus[1],
+            "gate_messages": list(diag.messages),
+            "load_average": os.getloadavg()[0],
         }
     return out
 
 
-def time_cmaes(quick: bool) -> dict:
-    """CMA-ES on J over the demo campaign's calibration runs (the law searched too)."""
-    from bayesdoor.datasets import load_demo_campaign
-
-    campaign = load_demo_campaign(show_progress=False)
-    door = ElevatorDoor()
-    t0, c0 = time.perf_counter(), time.process_time()
-    result = fit_campaign(door, campaign, method="cmaes", seed=0, quick=quick, progress=False)
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    _log(f"CMA-ES: {wall:.0f} s wall, {cpu:.0f} s CPU")
-    c = result.cmaes
-    h = c.history
-    final = float(c.f_best)
-    reached = np.flatnonzero(h.best_f <= final + 0.01 * abs(final))
-    evals_to_1pct = int(h.evaluations[reached[0]]) if reached.size else int(c.evaluations)
-    per_eval = result.timings["cmaes"] / c.evaluations
+def run(quick: bool, refit: bool) -> dict[str, Any]:
+    """Every figure of the benchmark, as one JSON-ready dict."""
+    settings = FitSettings.quick() if quick else FitSettings()
+    load = os.getloadavg()
+    t_start = time.perf_counter()
+    problem = build_problem(settings, refit)
+    _log("problem built")
+    error = ModelError()
+    models = {
+        name: make_model(problem.data, forward, problem.transform, error)
+        for name, forward in (("exact", problem.exact), ("surrogate", problem.surrogate))
+    }
+    repeats = {"exact": 3 if quick else 5, "surrogate": 50 if quick else 200}
+    densities = {}
+    for name, model in models.items():
+        densities[name] = time_density(model, problem.init, repeats[name])
+        densities[name]["load_average"] = os.getloadavg()[0]
+        _log(f"{name} density timed: {json.dumps(densities[name])}")
+    samplers = time_samplers(models["surrogate"], problem.init, settings)
+    n_run = int(problem.data.y.shape[0])
+    n_op = int(problem.data.operating.shape[0])
     return {
         "quick": quick,
-        "wall_s": wall,
-        "cpu_s": cpu,
-        "cmaes_s": result.timings["cmaes"],
-        "features_s": result.timings["features"],
-        "evaluations": int(c.evaluations),
-        "restarts": int(c.restarts),
-        "j_best": final,
-        "law": result.law,
-        "s_per_evaluation": per_eval,
-        "evaluations_to_within_1pct": evals_to_1pct,
-        "s_to_within_1pct": evals_to_1pct * per_eval,
+        "load_average_at_start": load,
+        "load_average_at_end": os.getloadavg(),
+        "total_s": time.perf_counter() - t_start,
+        "problem": {
+            "campaign": demo_paths()[0].name,
+            "runs": n_run,
+            "operating_points": np.asarray(problem.data.operating).tolist(),
+            "features": int(np.prod(problem.data.y.shape)),
+            "free": list(problem.exact.names),
+            "law": problem.law,
+            "duration_s": problem.exact.duration,
+            "box_fractions": problem.box_fractions,
+            "centre": "rig truth (load_demo_truth), in place of the CMA-ES optimum",
+        },
+        "surrogate": problem.surrogate_info,
+        "density": densities,
+        "exact_per_simulated_operating_point": {
+            k: densities["exact"][k] / n_op for k in ("value_s", "value_and_grad_s")
+        },
+        "ratio_grad_over_value": {
+            k: v["value_and_grad_s"] / v["value_s"] for k, v in densities.items()
+        },
+        "ratio_exact_over_surrogate": {
+            k: densities["exact"][k] / densities["surrogate"][k]
+            for k in ("value_s", "value_and_grad_s")
+        },
+        "samplers": samplers,
+        "ratio_nuts_over_emcee": {
+            k: samplers["nuts"][k] / samplers["emcee"][k]
+            for k in ("ess_bulk_per_s", "ess_tail_per_s", "ess_bulk_per_1000_evaluations")
+        },
+        "devices": [str(d) for d in jax.devices()],
     }
+
+
+def _print(result: dict[str, Any]) -> None:
+    p, s = result["problem"], result["surrogate"]
+    print(
+        f"{p['runs']} calibration runs at {p['operating_points']} m/s ({p['features']} "
+        f"features, {p['duration_s']:.2f} s records), law {p['law']}, centre: {p['centre']}"
+    )
+    print(
+        f"load average {result['load_average_at_start'][0]:.1f} at the start, "
+        f"{result['load_average_at_end'][0]:.1f} at the end; {result['total_s']:.0f} s in all"
+    )
+    print(
+        f"surrogate: {'cached' if s['cached'] else 'fitted now'}, {s['simulations']} simulations "
+        f"fitted in {s['fit_s']:.0f} s (load {s['fit_load_average']:.1f}), held-out RMS "
+        f"{s['heldout_rms']:.3f} decades"
+    )
+    for name, d in result["density"].items():
+        print(
+            f"  log density, {name}: {1e3 * d['value_s']:.3g} ms, value and gradient "
+            f"{1e3 * d['value_and_grad_s']:.3g} ms (x{result['ratio_grad_over_value'][name]:.1f}); "
+            f"first calls {d['first_value_s']:.1f} s and {d['first_value_and_grad_s']:.1f} s"
+        )
+    per_op = result["exact_per_simulated_operating_point"]
+    print(
+        f"  exact, per simulated speed: {1e3 * per_op['value_s']:.0f} ms, value and gradient "
+        f"{1e3 * per_op['value_and_grad_s']:.0f} ms; exact/surrogate value and gradient "
+        f"x{result['ratio_exact_over_surrogate']['value_and_grad_s']:.0f}"
+    )
+    for name, v in result["samplers"].items():
+        verdict = "gates PASSED" if v["gates_passed"] else "GATES FAILED (not converged)"
+        div = "" if v["divergences"] is None else f", {v['divergences']} divergences"
+        print(
+            f"  {name}: {v['wall_s']:.1f} s (first call {v['first_call_s']:.1f} s); min ESS bulk "
+            f"{v['min_ess_bulk']:.0f} ({v['worst_bulk']}), tail {v['min_ess_tail']:.0f} = "
+            f"{v['ess_bulk_per_s']:.1f} bulk ESS/s, {v['ess_bulk_per_1000_evaluations']:.2f} per "
+            f"1000 evaluations; R-hat {v['rhat_max']:.3f} ({v['rhat_method']}){div}; {verdict}"
+        )
+        for message in v["gate_messages"]:
+            print(f"      ! {message}")
+    r = result["ratio_nuts_over_emcee"]
+    print(
+        f"  NUTS/emcee: bulk ESS/s x{r['ess_bulk_per_s']:.2f}, tail ESS/s "
+        f"x{r['ess_tail_per_s']:.2f}, bulk ESS per evaluation x"
+        f"{r['ess_bulk_per_1000_evaluations']:.1f}"
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--json", action="store_true")
-    parser.add_argument("--skip-cmaes", action="store_true", help="leave out part 3")
+    parser.add_argument("--quick", action="store_true", help="FitSettings.quick() sizes")
+    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    parser.add_argument(
+        "--refit-surrogate", action="store_true", help="fit the surrogate even when cached"
+    )
     ns = parser.parse_args()
-    repeats = 5 if ns.quick else 20
-    load = os.getloadavg()
-    data, exact, surrogate, transform, truth, surrogate_fit_s = problem()
-    _log(f"problem built, surrogate fitted in {surrogate_fit_s:.0f} s")
-    # the default ModelError: discrepancy scales per operating point and channel
-    sigma0 = jnp.full((data.operating.shape[0], data.y.shape[1]), 0.05)
-    init = {"z": transform.to_sampling(jnp.asarray(truth)), "sigma_operating": sigma0}
-    densities = {
-        name: time_density(make_model(data, forward, transform), init, repeats)
-        for name, forward in (("exact", exact), ("surrogate", surrogate))
-    }
-    _log(f"densities timed: {json.dumps(densities)}")
-    samplers = time_samplers(make_model(data, surrogate, transform), init, ns.quick)
-    cmaes = None if ns.skip_cmaes else time_cmaes(ns.quick)
-    result = {
-        "quick": ns.quick,
-        "load_average_at_start": load,
-        "load_average_at_end": os.getloadavg(),
-        "problem": {
-            "free": list(exact.names),
-            "runs": RUNS,
-            "speed": SPEED,
-            "duration_s": DURATION,
-            "features": int(np.prod(data.y.shape)),
-        },
-        "surrogate_fit_s": surrogate_fit_s,
-        "surrogate_heldout_rms": float(np.sqrt(np.mean(np.asarray(surrogate.error_variance)))),
-        "density": densities,
-        "ratio_grad_over_value": {
-            k: v["value_and_grad_s"] / v["value_s"] for k, v in densities.items()
-        },
-        "ratio_exact_over_surrogate_value_and_grad": densities["exact"]["value_and_grad_s"]
-        / densities["surrogate"]["value_and_grad_s"],
-        "samplers": samplers,
-        "ratio_nuts_over_emcee_ess_per_s": samplers["nuts"]["ess_per_s"]
-        / samplers["emcee"]["ess_per_s"],
-        "cmaes": cmaes,
-        "devices": [str(d) for d in jax.devices()],
-    }
+    result = run(ns.quick, ns.refit_surrogate)
     if ns.json:
         print(json.dumps(result, indent=2))
-        return
-    print(f"load average {load[0]:.1f} at the start")
-    for k, v in densities.items():
-        print(
-            f"  log density, {k}: {1e3 * v['value_s']:.2f} ms, value and gradient "
-            f"{1e3 * v['value_and_grad_s']:.2f} ms (x{result['ratio_grad_over_value'][k]:.1f})"
-        )
-    for k, v in samplers.items():
-        print(
-            f"  {k}: min bulk ESS {v['min_ess_bulk']:.0f} in {v['wall_s']:.1f} s = "
-            f"{v['ess_per_s']:.1f} ESS/s (first call {v['first_call_s']:.1f} s)"
-        )
-    if cmaes is not None:
-        print(
-            f"  CMA-ES: {cmaes['evaluations']} evaluations in {cmaes['cmaes_s']:.0f} s, within "
-            f"1 % of J = {cmaes['j_best']:.4f} after {cmaes['s_to_within_1pct']:.0f} s"
-        )
+    else:
+        _print(result)
 
 
 if __name__ == "__main__":

@@ -64,9 +64,10 @@ def _band(diagnosis: Diagnosis) -> tuple[float, float]:
 def verdict_extension(system: AbstractSystem, diagnosis: Diagnosis) -> VerdictExtension | None:
     """The model extension of a diagnosis's verdict, configured as its refit chose.
 
-    The catalogue's recipe is asked again for its proposals from the signature's estimate
-    (what :func:`diagnose_campaign` refitted); the one whose configuration, in words, is the
-    verdict's is the one the refit chose.
+    The proposal the refit chose is the verdict cause's ``proposal``; for a cause without one
+    (a diagnosis made before causes kept it) the catalogue's recipe is asked again for its
+    proposals from the signature's estimate and the one whose configuration, in words, is the
+    verdict's is taken.
 
     Parameters
     ----------
@@ -97,16 +98,19 @@ def verdict_extension(system: AbstractSystem, diagnosis: Diagnosis) -> VerdictEx
             f"({', '.join(diagnosis.catalogue.names)}): diagnose with the catalogue whose "
             "recipes made the verdict"
         )
-    score = {s.name: s for s in diagnosis.ranking.causes}[cause.name]
-    proposals = candidate.refit.propose(score.parameters, band=_band(diagnosis))
-    chosen = [p for p in proposals if p.label == cause.label]
-    if not chosen:
-        raise ValueError(
-            f"the verdict {cause.name!r} was refitted as {cause.label!r}, but its recipe now "
-            f"proposes {[p.label for p in proposals]}: the diagnosis was made with another "
-            "catalogue; diagnose the campaign again"
-        )
-    proposal = chosen[0]
+    if cause.proposal is not None:
+        proposal = cause.proposal
+    else:
+        score = {s.name: s for s in diagnosis.ranking.causes}[cause.name]
+        proposals = candidate.refit.propose(score.parameters, band=_band(diagnosis))
+        chosen = [p for p in proposals if p.label == cause.label]
+        if not chosen:
+            raise ValueError(
+                f"the verdict {cause.name!r} was refitted as {cause.label!r}, but its recipe "
+                f"now proposes {[p.label for p in proposals]}: the diagnosis was made with "
+                "another catalogue; diagnose the campaign again"
+            )
+        proposal = chosen[0]
     extended = system.with_extensions(proposal.extension)
     base = set(system.parameter_names())
     values = {}

@@ -87,6 +87,9 @@ class Cause:
         The residual feature the signature matched.
     label
         The refitted configuration in words.
+    proposal
+        The catalogue recipe's proposal the refit chose (``None``: not refitted), so that
+        :func:`~bayesdoor.diagnose.verdict_extension` need not ask the recipe again.
     """
 
     name: str
@@ -98,6 +101,7 @@ class Cause:
     confirmed: bool = False
     feature: str = ""
     label: str = ""
+    proposal: ExtensionProposal | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -135,6 +139,9 @@ class Diagnosis:
         What limited the diagnosis (too few runs to hold any out, a refit that failed).
     timings
         Seconds per stage.
+    fit
+        The base model's fit the diagnosis was made under (given, or made by
+        :func:`diagnose_campaign`), so that a report can show it.
     """
 
     verdict: str
@@ -145,6 +152,7 @@ class Diagnosis:
     runs: np.ndarray
     notes: tuple[str, ...] = ()
     timings: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    fit: FitResult | None = None
 
     @property
     def features(self) -> Features:
@@ -553,6 +561,7 @@ def diagnose_campaign(
             gain=gain,
             confirmed=gain.decisive,
             label=proposal.label,
+            proposal=proposal,
         )
     timings["refits"] = time.perf_counter() - t0
 
@@ -572,6 +581,7 @@ def diagnose_campaign(
         runs=np.asarray(runs),
         notes=tuple(notes),
         timings=timings,
+        fit=fit,
     )
 
 

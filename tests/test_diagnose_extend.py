@@ -26,8 +26,7 @@ def test_a_cause_carries_the_proposal_its_refit_chose():
     )
     verdict = diagnosis.cause(diagnosis.verdict)
     causes = tuple(
-        dataclasses.replace(c, proposal=proposal) if c is verdict else c
-        for c in diagnosis.causes
+        dataclasses.replace(c, proposal=proposal) if c is verdict else c for c in diagnosis.causes
     )
     found = verdict_extension(ElevatorDoor(), dataclasses.replace(diagnosis, causes=causes))
     assert found is not None

@@ -107,7 +107,7 @@ def test_run_without_calibration_runs_fails_in_one_line(tmp_path):
     path = door_file(tmp_path / "faulty.nc", ["D1", "D2", "D1"])
     result = invoke("run", path, "--out", tmp_path / "job")
     assert result.exit_code == 2
-    assert "no calibration runs" in result.output
+    assert "no healthy run to update the model on" in result.output
     assert len(result.output.strip().splitlines()) == 1
     assert not (tmp_path / "job").exists()
 

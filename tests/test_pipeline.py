@@ -423,17 +423,52 @@ def test_a_foreign_folder_is_refused(tmp_path):
 
 def test_calibration_and_test_selection():
     campaign = tone_campaign(split=False)
-    assert set(calibration_runs(campaign)["state"].values) == {"healthy"}
+    assert set(campaign["state"].values[calibration_runs(campaign)]) == {"healthy"}
     assert runs_to_classify(campaign).sizes["run"] == campaign.sizes["run"]
     with_split = tone_campaign()
     assert runs_to_classify(with_split).sizes["run"] == 12
+
+
+class FitCalled(Exception):
+    """Raised by :func:`recording_fit` once it has seen the runs: nothing after it matters."""
+
+
+def recording_fit(system, campaign, **options):
+    raise FitCalled([int(r) for r in campaign["run"].values])
+
+
+@pytest.mark.parametrize(
+    ("split", "fitted"),
+    [
+        # a faulty run marked for calibration is not fitted on: updating needs healthy runs
+        (["calibration", "calibration", "calibration"] + ["test"] * 12, [0, 2]),
+        # no run marked for calibration: every healthy run
+        (["test"] * 15, [0, 2, 3, 6, 9, 12]),
+    ],
+)
+def test_the_job_fits_on_the_runs_the_inference_chooses(tmp_path, split, fitted):
+    """One rule for the runs a model is updated on: :func:`bayesdoor.inference
+    .calibration_runs`, which the pipeline re-exports and its job follows."""
+    import bayesdoor.inference
+
+    assert calibration_runs is bayesdoor.inference.calibration_runs
+    campaign = tone_campaign()
+    states = campaign["state"].values.astype(object)
+    states[1] = "D1"
+    campaign = campaign.assign_coords(
+        state=("run", states.astype(str)), split=("run", np.array(split))
+    )
+    assert list(calibration_runs(campaign)) == fitted
+    with pytest.raises(FitCalled) as called:
+        job(tmp_path / "job", campaign=campaign, fit=recording_fit)
+    assert called.value.args[0] == [int(campaign["run"].values[i]) for i in fitted]
 
 
 def test_campaign_without_calibration_runs_is_refused(tmp_path):
     campaign = tone_campaign()
     faulty = campaign.isel(run=np.flatnonzero(campaign["state"].values != "healthy"))
     faulty = faulty.drop_vars("split")
-    with pytest.raises(ValueError, match="no calibration runs"):
+    with pytest.raises(ValueError, match="no healthy run to update the model on"):
         job(tmp_path / "x", campaign=faulty)
     assert not (tmp_path / "x").exists()
 

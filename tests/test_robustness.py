@@ -276,7 +276,7 @@ UNUSABLE = {
     },
     "faulty": {
         "fit": "no healthy run to update the model on (its runs: 2 D1, 2 D2)",
-        "run": "no calibration runs",
+        "run": "no healthy run to update the model on (its runs: 2 D1, 2 D2)",
         "diagnose": "has no healthy run",
     },
 }

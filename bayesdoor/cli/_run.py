@@ -7,7 +7,6 @@ import time
 from pathlib import Path
 from typing import Any, cast
 
-import numpy as np
 import xarray as xr
 from rich.console import Console
 from rich.table import Table
@@ -40,14 +39,6 @@ def load(path: Path) -> xr.Dataset:
     if campaign.sizes["run"] == 0:
         raise fail(f"{path} holds no runs")
     return campaign
-
-
-def _fitted_runs(campaign: xr.Dataset) -> np.ndarray:
-    """Positions of the runs the job fits on (``bayesdoor.pipeline.calibration_runs``)."""
-    from ..pipeline import calibration_runs
-
-    chosen = calibration_runs(campaign)["run"].values
-    return np.flatnonzero(np.isin(campaign["run"].values, chosen))
 
 
 def _fmt(value: Any, digits: int = 4) -> str:
@@ -104,7 +95,7 @@ def run(
     json: bool,
 ) -> None:
     """Run the job, print its summary (or its JSON)."""
-    from ..pipeline import SOURCES, Source, default_diagnose, run_job
+    from ..pipeline import SOURCES, Source, calibration_runs, default_diagnose, run_job
     from ._diagnose import catalogue_for
 
     if source not in SOURCES:
@@ -119,7 +110,7 @@ def run(
     system = system_for(campaign)
     check_writable(out)
     check_for_job(
-        campaign, system, str(campaign.encoding.get("source", "the campaign")), _fitted_runs
+        campaign, system, str(campaign.encoding.get("source", "the campaign")), calibration_runs
     )
     start = time.perf_counter()
 

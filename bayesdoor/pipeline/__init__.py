@@ -1,5 +1,6 @@
 """The main job over any system: fit, generate, train, classify and report, stage by stage."""
 
+from ..inference import calibration_runs as calibration_runs
 from ._bands import PredictiveBands as PredictiveBands
 from ._classify import classify_stage as classify_stage
 from ._classify import model_file as model_file
@@ -20,7 +21,6 @@ from ._job import Generation as Generation
 from ._job import JobResult as JobResult
 from ._job import Sizes as Sizes
 from ._job import Source as Source
-from ._job import calibration_runs as calibration_runs
 from ._job import digest_runs as digest_runs
 from ._job import generation_settings as generation_settings
 from ._job import parameter_source as parameter_source

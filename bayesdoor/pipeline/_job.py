@@ -38,6 +38,7 @@ from ..datagen import (
     generate,
     load_training_data,
 )
+from ..inference import calibration_runs
 from ..io import atomic_write
 from ..systems import AbstractSystem
 from ._classify import classify_stage, ood_model_error, report_stage, train_stage
@@ -142,29 +143,6 @@ def digest_runs(campaign: xr.Dataset) -> str:
     return h.hexdigest()
 
 
-def calibration_runs(campaign: xr.Dataset) -> xr.Dataset:
-    """The runs to fit on: ``split == "calibration"`` when present, else all healthy runs.
-
-    Raises
-    ------
-    ValueError
-        When there is none.
-    """
-    if "split" in campaign.coords:
-        keep = np.asarray(campaign["split"].values).astype(str) == "calibration"
-        rule = "split == 'calibration'"
-    else:
-        keep = np.asarray(campaign["state"].values).astype(str) == "healthy"
-        rule = "state == 'healthy' (the campaign has no split coordinate)"
-    if not keep.any():
-        raise ValueError(
-            f"the campaign has no calibration runs (looked for {rule}): model updating needs "
-            "healthy runs; mark them with a 'split' coordinate 'calibration' or label them "
-            "state 'healthy'"
-        )
-    return campaign.isel(run=np.flatnonzero(keep))
-
-
 def runs_to_classify(campaign: xr.Dataset) -> xr.Dataset:
     """The runs to classify: ``split == "test"`` when there are any, else all runs."""
     if "split" in campaign.coords:
@@ -182,13 +160,6 @@ def _versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             out[name] = "not installed"
     return out
-
-
-def _diagnosed_runs(campaign: xr.Dataset) -> np.ndarray:
-    """The runs a diagnosis compares with the model: the healthy calibration runs."""
-    from ..inference import calibration_runs as healthy_calibration_runs
-
-    return healthy_calibration_runs(campaign)
 
 
 def _default_fit(system, campaign, **options):
@@ -336,8 +307,10 @@ def run_job(
     system
         The simulated system (its parameters, states and simulator).
     campaign
-        A measurement campaign (DESIGN.md section 5). Fit on ``split == "calibration"`` (else
-        the healthy runs); classify ``split == "test"`` (else all runs).
+        A measurement campaign (DESIGN.md section 5). Fit on the runs of
+        :func:`bayesdoor.inference.calibration_runs` (the healthy ones among
+        ``split == "calibration"``, else among all runs); classify ``split == "test"`` (else
+        all runs).
     out
         The job's folder.
     quick
@@ -394,8 +367,8 @@ def run_job(
     Raises
     ------
     ValueError
-        For a campaign without calibration runs, an unknown source, or a source the fit cannot
-        serve.
+        For a campaign without a healthy run to fit on, an unknown source, or a source the fit
+        cannot serve.
     FileExistsError
         When ``out`` holds a finished job of other settings (and ``overwrite`` is false), or
         files that are not a job's; nothing is written then.
@@ -407,7 +380,7 @@ def run_job(
     fit = _default_fit if fit is None else fit
     fit_seed = seed if fit_seed is None else fit_seed
     options = dict(fit_options or {})
-    calibration = calibration_runs(campaign)
+    calibration = campaign.isel(run=calibration_runs(campaign))
     test = runs_to_classify(campaign)
     system_description = describe_system(system)
     settings = {
@@ -531,7 +504,7 @@ def run_job(
                 "diagnose",
                 {
                     "fit": fit_record.config_hash,
-                    "runs": digest_runs(campaign.isel(run=_diagnosed_runs(campaign))),
+                    "runs": digest_runs(calibration),
                     "seed": seed,
                     "quick": quick,
                     "versions": versions,

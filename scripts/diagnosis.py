@@ -22,31 +22,31 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import dataclasses
-import hashlib
 import json
-import multiprocessing
 import os
 import platform
 import sys
 import time
-import traceback
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-ROOT = Path(__file__).resolve().parent.parent
-EFFECTS = (
-    "frame_mode",
-    "wheel_eccentricity",
-    "rail_waviness",
-    "sensor_cross_axis",
-    "mains_hum",
+from _cases import (
+    NONE,
+    RIG_EFFECTS,
+    ROOT,
+    attempt,
+    digest,
+    fmt,
+    hidden_effect,
+    run_cases,
+    save_json,
+    setup_jax,
 )
-NONE = "none"
+
+EFFECTS = RIG_EFFECTS
 #: the order of the effects in the tables (and a part of each case's rig key)
 EFFECTS_INDEX = {name: i for i, name in enumerate((*EFFECTS, NONE), start=1)}
 #: the key parameter of each effect, how its error is measured, and the tolerance stated
@@ -69,27 +69,10 @@ class Settings:
     quick: bool
 
     def digest(self) -> str:
-        text = json.dumps(dataclasses.asdict(self), sort_keys=True)
-        return hashlib.sha256(text.encode()).hexdigest()[:12]
+        return digest(self, 12)
 
 
 # ------------------------------------------------------------------------------ one case
-
-
-def hidden_effect(effect: str, seed: int):
-    """The rig's ``Effects`` with ``effect`` drawn from ``seed`` (nothing for ``none``)."""
-    from bayesdoor import rig
-
-    kinds = {
-        "frame_mode": rig.FrameMode,
-        "wheel_eccentricity": rig.WheelEccentricity,
-        "rail_waviness": rig.RailWaviness,
-        "sensor_cross_axis": rig.SensorCrossAxis,
-        "mains_hum": rig.MainsHum,
-    }
-    if effect == NONE:
-        return rig.Effects()
-    return rig.Effects(**{effect: kinds[effect].from_seed(seed)})
 
 
 def _number(value: Any) -> float | None:
@@ -182,8 +165,7 @@ def run_case(effect: str, seed: int, settings: Settings) -> dict[str, Any]:
     """Record the case on the rig, diagnose it, and compare with the truth."""
     import jax
 
-    jax.config.update("jax_enable_x64", True)
-    jax.config.update("jax_compilation_cache_dir", str(ROOT / ".jax_cache"))
+    setup_jax()
 
     from bayesdoor.diagnose import diagnose_campaign
     from bayesdoor.pipeline import json_safe
@@ -236,31 +218,14 @@ def _case_file(work: Path, effect: str, seed: int, settings: Settings) -> Path:
 
 
 def _run_and_save(effect: str, seed: int, settings: Settings, path: str) -> dict[str, Any]:
-    try:
-        result = run_case(effect, seed, settings)
-    except Exception as err:  # a failed case is a result too: it is counted, not hidden
-        result = {
-            "effect": effect,
-            "seed": seed,
-            "verdict": None,
-            "named": False,
-            "error": f"{type(err).__name__}: {err}",
-            "traceback": traceback.format_exc(),
-        }
-    text = json.dumps(result, indent=1) + "\n"
-    tmp = Path(path).with_suffix(".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    result = attempt(run_case, effect, seed, settings)
+    if "error" in result:
+        result["named"] = False
+    save_json(Path(path), result)
     return result
 
 
 # ---------------------------------------------------------------------------------- table
-
-
-def _fmt(value: Any, spec: str = ".3g") -> str:
-    if value is None:
-        return "-"
-    return format(value, spec)
 
 
 def _error_text(effect: str, errors: Sequence[float]) -> str:
@@ -318,7 +283,7 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
             lines.append(
                 f"| none (false alarms: {len(mine) - named}) | {len(mine)} | {named} | "
                 f"{100 * named / len(mine):.0f} % answer none | {other} | - | - | - | "
-                f"{_fmt(float(np.median(times)) if times else None, '.0f')} |"
+                f"{fmt(float(np.median(times)) if times else None, '.0f')} |"
             )
             continue
         params = [c["parameter"] for c in mine if c.get("parameter")]
@@ -328,7 +293,7 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
             f"| {effect} | {len(mine)} | {named} | {100 * named / len(mine):.0f} % | {other} | "
             f"{KEY_PARAMETER[effect]} | {_error_text(effect, errors)} | "
             f"{sum(within)} of {len(within)} | "
-            f"{_fmt(float(np.median(times)) if times else None, '.0f')} |"
+            f"{fmt(float(np.median(times)) if times else None, '.0f')} |"
         )
     lines += [
         "",
@@ -348,14 +313,14 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
         estimate = (
             "-"
             if p.get("truth") is None
-            else f"{_fmt(p.get('estimate'), '.4g')} / {_fmt(p.get('truth'), '.4g')}"
+            else f"{fmt(p.get('estimate'), '.4g')} / {fmt(p.get('truth'), '.4g')}"
         )
         g = c.get("gain") or {}
         gain = (
             "-"
             if not g
-            else f"{_fmt(g.get('delta_elpd'), '.1f')} +- {_fmt(g.get('elpd_se'), '.1f')}, "
-            f"{_fmt(g.get('delta_j'), '.3g')}"
+            else f"{fmt(g.get('delta_elpd'), '.1f')} +- {fmt(g.get('elpd_se'), '.1f')}, "
+            f"{fmt(g.get('delta_j'), '.3g')}"
         )
         notes = "; ".join(c.get("notes") or [])[:120] or "-"
         lines.append(
@@ -398,34 +363,15 @@ def main(argv: list[str] | None = None) -> None:
     print(
         f"{len(cases)} cases, {len(cases) - len(todo)} already done, {args.jobs} jobs", flush=True
     )
-    if args.jobs > 1:
-        # one CPU thread per process, so that the jobs do not fight over the cores
-        os.environ.setdefault(
-            "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+
+    def finished(case: tuple[str, int], row: dict[str, Any]) -> None:
+        print(
+            f"[{time.perf_counter() - start:7.0f} s] {case[0]} seed {case[1]}: {row['verdict']}",
+            flush=True,
         )
-        os.environ.setdefault("JAX_PLATFORMS", "cpu")
-        context = multiprocessing.get_context("spawn")
-        with concurrent.futures.ProcessPoolExecutor(args.jobs, mp_context=context) as pool:
-            futures = {
-                pool.submit(
-                    _run_and_save, e, s, settings, str(_case_file(args.work, e, s, settings))
-                ): (e, s)
-                for e, s in todo
-            }
-            for future in concurrent.futures.as_completed(futures):
-                r = future.result()
-                print(
-                    f"[{time.perf_counter() - start:7.0f} s] {r['effect']} seed {r['seed']}: "
-                    f"{r['verdict']}",
-                    flush=True,
-                )
-    else:
-        for e, s in todo:
-            r = _run_and_save(e, s, settings, str(_case_file(args.work, e, s, settings)))
-            print(
-                f"[{time.perf_counter() - start:7.0f} s] {e} seed {s}: {r['verdict']}",
-                flush=True,
-            )
+
+    calls = {(e, s): (e, s, settings, str(_case_file(args.work, e, s, settings))) for e, s in todo}
+    run_cases(_run_and_save, calls, args.jobs, finished)
     results = [json.loads(_case_file(args.work, e, s, settings).read_text()) for e, s in cases]
     command = "python scripts/diagnosis.py " + " ".join(sys.argv[1:] if argv is None else argv)
     text = table(results, command.strip(), settings, time.perf_counter() - start)

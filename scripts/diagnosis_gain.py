@@ -29,24 +29,20 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import dataclasses
-import hashlib
 import json
-import multiprocessing
 import os
 import pickle
 import platform
 import sys
 import time
-import traceback
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _cases import ROOT, attempt, digest, fmt, hidden_effect, run_cases, save_json, setup_jax
 
-ROOT = Path(__file__).resolve().parent.parent
 #: effects that act on what the classifier sees without a new solve (the ones named by the
 #: issue first); the others can be asked for with --effects
 EFFECTS = ("frame_mode", "sensor_cross_axis", "mains_hum", "wheel_eccentricity", "rail_waviness")
@@ -69,25 +65,10 @@ class Settings:
     runs_per_state: int
 
     def digest(self) -> str:
-        text = json.dumps(dataclasses.asdict(self), sort_keys=True)
-        return hashlib.sha256(text.encode()).hexdigest()[:10]
+        return digest(self, 10)
 
 
 # ------------------------------------------------------------------------------ one case
-
-
-def hidden_effect(effect: str, seed: int):
-    """The rig's ``Effects`` with ``effect`` drawn from ``seed``."""
-    from bayesdoor import rig
-
-    kinds: dict[str, Any] = {
-        "frame_mode": rig.FrameMode,
-        "wheel_eccentricity": rig.WheelEccentricity,
-        "rail_waviness": rig.RailWaviness,
-        "sensor_cross_axis": rig.SensorCrossAxis,
-        "mains_hum": rig.MainsHum,
-    }
-    return rig.Effects(**{effect: kinds[effect].from_seed(seed)})
 
 
 def plan(settings: Settings, seed: int) -> tuple[list[str], np.ndarray, list[str]]:
@@ -191,10 +172,7 @@ def diagnose(campaign, fit_folder: Path, path: Path, settings: Settings, seed: i
 
 def run_case(effect: str, seed: int, settings: Settings, folder: Path) -> dict[str, Any]:
     """Record, base job, diagnosis, extended job: the case's row."""
-    import jax
-
-    jax.config.update("jax_enable_x64", True)
-    jax.config.update("jax_compilation_cache_dir", str(ROOT / ".jax_cache"))
+    setup_jax()
 
     from bayesdoor.diagnose import extend_system, verdict_extension
     from bayesdoor.pipeline import json_safe
@@ -247,30 +225,16 @@ def _case_folder(work: Path, effect: str, seed: int, settings: Settings) -> Path
 
 
 def _run_and_save(effect: str, seed: int, settings: Settings, folder: str) -> dict[str, Any]:
-    path = Path(folder) / "case.json"
-    try:
-        result = run_case(effect, seed, settings, Path(folder))
-    except Exception as err:  # a failed case is a result too: it is counted, not hidden
-        result = {
-            "effect": effect,
-            "seed": seed,
-            "verdict": None,
-            "error": f"{type(err).__name__}: {err}",
-            "traceback": traceback.format_exc(),
-        }
+    result = attempt(run_case, effect, seed, settings, Path(folder))
+    if "error" in result:
+        # not saved: the next call of the command tries the case again from its last stage
         print(result["traceback"], file=sys.stderr, flush=True)
-        return result
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(result, indent=1) + "\n")
-    os.replace(tmp, path)
+    else:
+        save_json(Path(folder) / "case.json", result)
     return result
 
 
 # ---------------------------------------------------------------------------------- table
-
-
-def _fmt(value: Any, spec: str = ".3f") -> str:
-    return "-" if value is None else format(value, spec)
 
 
 def _truth_text(effect: str, truth: Mapping[str, Any]) -> str:
@@ -340,9 +304,9 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
         )
         lines.append(
             f"| {c['effect']} | {c['seed']} | {_truth_text(c['effect'], c['truth'])} | "
-            f"{verdict} | {100 * b['accuracy']:.1f} % | {_fmt(b['ece'])} | "
-            f"{100 * e['accuracy']:.1f} % | {_fmt(e['ece'])} | "
-            f"{_fmt(b['fit_j'], '.4f')} -> {_fmt(e['fit_j'], '.4f')} | {j} | {elpd} | {times} |"
+            f"{verdict} | {100 * b['accuracy']:.1f} % | {fmt(b['ece'], '.3f')} | "
+            f"{100 * e['accuracy']:.1f} % | {fmt(e['ece'], '.3f')} | "
+            f"{fmt(b['fit_j'], '.4f')} -> {fmt(e['fit_j'], '.4f')} | {j} | {elpd} | {times} |"
         )
     for c in failed:
         lines.append(f"| {c['effect']} | {c['seed']} | failed: {c['error'][:200]} |")
@@ -425,20 +389,9 @@ def main(argv: list[str] | None = None) -> None:
             flush=True,
         )
 
-    if args.jobs > 1:
-        # one CPU thread per process, so that the cases do not fight over the cores
-        os.environ.setdefault(
-            "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
-        )
-        os.environ.setdefault("JAX_PLATFORMS", "cpu")
-        context = multiprocessing.get_context("spawn")
-        with concurrent.futures.ProcessPoolExecutor(args.jobs, mp_context=context) as pool:
-            futures = {pool.submit(_run_and_save, *c, settings, str(folders[c])): c for c in todo}
-            for future in concurrent.futures.as_completed(futures):
-                finished(futures[future], future.result())
-    else:
-        for c in todo:
-            finished(c, _run_and_save(*c, settings, str(folders[c])))
+    run_cases(
+        _run_and_save, {c: (*c, settings, str(folders[c])) for c in todo}, args.jobs, finished
+    )
     rows = [
         results[c] if c in results else json.loads((folders[c] / "case.json").read_text())
         for c in cases

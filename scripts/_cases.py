@@ -1,0 +1,132 @@
+"""What the hidden-effect results scripts share: the rig's effects, a case's settings hash,
+its run in parallel processes, and the table's number format.
+
+``scripts/diagnosis.py`` and ``scripts/diagnosis_gain.py`` import it as ``_cases``: a script
+run as ``python scripts/x.py`` (by hand, by ``scripts/make_results.py`` or by a test) has its
+own folder first on ``sys.path``, and the processes that ``run_cases`` spawns inherit it.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import hashlib
+import json
+import multiprocessing
+import os
+import traceback
+from collections.abc import Callable, Hashable, Mapping
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+#: the rig's catalogue effects, in the order of ``bayesdoor.rig.Effects``
+RIG_EFFECTS = (
+    "frame_mode",
+    "wheel_eccentricity",
+    "rail_waviness",
+    "sensor_cross_axis",
+    "mains_hum",
+)
+NONE = "none"
+
+
+def digest(settings: Any, length: int) -> str:
+    """The first ``length`` hex digits of the SHA-256 of a settings dataclass's fields.
+
+    The hash names a case's saved result, so that a change of settings never reads a case
+    made with other settings.
+    """
+    text = json.dumps(dataclasses.asdict(settings), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:length]
+
+
+def hidden_effect(effect: str, seed: int):
+    """The rig's ``Effects`` with ``effect`` drawn by its ``from_seed(seed)``.
+
+    ``effect`` is one of ``RIG_EFFECTS``, or ``NONE`` for nothing hidden.
+    """
+    from bayesdoor import rig
+
+    kinds: dict[str, Any] = {
+        "frame_mode": rig.FrameMode,
+        "wheel_eccentricity": rig.WheelEccentricity,
+        "rail_waviness": rig.RailWaviness,
+        "sensor_cross_axis": rig.SensorCrossAxis,
+        "mains_hum": rig.MainsHum,
+    }
+    if effect == NONE:
+        return rig.Effects()
+    if effect not in kinds:
+        raise ValueError(
+            f"effect={effect!r} is not a rig effect; use one of {', '.join(RIG_EFFECTS)} or "
+            f"{NONE!r}"
+        )
+    return rig.Effects(**{effect: kinds[effect].from_seed(seed)})
+
+
+def setup_jax() -> None:
+    """float64 and the project's persistent compilation cache, as the tests use them."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    jax.config.update("jax_compilation_cache_dir", str(ROOT / ".jax_cache"))
+
+
+def attempt(run_case: Callable[..., dict[str, Any]], effect: str, seed: int, *args: Any):
+    """``run_case(effect, seed, *args)``, or the failure as a row when it raises.
+
+    A failed case is a result too: it is counted in the table, not hidden. Its row has
+    ``verdict`` ``None``, ``error`` (the exception's type and message) and ``traceback``.
+    """
+    try:
+        return run_case(effect, seed, *args)
+    except Exception as err:
+        return {
+            "effect": effect,
+            "seed": seed,
+            "verdict": None,
+            "error": f"{type(err).__name__}: {err}",
+            "traceback": traceback.format_exc(),
+        }
+
+
+def save_json(path: Path, row: Mapping[str, Any]) -> None:
+    """Write ``row`` as indented JSON through a rename, so a saved case is never half written."""
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(row, indent=1) + "\n")
+    os.replace(tmp, path)
+
+
+def run_cases(
+    worker: Callable[..., dict[str, Any]],
+    calls: Mapping[Hashable, tuple[Any, ...]],
+    jobs: int,
+    finished: Callable[[Any, dict[str, Any]], None],
+) -> None:
+    """``worker(*calls[case])`` for every case, ``jobs`` processes at a time.
+
+    With ``jobs > 1`` each case runs in a spawned process with one CPU thread, so that the
+    cases do not fight over the cores; ``worker`` must then be a module-level function.
+    ``finished(case, row)`` is called with each case's row as it finishes.
+    """
+    if jobs < 1:
+        raise ValueError(f"jobs={jobs} must be at least 1 (the number of processes)")
+    if jobs == 1:
+        for case, args in calls.items():
+            finished(case, worker(*args))
+        return
+    os.environ.setdefault(
+        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    )
+    os.environ.setdefault("JAX_PLATFORMS", "cpu")
+    context = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context) as pool:
+        futures = {pool.submit(worker, *args): case for case, args in calls.items()}
+        for future in concurrent.futures.as_completed(futures):
+            finished(futures[future], future.result())
+
+
+def fmt(value: Any, spec: str) -> str:
+    """``value`` formatted by ``spec``, or ``-`` when it is missing."""
+    return "-" if value is None else format(value, spec)

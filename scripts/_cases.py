@@ -14,10 +14,11 @@ import hashlib
 import json
 import multiprocessing
 import os
+import sys
 import traceback
-from collections.abc import Callable, Hashable, Mapping
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the rig's catalogue effects, in the order of ``bayesdoor.rig.Effects``
@@ -29,6 +30,7 @@ RIG_EFFECTS = (
     "mains_hum",
 )
 NONE = "none"
+Case = TypeVar("Case", bound=Hashable)
 
 
 def digest(settings: Any, length: int) -> str:
@@ -100,9 +102,9 @@ def save_json(path: Path, row: Mapping[str, Any]) -> None:
 
 def run_cases(
     worker: Callable[..., dict[str, Any]],
-    calls: Mapping[Hashable, tuple[Any, ...]],
+    calls: Mapping[Case, tuple[Any, ...]],
     jobs: int,
-    finished: Callable[[Any, dict[str, Any]], None],
+    finished: Callable[[Case, dict[str, Any]], None],
 ) -> None:
     """``worker(*calls[case])`` for every case, ``jobs`` processes at a time.
 
@@ -130,3 +132,16 @@ def run_cases(
 def fmt(value: Any, spec: str) -> str:
     """``value`` formatted by ``spec``, or ``-`` when it is missing."""
     return "-" if value is None else format(value, spec)
+
+
+def command_line(script: str, argv: Sequence[str] | None) -> str:
+    """How the script was called, for the table's header (``argv`` ``None``: ``sys.argv``)."""
+    words = sys.argv[1:] if argv is None else argv
+    return f"python scripts/{script} {' '.join(words)}".strip()
+
+
+def write_results(path: Path, text: str) -> None:
+    """Write the results table to ``path`` (making its folder) and print it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    print(text)

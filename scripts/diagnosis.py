@@ -26,7 +26,6 @@ import dataclasses
 import json
 import os
 import platform
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -38,12 +37,14 @@ from _cases import (
     RIG_EFFECTS,
     ROOT,
     attempt,
+    command_line,
     digest,
     fmt,
     hidden_effect,
     run_cases,
     save_json,
     setup_jax,
+    write_results,
 )
 
 EFFECTS = RIG_EFFECTS
@@ -123,11 +124,11 @@ def parameter_error(effect: str, truth: Mapping[str, Any], cause: Mapping[str, A
     if effect == "wheel_eccentricity":
         from bayesdoor.systems.door import WHEEL_CIRCUMFERENCE
 
-        lam = _number(_parameter(params, "wavelength_m"))
+        wavelength = _number(_parameter(params, "wavelength_m"))
         k = _number(_parameter(params, "label")) or _number(_parameter(params, "harmonic"))
         revolution = _number(_parameter(params, "revolution_m"))
-        if revolution is None and lam is not None:
-            revolution = lam * (k if k is not None else 1.0)
+        if revolution is None and wavelength is not None:
+            revolution = wavelength * (1.0 if k is None else k)
         if revolution is None:
             return {**empty, "truth": WHEEL_CIRCUMFERENCE}
         rel = revolution / WHEEL_CIRCUMFERENCE - 1.0
@@ -373,11 +374,8 @@ def main(argv: list[str] | None = None) -> None:
     calls = {(e, s): (e, s, settings, str(_case_file(args.work, e, s, settings))) for e, s in todo}
     run_cases(_run_and_save, calls, args.jobs, finished)
     results = [json.loads(_case_file(args.work, e, s, settings).read_text()) for e, s in cases]
-    command = "python scripts/diagnosis.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    text = table(results, command.strip(), settings, time.perf_counter() - start)
-    args.results.parent.mkdir(parents=True, exist_ok=True)
-    args.results.write_text(text)
-    print(text)
+    command = command_line("diagnosis.py", argv)
+    write_results(args.results, table(results, command, settings, time.perf_counter() - start))
 
 
 if __name__ == "__main__":

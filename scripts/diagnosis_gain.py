@@ -41,7 +41,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _cases import ROOT, attempt, digest, fmt, hidden_effect, run_cases, save_json, setup_jax
+from _cases import (
+    ROOT,
+    attempt,
+    command_line,
+    digest,
+    fmt,
+    hidden_effect,
+    run_cases,
+    save_json,
+    setup_jax,
+    write_results,
+)
 
 #: effects that act on what the classifier sees without a new solve (the ones named by the
 #: issue first); the others can be asked for with --effects
@@ -397,11 +408,8 @@ def main(argv: list[str] | None = None) -> None:
         for c in cases
     ]
     (args.work / "cases.json").write_text(json.dumps(rows, indent=1) + "\n")
-    command = "python scripts/diagnosis_gain.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    text = table(rows, command.strip(), settings, time.perf_counter() - start)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text)
-    print(text)
+    command = command_line("diagnosis_gain.py", argv)
+    write_results(args.out, table(rows, command, settings, time.perf_counter() - start))
 
 
 if __name__ == "__main__":

@@ -208,6 +208,13 @@ def run_case(effect: str, seed: int, settings: Settings) -> dict[str, Any]:
         "parameter": error,
         "gain": None if cause is None else cause.get("gain"),
         "causes": [c["name"] for c in payload["causes"]],
+        "refits": [
+            {k: c[k] for k in ("name", "score", "configuration", "gain", "confirmed")}
+            for c in payload["causes"]
+            if c["gain"] is not None
+        ],
+        "features": payload["features"],
+        "timings": payload["timings"],
         "notes": payload.get("notes", []),
         "record_seconds": recorded,
         "diagnose_seconds": seconds,
@@ -236,6 +243,19 @@ def _error_text(effect: str, errors: Sequence[float]) -> str:
     if effect in ("rail_waviness", "wheel_eccentricity", "sensor_cross_axis"):
         return f"{100 * np.median(e):.1f} % / {100 * e.max():.1f} %"
     return f"{np.median(e):.2f} / {e.max():.2f} Hz"
+
+
+def _refits_text(refits: Sequence[Mapping[str, Any]] | None) -> str:
+    """Each refitted cause: its held-out ELPD gain in standard errors and its J change."""
+    if not refits:
+        return "-"
+    words = []
+    for r in refits:
+        g = r["gain"]
+        ratio = g["delta_elpd"] / g["elpd_se"] if g["elpd_se"] > 0 else float("inf")
+        star = "*" if r["confirmed"] else ""
+        words.append(f"{r['name']}{star} {ratio:+.1f}, {g['delta_j']:+.3f}")
+    return "; ".join(words)
 
 
 def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, wall: float) -> str:
@@ -301,13 +321,14 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
         "## Cases",
         "",
         "| effect | seed | verdict | signature verdict | key parameter: estimate / truth | "
-        "gain (delta ELPD +- se, delta J) | time (s) | notes |",
-        "|---|---|---|---|---|---|---|---|",
+        "gain (delta ELPD +- se, delta J) | refits (delta ELPD / se, delta J; * confirmed) | "
+        "time (s) | notes |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in sorted(cases, key=lambda c: (EFFECTS_INDEX[c["effect"]], c["seed"])):
         if "error" in c:
             lines.append(
-                f"| {c['effect']} | {c['seed']} | failed | - | - | - | - | {c['error'][:120]} |"
+                f"| {c['effect']} | {c['seed']} | failed | - | - | - | - | - | {c['error'][:120]} |"
             )
             continue
         p = c.get("parameter") or {}
@@ -326,7 +347,8 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
         notes = "; ".join(c.get("notes") or [])[:120] or "-"
         lines.append(
             f"| {c['effect']} | {c['seed']} | {c['verdict']} | {c.get('signature_verdict')} | "
-            f"{estimate} | {gain} | {c['diagnose_seconds']:.0f} | {notes} |"
+            f"{estimate} | {gain} | {_refits_text(c.get('refits'))} | "
+            f"{c['diagnose_seconds']:.0f} | {notes} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -40,9 +40,11 @@ class Job(eqx.Module):
 
     @property
     def duration(self) -> float:
-        if self.config.duration is not None:
-            return self.config.duration
-        return float(self.system.record_duration(np.asarray(self.config.speeds)))
+        return self.config.record_duration(self.system)
+
+    @property
+    def simulated_duration(self) -> float:
+        return self.config.simulated_duration(self.system)
 
     def chunk_runs(self, index: int) -> tuple[int, np.ndarray]:
         """The state index and the global run ids of chunk ``index``."""
@@ -103,7 +105,7 @@ def _simulate(job: Job, state: str, draws: dict[str, Any]):
         draws["speed"],
         state=state,
         severity=draws["severity"],
-        duration=job.duration,
+        duration=job.simulated_duration,
     )
     return np.asarray(result.signals), np.asarray(result.status)
 

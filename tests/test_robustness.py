@@ -116,6 +116,20 @@ def refused(result, *phrases, code=2):
     return lines[0]
 
 
+def stopped(result, *phrases):
+    """Ctrl-C's answer: exit 130 (128 + SIGINT, what a shell reports for it) and, as the last
+    line on stderr, one ``interrupted: ...`` line that holds ``phrases``; no traceback, nothing
+    on stdout."""
+    assert result.exit_code == 130, result.output
+    lines = result.stderr.strip().splitlines()
+    assert [line for line in lines if line.startswith("interrupted: ")] == lines[-1:], lines
+    for phrase in phrases:
+        assert phrase in lines[-1], (phrase, lines[-1])
+    assert "Traceback" not in result.output
+    assert result.stdout == ""
+    return lines[-1]
+
+
 def door_fit(*args, **options):
     """The stand-in fit of ``test_pipeline`` with a model-error scale per door channel."""
     fit = stand_in_fit(*args, **options)
@@ -408,7 +422,7 @@ def story(files, tmp_path_factory):
 
 
 def test_a_killed_run_leaves_no_half_written_result_and_the_rerun_completes(story):
-    _, seen = story
+    out, seen = story
     code, after_kill, stderr = seen["killed"]
     assert code == -signal.SIGKILL, stderr
     # the half-written file lies in the fit stage's hidden temporary folder, nowhere else
@@ -416,9 +430,12 @@ def test_a_killed_run_leaves_no_half_written_result_and_the_rerun_completes(stor
     assert visible(after_kill) == []
 
     interrupted, after_interrupt = seen["interrupted"]
-    # typer's answer to Ctrl-C: exit 130 (128 + SIGINT), no traceback
-    assert interrupted.exit_code == 130
-    assert "Traceback" not in interrupted.output
+    stopped(
+        interrupted,
+        f"the job in {out} was stopped in its classify stage",
+        "its finished stages (fit, generate, train) are kept",
+        "run the same command again to resume",
+    )
     # the finished stages are kept whole (each with its record), nothing else; the temporary
     # folder of the killed run is gone
     names = visible(after_interrupt)
@@ -584,7 +601,7 @@ def test_simulate_interrupted_while_writing_leaves_no_file(tmp_path, monkeypatch
 
     monkeypatch.setattr(xr.Dataset, "to_netcdf", interrupted)
     result = invoke("simulate", "--out", tmp_path / "runs.nc", "--v-max", "0.3")
-    assert result.exit_code == 130 and "Traceback" not in result.output
+    stopped(result, "nothing was written", "run the same command again")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -609,7 +626,7 @@ def test_fit_killed_half_way_keeps_the_previous_fit_and_the_rerun_completes(
     monkeypatch.setattr(bayesdoor.inference, "fit_campaign", made_up_fit)
     monkeypatch.setattr(bayesdoor.inference, "posterior_predictive", interrupted)
     args = ["fit", files["good"], "--out", out, "--method", "nuts", "--force"]
-    assert invoke(*args).exit_code == 130
+    stopped(invoke(*args), "the fit was stopped", "--out is as it was", "run the same command")
     assert snapshot(out) == before
 
     monkeypatch.setattr(bayesdoor.inference, "posterior_predictive", made_up_predictive)
@@ -675,4 +692,93 @@ def test_demo_with_a_damaged_cache_says_how_to_record_it_again(tmp_path, monkeyp
     line = refused(invoke("demo", "--out", out, "--quick"))
     assert "is not a readable NetCDF campaign file" in line
     assert f"delete {nc} and run the demo again to record it anew" in line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("stage", ["fit", "generate"])
+def test_run_interrupted_in_a_stage_says_what_is_kept_and_resumes(files, tmp_path, stage):
+    """Ctrl-C as a stage starts: the stages before it are kept (and reused by the rerun), the
+    stopped one leaves no visible file."""
+    out = tmp_path / "job"
+    with pytest.MonkeyPatch.context() as mp:
+        fast(mp, interrupt=stage)
+        line = stopped(invoke("run", files["good"], "--out", out, "--quick"))
+    assert f"the job in {out} was stopped in its {stage} stage" in line
+    if stage == "fit":
+        assert "no stage had finished" in line
+    else:
+        assert "its finished stages (fit) are kept with the training data chunks" in line
+    assert {Path(f).parts[0] for f in visible(snapshot(out))} <= {"fit"}
+    with pytest.MonkeyPatch.context() as mp:
+        fast(mp)
+        rerun = invoke("run", files["good"], "--out", out, "--quick", "--json")
+    assert rerun.exit_code == 0, rerun.output
+    reused = {s["name"]: s["reused"] for s in json.loads(rerun.stdout)["stages"]}
+    assert reused["fit"] == (stage == "generate") and not reused["generate"]
+
+
+def test_classify_interrupted_while_writing_leaves_nothing(files, story, tmp_path, monkeypatch):
+    real = bayesdoor.pipeline.classify_stage
+
+    def interrupted(model, campaign, folder):
+        (Path(folder) / "classification.json").write_text('{"runs": [')
+        raise KeyboardInterrupt
+
+    out = tmp_path / "report"
+    monkeypatch.setattr(bayesdoor.pipeline, "classify_stage", interrupted)
+    line = stopped(invoke("classify", files["good"], "--model", story[0], "--out", out))
+    assert f"the classification in {out} was stopped in its classify stage" in line
+    assert "no stage had finished" in line
+    assert not out.exists()
+    monkeypatch.setattr(bayesdoor.pipeline, "classify_stage", real)
+    rerun = invoke("classify", files["good"], "--model", story[0], "--out", out, "--json")
+    assert rerun.exit_code == 0, rerun.output
+
+
+def test_diagnose_interrupted_keeps_the_previous_diagnosis(files, tmp_path, monkeypatch):
+    import bayesdoor.diagnose
+
+    def interrupted(*args, **options):
+        raise KeyboardInterrupt
+
+    out = tmp_path / "diagnosis"
+    out.mkdir()
+    for name in ("diagnosis.json", "diagnosis.html"):
+        (out / name).write_text(f"the previous {name}")
+    before = snapshot(out)
+    monkeypatch.setattr(bayesdoor.diagnose, "diagnose_campaign", interrupted)
+    result = invoke("diagnose", files["good"], "--out", out, "--quick", "--force")
+    stopped(result, "the diagnosis was stopped", "no half-written file", "run the same command")
+    assert snapshot(out) == before
+
+
+def test_inspect_interrupted_while_plotting_leaves_nothing(files, tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    def interrupted(self, path, **options):
+        Path(path).write_bytes(b"\x89PNG half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", interrupted)
+    out = tmp_path / "inspect"
+    result = invoke("inspect", files["good"], "--out", out)
+    stopped(result, "inspect was stopped", "no half-written file", "run the same command")
+    assert not out.exists()
+
+
+def test_demo_interrupted_while_recording_keeps_nothing_in_the_cache(tmp_path, monkeypatch):
+    import bayesdoor.rig
+    from bayesdoor.datasets import demo_paths
+
+    def interrupted(self, *args, **options):
+        raise KeyboardInterrupt
+
+    monkeypatch.setenv("BAYESDOOR_DATA", str(tmp_path / "cache"))
+    monkeypatch.setattr(bayesdoor.rig.VirtualRig, "run", interrupted)
+    out = tmp_path / "demo"
+    line = stopped(invoke("demo", "--out", out, "--quick"))
+    assert "the recording of the demo campaign was stopped" in line
+    assert f"nothing of it is kept in {demo_paths()[0].parent}" in line
+    assert "run the same command again to record it" in line
+    assert snapshot(tmp_path / "cache") == {}
     assert not out.exists()

@@ -11,7 +11,16 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from ._common import check_output_path, check_writable, configure_jax, emit_json, fail, writing
+from ._common import (
+    check_output_path,
+    check_writable,
+    configure_jax,
+    emit_json,
+    fail,
+    interruptible,
+    on_interrupt,
+    writing,
+)
 
 app = typer.Typer(
     name="bayesdoor",
@@ -37,6 +46,10 @@ def _progress(quiet: bool):
 
 
 @app.command()
+@on_interrupt(
+    "nothing was written (the campaign file is written whole at the end or not at all); "
+    "run the same command again"
+)
 def simulate(
     out: Annotated[Path, typer.Option("--out", help="campaign file to write (.nc)")],
     state: Annotated[
@@ -102,6 +115,9 @@ def simulate(
 
 
 @app.command()
+@on_interrupt(
+    "the job was stopped before its first stage: nothing was written; run the same command again"
+)
 def run(
     path: Annotated[Path, typer.Argument(help="campaign file (.nc)")],
     out: Annotated[Path, typer.Option("--out", help="output folder of the job")],
@@ -135,6 +151,9 @@ def run(
 
 
 @app.command()
+@on_interrupt(
+    "the demo was stopped before its first stage: nothing was written; run the same command again"
+)
 def demo(
     out: Annotated[Path, typer.Option("--out", help="output folder")] = Path("out/demo"),
     quick: Annotated[bool, typer.Option(help="small sizes: a first look in minutes")] = False,
@@ -147,8 +166,15 @@ def demo(
     from ..datasets import demo_paths, load_demo_campaign
     from . import _run
 
+    def recording_stopped() -> str:
+        return (
+            f"the recording of the demo campaign was stopped: nothing of it is kept in "
+            f"{demo_paths()[0].parent}; run the same command again to record it (a few minutes)"
+        )
+
     try:
-        campaign = load_demo_campaign(show_progress=not json)
+        with interruptible(recording_stopped):
+            campaign = load_demo_campaign(show_progress=not json)
     except (OSError, ValueError) as err:
         raise fail(
             f"the cached demo campaign cannot be read ({err}): delete {demo_paths()[0]} and run "
@@ -167,6 +193,10 @@ def demo(
 
 
 @app.command()
+@on_interrupt(
+    "the classification was stopped before it started: nothing was written; run the same "
+    "command again"
+)
 def classify(
     path: Annotated[Path, typer.Argument(help="campaign file (.nc)")],
     model: Annotated[
@@ -184,6 +214,10 @@ def classify(
 
 
 @app.command()
+@on_interrupt(
+    "inspect was stopped: every plot and inspect.json is written whole or not at all, so "
+    "--out holds no half-written file; run the same command again"
+)
 def inspect(
     path: Annotated[Path, typer.Argument(help="campaign: a NetCDF file or a folder of CSV files")],
     out: Annotated[
@@ -260,6 +294,10 @@ def inspect(
 
 
 @app.command()
+@on_interrupt(
+    "the fit was stopped: it is computed in a hidden folder that is moved into --out only "
+    "when complete, so --out is as it was; run the same command again to fit anew"
+)
 def fit(
     path: Annotated[Path, typer.Argument(help="campaign NetCDF file")],
     out: Annotated[Path, typer.Option("--out", help="output folder")],
@@ -282,6 +320,10 @@ def fit(
 
 
 @app.command()
+@on_interrupt(
+    "the diagnosis was stopped: its files are written whole, only once it is complete, so "
+    "--out holds no half-written file; run the same command again to diagnose anew"
+)
 def diagnose(
     path: Annotated[Path, typer.Argument(help="campaign file (.nc)")],
     out: Annotated[Path, typer.Option("--out", help="folder for diagnosis.json and .html")],

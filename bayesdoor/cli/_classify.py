@@ -9,7 +9,7 @@ from pathlib import Path
 import xarray as xr
 from rich.console import Console
 
-from ._common import check_writable, emit_json, fail, writing
+from ._common import StageLog, check_writable, emit_json, fail, interruptible, writing
 from ._run import print_summary
 
 _err = Console(stderr=True)
@@ -72,21 +72,22 @@ def classify(campaign: xr.Dataset, model: Path, out: Path, *, force: bool, json:
         if not json:
             _err.print(text)
 
+    stages = StageLog(out, line, what="classification")
     try:
-        with writing(out):
+        with interruptible(stages.interrupted), writing(out):
             classified = run_stage(
                 out,
                 "classify",
                 config,
                 lambda folder: classify_stage(ensemble.parent, campaign, folder),
-                report=line,
+                report=stages,
             )
             reported = run_stage(
                 out,
                 "report",
                 {"classification": classified.config_hash},
                 lambda folder: report_stage(classified.path, ensemble.parent, folder),
-                report=line,
+                report=stages,
             )
     except ValueError as err:
         raise fail(str(err)) from None

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import json
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ParamSpec, TypeVar
 
 import typer
 
@@ -23,6 +24,8 @@ if TYPE_CHECKING:
 _TOLERATED = {"missing_system", "unknown_channels", "clipped"}
 #: the errors of a write that the user can fix by writing elsewhere
 _WRITE_ERRORS = (errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EROFS, errno.EDQUOT)
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
 def configure_jax() -> None:
@@ -70,6 +73,78 @@ def check_writable(path: Path, option: str = "--out") -> None:
     folder = existing if existing.is_dir() else existing.parent
     if not os.access(folder, os.W_OK | os.X_OK):
         raise fail(f"{option} {path}: no permission to write in {folder}; pass a writable path")
+
+
+@contextlib.contextmanager
+def interruptible(explain: Callable[[], str]) -> Iterator[None]:
+    """Ctrl-C inside: one line on stderr, ``interrupted: <explain()>``, then exit 130.
+
+    130 is 128 + SIGINT, the status a shell gives a command stopped by Ctrl-C. The line says
+    what was stopped, what is kept and how to go on; no traceback.
+    """
+    try:
+        yield
+    except KeyboardInterrupt:
+        if sys.stderr.isatty():
+            typer.echo("", err=True)  # past the ^C the terminal echoed
+        typer.echo(f"interrupted: {explain()}", err=True)
+        raise typer.Exit(130) from None
+
+
+def on_interrupt(explanation: str) -> Callable[[Callable[P, R]], Callable[P, R]]:
+    """A command that prints ``interrupted: <explanation>`` and exits 130 on Ctrl-C."""
+
+    def decorate(command: Callable[P, R]) -> Callable[P, R]:
+        @functools.wraps(command)
+        def wrapped(*args: P.args, **kwargs: P.kwargs) -> R:
+            with interruptible(lambda: explanation):
+                return command(*args, **kwargs)
+
+        return wrapped
+
+    return decorate
+
+
+class StageLog:
+    """The progress lines of a staged command, and what Ctrl-C leaves of its stages.
+
+    Pass it as the ``report`` of :func:`bayesdoor.pipeline.run_job` or
+    :func:`bayesdoor.pipeline.run_stage`: it follows which stages finished (computed or
+    reused) and which one is running, and prints every line with ``echo``.
+    """
+
+    def __init__(self, out: Path, echo: Callable[[str], None], what: str = "job") -> None:
+        self.out = out
+        self.echo = echo
+        self.what = what
+        self.finished: list[str] = []
+        self.running: str | None = None
+
+    def __call__(self, text: str) -> None:
+        name, _, status = text.partition(": ")
+        if status.startswith(("done", "reused")):
+            self.finished.append(name)
+            self.running = None
+        elif status.endswith("..."):
+            self.running = name
+        self.echo(text)
+
+    def interrupted(self) -> str:
+        """The line for Ctrl-C: the stage stopped, the stages kept, how to resume."""
+        if self.running is not None:
+            stopped = f"in its {self.running} stage"
+        else:
+            stopped = "between two stages" if self.finished else "before its first stage"
+        if self.finished:
+            kept = f"its finished stages ({', '.join(self.finished)}) are kept"
+        else:
+            kept = "no stage had finished"
+        if self.running == "generate":
+            kept += " with the training data chunks finished so far"
+        return (
+            f"the {self.what} in {self.out} was stopped {stopped}; {kept}, nothing "
+            "half-written is left; run the same command again to resume from there"
+        )
 
 
 @contextlib.contextmanager

@@ -11,7 +11,16 @@ import xarray as xr
 from rich.console import Console
 from rich.table import Table
 
-from ._common import check_for_job, check_writable, emit_json, fail, system_named, writing
+from ._common import (
+    StageLog,
+    check_for_job,
+    check_writable,
+    emit_json,
+    fail,
+    interruptible,
+    system_named,
+    writing,
+)
 
 _err = Console(stderr=True)
 
@@ -118,8 +127,9 @@ def run(
         if not json:
             _err.print(f"[{time.perf_counter() - start:6.1f} s] {text}")
 
+    stages = StageLog(out, line)
     try:
-        with writing(out):
+        with interruptible(stages.interrupted), writing(out):
             result = run_job(
                 system,
                 campaign,
@@ -129,7 +139,7 @@ def run(
                 source=cast(Source, source),
                 method=method,
                 progress=not json,
-                report=line,
+                report=stages,
                 overwrite=force,
                 diagnose=functools.partial(default_diagnose, catalogue=catalogue_for(system)),
             )

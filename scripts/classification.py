@@ -14,12 +14,13 @@ mains line added, and (``--rig-probes N``) N healthy runs recorded by the virtua
 an extra frame mode (``FrameMode.from_seed(0..N-1)``), at the campaign's speeds in turn.
 
 With ``--jobs N`` the jobs after the first (which makes the shared fit) run in N worker
-processes; the tables are the same.
+processes; the tables are the same. ``--tables-only`` runs nothing: it rewrites the results
+file from ``OUT/rows.json`` of a finished or interrupted study (after a change of wording).
 
 Usage::
 
     .venv/bin/python scripts/classification.py [--seeds 0 1 2] [--out out/classification]
-        [--runs-per-state 600] [--method nuts] [--jobs 1] [--rig-probes 12]
+        [--runs-per-state 600] [--method nuts] [--jobs 1] [--rig-probes 12] [--tables-only]
 """
 
 from __future__ import annotations
@@ -83,6 +84,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--rig-probes", type=int, default=12, help="rig runs with a frame mode (OOD probes)"
     )
+    parser.add_argument(
+        "--tables-only",
+        action="store_true",
+        help="run nothing: rewrite the results file from OUT/rows.json",
+    )
     args = parser.parse_args(argv)
     if args.jobs < 1:
         parser.error(f"--jobs must be at least 1, got {args.jobs}")
@@ -92,6 +98,9 @@ def main(argv: list[str] | None = None) -> None:
     configure_jax()
     from bayesdoor.pipeline import FitSummary
 
+    if args.tables_only:
+        rewrite_tables(args)
+        return
     campaign, campaign_name = _campaign(args.campaign)
     start = time.perf_counter()
 
@@ -147,6 +156,28 @@ def main(argv: list[str] | None = None) -> None:
 
 #: the command-line settings a job needs (passed to the worker processes)
 _JOB_SETTINGS = ("out", "runs_per_state", "method", "fit_evals", "fit_motion", "campaign")
+
+
+def rewrite_tables(args) -> None:
+    """The results file of the jobs recorded in ``OUT/rows.json`` (``--tables-only``)."""
+    from bayesdoor.datasets import demo_paths
+    from bayesdoor.pipeline import FitSummary
+
+    rows_file = args.out / "rows.json"
+    if not rows_file.is_file() or not (args.out / "shared-fit").is_dir():
+        raise SystemExit(
+            f"--tables-only needs {rows_file} and {args.out / 'shared-fit'}: run the study "
+            "into --out first"
+        )
+    rows = json.loads(rows_file.read_text())
+    write_markdown(
+        args,
+        rows,
+        FitSummary.load(args.out / "shared-fit"),
+        _fit_settings({k: getattr(args, k) for k in _JOB_SETTINGS}),
+        None,
+        demo_paths()[0].name if args.campaign is None else args.campaign.name,
+    )
 
 
 def _campaign(path: Path | None):
@@ -280,21 +311,35 @@ def _mean_sd(values: list[float], digits: int = 3, scale: float = 1.0) -> str:
     return f"{v.mean():.{digits}f} ± {v.std(ddof=1):.{digits}f}"
 
 
-def write_markdown(args, rows, fit, fit_settings, seconds: float, campaign_name: str) -> None:
+def write_markdown(
+    args, rows, fit, fit_settings, seconds: float | None, campaign_name: str
+) -> None:
+    """The results file; ``seconds=None`` for tables rewritten from ``rows.json``."""
     command = "python scripts/classification.py " + " ".join(sys.argv[1:])
+    stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    if seconds is None:
+        made = (
+            f"Tables rewritten from `{args.out}/rows.json` by `{command.strip()}` ({stamp}; "
+            f"{len(rows)} job(s) recorded of {len(args.seeds) * len(args.sources)})."
+        )
+    else:
+        made = (
+            f"Made by `{command.strip()}` ({stamp}, {seconds / 60:.0f} min on a shared "
+            f"{platform.machine()} machine; {len(rows)} job(s) done of "
+            f"{len(args.seeds) * len(args.sources)})."
+        )
     lines = [
         "# Classification of the demo campaign's test runs",
         "",
-        f"Made by `{command.strip()}` ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
-        f"{seconds / 60:.0f} min on a shared {platform.machine()} machine; "
-        f"{len(rows)} job(s) done of {len(args.seeds) * len(args.sources)}).",
+        made,
         "",
         f"Data: the embedded demo campaign (`{campaign_name}`), recorded by the virtual rig: "
         "10 healthy calibration runs and 300 test runs (100 healthy, 100 D1, 100 D2 at 0.3, "
         "0.4 and 0.5 m/s). The classifier is trained on simulations of the reduced door model "
         f"only ({args.runs_per_state} runs per state, 70/30 train/validation split; 10 members, "
-        "80 epochs, batch 100); its temperature and OOD threshold are fitted on the simulated "
-        "validation split. The test runs are used for the scores below and nothing else.",
+        "80 epochs, batch 100); its temperature is fitted on the simulated validation split, "
+        "its OOD covariance and threshold on simulated runs plus model-error draws (see the "
+        "OOD section). The test runs are used for the scores below and nothing else.",
         "",
         f"Fit settings: `{fit_settings}`.",
         "",
@@ -351,9 +396,11 @@ def write_markdown(args, rows, fit, fit_settings, seconds: float, campaign_name:
         sigma = ", ".join(f"{v:.3f}" for v in np.mean(fit.sigma_model, axis=0))
         lines += [
             "",
-            f"Posterior mean of the model-error scale per channel (log10 decades, in the "
-            f"campaign's channel order): {sigma}. The `posterior+model_error` source adds one "
-            "offset per run and channel drawn from it to the simulated features.",
+            "Model-error scale per channel (log10 decades, in the campaign's channel order; "
+            "posterior mean of the root mean square over the operating points of the "
+            f"discrepancy scale the likelihood fits per operating point and channel): {sigma}. "
+            "The `posterior+model_error` source adds one offset per run and channel, drawn "
+            "with a posterior draw of this scale, to the simulated features.",
         ]
     lines += ["", *_comparison(args.sources, rows), ""]
     args.results.write_text("\n".join(lines))
@@ -366,12 +413,16 @@ def _ood_section(sources, rows) -> list[str]:
     out = [
         "## The out-of-distribution flag",
         "",
-        "Share of runs flagged (mean over seeds). The detector is the Mahalanobis distance to the "
-        "nearest simulated class; its covariance and its threshold (the 99th percentile on the "
-        "simulated validation runs) include draws of the model error (model-error draws per "
-        f"job: {', '.join(map(str, draws))}): the residuals of the healthy calibration runs "
-        "about the simulated healthy mean at their speed plus the per-feature scatter the fit's "
-        "likelihood gives a measured feature. The test runs are not used.",
+        "Share of runs flagged (mean ± sd over seeds). The detector (docs/classification.md) is "
+        "the Mahalanobis distance to the nearest simulated class mean. Its reference is a "
+        "measurement of a simulated state: model-error draws (per job: "
+        f"{', '.join(map(str, draws))}), each the residual of one healthy calibration run about "
+        "the simulated healthy mean at its speed plus independent per-feature scatter (the Welch "
+        "scatter of the shortest window and the fit's mean squared model-error scale); half of "
+        "the draws enter the covariance (with the simulated within-class scatter), the other "
+        "half are added to the simulated validation runs, whose 99th percentile is the "
+        "threshold (about 1 % of in-distribution inputs flagged by design). The test runs are "
+        "not used; the calibration runs are the fit's.",
         "",
         "| input | " + " | ".join(LABELS[src] for src in used) + " |",
         "|---|" + "---|" * len(used),

@@ -5,7 +5,13 @@
    of 5 % around the paper's optimum), float64, in a fresh folder; the wall time includes
    compiling the solve of each state (reported apart from the chunk times) unless the
    persistent compilation cache already holds them. Baseline in the same process: the same
-   solver one run at a time (``--single`` runs, after compiling).
+   solver one run at a time (``--single`` runs, after compiling). With ``--dask N`` the same
+   generation again on a local Dask cluster of N worker processes (compiling in each; the
+   data are checked equal to the in-process ones).
+1b. **The cut record**: the same chunk of draws (``--cut-runs`` runs of one state) solved to
+   the record's end (``GenerationConfig.record_duration``, what generation did before) and to
+   just after the latest motion stop (``simulated_duration``, what it does now), alternately
+   in this process: seconds per run of both and the largest difference of their features.
 2. **float32 against float64**: the same draws (same key, same configuration) generated with
    ``SolverConfig(dtype="float32")``: seconds per run of both and the largest difference of
    the log10 features (decades).
@@ -18,7 +24,8 @@
 
 Timings are medians of repeated calls, each waited for with ``block_until_ready``.
 
-Usage: python benchmarks/bench_datagen.py [--runs-per-state 600] [--chunk-size 100] [--json]
+Usage: python benchmarks/bench_datagen.py [--runs-per-state 600] [--chunk-size 100] [--dask 2]
+    [--generation-only] [--json]
 """
 
 from __future__ import annotations
@@ -35,11 +42,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesdoor.classify import fit_classifier, predict
-from bayesdoor.datagen import GaussianScatter, GenerationConfig, featurize, generate
+from bayesdoor.datagen import (
+    GaussianScatter,
+    GenerationConfig,
+    TrainingData,
+    featurize,
+    generate,
+)
 from bayesdoor.systems import DoorParameters, ElevatorDoor, SolverConfig
 
 jax.config.update("jax_enable_x64", True)
 SPEEDS = (0.3, 0.4, 0.5)
+FS = 2048.0
 
 
 def _median_s(fn, calls: int) -> float:
@@ -56,12 +70,33 @@ def _source(door: ElevatorDoor) -> GaussianScatter:
     return GaussianScatter.around(door, optimum, 0.05)
 
 
-def time_generation(runs_per_state: int, chunk_size: int, folder: Path) -> tuple[dict, object]:
+def time_generation(
+    runs_per_state: int, chunk_size: int, folder: Path, dask_workers: int = 0
+) -> tuple[dict, TrainingData]:
+    """Generate in ``folder``: in this process, or on a local Dask cluster of that many."""
     door = ElevatorDoor()
     config = GenerationConfig(SPEEDS, runs_per_state=runs_per_state, chunk_size=chunk_size)
-    t0 = time.perf_counter()
-    data = generate(door, _source(door), config, folder, key=jax.random.key(0), progress=False)
+    c0, t0 = time.process_time(), time.perf_counter()
+    data = generate(
+        door,
+        _source(door),
+        config,
+        folder,
+        key=jax.random.key(0),
+        progress=False,
+        scheduler="local" if dask_workers else None,
+        n_workers=max(dask_workers, 1),
+    )
     wall_s = time.perf_counter() - t0
+    client_cpu_s = time.process_time() - c0
+    if dask_workers:
+        # chunks arrive in any order from the workers: only the totals mean something
+        return {
+            "runs": int(data.labels.size),
+            "workers": dask_workers,
+            "wall_s": wall_s,
+            "client_cpu_s": client_cpu_s,
+        }, data
     summary = json.loads((folder / "summary.json").read_text())
     chunks = np.asarray(summary["chunk_seconds"])
     per_state = config.chunks_per_state
@@ -71,13 +106,51 @@ def time_generation(runs_per_state: int, chunk_size: int, folder: Path) -> tuple
     return {
         "runs": int(data.labels.size),
         "chunk_size": chunk_size,
+        "simulated_s": config.simulated_duration(door),
+        "record_s": config.record_duration(door),
         "wall_s": wall_s,
+        "cpu_s": client_cpu_s,
         "first_chunk_of_each_state_s": first.tolist(),
         "steady_chunk_s": steady,
         "steady_ms_per_run": 1e3 * steady / chunk_size,
         "compile_overhead_s": float(np.sum(first) - first.size * steady),
         "dropped_runs": int(data.dropped_run_ids.size),
     }, data
+
+
+def compare_cut(runs: int, repeats: int = 2) -> dict:
+    """The same D1 draws solved to the record's end and to just after the motion stop."""
+    door = ElevatorDoor()
+    config = GenerationConfig(SPEEDS, runs_per_state=runs, chunk_size=runs)
+    source = _source(door)
+    draws = source.sample(runs, key=jax.random.key(3))
+    speeds = np.asarray(SPEEDS)[np.arange(runs) % len(SPEEDS)]
+    severity = {"d1_height": np.linspace(*door.states["D1"].severity["d1_height"], runs)}
+    t_start, t_stop = door.motion_window(speeds, duration=config.record_duration(door))
+
+    def run(duration: float):
+        res = door.simulate_values(draws, speeds, state="D1", severity=severity, duration=duration)
+        return np.asarray(featurize(jax.block_until_ready(res.signals), FS, t_start, t_stop))
+
+    lengths = {"record": config.record_duration(door), "cut": config.simulated_duration(door)}
+    features = {name: run(duration) for name, duration in lengths.items()}  # compile both
+    seconds: dict[str, list[float]] = {name: [] for name in lengths}
+    for _ in range(repeats):
+        for name, duration in lengths.items():
+            c0 = time.process_time()
+            run(duration)
+            seconds[name].append(time.process_time() - c0)
+    record_ms = 1e3 * float(np.median(seconds["record"])) / runs
+    cut_ms = 1e3 * float(np.median(seconds["cut"])) / runs
+    return {
+        "runs": runs,
+        "record_s": lengths["record"],
+        "cut_s": lengths["cut"],
+        "record_cpu_ms_per_run": record_ms,
+        "cut_cpu_ms_per_run": cut_ms,
+        "speedup": record_ms / cut_ms,
+        "feature_max_abs_diff_decades": float(np.abs(features["record"] - features["cut"]).max()),
+    }
 
 
 def time_single(runs: int) -> dict:
@@ -193,34 +266,76 @@ def main() -> None:
         "--compare-runs", type=int, default=16, help="runs per state of the float32 comparison"
     )
     parser.add_argument("--calls", type=int, default=500, help="timed one-run calls")
+    parser.add_argument(
+        "--cut-runs", type=int, default=100, help="runs of the record-against-cut comparison"
+    )
+    parser.add_argument(
+        "--dask", type=int, default=0, help="also generate on a local Dask cluster of N workers"
+    )
+    parser.add_argument(
+        "--generation-only",
+        action="store_true",
+        help="generation and the cut comparison only (no training, float32, one-run timings)",
+    )
     parser.add_argument("--json", action="store_true", help="print the result as JSON only")
     args = parser.parse_args()
 
+    result: dict = {"load_average_at_start": list(os.getloadavg()), "cpu_count": os.cpu_count()}
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
         generation, data = time_generation(args.runs_per_state, args.chunk_size, tmp_path / "gen")
-        single = time_single(args.single)
-        training, ensemble = time_training(data)
-        one_run = time_one_run(ensemble, args.calls)
-        precision = compare_float32(args.compare_runs, tmp_path / "precision")
-    generation["speedup_vs_one_at_a_time"] = single["ms_per_run"] / generation["steady_ms_per_run"]
-    result = {
-        "load_average_at_end": list(os.getloadavg()),
-        "cpu_count": os.cpu_count(),
-        "generation": generation,
-        "one_at_a_time": single,
-        "float32_vs_float64": precision,
-        "training": training,
-        "one_run_features_and_members": one_run,
-    }
+        result["generation"] = generation
+        if args.dask:
+            dask, dask_data = time_generation(
+                args.runs_per_state, args.chunk_size, tmp_path / "dask", args.dask
+            )
+            dask["data_equal_to_in_process"] = bool(
+                np.array_equal(dask_data.features, data.features)
+                and np.array_equal(dask_data.run_ids, data.run_ids)
+            )
+            result["generation_dask"] = dask
+        result["cut_record"] = compare_cut(args.cut_runs)
+        if not args.generation_only:
+            single = time_single(args.single)
+            generation["speedup_vs_one_at_a_time"] = (
+                single["ms_per_run"] / generation["steady_ms_per_run"]
+            )
+            training, ensemble = time_training(data)
+            result.update(
+                one_at_a_time=single,
+                float32_vs_float64=compare_float32(args.compare_runs, tmp_path / "precision"),
+                training=training,
+                one_run_features_and_members=time_one_run(ensemble, args.calls),
+            )
+    result["load_average_at_end"] = list(os.getloadavg())
     if args.json:
         print(json.dumps(result, indent=2))
         return
-    g, p, t, o = generation, precision, training, one_run
+    g, c = generation, result["cut_record"]
     print(f"generation of {g['runs']} runs (chunks of {g['chunk_size']}): {g['wall_s']:.1f} s wall")
     print(
         f"  steady: {g['steady_ms_per_run']:.1f} ms per run; "
         f"compiling: {g['compile_overhead_s']:.1f} s"
+    )
+    if args.dask:
+        d = result["generation_dask"]
+        print(
+            f"  on {d['workers']} Dask workers: {d['wall_s']:.1f} s wall "
+            f"(data equal: {d['data_equal_to_in_process']})"
+        )
+    print(
+        f"cut record ({c['cut_s']:.2f} of {c['record_s']:.2f} s): {c['cut_cpu_ms_per_run']:.1f} "
+        f"against {c['record_cpu_ms_per_run']:.1f} ms CPU per run ({c['speedup']:.2f}x); "
+        f"features differ by at most {c['feature_max_abs_diff_decades']:.3g} decades"
+    )
+    print(f"load average: {result['load_average_at_start']} -> {result['load_average_at_end']}")
+    if args.generation_only:
+        return
+    single = result["one_at_a_time"]
+    p, t, o = (
+        result["float32_vs_float64"],
+        result["training"],
+        result["one_run_features_and_members"],
     )
     print(
         f"  one run at a time: {single['ms_per_run']:.1f} ms per run "
@@ -239,7 +354,6 @@ def main() -> None:
         f"one run, features + 10 members: {o['two_jitted_calls_us']:.0f} us "
         f"(one fused jit: {o['one_fused_jit_us']:.0f} us)"
     )
-    print(f"load average: {result['load_average_at_end']}")
 
 
 if __name__ == "__main__":

@@ -44,6 +44,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
+import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import brentq
 
@@ -99,7 +100,7 @@ def matched_c_r(law: int, xi: float, lower: float, upper: float) -> float:
         raise ValueError(f"lower={lower} must lie below upper={upper}")
 
     def gap(c_r: float) -> float:
-        return float(get_law(law).hysteresis_factor(np.asarray(c_r))) - xi
+        return float(get_law(law).hysteresis_factor(jnp.asarray(c_r))) - xi
 
     if gap(lower) <= 0.0:
         return lower
@@ -112,7 +113,7 @@ def warm_start(reference: dict[str, float], reference_law: int, law: int, bounds
     """The reference optimum with c_r moved to deliver the reference law's xi under ``law``."""
     from bayesdoor.contact import get_law
 
-    xi = float(get_law(reference_law).hysteresis_factor(np.asarray(reference["c_r"])))
+    xi = float(get_law(reference_law).hysteresis_factor(jnp.asarray(reference["c_r"])))
     start = {k: v for k, v in reference.items() if k != "I"}
     start["c_r"] = matched_c_r(law, xi, *bounds)
     return start
@@ -133,8 +134,8 @@ def damping_table(results) -> str:
     ]
     for law, r in results.items():
         c_r = r.posterior_draws()["c_r"]
-        xi = np.asarray(get_law(law).hysteresis_factor(c_r))
-        ends = np.asarray(get_law(law).hysteresis_factor(np.array([0.95, 0.6])))
+        xi = np.asarray(get_law(law).hysteresis_factor(jnp.asarray(c_r)))
+        ends = np.asarray(get_law(law).hysteresis_factor(jnp.array([0.95, 0.6])))
         lines.append(
             f"| {law} | {LAW_NAMES[law - 1]} | {c_r.mean():.3f} ({c_r.std():.3f}) | "
             f"{xi.mean():.3f} ({xi.std():.3f}) | {ends[0]:.3f} to {ends[1]:.3f} |"
@@ -325,9 +326,10 @@ def main() -> int:
                 (folder / "start.json").write_text(
                     json.dumps([starts[law][n] for n in r.names]) + "\n"
                 )
+                gates = r.diagnostics is not None and r.diagnostics.passed
                 print(
                     f"law {law}: J {r.cmaes.f_best:.4f} at the optimum, {r.j:.4f} at the "
-                    f"posterior mean, gates {'pass' if r.diagnostics.passed else 'FAIL'}, "
+                    f"posterior mean, gates {'pass' if gates else 'FAIL'}, "
                     f"{seconds[law]:.0f} s",
                     file=sys.stderr,
                 )
@@ -414,7 +416,7 @@ def door_xi(fit) -> float:
     """The hysteresis factor of a fit's law at its c_r."""
     from bayesdoor.contact import get_law
 
-    return float(get_law(fit.law).hysteresis_factor(np.asarray(fit.point["c_r"])))
+    return float(get_law(fit.law).hysteresis_factor(jnp.asarray(fit.point["c_r"])))
 
 
 if __name__ == "__main__":

@@ -23,14 +23,17 @@ Then, in one process:
    samplers evaluate) and of its value and gradient, jitted, warm, median of repeats with
    ``block_until_ready``, through (a) the exact diffrax simulator and (b) the surrogate;
    ratios gradient/value and exact/surrogate;
-2. NUTS (numpyro) and emcee (``n_ensembles`` independent ensembles) on the same surrogate
-   model from the same start, each called twice with the same sizes (the first call
-   compiles; the second is timed, and still re-traces its jitted functions): wall time, min
-   bulk and tail ESS over every posterior variable (ArviZ, through ``diagnose_sampling``,
-   whose gates the fit applies), ESS per second, ESS per 1000 evaluations in the kept draws
-   (NUTS: leapfrog steps, each a value and gradient; emcee: walker proposals, each a value),
-   R-hat (emcee: nested over ensembles), divergences, and whether the gates passed; ratio
-   NUTS/emcee of ESS per second.
+2. NUTS (numpyro) and emcee (4 independent ensembles, as the fit runs it) on the same
+   surrogate model from the same start, each timed on its second call (the first compiles:
+   NUTS with the same sizes, emcee with 20 steps; the timed call still re-traces its jitted
+   functions, and includes building the ArviZ data): wall time, min bulk and tail ESS over
+   every posterior variable (ArviZ, through ``diagnose_sampling``, whose gates the fit
+   applies), ESS per second, ESS per 1000 evaluations in the kept draws (NUTS: leapfrog
+   steps, each a value and gradient; emcee: walker proposals, each a value), R-hat (emcee:
+   nested over ensembles), divergences, and whether the gates passed; ratio NUTS/emcee of
+   ESS per second. emcee keeps at most 100 draws per walker (its thinning
+   raised from the fit's 5), because ``sample_emcee``'s conversion of the draws costs about
+   70 kB and a few ms per draw (an un-jitted ``vmap``); its ESS is taken on those draws.
 
 Usage: python benchmarks/bench_inference.py [--quick] [--json] [--refit-surrogate]
 Wall and process CPU times are both reported (on a shared machine CPU time is the steadier
@@ -44,6 +47,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import resource
 import sys
 import time
 import warnings
@@ -100,8 +104,14 @@ SURROGATE_SOURCES = (
 SEED = 0
 
 
+def _peak_rss_gb() -> float:
+    """The process's peak resident memory so far, GB (Linux reports kB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+
+
 def _log(message: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')} load {os.getloadavg()[0]:.1f}] {message}", file=sys.stderr)
+    stamp = f"{time.strftime('%H:%M:%S')} load {os.getloadavg()[0]:.1f} rss {_peak_rss_gb():.1f} GB"
+    print(f"[{stamp}] {message}", file=sys.stderr)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -284,8 +294,16 @@ def time_density(model: Callable, init: dict, repeats: int) -> dict[str, Any]:
     return out
 
 
+#: emcee draws kept per walker at most: ``sample_emcee`` maps its draws back to constrained
+#: values with an un-jitted ``vmap`` of the model (about 70 kB and 2-3 ms per draw); at the fit's
+#: thinning (8000 kept steps / 5 x 192 walkers = 307200 draws) that alone would need ~20 GB
+EMCEE_MAX_DRAWS = 100
+
+
 def _sampler_settings(settings: FitSettings, ndim: int) -> dict[str, dict[str, Any]]:
-    """The fit's sampler sizes; emcee's walkers raised to twice the dimension plus two."""
+    """The fit's sampler sizes; emcee's walkers raised to twice the dimension plus two, and
+    its thinning raised to keep at most ``EMCEE_MAX_DRAWS`` draws per walker."""
+    kept = settings.emcee_steps - settings.emcee_burn
     return {
         "nuts": {
             "num_warmup": settings.num_warmup,
@@ -297,25 +315,30 @@ def _sampler_settings(settings: FitSettings, ndim: int) -> dict[str, dict[str, A
             "n_walkers": max(settings.emcee_walkers, 2 * ndim + 2),
             "n_steps": settings.emcee_steps,
             "burn": settings.emcee_burn,
-            "thin": settings.emcee_thin,
+            "thin": max(settings.emcee_thin, -(-kept // EMCEE_MAX_DRAWS)),
             "init_scale": 0.1,
         },
     }
 
 
 def time_samplers(model: Callable, init: dict, settings: FitSettings) -> dict[str, Any]:
-    """ESS per second and per evaluation of NUTS and emcee, each called twice (second timed)."""
+    """ESS per second and per evaluation of NUTS and emcee, each after a compiling call.
+
+    NUTS's compiled loop depends on its sizes, so its first call has the timed call's sizes;
+    emcee's compiled density depends on the walkers only, so its first call takes 20 steps.
+    """
     ndim = sum(int(np.size(v)) for v in init.values())
     out: dict[str, Any] = {}
     for name, kw in _sampler_settings(settings, ndim).items():
         sampler = sample_nuts if name == "nuts" else sample_emcee
+        first = kw if name == "nuts" else {**kw, "n_steps": 20, "burn": 0, "thin": 1}
         walls, cpus = [], []
-        for seed in (0, 1):
+        for seed, sizes in enumerate((first, kw)):
             t0, c0 = time.perf_counter(), time.process_time()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 idata = sampler(
-                    model, key=jax.random.key(seed), init_values=init, progress=False, **kw
+                    model, key=jax.random.key(seed), init_values=init, progress=False, **sizes
                 )
             walls.append(time.perf_counter() - t0)
             cpus.append(time.process_time() - c0)
@@ -332,6 +355,7 @@ def time_samplers(model: Callable, init: dict, settings: FitSettings) -> dict[st
             "settings": {k: v for k, v in kw.items() if k != "init_values"},
             "dimensions": ndim,
             "first_call_s": walls[0],
+            "first_call": "same sizes" if name == "nuts" else "20 steps",
             "wall_s": walls[1],
             "cpu_s": cpus[1],
             "draws": diag.draws,
@@ -353,6 +377,7 @@ def time_samplers(model: Callable, init: dict, settings: FitSettings) -> dict[st
             "gates_passed": diag.passed,
             "gate_messages": list(diag.messages),
             "load_average": os.getloadavg()[0],
+            "peak_rss_gb": _peak_rss_gb(),
         }
     return out
 
@@ -374,6 +399,7 @@ def run(quick: bool, refit: bool) -> dict[str, Any]:
     for name, model in models.items():
         densities[name] = time_density(model, problem.init, repeats[name])
         densities[name]["load_average"] = os.getloadavg()[0]
+        densities[name]["peak_rss_gb"] = _peak_rss_gb()
         _log(f"{name} density timed: {json.dumps(densities[name])}")
     samplers = time_samplers(models["surrogate"], problem.init, settings)
     n_run = int(problem.data.y.shape[0])

@@ -226,11 +226,13 @@ def build_problem(settings: FitSettings, refit: bool) -> Problem:
     ends = np.repeat(truth[None], 2 * len(free), axis=0)
     ends[2 * np.arange(len(free)), np.arange(len(free))] = lower
     ends[2 * np.arange(len(free)) + 1, np.arange(len(free))] = upper
-    end_features, _ = simulate_design(exact, ends, chunk=2 * len(free))
+    end_features, _ = simulate_design(exact, jnp.asarray(ends), chunk=2 * len(free))
     reach = np.max(np.abs(end_features[0::2] - end_features[1::2]), axis=(1, 2, 3))
     welch_sd = float(np.sqrt(np.median(np.asarray(data.welch_variance))))
     fractions = np.where(reach < settings.insensitive * welch_sd, 1.0, settings.box_fraction)
-    box = box_around(truth, lower, upper, fractions)
+    box = box_around(
+        jnp.asarray(truth), jnp.asarray(lower), jnp.asarray(upper), jnp.asarray(fractions)
+    )
     truth_named = dict(zip(free, truth.tolist(), strict=True))
     surrogate, info = _fit_or_load_surrogate(
         exact, box, settings, _surrogate_path(settings, truth_named), refit

@@ -1,14 +1,22 @@
-"""The hand-over from a diagnosis to its extension uses the proposal the refit chose."""
+"""The refit's pieces: the proposal a cause keeps, the held-out folds, exact held-out spectra."""
 
 from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 from test_diagnosis_gain import stand_in
 
-from bayesdoor.diagnose import ExtensionProposal, verdict_extension
-from bayesdoor.systems import ElevatorDoor
+from bayesdoor.diagnose import (
+    ExtensionProposal,
+    RefitSetup,
+    Spectra,
+    exact_spectra,
+    held_out_folds,
+    verdict_extension,
+)
+from bayesdoor.systems import DoorParameters, ElevatorDoor
 from bayesdoor.systems.door import SensorCrossAxis
 
 
@@ -35,3 +43,62 @@ def test_a_cause_carries_the_proposal_its_refit_chose():
     # without the stored proposal the recipe is asked again, and it never proposes this label
     with pytest.raises(ValueError, match="made up for the test"):
         verdict_extension(ElevatorDoor(), diagnosis)
+
+
+@pytest.mark.parametrize("k", [2, 3, 4, 8])
+def test_held_out_folds_hold_every_run_out_once_across_the_speed_range(k):
+    speeds = np.array([0.45, 0.30, 0.50, 0.35, 0.40, 0.33, 0.48, 0.38])
+    folds = held_out_folds(speeds, k)
+    assert len(folds) == k
+    tests = np.concatenate([test for _, test in folds])
+    assert sorted(tests.tolist()) == list(range(8))
+    for train, test in folds:
+        assert set(train.tolist()) | set(test.tolist()) == set(range(8))
+        assert not set(train.tolist()) & set(test.tolist())
+    # dealt in turn by speed: the i-th slowest run is in test set i mod k
+    order = np.argsort(speeds)
+    for i, run in enumerate(order):
+        assert run in folds[i % k][1]
+
+
+def test_held_out_folds_refuse_too_few_runs():
+    assert held_out_folds(np.array([0.3, 0.4, 0.5]), 2) == []
+    assert len(held_out_folds(np.array([0.3, 0.4, 0.5, 0.6]), 2)) == 2
+    with pytest.raises(ValueError, match="k=1"):
+        held_out_folds(np.array([0.3, 0.4, 0.5, 0.6]), 1)
+
+
+def test_exact_spectra_give_each_run_its_own_values():
+    # an output extension (A2Z reads a fraction of A2X) at a different fraction per run,
+    # against the leak mixed into the base signals by hand and the same Welch spectra
+    door = ElevatorDoor()
+    values = DoorParameters.paper_optimum().to_dict()
+    speeds = np.array([0.3, 0.5])
+    result = door.simulate_values(values, speeds, duration=2.0)
+    assert np.all(np.asarray(result.status) == 0)
+    signals = np.asarray(result.signals)
+    fs = door.sampling_rate_hz
+    t_start, t_stop = np.array([0.25, 0.25]), np.array([1.9, 1.9])
+    spectra = Spectra.of_measured(signals, fs, t_start, t_stop, (4.0, 96.0), nperseg=int(fs))
+    setup = RefitSetup(
+        system=door,
+        point=values,
+        operating=speeds,
+        duration=2.0,
+        time=np.asarray(result.time),
+        base_signals=signals,
+        spectra=spectra,
+    )
+    proposal = ExtensionProposal(
+        extension=SensorCrossAxis(sensor="A2", into="Z"),
+        start={"sensor_cross_axis.fraction": 0.0},
+        free=("sensor_cross_axis.fraction",),
+    )
+    fractions = np.array([0.1, -0.2])
+    got = exact_spectra(setup, proposal, {"sensor_cross_axis.fraction": fractions}, [1, 0])
+    mixed = signals.copy()
+    mixed[:, 3] += fractions[::-1, None] * signals[:, 2]
+    expected = Spectra.of_measured(mixed, fs, t_start, t_stop, (4.0, 96.0), nperseg=int(fs))
+    np.testing.assert_allclose(got, expected.measured[[1, 0]], rtol=0, atol=1e-9)
+    with pytest.raises(ValueError, match=r"sensor_cross_axis\.fraction"):
+        exact_spectra(setup, proposal, {}, [0])

@@ -101,7 +101,8 @@ def check_parameters(name: str, cause, recording, rig) -> None:
         assert _mean(p, "wavelength_m") == pytest.approx(WHEEL_CIRCUMFERENCE / k, rel=0.04), p
     elif name == "sensor_cross_axis":
         # the extension is the rig's leak exactly (same definition): the right channel and
-        # the fraction within 20 % (a fraction of a few % is seen through a few dB of excess)
+        # the fraction within 20 % (the reported fraction is measured from the transfer
+        # function between the pair; its standard error was 0.01 at 8 runs)
         receiver = f"{truth['sensor']}{truth['into']}"
         assert cause.label.startswith(receiver), (cause.label, truth)
         got = _mean(p, "sensor_cross_axis.fraction")
@@ -125,7 +126,6 @@ _MEASURED_FAILING = {
     ("wheel_eccentricity", 1): "verdict none at 8 runs (session 3 suite)",
     ("rail_waviness", 0): "verdict none at 8 runs (session 3 suite; named at 12 runs)",
     ("rail_waviness", 1): "verdict none at 8 runs (session 3 suite)",
-    ("sensor_cross_axis", 0): "verdict none at 8 runs (session 3 suite)",
     ("sensor_cross_axis", 1): "verdict none at 8 runs (session 3 suite)",
 }
 #: the cases that pass at this size stay in the default suite; the measured failures run

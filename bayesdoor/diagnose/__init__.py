@@ -22,6 +22,7 @@ from ._job import Diagnosis as Diagnosis
 from ._job import DiagnosisSettings as DiagnosisSettings
 from ._job import diagnose_campaign as diagnose_campaign
 from ._job import extension_gain as extension_gain
+from ._job import held_out_folds as held_out_folds
 from ._rank import NONE as NONE
 from ._rank import Candidate as Candidate
 from ._rank import Catalogue as Catalogue
@@ -33,6 +34,7 @@ from ._refit import ExtensionProposal as ExtensionProposal
 from ._refit import RefitResult as RefitResult
 from ._refit import RefitSetup as RefitSetup
 from ._refit import Spectra as Spectra
+from ._refit import exact_spectra as exact_spectra
 from ._refit import refit_extension as refit_extension
 from ._residual import Region as Region
 from ._residual import ResidualMap as ResidualMap

@@ -43,6 +43,11 @@ class PairCoherence:
     leak_spread
         Median absolute deviation of ``transfer`` about ``leak`` over the significant bins,
         relative to ``|leak|``: small for a frequency-independent leak.
+    leak_sd
+        Standard error of ``leak``: that of the median of ``n`` normal values,
+        ``1.2533 sigma / sqrt(n)``, with ``sigma = 1.4826`` times the median absolute
+        deviation over the ``n`` significant bins (optimistic where neighbouring bins are
+        correlated; NaN without significant bins).
     """
 
     pair: tuple[str, str]
@@ -56,6 +61,7 @@ class PairCoherence:
     transfer: Complex[np.ndarray, " freq"]
     leak: float
     leak_spread: float
+    leak_sd: float = float("nan")
 
     def significant_near(self, frequency_hz: float, freqs: np.ndarray, tol_hz: float) -> bool:
         near = np.abs(freqs - frequency_hz) <= tol_hz
@@ -217,8 +223,8 @@ def coherence_map(
     ):
         t_ba = np.median(dba[:, keep].real, axis=0) + 1j * np.median(dba[:, keep].imag, axis=0)
         t_ab = np.median(dab[:, keep].real, axis=0) + 1j * np.median(dab[:, keep].imag, axis=0)
-        leak_ba, spread_ba = _leak(t_ba, sig)
-        leak_ab, spread_ab = _leak(t_ab, sig)
+        leak_ba, spread_ba, sd_ba = _leak(t_ba, sig)
+        leak_ab, spread_ab, sd_ab = _leak(t_ab, sig)
         forward = not spread_ab < spread_ba
         out.append(
             PairCoherence(
@@ -233,15 +239,19 @@ def coherence_map(
                 transfer=t_ba if forward else t_ab,
                 leak=leak_ba if forward else leak_ab,
                 leak_spread=spread_ba if forward else spread_ab,
+                leak_sd=sd_ba if forward else sd_ab,
             )
         )
     return CoherenceMap(freqs=freqs, pairs=tuple(out), q=float(q), p_threshold=threshold)
 
 
-def _leak(transfer: np.ndarray, significant: np.ndarray) -> tuple[float, float]:
+def _leak(transfer: np.ndarray, significant: np.ndarray) -> tuple[float, float, float]:
+    """Median of the real transfer change over the significant bins, its relative spread and
+    its standard error."""
     if not significant.any():
-        return float("nan"), float("inf")
+        return float("nan"), float("inf"), float("nan")
     values = transfer[significant]
     leak = float(np.median(values.real))
-    spread = float(np.median(np.abs(values - leak)))
-    return leak, spread / abs(leak) if leak != 0 else float("inf")
+    mad = float(np.median(np.abs(values - leak)))
+    sd = 1.2533 * 1.4826 * mad / np.sqrt(values.size)
+    return leak, mad / abs(leak) if leak != 0 else float("inf"), float(sd)

@@ -17,6 +17,7 @@ import numpy as np
 import scipy.signal
 import xarray as xr
 
+from .._types import Float, Int
 from ..features import motion_window as detect_motion_window
 from ._features import Features, find_features
 from ._gain import RULE, Gain, compare_held_out, estimate_discrepancy, log_predictive
@@ -28,6 +29,7 @@ from ._refit import (
     RefitResult,
     RefitSetup,
     Spectra,
+    exact_spectra,
     refit_extension,
 )
 
@@ -52,11 +54,15 @@ class DiagnosisSettings:
         Most candidates refitted (best signature scores first).
     refit_evals
         CMA-ES budget of one extension refit (per fold).
+    folds
+        Folds of the held-out judgement (at most one per run): each fold's extension is
+        fitted on the other runs and judged on its own.
     """
 
     predictive_draws: int = 8
     max_candidates: int = 5
     refit_evals: int = 240
+    folds: int = 2
 
     @classmethod
     def quick(cls) -> DiagnosisSettings:
@@ -298,14 +304,42 @@ def _pairs(catalogue: Catalogue) -> tuple[tuple[str, str], ...]:
     return tuple(found)
 
 
-def _folds(operating: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Two folds (train, test) whose halves each span the operating range (alternate runs
-    sorted by operating point); none with fewer than 2 runs in a half."""
-    order = np.argsort(operating, kind="stable")
-    first, second = np.sort(order[0::2]), np.sort(order[1::2])
-    if min(len(first), len(second)) < 2:
+def held_out_folds(
+    operating: Float[np.ndarray, " run"], k: int
+) -> list[tuple[Int[np.ndarray, " train"], Int[np.ndarray, " test"]]]:
+    """``k`` folds (train, test) of the held-out judgement.
+
+    The runs sorted by operating point are dealt to the ``k`` test sets in turn, so each
+    test set spans the operating range and every run is held out once (``k = 2``: alternate
+    runs). ``k`` is capped at the number of runs.
+
+    Parameters
+    ----------
+    operating
+        Each run's operating point.
+    k
+        Number of folds.
+
+    Returns
+    -------
+    folds
+        ``(train, test)`` run indices, sorted; empty when a training set would have fewer
+        than 2 runs.
+
+    Raises
+    ------
+    ValueError
+        For ``k < 2``.
+    """
+    if int(k) < 2:
+        raise ValueError(f"k={k!r}: the held-out judgement needs at least 2 folds")
+    n = len(operating)
+    k = min(int(k), n)
+    if n - int(np.ceil(n / k)) < 2:
         return []
-    return [(first, second), (second, first)]
+    order = np.argsort(np.asarray(operating), kind="stable")
+    tests = [np.sort(order[i::k]) for i in range(k)]
+    return [(np.setdiff1d(np.arange(n), test), test) for test in tests]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -332,16 +366,35 @@ def _cross_validate(
     max_evals: int,
     bases: dict[tuple[float, ...], np.ndarray],
 ) -> tuple[list[RefitResult], Gain]:
+    """Refit on each fold's training runs, judge its held-out runs, both models alike.
+
+    The held-out runs of every fold are simulated exactly at the values fitted without them,
+    all in one simulation (:func:`exact_spectra`); the extended model's discrepancy is
+    estimated on the training runs from the spectra it was fitted with.
+    """
     base = setup.base_spectra
-    before, after = [], []
-    fits = []
-    for k, (train, test) in enumerate(folds):
-        fit = refit_extension(
-            setup, proposal, train, seed=seed + k, max_evals=max_evals, bases=bases
+    fits = [
+        refit_extension(
+            setup, proposal, train, seed=seed + k, max_evals=max_evals, bases=bases, exact=False
         )
-        fits.append(fit)
+        for k, (train, _) in enumerate(folds)
+    ]
+    tests = np.concatenate([test for _, test in folds])
+    values = {
+        n: np.concatenate(
+            [np.full(len(test), f.values[n]) for f, (_, test) in zip(fits, folds, strict=True)]
+        )
+        for n in proposal.free
+    }
+    held = exact_spectra(setup, proposal, values, tests)
+    before, after = [], []
+    start = 0
+    for fit, (train, test) in zip(fits, folds, strict=True):
+        model = fit.spectra.copy()
+        model[test] = held[start : start + len(test)]
+        start += len(test)
         before.append(_held_out(setup.spectra, base, train, test))
-        after.append(_held_out(setup.spectra, fit.spectra, train, test))
+        after.append(_held_out(setup.spectra, model, train, test))
     gain = compare_held_out(
         np.concatenate([h.lpd for h in before]),
         np.concatenate([h.lpd for h in after]),
@@ -494,7 +547,7 @@ def diagnose_campaign(
     ][: settings.max_candidates]
     if ranking.verdict == NONE:
         plausible = []
-    folds = _folds(operating)
+    folds = held_out_folds(operating, settings.folds)
     if plausible and not folds:
         notes.append(
             f"{len(runs)} healthy runs: too few to fit on half and hold out the other half "
@@ -550,6 +603,8 @@ def diagnose_campaign(
             )
             parameters = {n: {"mean": final.values[n], "sd": final.sd[n]} for n in proposal.free}
         parameters.update(held)
+        for n, (value, sd) in proposal.measured.items():
+            parameters[n] = {"mean": value, "sd": sd, "refit": parameters[n]["mean"]}
         words = (
             f"refit of {score.name} ({proposal.label}) on half of the runs, tested on the other "
             f"half both ways: {gain.describe()}"
@@ -631,7 +686,7 @@ def extension_gain(
 
     settings = DiagnosisSettings.quick() if quick else DiagnosisSettings()
     measured = _Measured.of(system, campaign, calibration_runs(campaign))
-    folds = _folds(measured.operating)
+    folds = held_out_folds(measured.operating, settings.folds)
     if not folds:
         raise ValueError(
             f"{len(measured.runs)} healthy calibration runs: need at least 4 to fit on half "

@@ -319,8 +319,8 @@ class CrossAxisCoherence(AbstractSignature):
     explains (overlapping excess regions on both channels are left out: broadband, unlike a
     resonance both channels feel); the change of
     the transfer function in the best direction is flat (relative spread at most
-    ``max_spread``). Parameters: ``fraction`` (the leak, signed), ``receiver`` and
-    ``source``.
+    ``max_spread``). Parameters: ``fraction`` (the leak, signed, measured from the data's
+    transfer function), ``fraction_sd`` (its standard error), ``receiver`` and ``source``.
     """
 
     pairs: tuple[tuple[str, str], ...] = eqx.field(static=True)
@@ -355,6 +355,7 @@ class CrossAxisCoherence(AbstractSignature):
                     checks=checks,
                     parameters={
                         "fraction": pair.leak,
+                        "fraction_sd": pair.leak_sd,
                         "receiver": pair.receiver,
                         "source": pair.source,
                     },

@@ -147,7 +147,11 @@ class CrossAxisRefit(AbstractRefit):
     One free parameter each (the fraction), refitted on signals already simulated, so all
     directions are tried (the refit keeps the one that fits the training runs best): the
     coherence signature names the pair whose excess is the most uniform, which need not be
-    the leaking one when the base model misses some coherence of another pair.
+    the leaking one when the base model misses some coherence of another pair. For the
+    direction the signature names, the fraction it measured from the data's transfer function
+    is the one reported (``measured``): the refit's mixes the base model's source signal into
+    the receiver and absorbs that signal's level error (on the virtual rig at 8 runs it came
+    out 21 % and 24 % high where the transfer function was within 1 %).
     """
 
     pairs: tuple[tuple[str, str], ...] = eqx.field(static=True)
@@ -156,10 +160,13 @@ class CrossAxisRefit(AbstractRefit):
         self, parameters: Mapping[str, Any], *, band: tuple[float, float]
     ) -> tuple[ExtensionProposal, ...]:
         named = (str(parameters.get("receiver", "")), str(parameters.get("source", "")))
+        fraction = float(parameters.get("fraction", float("nan")))
+        sd = float(parameters.get("fraction_sd", float("nan")))
         out = []
         for pair in self.pairs:
             for into, other in (pair, pair[::-1]):
-                start = parameters.get("fraction", 0.02) if (into, other) == named else 0.02
+                mine = (into, other) == named and np.isfinite(fraction)
+                start = fraction if mine else 0.02
                 out.append(
                     ExtensionProposal(
                         extension=SensorCrossAxis(sensor=into[:-1], into=into[-1]),
@@ -167,6 +174,7 @@ class CrossAxisRefit(AbstractRefit):
                         free=("sensor_cross_axis.fraction",),
                         key=("sensor_cross_axis.fraction",),
                         label=f"{into} reads {other}",
+                        measured={"sensor_cross_axis.fraction": (fraction, sd)} if mine else {},
                     )
                 )
         return tuple(out)

@@ -78,6 +78,34 @@ def test_ftarget_and_budget_stop_the_restarts():
     assert "maxfevals" in budget.stop[-1]
 
 
+def test_a_restart_the_budget_cannot_finish_is_skipped():
+    kw = dict(lower=-5.0 * np.ones(4), upper=5.0 * np.ones(4), seed=7, sigma0=0.1, progress=False)
+    x0 = np.full(4, -1.0)
+    single = minimize_cmaes(rosenbrock, x0, max_evals=20_000, restarts=0, **kw)
+    used = single.evaluations
+    # half the first run's evaluations left after it: the restart (twice the population)
+    # could not converge, so it is not started, and the first run is exactly the single run
+    short = minimize_cmaes(
+        rosenbrock, x0, max_evals=used + used // 2, restarts=2, affordable_restarts=True, **kw
+    )
+    assert short.restarts == 0 and short.evaluations == used
+    assert (
+        f"no restart: {used // 2} evaluations left, fewer than the {used} run 0 used"
+        in (short.stop[0])
+    )
+    np.testing.assert_array_equal(short.history.best_f, single.history.best_f)
+    # without the rule the same budget starts a restart that the budget then cuts off
+    cut = minimize_cmaes(rosenbrock, x0, max_evals=used + used // 2, restarts=2, **kw)
+    assert cut.restarts == 1 and "maxfevals" in cut.stop[-1]
+    # with room for every restart the rule changes nothing (fmin2's sequence, as above)
+    roomy = minimize_cmaes(
+        rosenbrock, x0, max_evals=20_000, restarts=2, affordable_restarts=True, **kw
+    )
+    plain = minimize_cmaes(rosenbrock, x0, max_evals=20_000, restarts=2, **kw)
+    assert roomy.restarts == plain.restarts == 2
+    assert roomy.evaluations == plain.evaluations and roomy.f_best == plain.f_best
+
+
 def test_history_is_consistent():
     r = minimize_cmaes(
         sphere, np.zeros(3), lower=-np.ones(3), upper=np.ones(3), seed=2, progress=False

@@ -35,7 +35,7 @@ from numpyro.infer import Predictive
 
 from .._types import Array, Bool, Float, Int
 from ..features import motion_window as detect_motion_window
-from ..features import objective_j
+from ..features import objective_j, segment_weights
 from ..io import atomic_write
 from ..systems import AbstractSystem
 from ._cmaes import CMAESHistory, CMAESResult, minimize_cmaes
@@ -78,7 +78,15 @@ class FitSettings:
         Longest stretch of motion (s) that enters the features; ``None``: the whole motion.
     cmaes_max_evals, cmaes_restarts, cmaes_popsize, cmaes_sigma0
         CMA-ES budget, IPOP restarts, first population (``None``: pycma's default) and
-        initial step (fraction of each range).
+        initial step (fraction of each range). A restart starts only while the budget left
+        is at least what the previous run used (one cut off by the budget before it
+        converges only costs time).
+    cmaes_tolerance
+        CMA-ES stops when its best J of the last iterations spans less than this fraction of
+        J's standard error from the run-to-run scatter (:func:`j_standard_error`; pycma's
+        ``tolfun`` and ``tolfunhist``): a finer optimum of J is below what the data resolve.
+        ``None``, or a campaign without replicate runs: pycma's default tolerances (1e-11
+        and 1e-12), so the budget stops it.
     box_fraction
         Half-width of the surrogate's box around the optimum, as a fraction of each range.
     box_moves
@@ -105,6 +113,7 @@ class FitSettings:
     cmaes_restarts: int = 2
     cmaes_popsize: int | None = None
     cmaes_sigma0: float = 0.25
+    cmaes_tolerance: float | None = 0.1
     box_fraction: float = 0.25
     box_moves: int = 2
     insensitive: float = 0.5
@@ -266,23 +275,70 @@ def campaign_data(
     return data, duration
 
 
+def j_standard_error(data: CalibrationData) -> float | None:
+    """The standard error of J (the mean over the runs) from the run-to-run scatter alone.
+
+    For each run at an operating point measured ``k >= 2`` times, the residual against the
+    mean of the other ``k - 1`` runs there, scaled by ``sqrt((k - 1) / k)`` to one run's
+    scatter, is what a perfect model would leave on that run; its J (eq. 2) is a draw of
+    J's run-to-run fluctuation. The standard deviation of these over the runs, over the
+    square root of the number of runs, is the precision of the mean J the data support.
+    Data only: no simulation. (On the demo campaign, 10 runs at three speeds, it gives
+    0.017, against 0.014 from the spread of the runs' own J about their speed's mean at the
+    CMA-ES optimum.)
+
+    Parameters
+    ----------
+    data
+        The calibration features.
+
+    Returns
+    -------
+    se
+        The standard error, or ``None`` when fewer than two runs have a replicate.
+    """
+    y = np.asarray(data.y)
+    index = np.asarray(data.run_operating)
+    residuals = []
+    for i in range(len(y)):
+        others = np.flatnonzero((index == index[i]) & (np.arange(len(y)) != i))
+        if others.size:
+            k = others.size + 1
+            residuals.append((y[i] - y[others].mean(axis=0)) * np.sqrt((k - 1) / k))
+    if len(residuals) < 2:
+        return None
+    scatter = np.asarray(objective_j(jnp.asarray(np.stack(residuals)), jnp.zeros_like(y[0])))
+    return float(np.std(scatter, ddof=1) / np.sqrt(len(y)))
+
+
 # ---------------------------------------------------------------------------------------------
 # the population simulator
 
 
-#: candidates per vmapped simulation: every batch (CMA-ES populations, the sensitivity design,
-#: predictive draws) is padded to a multiple of it, so one compilation serves them all
+#: candidates per vmapped simulation outside a fit (posterior predictive draws); a fit pads
+#: every batch to a multiple of its first CMA-ES population, so one compilation serves it all
 _CHUNK = 10
+
+#: samples simulated past the end of the last Welch segment any run uses: the solver's last
+#: step is clipped to the end of the record, so it must lie beyond every sample used (a step
+#: is about 1 ms; 128 samples are 62.5 ms at 2048 Hz)
+_HORIZON_MARGIN = 128
 
 
 class _Population(eqx.Module):
-    """Features of a batch of full parameter vectors at every operating point."""
+    """Features of a batch of full parameter vectors at every operating point.
+
+    The record is simulated only up to ``horizon`` (s): the end of the last Welch segment that
+    lies inside a run's window, plus :data:`_HORIZON_MARGIN` samples. The features average
+    whole segments inside the window only, so the samples after it never enter them.
+    """
 
     system: AbstractSystem
     operating: Float[Array, " op"]
     t_start: Float[Array, " op"]
     t_stop: Float[Array, " op"]
     duration: float = eqx.field(static=True)
+    horizon: float = eqx.field(static=True)
     spec: FeatureSpec
 
     @classmethod
@@ -290,8 +346,21 @@ class _Population(eqx.Module):
         cls, system: AbstractSystem, data: CalibrationData, duration: float, spec: FeatureSpec
     ) -> _Population:
         t_start, t_stop = system.motion_window(np.asarray(data.operating), duration=duration)
+        fs = system.sampling_rate_hz
+        n_time = round(duration * fs)
+        used = np.asarray(
+            segment_weights(n_time, fs, t_start, t_stop, spec.nperseg, spec.noverlap)
+        ).any(axis=0)
+        end = int(np.flatnonzero(used).max()) * spec.step + spec.nperseg if used.any() else n_time
+        horizon = min(n_time, end + _HORIZON_MARGIN) / fs
         return cls(
-            system, data.operating, jnp.asarray(t_start), jnp.asarray(t_stop), duration, spec
+            system,
+            data.operating,
+            jnp.asarray(t_start),
+            jnp.asarray(t_stop),
+            duration,
+            horizon,
+            spec,
         )
 
     def __call__(
@@ -300,7 +369,7 @@ class _Population(eqx.Module):
         pop, n_op = x.shape[0], self.operating.shape[0]
         values = {p.name: jnp.repeat(x[:, i], n_op) for i, p in enumerate(self.system.parameters)}
         result = self.system.simulate_values(
-            values, jnp.tile(self.operating, pop), duration=self.duration, check=False
+            values, jnp.tile(self.operating, pop), duration=self.horizon, check=False
         )
         features, _ = run_features(
             result.signals,
@@ -322,14 +391,18 @@ def _simulate_chunk(
 
 
 def _simulate(
-    population: _Population, x: Float[np.ndarray, "pop param"]
+    population: _Population, x: Float[np.ndarray, "pop param"], chunk: int = _CHUNK
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Features and success of any number of full parameter vectors, in padded chunks."""
+    """Features and success of any number of full parameter vectors, in padded chunks.
+
+    Each chunk of ``chunk`` candidates is one vmapped simulation; the last is padded by
+    repeating its last row (one compilation per chunk size).
+    """
     x = np.atleast_2d(np.asarray(x, dtype=float))
     features, ok = [], []
-    for start in range(0, len(x), _CHUNK):
-        block = x[start : start + _CHUNK]
-        padded = np.concatenate([block, np.repeat(block[-1:], _CHUNK - len(block), axis=0)])
+    for start in range(0, len(x), chunk):
+        block = x[start : start + chunk]
+        padded = np.concatenate([block, np.repeat(block[-1:], chunk - len(block), axis=0)])
         f, k = _simulate_chunk(population, jnp.asarray(padded))
         features.append(np.asarray(f)[: len(block)])
         ok.append(np.asarray(k)[: len(block)])
@@ -948,11 +1021,13 @@ def fit_campaign(
     population = _Population.build(system, data, duration, spec)
 
     def batch(x: np.ndarray) -> np.ndarray:
-        return _j(*_simulate(population, _full(system, x, search, fixed)), data)
+        return _j(*_simulate(population, _full(system, x, search, fixed), len(x)), data)
 
     integers = [len(search) - 1] if integer_name in search else []
     start = _start_point(x0, search, specs, lower, upper)
     start[integers] = np.round(start[integers])
+    se = j_standard_error(data) if settings.cmaes_tolerance is not None else None
+    tolerance = None if se is None else settings.cmaes_tolerance * se  # type: ignore[operator]
     t0 = time.perf_counter()
     cmaes = minimize_cmaes(
         batch,
@@ -965,9 +1040,12 @@ def fit_campaign(
         max_evals=settings.cmaes_max_evals,
         restarts=settings.cmaes_restarts,
         popsize=settings.cmaes_popsize,
+        options=None if tolerance is None else {"tolfun": tolerance, "tolfunhist": tolerance},
+        affordable_restarts=True,
         progress=progress,
     )
     timings["cmaes"] = time.perf_counter() - t0
+    chunk = int(cmaes.history.popsize[0])
     if not cmaes.success:
         raise RuntimeError(
             f"every one of {cmaes.evaluations} CMA-ES candidates failed to simulate: (a) the "
@@ -981,7 +1059,7 @@ def fit_campaign(
     bounds = (np.array([specs[n].lower for n in free]), np.array([specs[n].upper for n in free]))
     fixed_law = {} if integer_name is None else {integer_name: float(law)}  # type: ignore[arg-type]
     full_point = {**optimum, **fixed_law}
-    sim, _ = _simulate(population, _full(system, theta_opt, free, fixed_law))
+    sim, _ = _simulate(population, _full(system, theta_opt, free, fixed_law), chunk)
     residual = np.asarray(data.y) - sim[0][np.asarray(data.run_operating)]
     error = ModelError() if error is None else error
     sigma_point, scatter_point = _point_error(residual, data, error)
@@ -1021,7 +1099,7 @@ def fit_campaign(
     ends = np.repeat(theta_opt[None], 2 * d, axis=0)
     ends[2 * np.arange(d), np.arange(d)] = bounds[0]
     ends[2 * np.arange(d) + 1, np.arange(d)] = bounds[1]
-    end_features, _ = _simulate(population, _full(system, ends, free, fixed_law))
+    end_features, _ = _simulate(population, _full(system, ends, free, fixed_law), chunk)
     reach = np.max(np.abs(end_features[0::2] - end_features[1::2]), axis=(1, 2, 3))
     welch_sd = float(np.sqrt(np.median(np.asarray(data.welch_variance))))
     loose = reach < settings.insensitive * welch_sd
@@ -1134,7 +1212,8 @@ def fit_campaign(
     record_system(idata, system.describe())
     point = {n: float(np.mean(draws[:, i])) for i, n in enumerate(free)}
     point.update(fixed_law)
-    j = float(batch(np.array([point[n] for n in search]))[0])
+    x_mean = _full(system, np.array([point[n] for n in search]), search, fixed)
+    j = float(_j(*_simulate(population, x_mean, chunk), data)[0])
     return FitResult(
         method=method,
         point=point,

@@ -5,16 +5,21 @@ import json
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
+from _toy_system import DURATION, FS, REST, ToySystem
 
 from bayesdoor.datasets import load_demo_campaign, load_demo_truth
 from bayesdoor.features import objective_j
 from bayesdoor.inference import (
+    CalibrationData,
     FitResult,
+    FitSettings,
     calibration_runs,
     campaign_data,
     fit_campaign,
+    j_standard_error,
     posterior_predictive,
     run_features,
 )
@@ -55,6 +60,70 @@ def test_a_campaign_without_healthy_runs_is_refused_before_any_simulation():
         fit_campaign(ElevatorDoor(), faulty, method="lbfgs")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"law=12 must be an integer in \[1, 9\]"):
         fit_campaign(ElevatorDoor(), faulty, law=12)
+
+
+def _features(operating, y):
+    n_op = len(np.unique(operating))
+    return CalibrationData(
+        y=jnp.asarray(y),
+        welch_variance=jnp.ones(len(y)),
+        operating=jnp.arange(float(n_op)),
+        run_operating=jnp.asarray(operating),
+        band_centres=jnp.arange(float(y.shape[-1])),
+    )
+
+
+def test_j_standard_error_matches_the_scatter_of_a_perfect_models_j():
+    """Runs = a true spectrum per operating point plus independent scatter: the spread of the
+    perfect model's mean J over many such campaigns is what j_standard_error estimates from
+    one campaign's replicates."""
+    rng = np.random.default_rng(3)
+    operating = np.repeat([0, 1, 2], [3, 4, 3])
+    truth = rng.normal(size=(3, 4, 24))
+    estimates, perfect = [], []
+    for _ in range(200):
+        y = truth[operating] + 0.1 * rng.standard_normal((10, 4, 24))
+        estimates.append(j_standard_error(_features(operating, y)))
+        perfect.append(float(np.mean(objective_j(y, truth[operating]))))
+    # 200 campaigns: the sd of the perfect model's J is known to 5 % (1/sqrt(2 x 200)), the
+    # mean estimate (9 degrees of freedom each) to about 2 %; 12 % is three combined sds
+    np.testing.assert_allclose(np.mean(estimates), np.std(perfect, ddof=1), rtol=0.12)
+    # without two replicated runs there is no run-to-run scatter to measure
+    single = np.array([0, 1, 2])
+    assert j_standard_error(_features(single, truth[single])) is None
+
+
+def test_the_solve_stops_after_the_last_segment_and_j_is_unchanged():
+    """fit_campaign simulates only up to the last Welch segment inside the windows (here 1152
+    of 1229 samples: 0.5 s of motion after 0.1 s of rest); its J equals J from full records."""
+    toy = ToySystem()
+    rng = np.random.default_rng(0)
+    speeds = np.array([0.3, 0.5, 0.3, 0.5])
+    values = {"k": 0.5 + 0.02 * rng.standard_normal(4), "m": np.ones(4), "law": np.full(4, 2.0)}
+    signals = np.asarray(toy.simulate_values(values, speeds).signals)
+    campaign = make_campaign(
+        signals,
+        channels=["X", "Z"],
+        fs=FS,
+        state=["healthy"] * 4,
+        v_max=speeds,
+        t_start=np.full(4, REST),
+        t_stop=np.full(4, DURATION),
+        system="toy",
+    )
+    settings = FitSettings(max_motion_s=0.5, cmaes_max_evals=40, cmaes_restarts=0)
+    fit = fit_campaign(toy, campaign, method="cmaes", settings=settings, progress=False)
+    data, duration = campaign_data(toy, campaign, [0, 1, 2, 3], max_motion_s=0.5)
+    assert round(duration * FS) == 1229
+    full = toy.simulate_values(
+        {k: np.full(2, v) for k, v in fit.point.items()}, data.operating, duration=duration
+    )
+    t_start, t_stop = toy.motion_window(data.operating, duration=duration)
+    assert np.all(t_start == REST)
+    features, _ = run_features(full.signals, FS, t_start, t_stop)
+    sim = np.asarray(features)[np.asarray(data.run_operating)]
+    # the same segments of the same samples: equal to round-off of the sums
+    np.testing.assert_allclose(fit.j, float(np.mean(objective_j(sim, data.y))), rtol=1e-12)
 
 
 # ---------------------------------------------------------------------------------------------

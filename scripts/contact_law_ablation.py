@@ -306,7 +306,8 @@ def main() -> int:
                 law: warm_start(reference.point, reference.law, law, c_r_bounds) for law in laws
             }
             futures = {}
-            for law in laws:
+            # the reference law first: the pool runs fits in the order they are submitted
+            for law in sorted(laws, key=lambda k: k != reference.law):
                 folder = work / f"law_{law}"
                 found = reusable(folder, law, args.seed, args.quick, starts[law])
                 if found is not None:

@@ -55,3 +55,4 @@ from ._update import campaign_data as campaign_data
 from ._update import fit_campaign as fit_campaign
 from ._update import j_standard_error as j_standard_error
 from ._update import posterior_predictive as posterior_predictive
+from ._update import simulation_horizon as simulation_horizon

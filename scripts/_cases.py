@@ -14,6 +14,7 @@ import hashlib
 import json
 import multiprocessing
 import os
+import subprocess
 import sys
 import traceback
 from collections.abc import Callable, Hashable, Mapping, Sequence
@@ -145,3 +146,28 @@ def write_results(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text)
     print(text)
+
+
+def code_version() -> str:
+    """The commit of the ``bayesdoor`` code that is imported, and whether it was changed.
+
+    Looked up in the git checkout that holds the imported package (which need not be this
+    script's), so that a table names the code that made it.
+    """
+    import bayesdoor
+
+    package = Path(bayesdoor.__file__).resolve().parent
+
+    def git(*words: str) -> str:
+        done = subprocess.run(
+            ["git", "-C", str(package), *words], capture_output=True, text=True, check=False
+        )
+        return done.stdout.strip() if done.returncode == 0 else ""
+
+    commit = git("rev-parse", "--short", "HEAD")
+    if not commit:
+        return f"bayesdoor from {package} (not a git checkout: commit unknown)"
+    changed = git("status", "--porcelain", "--", ".")
+    return f"bayesdoor at commit {commit}" + (
+        " with uncommitted changes" if changed else " (no uncommitted changes)"
+    )

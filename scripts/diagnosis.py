@@ -37,6 +37,7 @@ from _cases import (
     RIG_EFFECTS,
     ROOT,
     attempt,
+    code_version,
     command_line,
     digest,
     fmt,
@@ -216,6 +217,7 @@ def run_case(effect: str, seed: int, settings: Settings) -> dict[str, Any]:
         "features": payload["features"],
         "timings": payload["timings"],
         "notes": payload.get("notes", []),
+        "code": code_version(),
         "record_seconds": recorded,
         "diagnose_seconds": seconds,
     }
@@ -261,6 +263,7 @@ def _refits_text(refits: Sequence[Mapping[str, Any]] | None) -> str:
 def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, wall: float) -> str:
     """The markdown of ``results/diagnosis.md``."""
     total = sum(c.get("diagnose_seconds", 0.0) for c in cases)
+    codes = sorted({str(c.get("code", "code not recorded (before session 4)")) for c in cases})
     lines = [
         "# Discrepancy diagnosis on hidden rig effects",
         "",
@@ -268,7 +271,8 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
         f"{platform.node() or 'this machine'}, {os.cpu_count()} CPUs, load average "
         f"{os.getloadavg()[0]:.1f} at the end; {len(cases)} cases, {total / 60:.0f} min of "
         f"diagnosis in all, {wall / 60:.1f} min wall in the last call, which computed the "
-        "cases not already saved; the times are per case, in one process).",
+        "cases not already saved; the times are per case, in one process). The cases were "
+        f"computed by {' and '.join(codes)}.",
         "",
         f"Each case: {settings.runs} healthy runs of the virtual rig at speeds drawn uniformly "
         f"in {settings.v_low}-{settings.v_high} m/s, one effect drawn by `from_seed(seed)` "
@@ -379,7 +383,11 @@ def main(argv: list[str] | None = None) -> None:
         v_high=0.5,
         quick=args.quick if args.diagnosis is None else args.diagnosis == "quick",
     )
-    cases = [(e, s) for e in args.effects for s in seeds] + [(NONE, s) for s in range(n_none)]
+    # seed by seed, so that a run cut short has finished cases of every effect
+    cases = sorted(
+        [(e, s) for e in args.effects for s in seeds] + [(NONE, s) for s in range(n_none)],
+        key=lambda c: (c[1], EFFECTS_INDEX[c[0]]),
+    )
     args.work.mkdir(parents=True, exist_ok=True)
     todo = [(e, s) for e, s in cases if not _case_file(args.work, e, s, settings).is_file()]
     start = time.perf_counter()

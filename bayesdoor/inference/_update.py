@@ -22,6 +22,7 @@ import json
 import time
 import warnings
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Literal
 
@@ -87,6 +88,12 @@ class FitSettings:
         ``tolfun`` and ``tolfunhist``): a finer optimum of J is below what the data resolve.
         ``None``, or a campaign without replicate runs: pycma's default tolerances (1e-11
         and 1e-12), so the budget stops it.
+    workers
+        Threads that simulate at once: each CMA-ES population (and every later batch of
+        the exact simulator) is split into this many vmapped chunks. XLA runs a vmapped
+        solve on one core, so 2 uses both cores of a 2-core machine. The batch size moves
+        the adaptive solver's round-off, so features change with it at the solver's
+        tolerance (5e-5 decades between one batch of 12 and two of 6 on the demo).
     box_fraction
         Half-width of the surrogate's box around the optimum, as a fraction of each range.
     box_moves
@@ -114,6 +121,7 @@ class FitSettings:
     cmaes_popsize: int | None = None
     cmaes_sigma0: float = 0.25
     cmaes_tolerance: float | None = 0.1
+    workers: int = 2
     box_fraction: float = 0.25
     box_moves: int = 2
     insensitive: float = 0.5
@@ -128,6 +136,18 @@ class FitSettings:
     emcee_burn: int = 1000
     emcee_thin: int = 5
     predictive_draws: int = 400
+
+    def __post_init__(self) -> None:
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
+            raise ValueError(
+                f"workers={self.workers!r} must be an integer >= 1 (threads simulating at once; "
+                "2 for a 2-core machine)"
+            )
+        if self.cmaes_tolerance is not None and not self.cmaes_tolerance > 0:
+            raise ValueError(
+                f"cmaes_tolerance={self.cmaes_tolerance!r} must be positive (a fraction of J's "
+                "standard error, e.g. 0.1) or None for pycma's default tolerances"
+            )
 
     @classmethod
     def quick(cls) -> FitSettings:
@@ -357,7 +377,9 @@ def simulation_horizon(
     fs = system.sampling_rate_hz
     n_time = round(duration * fs)
     used = np.asarray(
-        segment_weights(n_time, fs, t_start, t_stop, spec.nperseg, spec.noverlap)
+        segment_weights(
+            n_time, fs, jnp.asarray(t_start), jnp.asarray(t_stop), spec.nperseg, spec.noverlap
+        )
     ).any(axis=0)
     end = int(np.flatnonzero(used).max()) * spec.step + spec.nperseg if used.any() else n_time
     return min(n_time, end + _HORIZON_MARGIN) / fs
@@ -416,22 +438,34 @@ def _simulate_chunk(
 
 
 def _simulate(
-    population: _Population, x: Float[np.ndarray, "pop param"], chunk: int = _CHUNK
+    population: _Population,
+    x: Float[np.ndarray, "pop param"],
+    chunk: int = _CHUNK,
+    workers: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Features and success of any number of full parameter vectors, in padded chunks.
 
-    Each chunk of ``chunk`` candidates is one vmapped simulation; the last is padded by
-    repeating its last row (one compilation per chunk size).
+    Each chunk of ``chunk`` candidates is one vmapped simulation (the last padded by
+    repeating its last row; one compilation per chunk size); ``workers`` threads run chunks
+    at once. XLA runs one vmapped solve on one core and releases the GIL meanwhile, so two
+    threads use both cores of a 2-core machine. The first call of a chunk size should run
+    with one worker: threads that all miss the compilation cache each compile.
     """
     x = np.atleast_2d(np.asarray(x, dtype=float))
-    features, ok = [], []
-    for start in range(0, len(x), chunk):
+
+    def one(start: int) -> tuple[np.ndarray, np.ndarray]:
         block = x[start : start + chunk]
         padded = np.concatenate([block, np.repeat(block[-1:], chunk - len(block), axis=0)])
         f, k = _simulate_chunk(population, jnp.asarray(padded))
-        features.append(np.asarray(f)[: len(block)])
-        ok.append(np.asarray(k)[: len(block)])
-    return np.concatenate(features), np.concatenate(ok)
+        return np.asarray(f)[: len(block)], np.asarray(k)[: len(block)]
+
+    starts = range(0, len(x), chunk)
+    if workers > 1 and len(starts) > 1:
+        with ThreadPoolExecutor(min(workers, len(starts))) as pool:
+            results = list(pool.map(one, starts))
+    else:
+        results = [one(start) for start in starts]
+    return np.concatenate([f for f, _ in results]), np.concatenate([k for _, k in results])
 
 
 class _PartialForward(AbstractForward):
@@ -1045,8 +1079,15 @@ def fit_campaign(
     upper = np.array([specs[n].upper for n in search])
     population = _Population.build(system, data, duration, spec)
 
+    compiled: set[int] = set()
+
     def batch(x: np.ndarray) -> np.ndarray:
-        return _j(*_simulate(population, _full(system, x, search, fixed), len(x)), data)
+        """J of a population, split into one chunk per worker (the first call of a size
+        compiles on one thread)."""
+        chunk = -(-len(x) // settings.workers)
+        workers = settings.workers if chunk in compiled else 1
+        compiled.add(chunk)
+        return _j(*_simulate(population, _full(system, x, search, fixed), chunk, workers), data)
 
     integers = [len(search) - 1] if integer_name in search else []
     start = _start_point(x0, search, specs, lower, upper)
@@ -1070,7 +1111,7 @@ def fit_campaign(
         progress=progress,
     )
     timings["cmaes"] = time.perf_counter() - t0
-    chunk = int(cmaes.history.popsize[0])
+    chunk = -(-int(cmaes.history.popsize[0]) // settings.workers)
     if not cmaes.success:
         raise RuntimeError(
             f"every one of {cmaes.evaluations} CMA-ES candidates failed to simulate: (a) the "
@@ -1124,7 +1165,9 @@ def fit_campaign(
     ends = np.repeat(theta_opt[None], 2 * d, axis=0)
     ends[2 * np.arange(d), np.arange(d)] = bounds[0]
     ends[2 * np.arange(d) + 1, np.arange(d)] = bounds[1]
-    end_features, _ = _simulate(population, _full(system, ends, free, fixed_law), chunk)
+    end_features, _ = _simulate(
+        population, _full(system, ends, free, fixed_law), chunk, settings.workers
+    )
     reach = np.max(np.abs(end_features[0::2] - end_features[1::2]), axis=(1, 2, 3))
     welch_sd = float(np.sqrt(np.median(np.asarray(data.welch_variance))))
     loose = reach < settings.insensitive * welch_sd

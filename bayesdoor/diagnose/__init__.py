@@ -23,6 +23,9 @@ from ._job import DiagnosisSettings as DiagnosisSettings
 from ._job import diagnose_campaign as diagnose_campaign
 from ._job import extension_gain as extension_gain
 from ._job import held_out_folds as held_out_folds
+from ._order import OrderSpectra as OrderSpectra
+from ._order import order_log_psd as order_log_psd
+from ._order import order_peak as order_peak
 from ._rank import NONE as NONE
 from ._rank import Candidate as Candidate
 from ._rank import Catalogue as Catalogue

@@ -9,6 +9,7 @@ import numpy as np
 
 from .._types import Float
 from ._coherence import CoherenceMap, coherence_map
+from ._order import OrderSpectra, order_log_psd
 from ._residual import Region, ResidualMap, residual_map
 from ._rest import RestLines, rest_lines, rest_segments
 from ._welch_stats import windowed_log_psd
@@ -29,7 +30,10 @@ class Features:
         Lines in the rest before the motion starts and after it stops (``None``: no rest).
     within_run
         Per region of ``residuals``, whether it follows the speed inside the runs (``None``:
-        no speed profiles given).
+        not examined).
+    orders, orders_predictive
+        Order spectra (against travelled distance) of the measured runs and of each
+        predictive draw (``None``: not computed); a spatial period is a line there.
     """
 
     residuals: ResidualMap
@@ -37,6 +41,15 @@ class Features:
     rest_before: RestLines | None = None
     rest_after: RestLines | None = None
     within_run: tuple[WithinRunFit, ...] | None = None
+    orders: OrderSpectra | None = None
+    orders_predictive: tuple[OrderSpectra, ...] | None = None
+
+    def order_excess(self) -> Float[np.ndarray, "run channel wavenumber"] | None:
+        """Measured minus the draws' mean log10 order PSD per run, channel and bin."""
+        if self.orders is None or not self.orders_predictive:
+            return None
+        draws = np.stack([p.log_psd for p in self.orders_predictive])
+        return self.orders.log_psd - draws.mean(axis=0)
 
     def within(self, region: Region) -> WithinRunFit | None:
         """The within-run speed test of one of the residual map's regions."""
@@ -81,6 +94,8 @@ def find_features(
     t_stop: Float[np.ndarray, " run"],
     speeds: Float[np.ndarray, " run"] | None = None,
     speed_profiles: Float[np.ndarray, "run time"] | None = None,
+    within_run: bool = True,
+    order_segment_m: float | None = None,
     pairs: Sequence[tuple[str, str]] = (),
     nperseg: int | None = None,
     coherence_nperseg: int | None = None,
@@ -113,7 +128,12 @@ def find_features(
         Each run's speed, for the wavenumber map and the speed fits.
     speed_profiles
         Each run's speed at every sample, for the within-run speed test of every region
-        (:func:`within_run_speed`).
+        (:func:`within_run_speed`) and the order spectra.
+    within_run
+        With speed profiles, run the within-run speed test.
+    order_segment_m
+        With speed profiles, compute order spectra (:func:`order_log_psd`) with segments of
+        this many metres; ``None``: none.
     pairs
         Channel pairs whose coherence is examined (none: no coherence map).
     nperseg
@@ -202,12 +222,21 @@ def find_features(
             )
         )
     within = None
-    if speed_profiles is not None:
+    if speed_profiles is not None and within_run:
         within = within_run_speed(x, sims, fs, speed_profiles, residuals.regions, channels)
+    orders, orders_predictive = None, None
+    if speed_profiles is not None and order_segment_m is not None:
+        orders, *rest = (
+            order_log_psd(s, fs, speed_profiles, t_start=t0, t_stop=t1, segment_m=order_segment_m)
+            for s in (x, *sims)
+        )
+        orders_predictive = tuple(rest)
     return Features(
         residuals=residuals,
         coherence=coherence,
         rest_before=rests[0],
         rest_after=rests[1],
         within_run=within,
+        orders=orders,
+        orders_predictive=orders_predictive,
     )

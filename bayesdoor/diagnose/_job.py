@@ -522,6 +522,11 @@ def diagnose_campaign(
     noise = _noise_rms(x, measured.fs, t_start)
     predictive = sims + noise[None, None, :, None] * rng.standard_normal(sims.shape)
     band = _band(fit)
+    profiles = None
+    if catalogue.speed_profile is not None:
+        profiles = np.asarray(
+            catalogue.speed_profile(operating, np.arange(x.shape[-1]) / measured.fs), dtype=float
+        )
     features = find_features(
         x,
         predictive,
@@ -530,6 +535,9 @@ def diagnose_campaign(
         t_start=t_start,
         t_stop=t_stop,
         speeds=operating,
+        speed_profiles=profiles,
+        within_run=False,
+        order_segment_m=catalogue.order_segment_m,
         pairs=_pairs(catalogue),
         band=band,
         smooth_discrepancy_bins=SMOOTH_BINS,

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import equinox as eqx
+import numpy as np
 
 from ._features import Features
 from ._refit import AbstractRefit
@@ -28,9 +29,19 @@ class Candidate(eqx.Module):
 
 
 class Catalogue(eqx.Module):
-    """The causes a system knows; names are part of the API. Must hold ``none``."""
+    """The causes a system knows; names are part of the API. Must hold ``none``.
+
+    ``speed_profile`` (optional) gives the speed (run, time) of runs at the given operating
+    points at the given sample times; with it, the diagnosis computes order spectra
+    (against travelled distance, segments of ``order_segment_m`` metres) and takes the
+    wavelengths of tracking features from them.
+    """
 
     candidates: tuple[Candidate, ...]
+    speed_profile: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = eqx.field(
+        static=True, default=None
+    )
+    order_segment_m: float = eqx.field(static=True, default=0.5)
 
     def __check_init__(self):
         names = [c.name for c in self.candidates]

@@ -32,8 +32,8 @@ Then, in one process:
    steps, each a value and gradient; emcee: walker proposals, each a value), R-hat (emcee:
    nested over ensembles), divergences, and whether the gates passed; ratio NUTS/emcee of
    ESS per second. emcee keeps at most 100 draws per walker (its thinning
-   raised from the fit's 5), because ``sample_emcee``'s conversion of the draws costs about
-   70 kB and a few ms per draw (an un-jitted ``vmap``); its ESS is taken on those draws.
+   raised from the fit's 5), because ``sample_emcee``'s conversion of the draws costs
+   70-130 kB and a few ms per draw (an un-jitted ``vmap``); its ESS is taken on those draws.
 
 Usage: python benchmarks/bench_inference.py [--quick] [--json] [--refit-surrogate]
 Wall and process CPU times are both reported (on a shared machine CPU time is the steadier
@@ -297,8 +297,8 @@ def time_density(model: Callable, init: dict, repeats: int) -> dict[str, Any]:
 
 
 #: emcee draws kept per walker at most: ``sample_emcee`` maps its draws back to constrained
-#: values with an un-jitted ``vmap`` of the model (about 70 kB and 2-3 ms per draw); at the fit's
-#: thinning (8000 kept steps / 5 x 192 walkers = 307200 draws) that alone would need ~20 GB
+#: values with an un-jitted ``vmap`` of the model (measured: 70-130 kB and a few ms per draw); at
+#: the fit's thinning (8000 kept steps / 5 x 192 walkers = 307200 draws) that needs 20-40 GB
 EMCEE_MAX_DRAWS = 100
 
 

@@ -126,6 +126,58 @@ def test_the_solve_stops_after_the_last_segment_and_j_is_unchanged():
     np.testing.assert_allclose(fit.j, float(np.mean(objective_j(sim, data.y))), rtol=1e-12)
 
 
+def _toy_campaign(speeds, seed=0):
+    toy = ToySystem()
+    rng = np.random.default_rng(seed)
+    n = len(speeds)
+    values = {"k": 0.5 + 0.02 * rng.standard_normal(n), "m": np.ones(n), "law": np.full(n, 2.0)}
+    signals = np.asarray(toy.simulate_values(values, np.asarray(speeds)).signals)
+    return toy, make_campaign(
+        signals,
+        channels=["X", "Z"],
+        fs=FS,
+        state=["healthy"] * n,
+        v_max=speeds,
+        t_start=np.full(n, REST),
+        t_stop=np.full(n, DURATION),
+        system="toy",
+    )
+
+
+def test_cmaes_stops_at_a_tenth_of_js_standard_error():
+    """The default rule: pycma's tolfun and tolfunhist at 0.1 x j_standard_error; the J it
+    stops at is within one standard error of a run to the budget (pycma's own tolerances)."""
+    toy, campaign = _toy_campaign([0.3, 0.5] * 3)
+    data, _ = campaign_data(toy, campaign, calibration_runs(campaign))
+    se = j_standard_error(data)
+    assert se is not None and se > 0
+    kw = dict(cmaes_max_evals=3000, cmaes_restarts=0)
+    ruled = fit_campaign(toy, campaign, method="cmaes", progress=False, settings=FitSettings(**kw))
+    stop = dict(part.split("=") for part in ruled.cmaes.stop[0].split(", "))
+    assert set(stop) & {"tolfun", "tolfunhist"}, ruled.cmaes.stop
+    np.testing.assert_allclose(float(stop.get("tolfunhist", stop.get("tolfun"))), 0.1 * se)
+    free = fit_campaign(
+        toy,
+        campaign,
+        method="cmaes",
+        progress=False,
+        settings=FitSettings(cmaes_tolerance=None, **kw),
+    )
+    print(
+        f"J {ruled.j:.5f} after {ruled.cmaes.evaluations}, {free.j:.5f} after "
+        f"{free.cmaes.evaluations} evaluations; se {se:.4f}"
+    )
+    assert ruled.cmaes.evaluations < free.cmaes.evaluations
+    assert ruled.j - free.j <= se
+
+
+def test_settings_refuse_bad_workers_and_tolerance():
+    with pytest.raises(ValueError, match="workers=0 must be an integer >= 1"):
+        FitSettings(workers=0)
+    with pytest.raises(ValueError, match=r"cmaes_tolerance=-0.1 must be positive"):
+        FitSettings(cmaes_tolerance=-0.1)
+
+
 # ---------------------------------------------------------------------------------------------
 # the virtual rig: 3 healthy calibration runs at 0.5 m/s and a faulty test run to be ignored
 

@@ -14,8 +14,9 @@ departures, so that the figures come in minutes and not after a CMA-ES run:
   them at its optimum (first box only: the box-moving loop is left out);
 * the quadratic surrogate, the expensive part (``train_per_term`` x 36 + ``n_test`` exact
   simulations), is cached in ``bayesdoor.datasets.cache_dir() / "bench"`` under a hash of
-  the demo campaign, the settings and the source of the simulator, features and surrogate;
-  the fit time of a cached surrogate is the one measured when it was fitted.
+  the settings, the surrogate's source and the simulated features at the 14 points of the
+  fit's sensitivity test (so a change to the simulator refits it); the fit time of a cached
+  surrogate is the one measured when it was fitted (``--refit-surrogate`` refits).
 
 Then, in one process:
 
@@ -90,16 +91,8 @@ jax.config.update(
 )
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
-#: the code a cached surrogate depends on: a change to any of it refits the surrogate
-SURROGATE_SOURCES = (
-    *sorted((ROOT / "bayesdoor" / "systems").rglob("*.py")),
-    *sorted((ROOT / "bayesdoor" / "contact").glob("*.py")),
-    *sorted((ROOT / "bayesdoor" / "features").glob("*.py")),
-    *(
-        ROOT / "bayesdoor" / "inference" / f"_{name}.py"
-        for name in ("features", "likelihood", "surrogate")
-    ),
-)
+#: the surrogate's fitting code: a change to it refits a cached surrogate
+SURROGATE_SOURCE = ROOT / "bayesdoor" / "inference" / "_surrogate.py"
 #: the seed fit_campaign uses by default; its surrogate design key derives from it the same way
 SEED = 0
 
@@ -128,12 +121,21 @@ class Problem:
     surrogate_info: dict[str, Any]
 
 
-def _surrogate_path(settings: FitSettings, truth: dict[str, float]) -> Path:
-    digest = hashlib.sha256()
-    for path in SURROGATE_SOURCES:
-        digest.update(path.read_bytes())
-    digest.update(demo_paths()[0].name.encode())
-    digest.update(json.dumps([dataclasses.asdict(settings), truth, SEED], sort_keys=True).encode())
+def _surrogate_path(
+    settings: FitSettings, exact: SimulatorForward, truth: np.ndarray, probe: np.ndarray
+) -> Path:
+    """The cache file of a surrogate: a hash of what it was fitted to and how.
+
+    The simulator enters through ``probe``, its features at the sensitivity test's points
+    (each parameter at a bound, the others at the truth): a change to the simulator, the
+    features or the contact laws that moves them refits the surrogate, an edit elsewhere in
+    those packages does not.
+    """
+    digest = hashlib.sha256(SURROGATE_SOURCE.read_bytes())
+    setup = [dataclasses.asdict(settings), exact.names, exact.fixed, exact.duration, SEED]
+    digest.update(json.dumps(setup, sort_keys=True).encode())
+    for values in (truth, np.asarray(exact.operating), np.round(probe, 12)):
+        digest.update(np.ascontiguousarray(values, dtype=np.float64).tobytes())
     return cache_dir() / "bench" / f"bench-inference-surrogate-{digest.hexdigest()[:16]}.npz"
 
 
@@ -233,9 +235,8 @@ def build_problem(settings: FitSettings, refit: bool) -> Problem:
     box = box_around(
         jnp.asarray(truth), jnp.asarray(lower), jnp.asarray(upper), jnp.asarray(fractions)
     )
-    truth_named = dict(zip(free, truth.tolist(), strict=True))
     surrogate, info = _fit_or_load_surrogate(
-        exact, box, settings, _surrogate_path(settings, truth_named), refit
+        exact, box, settings, _surrogate_path(settings, exact, truth, end_features), refit
     )
     _log(f"surrogate {'loaded' if info['cached'] else 'fitted'} ({info['fit_s']:.0f} s to fit)")
 

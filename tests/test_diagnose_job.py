@@ -128,21 +128,37 @@ _MEASURED_FAILING = {
     ("rail_waviness", 1): "verdict none at 8 runs (session 3 suite)",
     ("sensor_cross_axis", 1): "verdict none at 8 runs (session 3 suite)",
 }
-#: the cases that pass at this size stay in the default suite; the measured failures run
-#: under ``slow`` (they cost 15-50 s each), as strict expected failures so that a fix shows
-CASES = [
-    pytest.param(
-        name,
-        seed,
-        marks=[
-            pytest.mark.slow,
-            pytest.mark.xfail(strict=True, reason=_MEASURED_FAILING[(name, seed)]),
-        ]
-        if (name, seed) in _MEASURED_FAILING
-        else [],
-    )
-    for name in EFFECTS
-    for seed in (0, 1)
+#: seeds the detector was checked on after its changes of session 4 (order tracking, the
+#: leak fraction from the transfer function), beyond the two it was developed on; all under
+#: ``slow``, measured (8 runs, the shared base fit) with the outcome below where it fails
+VALIDATION_SEEDS = {
+    "frame_mode": (2, 3),
+    "wheel_eccentricity": (2,),
+    "rail_waviness": (2, 3),
+    "sensor_cross_axis": (2, 3),
+}
+_MEASURED_FAILING.update(
+    {
+        ("frame_mode", 2): "signature at 41.6 Hz (true 39.6 Hz bare): the mode's refit loses",
+        ("frame_mode", 3): "a leak A2Z <- A2X confirmed (+238 +- 46) for a mode seen on A2X "
+        "and A2Z; the mode's refit at 23.8 Hz (true 26.4 Hz bare) loses",
+        ("wheel_eccentricity", 2): "wheel tones 5-16 dB under the vibration: no wheel feature",
+    }
+)
+
+
+def _case(name: str, seed: int, *, slow: bool):
+    marks = [pytest.mark.slow] if slow or (name, seed) in _MEASURED_FAILING else []
+    if (name, seed) in _MEASURED_FAILING:
+        marks.append(pytest.mark.xfail(strict=True, reason=_MEASURED_FAILING[(name, seed)]))
+    return pytest.param(name, seed, marks=marks)
+
+
+#: the cases that pass at this size stay in the default suite; the measured failures and the
+#: validation seeds run under ``slow`` (they cost 15-50 s each), the failures as strict
+#: expected failures so that a fix shows
+CASES = [_case(name, seed, slow=False) for name in EFFECTS for seed in (0, 1)] + [
+    _case(name, seed, slow=True) for name, seeds in VALIDATION_SEEDS.items() for seed in seeds
 ]
 
 
@@ -160,7 +176,9 @@ def test_hidden_effect_is_named(name, seed, base_fit):
     assert {"name", "evidence", "parameters", "gain"} <= set(payload["causes"][0])
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize(
+    "seed", [0, 1, pytest.param(2, marks=pytest.mark.slow), pytest.param(3, marks=pytest.mark.slow)]
+)
 def test_nothing_hidden_gives_none(seed, base_fit):
     recording, _ = record(NONE, seed)
     diagnosis = diagnose(recording.campaign, base_fit, seed)

@@ -209,8 +209,22 @@ def test_measured_features_use_given_or_detected_window():
 
 def test_reproducible_and_seed_dependent(tmp_path, key):
     a = generate(TOY, toy_source(), toy_config(), tmp_path / "a", key=key, progress=False)
-    b = generate(TOY, toy_source(), toy_config(), tmp_path / "b", key=key, progress=False)
-    assert_same_data(a, b)
+    # one chunk after the other, or three at a time finishing in any order: the same data
+    for threads in (1, 3):
+        b = generate(
+            TOY,
+            toy_source(),
+            toy_config(),
+            tmp_path / f"b{threads}",
+            key=key,
+            threads=threads,
+            progress=False,
+        )
+        assert_same_data(a, b)
+        summary = json.loads((tmp_path / f"b{threads}" / "summary.json").read_text())
+        assert summary["threads"] == threads
+    with pytest.raises(ValueError, match="threads must be at least 1"):
+        generate(TOY, toy_source(), toy_config(), tmp_path / "t", key=key, threads=0)
     c = generate(
         TOY, toy_source(), toy_config(), tmp_path / "c", key=jax.random.key(7), progress=False
     )
@@ -232,6 +246,7 @@ def test_resume_equals_uninterrupted(tmp_path, key):
         if len(done) == 3:
             raise KeyboardInterrupt
 
+    # two threads: the chunk still running when the interrupt comes is not saved
     with pytest.raises(KeyboardInterrupt):
         generate(
             TOY,
@@ -240,6 +255,7 @@ def test_resume_equals_uninterrupted(tmp_path, key):
             tmp_path / "r",
             key=key,
             on_chunk=interrupt,
+            threads=2,
             progress=False,
         )
     assert len(list((tmp_path / "r" / "chunks").glob("*.npz"))) == 3

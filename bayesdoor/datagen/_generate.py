@@ -9,10 +9,12 @@ Output folder layout::
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import dataclasses
 import hashlib
 import json
+import os
 import time
 import warnings
 from collections.abc import Callable, Generator, Iterator, Mapping
@@ -227,9 +229,27 @@ def _progress(enabled: bool, total: int, done: int) -> Iterator[Callable[[], Non
 _Chunks = Generator[tuple[int, dict[str, np.ndarray]], None, None]
 
 
-def _map_local(job: Job, pending: list[int]) -> _Chunks:
-    for index in pending:
-        yield run_chunk(job, index)
+def _map_local(job: Job, pending: list[int], threads: int) -> _Chunks:
+    """Chunks computed in this process, ``threads`` at a time, yielded as they finish.
+
+    XLA releases the GIL while it runs a chunk's solve, so two threads keep two cores busy
+    (on the 2-core development machine: 1.4-2.2 times less wall time and 30 % less CPU time
+    than one chunk after the other). Closing the generator (an exception in the caller, such
+    as an interrupt) cancels the chunks not started and waits for the running ones, whose
+    results are dropped.
+    """
+    if threads == 1:
+        for index in pending:
+            yield run_chunk(job, index)
+        return
+    with concurrent.futures.ThreadPoolExecutor(threads) as pool:
+        futures = [pool.submit(run_chunk, job, index) for index in pending]
+        try:
+            for future in concurrent.futures.as_completed(futures):
+                yield future.result()
+        finally:
+            for future in futures:
+                future.cancel()
 
 
 def _map_dask(job: Job, pending: list[int], scheduler: str, n_workers: int) -> _Chunks:
@@ -264,6 +284,7 @@ def generate(
     model_error: ModelErrorDraws | None = None,
     scheduler: str | None = None,
     n_workers: int = 2,
+    threads: int | None = None,
     progress: bool = True,
     on_chunk: Callable[[int], None] | None = None,
 ) -> TrainingData:
@@ -300,10 +321,15 @@ def generate(
         ``"tcp://host:port"``: use that Dask scheduler. Every path gives identical data.
     n_workers
         Worker processes of the local cluster.
+    threads
+        With ``scheduler=None``: chunks computed at once in this process, each in its own
+        thread (the data are the same for any number). ``None`` means 2, or 1 on a machine
+        with one core; 2 was measured on a 2-core machine, more is untested.
     progress
         Show a progress bar (rich).
     on_chunk
-        Called with the chunk index after each chunk has been saved.
+        Called with the chunk index after each chunk has been saved (in the order the chunks
+        finish, which with several threads or workers is not the index order).
 
     Returns
     -------
@@ -326,6 +352,10 @@ def generate(
         )
     for state in config.states or ():
         system.check_state(state)
+    if threads is None:
+        threads = min(2, len(os.sched_getaffinity(0)))
+    if threads < 1:
+        raise ValueError(f"threads must be at least 1 (or None for the default), got {threads}")
     job = Job(system, source, model_error, config, key, bool(jax.config.read("jax_enable_x64")))
     system.motion_window(np.asarray(config.speeds), duration=job.duration)
     out = Path(out)
@@ -343,7 +373,7 @@ def generate(
     with _progress(progress, job.n_chunks, job.n_chunks - len(pending)) as advance:
         # a finished folder needs no cluster
         chunks = (
-            _map_local(job, pending)
+            _map_local(job, pending, threads)
             if scheduler is None or not pending
             else _map_dask(job, pending, scheduler, n_workers)
         )
@@ -368,6 +398,7 @@ def generate(
         "seconds": seconds,
         "seconds_per_run": seconds / new_runs if new_runs else None,
         "scheduler": scheduler,
+        "threads": threads if scheduler is None else None,
     }
     text = json.dumps(summary, indent=1)
     atomic_write(out / "summary.json", lambda tmp: tmp.write_text(text), overwrite=True)

@@ -229,6 +229,13 @@ def _progress(enabled: bool, total: int, done: int) -> Iterator[Callable[[], Non
 _Chunks = Generator[tuple[int, dict[str, np.ndarray]], None, None]
 
 
+def _cores() -> int:
+    """CPU cores this process may run on."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 def _map_local(job: Job, pending: list[int], threads: int) -> _Chunks:
     """Chunks computed in this process, ``threads`` at a time, yielded as they finish.
 
@@ -353,7 +360,7 @@ def generate(
     for state in config.states or ():
         system.check_state(state)
     if threads is None:
-        threads = min(2, len(os.sched_getaffinity(0)))
+        threads = min(2, _cores())
     if threads < 1:
         raise ValueError(f"threads must be at least 1 (or None for the default), got {threads}")
     job = Job(system, source, model_error, config, key, bool(jax.config.read("jax_enable_x64")))

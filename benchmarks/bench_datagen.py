@@ -7,7 +7,8 @@
    persistent compilation cache already holds them. Baseline in the same process: the same
    solver one run at a time (``--single`` runs, after compiling). With ``--dask N`` the same
    generation again on a local Dask cluster of N worker processes (compiling in each; the
-   data are checked equal to the in-process ones).
+   data are checked equal to the in-process ones). With ``--compare-threads N`` the same
+   generation again (compiled by then), one chunk at a time and N at a time in this process.
 1b. **The cut record**: the same chunk of draws (``--cut-runs`` runs of one state) solved to
    the record's end (``GenerationConfig.record_duration``, what generation did before) and to
    just after the latest motion stop (``simulated_duration``, what it does now), alternately
@@ -36,6 +37,7 @@ import os
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -71,9 +73,14 @@ def _source(door: ElevatorDoor) -> GaussianScatter:
 
 
 def time_generation(
-    runs_per_state: int, chunk_size: int, folder: Path, dask_workers: int = 0
+    runs_per_state: int,
+    chunk_size: int,
+    folder: Path,
+    *,
+    threads: int | None = None,
+    dask_workers: int = 0,
 ) -> tuple[dict, TrainingData]:
-    """Generate in ``folder``: in this process, or on a local Dask cluster of that many."""
+    """Generate in ``folder``: in this process (``threads``), or on a local Dask cluster."""
     door = ElevatorDoor()
     config = GenerationConfig(SPEEDS, runs_per_state=runs_per_state, chunk_size=chunk_size)
     c0, t0 = time.process_time(), time.perf_counter()
@@ -86,36 +93,53 @@ def time_generation(
         progress=False,
         scheduler="local" if dask_workers else None,
         n_workers=max(dask_workers, 1),
+        threads=threads,
     )
     wall_s = time.perf_counter() - t0
-    client_cpu_s = time.process_time() - c0
-    if dask_workers:
-        # chunks arrive in any order from the workers: only the totals mean something
-        return {
-            "runs": int(data.labels.size),
-            "workers": dask_workers,
-            "wall_s": wall_s,
-            "client_cpu_s": client_cpu_s,
-        }, data
     summary = json.loads((folder / "summary.json").read_text())
-    chunks = np.asarray(summary["chunk_seconds"])
-    per_state = config.chunks_per_state
-    first = chunks[::per_state]  # the first chunk of every state compiles its solve
-    rest = np.delete(chunks, np.arange(0, chunks.size, per_state))
-    steady = float(np.median(rest)) if rest.size else float(np.median(chunks))
-    return {
+    out = {
         "runs": int(data.labels.size),
         "chunk_size": chunk_size,
+        "threads": summary["threads"],
+        "dask_workers": dask_workers,
         "simulated_s": config.simulated_duration(door),
         "record_s": config.record_duration(door),
         "wall_s": wall_s,
-        "cpu_s": client_cpu_s,
-        "first_chunk_of_each_state_s": first.tolist(),
-        "steady_chunk_s": steady,
-        "steady_ms_per_run": 1e3 * steady / chunk_size,
-        "compile_overhead_s": float(np.sum(first) - first.size * steady),
+        # the workers' CPU time is not counted (Dask)
+        "cpu_s": time.process_time() - c0,
         "dropped_runs": int(data.dropped_run_ids.size),
-    }, data
+    }
+    chunks = np.asarray(summary["chunk_seconds"])
+    if summary["threads"] == 1:
+        # in index order: the first chunk of every state compiles its solve
+        per_state = config.chunks_per_state
+        first = chunks[::per_state]
+        rest = np.delete(chunks, np.arange(0, chunks.size, per_state))
+        steady = float(np.median(rest)) if rest.size else float(np.median(chunks))
+        out.update(
+            first_chunk_of_each_state_s=first.tolist(),
+            compile_overhead_s=float(np.sum(first) - first.size * steady),
+        )
+    else:
+        # chunks finish in any order, several at a time: the first arrival holds the compile
+        steady = float(np.median(chunks[1:])) if chunks.size > 1 else float(chunks[0])
+        out["first_arrival_s"] = float(chunks[0])
+    out.update(steady_chunk_s=steady, steady_ms_per_run=1e3 * steady / chunk_size)
+    return out, data
+
+
+def compare_threads(runs_per_state: int, chunk_size: int, folder: Path, threads: int) -> dict:
+    """The same generation one chunk at a time and ``threads`` at a time, after compiling."""
+    out: dict[str, Any] = {}
+    data = {}
+    for n in (1, threads):
+        timing, data[n] = time_generation(
+            runs_per_state, chunk_size, folder / f"threads-{n}", threads=n
+        )
+        out[f"threads_{n}"] = {k: timing[k] for k in ("wall_s", "cpu_s", "steady_ms_per_run")}
+    out["wall_speedup"] = out["threads_1"]["wall_s"] / out[f"threads_{threads}"]["wall_s"]
+    out["data_equal"] = bool(np.array_equal(data[1].features, data[threads].features))
+    return out
 
 
 def compare_cut(runs: int, repeats: int = 2) -> dict:
@@ -270,6 +294,15 @@ def main() -> None:
         "--cut-runs", type=int, default=100, help="runs of the record-against-cut comparison"
     )
     parser.add_argument(
+        "--threads", type=int, default=None, help="threads of the generation (default: generate's)"
+    )
+    parser.add_argument(
+        "--compare-threads",
+        type=int,
+        default=0,
+        help="after the generation, time it again one chunk at a time and N at a time",
+    )
+    parser.add_argument(
         "--dask", type=int, default=0, help="also generate on a local Dask cluster of N workers"
     )
     parser.add_argument(
@@ -283,11 +316,17 @@ def main() -> None:
     result: dict = {"load_average_at_start": list(os.getloadavg()), "cpu_count": os.cpu_count()}
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
-        generation, data = time_generation(args.runs_per_state, args.chunk_size, tmp_path / "gen")
+        generation, data = time_generation(
+            args.runs_per_state, args.chunk_size, tmp_path / "gen", threads=args.threads
+        )
         result["generation"] = generation
+        if args.compare_threads:
+            result["threads_compared"] = compare_threads(
+                args.runs_per_state, args.chunk_size, tmp_path / "compare", args.compare_threads
+            )
         if args.dask:
             dask, dask_data = time_generation(
-                args.runs_per_state, args.chunk_size, tmp_path / "dask", args.dask
+                args.runs_per_state, args.chunk_size, tmp_path / "dask", dask_workers=args.dask
             )
             dask["data_equal_to_in_process"] = bool(
                 np.array_equal(dask_data.features, data.features)
@@ -312,11 +351,17 @@ def main() -> None:
         print(json.dumps(result, indent=2))
         return
     g, c = generation, result["cut_record"]
-    print(f"generation of {g['runs']} runs (chunks of {g['chunk_size']}): {g['wall_s']:.1f} s wall")
     print(
-        f"  steady: {g['steady_ms_per_run']:.1f} ms per run; "
-        f"compiling: {g['compile_overhead_s']:.1f} s"
+        f"generation of {g['runs']} runs (chunks of {g['chunk_size']}, {g['threads']} "
+        f"thread(s)): {g['wall_s']:.1f} s wall, {g['cpu_s']:.1f} s CPU"
     )
+    print(f"  steady: {g['steady_ms_per_run']:.1f} ms per run")
+    if args.compare_threads:
+        t = result["threads_compared"]
+        print(
+            f"  again, 1 thread against {args.compare_threads}: {t['wall_speedup']:.2f}x less "
+            f"wall time (data equal: {t['data_equal']})"
+        )
     if args.dask:
         d = result["generation_dask"]
         print(

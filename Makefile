@@ -5,6 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 
 $(BIN)/bayesdoor: pyproject.toml
+	@echo "installing bayesdoor and its dependencies into $(VENV) (first use only, a few minutes)"
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e ".[dev]"

@@ -8,6 +8,7 @@ import functools
 import json
 import os
 import sys
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, ParamSpec, TypeVar
@@ -89,6 +90,28 @@ def interruptible(explain: Callable[[], str]) -> Iterator[None]:
             typer.echo("", err=True)  # past the ^C the terminal echoed
         typer.echo(f"interrupted: {explain()}", err=True)
         raise typer.Exit(130) from None
+
+
+@contextlib.contextmanager
+def warnings_as_lines(echo: Callable[[str], None]) -> Iterator[None]:
+    """Python warnings raised inside become one ``warning: ...`` line each, through ``echo``.
+
+    Without the source file and line Python prints (the user did not write that code); the
+    lines of a long message are joined with "; "; a message seen before is not repeated. The
+    filters are left as they are.
+    """
+    seen: set[str] = set()
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        first, *rest = str(message).strip().splitlines() or [""]
+        text = " ".join([first, "; ".join(part.strip() for part in rest)]).strip()
+        if text not in seen:
+            seen.add(text)
+            echo(f"warning: {text}")
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
 
 
 def on_interrupt(explanation: str) -> Callable[[Callable[P, R]], Callable[P, R]]:

@@ -19,6 +19,7 @@ from ._common import (
     fail,
     interruptible,
     system_named,
+    warnings_as_lines,
     writing,
 )
 
@@ -125,11 +126,16 @@ def run(
 
     def line(text: str) -> None:
         if not json:
-            _err.print(f"[{time.perf_counter() - start:6.1f} s] {text}")
+            _err.print(
+                f"[{time.perf_counter() - start:6.1f} s] {text}",
+                markup=False,
+                highlight=False,
+                soft_wrap=True,  # a long line stays one line in a log
+            )
 
     stages = StageLog(out, line)
     try:
-        with interruptible(stages.interrupted), writing(out):
+        with interruptible(stages.interrupted), writing(out), warnings_as_lines(line):
             result = run_job(
                 system,
                 campaign,

@@ -150,10 +150,13 @@ def run(
     )
 
 
-@app.command()
-@on_interrupt(
+_DEMO_STOPPED = (
     "the demo was stopped before its first stage: nothing was written; run the same command again"
 )
+
+
+@app.command()
+@on_interrupt(_DEMO_STOPPED)
 def demo(
     out: Annotated[Path, typer.Option("--out", help="output folder")] = Path("out/demo"),
     quick: Annotated[bool, typer.Option(help="small sizes: a first look in minutes")] = False,
@@ -167,6 +170,8 @@ def demo(
     from . import _run
 
     def recording_stopped() -> str:
+        if demo_paths()[0].is_file():  # stopped while reading the cached campaign
+            return _DEMO_STOPPED
         return (
             f"the recording of the demo campaign was stopped: nothing of it is kept in "
             f"{demo_paths()[0].parent}; run the same command again to record it (a few minutes)"

@@ -35,7 +35,7 @@ class GenerationConfig(eqx.Module):
     duration
         Record length (s); ``None`` means the system's ``record_duration`` of all ``speeds``.
         The solve itself stops just after the latest motion stop
-        (:meth:`simulated_duration`), which gives the same features at less cost.
+        (:meth:`simulated_duration`), which gives the same features.
     spec
         The classifier input (:class:`bayesdoor.features.CNNInputSpec`), computed over each
         run's motion window.
@@ -123,7 +123,8 @@ class GenerationConfig(eqx.Module):
         latest ``t_stop`` of ``speeds`` rather than at :meth:`record_duration`: the features
         are those of the whole record (the adaptive steps are the same up to the last one,
         which the end time clips). For the door at 0.3-0.5 m/s that drops the 0.25 s rest
-        after the slowest stroke (3.39 of 3.64 s are simulated). Never longer than
+        after the slowest stroke (3.39 of 3.64 s are simulated): 7 % less memory, about the
+        same solver time (the rest takes few steps). Never longer than
         :meth:`record_duration`.
         """
         duration = self.record_duration(system)

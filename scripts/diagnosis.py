@@ -254,7 +254,7 @@ def _refits_text(refits: Sequence[Mapping[str, Any]] | None) -> str:
     words = []
     for r in refits:
         g = r["gain"]
-        ratio = g["delta_elpd"] / g["elpd_se"] if g["elpd_se"] > 0 else float("inf")
+        ratio = g["delta_elpd"] / g["elpd_se"] if g["elpd_se"] > 0 else 0.0
         star = "*" if r["confirmed"] else ""
         words.append(f"{r['name']}{star} {ratio:+.1f}, {g['delta_j']:+.3f}")
     return "; ".join(words)

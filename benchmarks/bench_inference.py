@@ -37,6 +37,8 @@ Then, in one process:
    70-130 kB and a few ms per draw (an un-jitted ``vmap``); its ESS is taken on those draws.
 
 Usage: python benchmarks/bench_inference.py [--quick] [--json] [--refit-surrogate]
+The exact simulator's program holds host callbacks (equinox's run-time checks), which JAX's
+persistent cache never stores: its first value and gradient call compiles in every process.
 Wall and process CPU times are both reported (on a shared machine CPU time is the steadier
 figure), with the load average at each stage. Progress goes to stderr.
 """

@@ -67,6 +67,23 @@ def test_surrogate_is_exact_on_a_quadratic(key):
         fit_surrogate(forward, [-1.0, 0.0, 2.0], [1.0, 3.0, 2.5], key=k2, n_train=12)
 
 
+def test_simulate_design_on_threads_equals_one_thread(key):
+    """Chunks on two threads give exactly the one-thread features (same chunk size, so the
+    same vmapped computation); a bad thread count is refused."""
+    coef = jax.random.normal(key, (9, 12))
+    forward = QuadraticForward(("a", "b", "c"), jnp.array([0.3, 0.4]), coef)
+    thetas = np.random.default_rng(0).uniform(-1.0, 1.0, size=(23, 3))
+    one_f, one_ok = simulate_design(forward, thetas, chunk=4)
+    two_f, two_ok = simulate_design(forward, thetas, chunk=4, workers=2)
+    np.testing.assert_array_equal(two_f, one_f)
+    np.testing.assert_array_equal(two_ok, one_ok)
+    assert one_f.shape == (23, 2, 2, 3)
+    # and the independent reference: the quadratic evaluated point by point
+    np.testing.assert_allclose(one_f[7], forward(jnp.asarray(thetas[7])).features, atol=1e-12)
+    with pytest.raises(ValueError, match="workers=0"):
+        simulate_design(forward, thetas, workers=0)
+
+
 def test_box_around_clips_to_the_bounds():
     lo, hi = box_around([1.0, 0.5], [1.0, 0.0], [2.0, 1.0], 0.25)
     np.testing.assert_allclose(lo, [1.0, 0.25])

@@ -8,6 +8,8 @@ error on held-out simulations (per feature) enters the likelihood as an extra va
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -143,9 +145,17 @@ def box_from_samples(
 
 
 def simulate_design(
-    forward: AbstractForward, thetas: Float[Array, "design param"], *, chunk: int = 32
+    forward: AbstractForward,
+    thetas: Float[Array, "design param"],
+    *,
+    chunk: int = 32,
+    workers: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Run a forward model on many parameter vectors, ``chunk`` at a time (one compilation).
+
+    The first chunk runs alone (it compiles the vmapped solve); the others run on ``workers``
+    threads at once. XLA releases the GIL while it solves, so two threads keep both cores of
+    a 2-core machine busy. The results do not depend on ``workers``.
 
     Returns
     -------
@@ -154,15 +164,24 @@ def simulate_design(
     ok
         Whether each simulation succeeded.
     """
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers={workers!r} must be an integer >= 1 (threads at once)")
     points = np.asarray(thetas, dtype=float)
-    features, ok = [], []
-    for start in range(0, len(points), chunk):
+
+    def one(start: int) -> tuple[np.ndarray, np.ndarray]:
         block = points[start : start + chunk]
         padded = np.concatenate([block, np.repeat(block[-1:], chunk - len(block), axis=0)])
         out = _batched(forward, jnp.asarray(padded))
-        features.append(np.asarray(out.features)[: len(block)])
-        ok.append(np.asarray(out.ok)[: len(block)])
-    return np.concatenate(features), np.concatenate(ok)
+        return np.asarray(out.features)[: len(block)], np.asarray(out.ok)[: len(block)]
+
+    starts = list(range(0, len(points), chunk))
+    results = [one(starts[0])]
+    if workers > 1 and len(starts) > 2:
+        with ThreadPoolExecutor(workers) as pool:
+            results += list(pool.map(one, starts[1:]))
+    else:
+        results += [one(start) for start in starts[1:]]
+    return np.concatenate([f for f, _ in results]), np.concatenate([k for _, k in results])
 
 
 def _ridge_fit(
@@ -202,6 +221,7 @@ def fit_surrogate(
     n_test: int = 64,
     ridges: Float[Array, " ridge"] | None = None,
     chunk: int = 32,
+    workers: int = 1,
 ) -> QuadraticSurrogate:
     """Fit a :class:`QuadraticSurrogate` of ``forward`` on the box ``[lower, upper]``.
 
@@ -225,6 +245,8 @@ def fit_surrogate(
         Candidate penalties (on parameters scaled to [-1, 1]); default ``logspace(-8, 2, 21)``.
     chunk
         Simulations per vmapped batch.
+    workers
+        Threads simulating batches at once (:func:`simulate_design`).
 
     Returns
     -------
@@ -259,7 +281,7 @@ def fit_surrogate(
     unit_train = qmc.LatinHypercube(d, rng=np.random.default_rng(seed_train)).random(n_train)
     unit_test = np.random.default_rng(seed_test).uniform(size=(n_test, d))
     design = lo + (hi - lo) * np.concatenate([unit_train, unit_test])
-    features, ok = simulate_design(forward, design, chunk=chunk)
+    features, ok = simulate_design(forward, design, chunk=chunk, workers=workers)
     if np.mean(~ok) > 0.1:
         raise ValueError(
             f"{int(np.sum(~ok))} of {len(ok)} simulations failed in the box [{lo.tolist()}, "

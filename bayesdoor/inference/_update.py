@@ -1189,6 +1189,7 @@ def fit_campaign(
             key=jax.random.fold_in(key_sur, stage),
             n_train=settings.train_per_term * n_terms,
             n_test=settings.n_test,
+            workers=settings.workers,
         )
         surrogate_rms = float(np.sqrt(np.mean(np.asarray(surrogate.error_variance))))
         timings["surrogate"] += time.perf_counter() - t0

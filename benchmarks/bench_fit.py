@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bayesdoor import configure_jax
 from bayesdoor.datasets import demo_paths, load_demo_campaign
 from bayesdoor.features import objective_j
 from bayesdoor.inference import (
@@ -51,12 +52,8 @@ from bayesdoor.inference import (
 )
 from bayesdoor.systems import ElevatorDoor
 
-jax.config.update("jax_enable_x64", True)
 ROOT = Path(__file__).resolve().parent.parent
-jax.config.update(
-    "jax_compilation_cache_dir", os.environ.get("BAYESDOOR_JAX_CACHE", str(ROOT / ".jax_cache"))
-)
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+configure_jax(os.environ.get("BAYESDOOR_JAX_CACHE", ROOT / ".jax_cache"))
 
 #: pycma's first population with the law searched (8 variables, one integer)
 POPULATION = 12

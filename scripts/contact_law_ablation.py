@@ -164,11 +164,9 @@ def search_table(starts: dict[int, dict], results, seconds: dict[int, float]) ->
 
 
 def _configure_jax() -> None:
-    import jax
+    from bayesdoor import configure_jax
 
-    jax.config.update("jax_enable_x64", True)
-    jax.config.update("jax_compilation_cache_dir", str(ROOT / ".jax_cache"))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    configure_jax(ROOT / ".jax_cache")
 
 
 def _load(campaign_file: Path | None):

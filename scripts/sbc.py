@@ -58,11 +58,9 @@ N_RANK_DRAWS = 99
 
 def _configure_jax() -> None:
     os.environ.setdefault("JAX_PLATFORMS", "cpu")  # small solves: the CPU, one per process
-    import jax
+    from bayesdoor import configure_jax
 
-    jax.config.update("jax_enable_x64", True)
-    jax.config.update("jax_compilation_cache_dir", str(ROOT / ".jax_cache"))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    configure_jax(ROOT / ".jax_cache")
 
 
 def build_problem(settings: dict):

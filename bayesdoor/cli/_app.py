@@ -11,10 +11,10 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from .._jax_config import configure_jax
 from ._common import (
     check_output_path,
     check_writable,
-    configure_jax,
     emit_json,
     fail,
     interruptible,

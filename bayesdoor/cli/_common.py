@@ -1,4 +1,4 @@
-"""Shared plumbing of the command line: JAX cache, JSON output, one-line failures, checks."""
+"""Shared plumbing of the command line: JSON output, one-line failures, checks."""
 
 from __future__ import annotations
 
@@ -27,20 +27,6 @@ _TOLERATED = {"missing_system", "unknown_channels", "clipped"}
 _WRITE_ERRORS = (errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EROFS, errno.EDQUOT)
 P = ParamSpec("P")
 R = TypeVar("R")
-
-
-def configure_jax() -> None:
-    """Float64 and a persistent compilation cache in a project-local folder.
-
-    The folder is ``$BAYESDOOR_JAX_CACHE`` or ``.jax_cache`` in the working directory, so a
-    second run of any command skips most of the compilation.
-    """
-    import jax
-
-    jax.config.update("jax_enable_x64", True)
-    cache = os.environ.get("BAYESDOOR_JAX_CACHE", str(Path.cwd() / ".jax_cache"))
-    jax.config.update("jax_compilation_cache_dir", cache)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
 
 def fail(message: str, code: int = 2) -> typer.Exit:

@@ -16,10 +16,12 @@ from ._features import welch_degrees_of_freedom as welch_degrees_of_freedom
 from ._features import welch_log10_variance as welch_log10_variance
 from ._likelihood import AbstractForward as AbstractForward
 from ._likelihood import CalibrationData as CalibrationData
+from ._likelihood import CorrelatedDiscrepancyNormal as CorrelatedDiscrepancyNormal
 from ._likelihood import DiscrepancyNormal as DiscrepancyNormal
 from ._likelihood import ForwardOutput as ForwardOutput
 from ._likelihood import ModelError as ModelError
 from ._likelihood import SimulatorForward as SimulatorForward
+from ._likelihood import band_correlation as band_correlation
 from ._likelihood import feature_distribution as feature_distribution
 from ._likelihood import log_likelihood as log_likelihood
 from ._likelihood import make_model as make_model

@@ -45,9 +45,11 @@ from ._features import FeatureSpec, run_features
 from ._likelihood import (
     AbstractForward,
     CalibrationData,
+    CorrelatedDiscrepancyNormal,
     DiscrepancyNormal,
     ForwardOutput,
     ModelError,
+    band_correlation,
     log_likelihood,
     make_model,
 )
@@ -748,6 +750,9 @@ class FitResult:
                     "shared",
                     "per_operating",
                     "scatter_scale",
+                    "correlation",
+                    "infer_correlation",
+                    "correlation_scale",
                 )
             },
             "bounds": [np.asarray(b).tolist() for b in self.bounds],
@@ -1175,6 +1180,7 @@ def fit_campaign(
     n_terms = 1 + d + d * (d + 1) // 2
     forward = _PartialForward.build(system, population, free, fixed_law)
     centre, sigma_init, rho_init = theta_opt, jnp.asarray(sigma_point), jnp.asarray(scatter_point)
+    length_init = error.correlation_length()
     timings["sensitivity"] = time.perf_counter() - t0
     timings["surrogate"] = timings["sampling"] = 0.0
     for stage in range(settings.box_moves + 1):
@@ -1199,8 +1205,16 @@ def fit_campaign(
         )
         transform = SamplingTransform.box(free, box[0].tolist(), box[1].tolist())
 
-        def density(th, sigma=sigma_init, rho=rho_init, forward=surrogate):
-            return log_likelihood(th, sigma, data, forward, run_scatter=rho, shared=error.shared)
+        def density(th, sigma=sigma_init, rho=rho_init, forward=surrogate, length=length_init):
+            return log_likelihood(
+                th,
+                sigma,
+                data,
+                forward,
+                run_scatter=rho,
+                shared=error.shared,
+                correlation_length=length,
+            )
 
         try:
             transform = transform.whitened_at(density, jnp.asarray(inside))
@@ -1210,6 +1224,8 @@ def fit_campaign(
         init = {"z": transform.to_sampling(jnp.asarray(inside)), _sigma_site(error): sigma_init}
         if error.shared:
             init["run_scatter"] = rho_init
+        if error.infer_correlation:
+            init["discrepancy_length"] = length_init
         if method == "nuts":
             idata = sample_nuts(
                 model,
@@ -1264,6 +1280,8 @@ def fit_campaign(
             if error.shared:
                 rho = np.asarray(post["run_scatter"].values)
                 rho_init = jnp.asarray(rho.reshape(-1, rho.shape[-1]).mean(axis=0))
+            if error.infer_correlation:
+                length_init = float(np.mean(post["discrepancy_length"].values))
         else:
             message += "; raise box_fraction or box_moves"
             warnings.warn(message, UserWarning, stacklevel=2)
@@ -1305,7 +1323,7 @@ def _add_predictive(idata: az.InferenceData, model, n_draws: int, key: jax.Array
     keep = slice(None, None, step)
     samples = {
         name: jnp.asarray(np.asarray(post[name].values)[:, keep]).reshape(-1, *post[name].shape[2:])
-        for name in ("z", "sigma_model", "sigma_operating", "run_scatter")
+        for name in ("z", "sigma_model", "sigma_operating", "run_scatter", "discrepancy_length")
         if name in post
     }
     kept = len(range(n_draw)[keep])
@@ -1339,7 +1357,10 @@ def posterior_predictive(
     the discrepancy is drawn from its posterior given those runs (their features are taken
     from ``campaign`` at ``result.runs``), elsewhere from its prior ``Normal(0, sigma_c^2)``;
     the run's scatter has variance ``rho_c^2`` times its Welch variance. With the independent
-    model error, the scatter is ``Normal(0, s_r^2 + sigma_c^2)``.
+    model error, the scatter is ``Normal(0, s_r^2 + sigma_c^2)``. With a discrepancy correlated
+    over the bands (``ModelError(correlation=...)``) its posterior given the calibration runs
+    is the correlated one; each replicate feature has the right marginal, drawn independently
+    over the bands.
 
     Parameters
     ----------
@@ -1394,7 +1415,9 @@ def posterior_predictive(
             max_motion_s=result.settings.max_motion_s,
         )
         cal_mean, cal_ok = _draw_features(result, system, calibration, cal_duration, draws, pick)
-        delta_mean, delta_var = _discrepancy_posterior(calibration, cal_mean, sigma_op, rho)
+        length = _length_draws(result)
+        length = length[pick % len(length)]
+        delta_mean, delta_var = _discrepancy_posterior(calibration, cal_mean, sigma_op, rho, length)
         ok = ok & cal_ok
         ops = np.asarray(data.operating)[np.asarray(data.run_operating)]
         measured = np.asarray(calibration.operating)
@@ -1432,23 +1455,45 @@ def _draw_features(
     return features[:, np.asarray(data.run_operating)], ok
 
 
+def _length_draws(result: FitResult) -> Float[np.ndarray, " draw"]:
+    """The discrepancy's correlation length over the bands per draw (NaN: independent bands)."""
+    post = None if result.idata is None else result.idata["posterior"]
+    if post is not None and "discrepancy_length" in post:
+        return np.asarray(post["discrepancy_length"].values).reshape(-1)
+    return np.array([result.model_error.correlation_length() or np.nan])
+
+
 def _discrepancy_posterior(
     data: CalibrationData,
     simulated: Float[np.ndarray, "draw run channel band"],
     sigma: Float[np.ndarray, "draw *op channel"],
     rho: Float[np.ndarray, "draw channel"],
+    length: Float[np.ndarray, " draw"],
 ) -> tuple[Float[np.ndarray, "draw op channel band"], Float[np.ndarray, "draw op channel band"]]:
-    """Per draw, mean and variance of the discrepancy at each operating point of ``data``."""
+    """Per draw, mean and marginal variance of the discrepancy at each operating point of
+    ``data`` (correlated over the bands where ``length`` is not NaN)."""
+    shape = (data.operating.shape[0], *data.y.shape[1:])
+    correlated = bool(np.all(np.isfinite(length)))
 
-    def one(loc, s, r):
-        features = DiscrepancyNormal(
-            jnp.asarray(loc),
-            data.welch_variance[:, None, None] * r[None, :, None] ** 2,
-            jnp.broadcast_to(s[..., None] ** 2, (data.operating.shape[0], *loc.shape[1:])),
-            data.run_operating,
-        )
+    def one(loc, s, r, ell):
+        run_variance = data.welch_variance[:, None, None] * r[None, :, None] ** 2
+        variance = jnp.broadcast_to(s[..., None] ** 2, shape)
+        if correlated:
+            scale = jnp.sqrt(variance)
+            covariance = (
+                scale[..., :, None] * band_correlation(shape[-1], ell) * scale[..., None, :]
+            )
+            features: DiscrepancyNormal = CorrelatedDiscrepancyNormal(
+                jnp.asarray(loc), run_variance, covariance, data.run_operating
+            )
+        else:
+            features = DiscrepancyNormal(
+                jnp.asarray(loc), run_variance, variance, data.run_operating
+            )
         return features.discrepancy_posterior(data.y)
 
     simulated = np.where(np.isfinite(simulated), simulated, np.asarray(data.y)[None])
-    mean, variance = jax.vmap(one)(jnp.asarray(simulated), jnp.asarray(sigma), jnp.asarray(rho))
+    mean, variance = jax.vmap(one)(
+        jnp.asarray(simulated), jnp.asarray(sigma), jnp.asarray(rho), jnp.asarray(length)
+    )
     return np.asarray(mean), np.asarray(variance)

@@ -8,6 +8,8 @@ features and ranks the candidates.
 from ._coherence import CoherenceMap as CoherenceMap
 from ._coherence import PairCoherence as PairCoherence
 from ._coherence import coherence_map as coherence_map
+from ._comb import CombTest as CombTest
+from ._comb import harmonic_comb as harmonic_comb
 from ._features import Features as Features
 from ._features import find_features as find_features
 from ._gain import DECISIVE_SE as DECISIVE_SE
@@ -50,9 +52,11 @@ from ._rest import RestLines as RestLines
 from ._rest import rest_lines as rest_lines
 from ._rest import rest_segments as rest_segments
 from ._signatures import AbstractSignature as AbstractSignature
+from ._signatures import AnyOf as AnyOf
 from ._signatures import Check as Check
 from ._signatures import CrossAxisCoherence as CrossAxisCoherence
 from ._signatures import FixedFrequency as FixedFrequency
+from ._signatures import HarmonicComb as HarmonicComb
 from ._signatures import Match as Match
 from ._signatures import NoResidual as NoResidual
 from ._signatures import RestLine as RestLine

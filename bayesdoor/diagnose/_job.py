@@ -22,7 +22,7 @@ from ..features import motion_window as detect_motion_window
 from ._features import Features, find_features
 from ._gain import RULE, Gain, compare_held_out, estimate_discrepancy, log_predictive
 from ._gain import objective_per_run as j_per_run
-from ._rank import NONE, Catalogue, CauseScore, Ranking, rank_causes
+from ._rank import MIN_VERDICT_SCORE, NONE, Catalogue, CauseScore, Ranking, rank_causes
 from ._refit import (
     SMOOTH_BINS,
     ExtensionProposal,
@@ -628,9 +628,13 @@ def diagnose_campaign(
         )
     timings["refits"] = time.perf_counter() - t0
 
+    # a confirmed cause whose signature the residual features show (score at least
+    # MIN_VERDICT_SCORE) goes before one whose feature was barely seen, whatever the gains:
+    # an extension can absorb the symptoms of another cause (on the rig, a leak between the
+    # two channels of a sensor that both feel a missing mode gained more than the mode)
     confirmed = sorted(
         (c for c in refitted.values() if c.confirmed),
-        key=lambda c: -c.gain.elpd_difference,  # type: ignore[union-attr]
+        key=lambda c: (c.score < MIN_VERDICT_SCORE, -c.gain.elpd_difference),  # type: ignore[union-attr]
     )
     verdict = confirmed[0].name if confirmed else NONE
     others = [refitted.get(s.name, _signature_cause(s)) for s in ranking.causes]

@@ -119,7 +119,9 @@ def rank_causes(features: Features, catalogue: Catalogue) -> Ranking:
     The rule (documented in ``docs/diagnosis.md``): each signature picks the feature that
     passes the largest share of its checks (ties: the strongest); its score is that share.
     Candidates are ranked by score, then strength. ``none`` scores 1 exactly when nothing is
-    significant, and then it is the verdict; otherwise the verdict is the top candidate if it
+    significant in the maps, and then it is the verdict unless another signature scores at least
+    ``MIN_VERDICT_SCORE`` (one that examines more than the maps: a harmonic comb in the order
+    spectra); otherwise the verdict is the top candidate if it
     scores at least ``MIN_VERDICT_SCORE`` and is not tied with the runner-up on the same
     feature, else ``None`` (nothing fits well, or two causes explain one feature equally well:
     the refit has to decide). Two causes that fully explain two different features may both be
@@ -159,7 +161,9 @@ def rank_causes(features: Features, catalogue: Catalogue) -> Ranking:
         )
     scored.sort(key=lambda c: (-c.score, -c.strength))
     nothing = NoResidual().match(features)
-    if nothing is not None and nothing.score == 1.0:
+    # a signature may see what the residual maps do not (a harmonic comb in the order spectra)
+    seen = any(c.score >= MIN_VERDICT_SCORE for c in scored if c.name != NONE)
+    if nothing is not None and nothing.score == 1.0 and not seen:
         verdict: str | None = NONE
     else:
         top, runner_up = [c for c in scored if c.name != NONE][:2]

@@ -17,6 +17,7 @@ import equinox as eqx
 import numpy as np
 
 from ._coherence import PairCoherence
+from ._comb import harmonic_comb
 from ._features import Features
 from ._order import order_peak
 from ._residual import FIXED, FREQUENCY, TRACKING, UNDETERMINED, WAVENUMBER, Region
@@ -338,6 +339,71 @@ class SpeedTracking(AbstractSignature):
                 )
             )
         return _best(matches)
+
+
+class HarmonicComb(AbstractSignature):
+    """Lines at every harmonic ``k / period_m`` of a revolution in the order spectra.
+
+    The matched test for a source on a part that turns once per ``period_m`` metres of travel
+    (an out-of-round wheel: ``2 pi R``): :func:`harmonic_comb` over ``harmonics`` at the
+    family-wise level ``alpha``, at least ``min_harmonics`` harmonics present (one line alone
+    may be a rail tone that lies near a harmonic). One check, the comb; no match without order
+    spectra. Parameters: ``labels_found`` (the present harmonics), ``label`` (the strongest),
+    ``wavelength_m`` (``period_m / label``) and ``comb_z`` (each harmonic's ``z``).
+    """
+
+    period_m: float = eqx.field(static=True)
+    harmonics: tuple[int, ...] = eqx.field(static=True)
+    alpha: float = eqx.field(static=True, default=0.01)
+    min_harmonics: int = eqx.field(static=True, default=2)
+
+    def __check_init__(self):
+        if not self.period_m > 0 or not self.harmonics or min(self.harmonics) < 1:
+            raise ValueError(
+                f"period_m={self.period_m!r} must be positive and harmonics="
+                f"{self.harmonics!r} non-empty integers >= 1"
+            )
+        if not 1 <= self.min_harmonics <= len(self.harmonics):
+            raise ValueError(
+                f"min_harmonics={self.min_harmonics!r} must lie in 1..{len(self.harmonics)}"
+            )
+
+    def match(self, features: Features) -> Match | None:
+        if features.orders is None or not features.orders_predictive:
+            return None
+        comb = harmonic_comb(
+            features.orders,
+            features.orders_predictive,
+            self.period_m,
+            self.harmonics,
+            alpha=self.alpha,
+            min_harmonics=self.min_harmonics,
+        )
+        ranked = np.where(comb.present, comb.z, -np.inf)
+        best = int(np.argmax(ranked)) if comb.present.any() else int(np.argmax(comb.z))
+        label = comb.harmonics[best]
+        return Match(
+            feature=f"harmonic comb of {self.period_m:.4g} m in the order spectra",
+            checks=(Check("harmonic comb", comb.significant, comb.describe()),),
+            parameters={
+                "labels_found": comb.found,
+                "label": label,
+                "wavelength_m": self.period_m / label,
+                "wavelength_source": "harmonic comb",
+                "comb_z": tuple(float(z) for z in comb.z),
+            },
+            strength=float(np.max(comb.z)),
+        )
+
+
+class AnyOf(AbstractSignature):
+    """A cause that may show in several ways: the best match of any of ``signatures``."""
+
+    signatures: tuple[AbstractSignature, ...]
+
+    def match(self, features: Features) -> Match | None:
+        found = [m for s in self.signatures if (m := s.match(features)) is not None]
+        return _best(found)
 
 
 class CrossAxisCoherence(AbstractSignature):

@@ -15,11 +15,13 @@ import numpy as np
 
 from ...diagnose import (
     AbstractRefit,
+    AnyOf,
     Candidate,
     Catalogue,
     CrossAxisCoherence,
     ExtensionProposal,
     FixedFrequency,
+    HarmonicComb,
     NoResidual,
     RestLine,
     SpeedTracking,
@@ -82,13 +84,13 @@ class FrameModeRefit(AbstractRefit):
 
 
 class WheelRefit(AbstractRefit):
-    """An out-of-round right wheel with the harmonics the residual shows.
+    """An out-of-round wheel with the harmonics the residual shows, each wheel in turn.
 
     Free: the radius amplitude of every harmonic found (phases at their nominal values: the
     spectra barely see them), each acting linearly (micrometres on a contact preloaded by a
-    fraction of a millimetre). Nothing is proposed when no tone lies at a wheel harmonic. The
-    left wheel gives the same tones; only the right one is refitted (each refit of a wheel
-    needs new solves).
+    fraction of a millimetre). Nothing is proposed when no tone lies at a wheel harmonic. Both
+    wheels have the same radius, so their tones are the same: the left and the right wheel are
+    both proposed (the refit keeps the one that fits the training runs best).
     """
 
     def propose(
@@ -101,15 +103,16 @@ class WheelRefit(AbstractRefit):
             return ()
         harmonics = max(found)
         start = {f"wheel_eccentricity.amplitude_{k}": 5e-6 / k for k in found}
-        return (
+        return tuple(
             ExtensionProposal(
-                extension=WheelEccentricity(wheel="right", harmonics=harmonics),
+                extension=WheelEccentricity(wheel=wheel, harmonics=harmonics),
                 start=start,
                 free=tuple(start),
                 key=tuple(start),
                 linear=tuple(start),
-                label=f"right wheel, harmonics {found}",
-            ),
+                label=f"{wheel} wheel, harmonics {sorted(found)}",
+            )
+            for wheel in ("left", "right")
         )
 
 
@@ -229,7 +232,12 @@ DOOR_CATALOGUE = Catalogue(
             name="wheel_eccentricity",
             description="an out-of-round wheel: tones at the wheel rotation frequency "
             "v / (2 pi R) and its harmonics",
-            signature=SpeedTracking(wavelengths=_WHEEL_WAVELENGTHS, labels=WHEEL_HARMONICS),
+            signature=AnyOf(
+                (
+                    SpeedTracking(wavelengths=_WHEEL_WAVELENGTHS, labels=WHEEL_HARMONICS),
+                    HarmonicComb(period_m=WHEEL_CIRCUMFERENCE, harmonics=WHEEL_HARMONICS),
+                )
+            ),
             refit=WheelRefit(),
         ),
         Candidate(

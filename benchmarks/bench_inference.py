@@ -32,11 +32,14 @@ Then, in one process:
    applies), ESS per second, ESS per 1000 evaluations in the kept draws (NUTS: leapfrog
    steps, each a value and gradient; emcee: walker proposals, each a value), R-hat (emcee:
    nested over ensembles), divergences, and whether the gates passed; ratio NUTS/emcee of
-   ESS per second. emcee keeps at most 100 draws per walker (its thinning
-   raised from the fit's 5), because ``sample_emcee``'s conversion of the draws costs
-   70-130 kB and a few ms per draw (an un-jitted ``vmap``); its ESS is taken on those draws.
+   ESS per second. emcee runs with the fit's settings: the fewest walkers the stretch
+   move needs (``2 * ndim + 2`` per ensemble), its adaptive length (until the kept steps
+   reach 50 autocorrelation times, at most ``emcee_max_steps``) and thinning 5; the steps it
+   took and why it stopped are reported.
 
-Usage: python benchmarks/bench_inference.py [--quick] [--json] [--refit-surrogate]
+``--emcee-only`` skips the density timings and NUTS (the figures of emcee alone).
+
+Usage: python benchmarks/bench_inference.py [--quick] [--json] [--refit-surrogate] [--emcee-only]
 The exact simulator's program holds host callbacks (equinox's run-time checks), which JAX's
 persistent cache never stores: its first value and gradient call compiles in every process.
 Wall and process CPU times are both reported (on a shared machine CPU time is the steadier
@@ -95,6 +98,8 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
 #: the surrogate's fitting code: a change to it refits a cached surrogate
 SURROGATE_SOURCE = ROOT / "bayesdoor" / "inference" / "_surrogate.py"
+#: the settings a surrogate depends on (a change to the sampler settings does not refit it)
+SURROGATE_SETTINGS = ("max_motion_s", "box_fraction", "insensitive", "train_per_term", "n_test")
 #: the seed fit_campaign uses by default; its surrogate design key derives from it the same way
 SEED = 0
 
@@ -134,7 +139,8 @@ def _surrogate_path(
     those packages does not.
     """
     digest = hashlib.sha256(SURROGATE_SOURCE.read_bytes())
-    setup = [dataclasses.asdict(settings), exact.names, exact.fixed, exact.duration, SEED]
+    fitted = {name: getattr(settings, name) for name in SURROGATE_SETTINGS}
+    setup = [fitted, exact.names, exact.fixed, exact.duration, SEED]
     digest.update(json.dumps(setup, sort_keys=True).encode())
     for values in (truth, np.asarray(exact.operating), np.round(probe, 12)):
         digest.update(np.ascontiguousarray(values, dtype=np.float64).tobytes())
@@ -299,16 +305,8 @@ def time_density(model: Callable, init: dict, repeats: int) -> dict[str, Any]:
     return out
 
 
-#: emcee draws kept per walker at most: ``sample_emcee`` maps its draws back to constrained
-#: values with an un-jitted ``vmap`` of the model (measured: 70-130 kB and a few ms per draw); at
-#: the fit's thinning (8000 kept steps / 5 x 192 walkers = 307200 draws) that needs 20-40 GB
-EMCEE_MAX_DRAWS = 100
-
-
-def _sampler_settings(settings: FitSettings, ndim: int) -> dict[str, dict[str, Any]]:
-    """The fit's sampler sizes; emcee's walkers raised to twice the dimension plus two, and
-    its thinning raised to keep at most ``EMCEE_MAX_DRAWS`` draws per walker."""
-    kept = settings.emcee_steps - settings.emcee_burn
+def _sampler_settings(settings: FitSettings) -> dict[str, dict[str, Any]]:
+    """The fit's sampler sizes, as ``fit_campaign`` passes them."""
     return {
         "nuts": {
             "num_warmup": settings.num_warmup,
@@ -317,16 +315,19 @@ def _sampler_settings(settings: FitSettings, ndim: int) -> dict[str, dict[str, A
             "target_accept": settings.target_accept,
         },
         "emcee": {
-            "n_walkers": max(settings.emcee_walkers, 2 * ndim + 2),
+            "n_walkers": settings.emcee_walkers,
             "n_steps": settings.emcee_steps,
+            "max_steps": settings.emcee_max_steps,
             "burn": settings.emcee_burn,
-            "thin": max(settings.emcee_thin, -(-kept // EMCEE_MAX_DRAWS)),
+            "thin": settings.emcee_thin,
             "init_scale": 0.1,
         },
     }
 
 
-def time_samplers(model: Callable, init: dict, settings: FitSettings) -> dict[str, Any]:
+def time_samplers(
+    model: Callable, init: dict, settings: FitSettings, names: tuple[str, ...]
+) -> dict[str, Any]:
     """ESS per second and per evaluation of NUTS and emcee, each after a compiling call.
 
     NUTS's compiled loop depends on its sizes, so its first call has the timed call's sizes;
@@ -334,7 +335,9 @@ def time_samplers(model: Callable, init: dict, settings: FitSettings) -> dict[st
     """
     ndim = sum(int(np.size(v)) for v in init.values())
     out: dict[str, Any] = {}
-    for name, kw in _sampler_settings(settings, ndim).items():
+    for name, kw in _sampler_settings(settings).items():
+        if name not in names:
+            continue
         sampler = sample_nuts if name == "nuts" else sample_emcee
         first = kw if name == "nuts" else {**kw, "n_steps": 20, "burn": 0, "thin": 1}
         walls, cpus = [], []
@@ -354,8 +357,8 @@ def time_samplers(model: Callable, init: dict, settings: FitSettings) -> dict[st
             evaluations = int(np.sum(stats["n_steps"].values))
             per_draw = evaluations / stats["n_steps"].size
         else:
-            evaluations = int(stats["lp"].size * kw["thin"])
-            per_draw = float(kw["thin"])
+            evaluations = int(stats["lp"].shape[0]) * int(stats.attrs["kept_steps"])
+            per_draw = evaluations / stats["lp"].size
         out[name] = {
             "settings": {k: v for k, v in kw.items() if k != "init_values"},
             "dimensions": ndim,
@@ -379,6 +382,9 @@ def time_samplers(model: Callable, init: dict, settings: FitSettings) -> dict[st
             "rhat_method": diag.rhat_method,
             "divergences": diag.divergences,
             "autocorr_lengths": diag.autocorr_lengths,
+            "walkers": int(stats["lp"].shape[0]),
+            "total_steps": int(stats.attrs["total_steps"]) if name == "emcee" else None,
+            "stopped": stats.attrs["stopped"] if name == "emcee" else None,
             "gates_passed": diag.passed,
             "gate_messages": list(diag.messages),
             "load_average": os.getloadavg()[0],
@@ -387,7 +393,7 @@ def time_samplers(model: Callable, init: dict, settings: FitSettings) -> dict[st
     return out
 
 
-def run(quick: bool, refit: bool) -> dict[str, Any]:
+def run(quick: bool, refit: bool, emcee_only: bool = False) -> dict[str, Any]:
     """Every figure of the benchmark, as one JSON-ready dict."""
     settings = FitSettings.quick() if quick else FitSettings()
     load = os.getloadavg()
@@ -401,22 +407,23 @@ def run(quick: bool, refit: bool) -> dict[str, Any]:
     }
     repeats = {"exact": 3 if quick else 5, "surrogate": 50 if quick else 200}
     densities = {}
-    for name, model in models.items():
+    for name, model in models.items() if not emcee_only else ():
         densities[name] = time_density(model, problem.init, repeats[name])
         densities[name]["load_average"] = os.getloadavg()[0]
         densities[name]["peak_rss_gb"] = _peak_rss_gb()
         _log(f"{name} density timed: {json.dumps(densities[name])}")
-    samplers = time_samplers(models["surrogate"], problem.init, settings)
-    n_run = int(problem.data.y.shape[0])
+    names = ("emcee",) if emcee_only else ("nuts", "emcee")
+    samplers = time_samplers(models["surrogate"], problem.init, settings, names)
     n_op = int(problem.data.operating.shape[0])
-    return {
+    result: dict[str, Any] = {
         "quick": quick,
+        "emcee_only": emcee_only,
         "load_average_at_start": load,
         "load_average_at_end": os.getloadavg(),
         "total_s": time.perf_counter() - t_start,
         "problem": {
             "campaign": demo_paths()[0].name,
-            "runs": n_run,
+            "runs": int(problem.data.y.shape[0]),
             "operating_points": np.asarray(problem.data.operating).tolist(),
             "features": int(np.prod(problem.data.y.shape)),
             "free": list(problem.exact.names),
@@ -427,23 +434,26 @@ def run(quick: bool, refit: bool) -> dict[str, Any]:
         },
         "surrogate": problem.surrogate_info,
         "density": densities,
-        "exact_per_simulated_operating_point": {
-            k: densities["exact"][k] / n_op for k in ("value_s", "value_and_grad_s")
-        },
-        "ratio_grad_over_value": {
-            k: v["value_and_grad_s"] / v["value_s"] for k, v in densities.items()
-        },
-        "ratio_exact_over_surrogate": {
-            k: densities["exact"][k] / densities["surrogate"][k]
-            for k in ("value_s", "value_and_grad_s")
-        },
         "samplers": samplers,
-        "ratio_nuts_over_emcee": {
-            k: samplers["nuts"][k] / samplers["emcee"][k]
-            for k in ("ess_bulk_per_s", "ess_tail_per_s", "ess_bulk_per_1000_evaluations")
-        },
         "devices": [str(d) for d in jax.devices()],
     }
+    if densities:
+        result["exact_per_simulated_operating_point"] = {
+            k: densities["exact"][k] / n_op for k in ("value_s", "value_and_grad_s")
+        }
+        result["ratio_grad_over_value"] = {
+            k: v["value_and_grad_s"] / v["value_s"] for k, v in densities.items()
+        }
+        result["ratio_exact_over_surrogate"] = {
+            k: densities["exact"][k] / densities["surrogate"][k]
+            for k in ("value_s", "value_and_grad_s")
+        }
+    if "nuts" in samplers:
+        result["ratio_nuts_over_emcee"] = {
+            k: samplers["nuts"][k] / samplers["emcee"][k]
+            for k in ("ess_bulk_per_s", "ess_tail_per_s", "ess_bulk_per_1000_evaluations")
+        }
+    return result
 
 
 def _print(result: dict[str, Any]) -> None:
@@ -467,12 +477,13 @@ def _print(result: dict[str, Any]) -> None:
             f"{1e3 * d['value_and_grad_s']:.3g} ms (x{result['ratio_grad_over_value'][name]:.1f}); "
             f"first calls {d['first_value_s']:.1f} s and {d['first_value_and_grad_s']:.1f} s"
         )
-    per_op = result["exact_per_simulated_operating_point"]
-    print(
-        f"  exact, per simulated speed: {1e3 * per_op['value_s']:.0f} ms, value and gradient "
-        f"{1e3 * per_op['value_and_grad_s']:.0f} ms; exact/surrogate value and gradient "
-        f"x{result['ratio_exact_over_surrogate']['value_and_grad_s']:.0f}"
-    )
+    if result["density"]:
+        per_op = result["exact_per_simulated_operating_point"]
+        print(
+            f"  exact, per simulated speed: {1e3 * per_op['value_s']:.0f} ms, value and gradient "
+            f"{1e3 * per_op['value_and_grad_s']:.0f} ms; exact/surrogate value and gradient "
+            f"x{result['ratio_exact_over_surrogate']['value_and_grad_s']:.0f}"
+        )
     for name, v in result["samplers"].items():
         verdict = "gates PASSED" if v["gates_passed"] else "GATES FAILED (not converged)"
         div = "" if v["divergences"] is None else f", {v['divergences']} divergences"
@@ -482,14 +493,20 @@ def _print(result: dict[str, Any]) -> None:
             f"{v['ess_bulk_per_s']:.1f} bulk ESS/s, {v['ess_bulk_per_1000_evaluations']:.2f} per "
             f"1000 evaluations; R-hat {v['rhat_max']:.3f} ({v['rhat_method']}){div}; {verdict}"
         )
+        if v["stopped"] is not None:
+            print(
+                f"      {v['walkers']} walkers, {v['total_steps']} steps (stopped: "
+                f"{v['stopped']}), {v['autocorr_lengths']:.1f} autocorrelation times kept"
+            )
         for message in v["gate_messages"]:
             print(f"      ! {message}")
-    r = result["ratio_nuts_over_emcee"]
-    print(
-        f"  NUTS/emcee: bulk ESS/s x{r['ess_bulk_per_s']:.2f}, tail ESS/s "
-        f"x{r['ess_tail_per_s']:.2f}, bulk ESS per evaluation x"
-        f"{r['ess_bulk_per_1000_evaluations']:.1f}"
-    )
+    if "ratio_nuts_over_emcee" in result:
+        r = result["ratio_nuts_over_emcee"]
+        print(
+            f"  NUTS/emcee: bulk ESS/s x{r['ess_bulk_per_s']:.2f}, tail ESS/s "
+            f"x{r['ess_tail_per_s']:.2f}, bulk ESS per evaluation x"
+            f"{r['ess_bulk_per_1000_evaluations']:.1f}"
+        )
 
 
 def main() -> None:
@@ -499,8 +516,11 @@ def main() -> None:
     parser.add_argument(
         "--refit-surrogate", action="store_true", help="fit the surrogate even when cached"
     )
+    parser.add_argument(
+        "--emcee-only", action="store_true", help="time emcee alone (no densities, no NUTS)"
+    )
     ns = parser.parse_args()
-    result = run(ns.quick, ns.refit_surrogate)
+    result = run(ns.quick, ns.refit_surrogate, ns.emcee_only)
     if ns.json:
         print(json.dumps(result, indent=2))
     else:

@@ -10,6 +10,8 @@ import numpy as np
 import numpyro
 import numpyro.distributions as dist
 import pytest
+from jax.flatten_util import ravel_pytree
+from numpyro.infer.util import initialize_model
 
 from bayesdoor.inference import (
     POSTERIOR_GROUPS,
@@ -23,6 +25,7 @@ from bayesdoor.inference import (
     save_posterior,
     summary_table,
 )
+from bayesdoor.inference._samplers import _constrained_draws
 
 # --- the target: a conjugate model whose posterior is known in closed form -------------------
 # theta ~ N(MU0, S0), y_i ~ N(theta, SY) (i = 1..10): a correlated 3-d Gaussian posterior;
@@ -99,9 +102,10 @@ def nuts_idata():
     )
 
 
-#: four ensembles of 8 walkers, 4000 steps of which 3500 kept: about 70 autocorrelation times
+#: four ensembles of 10 walkers (the fewest for 4 dimensions), 4000 steps of which 3500 kept:
+#: about 70 autocorrelation times
 EMCEE_STEPS, EMCEE_BURN = 4000, 500
-EMCEE_KEPT, EMCEE_WALKERS = EMCEE_STEPS - EMCEE_BURN, 32
+EMCEE_KEPT, EMCEE_WALKERS = EMCEE_STEPS - EMCEE_BURN, 40
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +115,6 @@ def emcee_idata():
         key=jax.random.key(4),
         model_kwargs=KWARGS,
         init_values={"theta": MU0, "lam": 2.0},
-        n_walkers=8,
         n_ensembles=4,
         n_steps=EMCEE_STEPS,
         burn=EMCEE_BURN,
@@ -188,7 +191,8 @@ def test_emcee_output_layout(emcee_idata):
     stats = emcee_idata.sample_stats
     assert stats["lp"].shape == (EMCEE_WALKERS, EMCEE_KEPT)
     # walkers are chains, ensemble by ensemble
-    np.testing.assert_array_equal(stats["ensemble"].values, np.repeat(np.arange(4), 8))
+    np.testing.assert_array_equal(stats["ensemble"].values, np.repeat(np.arange(4), 10))
+    assert stats.attrs["stopped"] == "n_steps" and stats.attrs["total_steps"] == EMCEE_STEPS
     # the stretch move's acceptance on a 4-d Gaussian-like target is typically 0.4 to 0.7
     assert stats["acceptance_fraction"].shape == (EMCEE_WALKERS,)
     assert np.all((stats["acceptance_fraction"] > 0.2) & (stats["acceptance_fraction"] < 0.9))
@@ -249,7 +253,7 @@ def test_emcee_starts_in_a_small_ball_around_init_values():
 
 @pytest.mark.filterwarnings("ignore:More chains")
 def test_emcee_same_key_same_draws_other_key_differs():
-    kw = dict(model_kwargs=KWARGS, n_walkers=10, n_steps=40, burn=10, progress=False)
+    kw = dict(model_kwargs=KWARGS, n_steps=40, burn=10, progress=False)
     a = sample_emcee(conjugate_model, key=jax.random.key(5), **kw).posterior["theta"].values
     b = sample_emcee(conjugate_model, key=jax.random.key(5), **kw).posterior["theta"].values
     c = sample_emcee(conjugate_model, key=jax.random.key(6), **kw).posterior["theta"].values
@@ -269,8 +273,100 @@ def test_unknown_init_site_is_named():
 
 
 def test_too_few_walkers_is_named():
-    with pytest.raises(ValueError, match="n_walkers=4"):
-        sample_emcee(conjugate_model, key=jax.random.key(0), model_kwargs=KWARGS, n_walkers=4)
+    # 4 unconstrained dimensions: each half of an ensemble must span them, 2 * 4 + 2 walkers
+    for n_walkers in (4, 9):
+        with pytest.raises(ValueError, match=rf"n_walkers={n_walkers} .* 2 \* ndim \+ 2 = 10"):
+            sample_emcee(
+                conjugate_model, key=jax.random.key(0), model_kwargs=KWARGS, n_walkers=n_walkers
+            )
+
+
+# --- emcee: the adaptive length and the conversion of the draws --------------------------------
+
+
+@pytest.fixture(scope="module")
+def adaptive_idata():
+    """An adaptive run: until the kept steps reach 50 tau and tau moved < 1 % since the last
+    check (tau is about 55 steps here, so about 3000 kept steps at the least)."""
+    return sample_emcee(
+        conjugate_model,
+        key=jax.random.key(11),
+        model_kwargs=KWARGS,
+        init_values={"theta": MU0, "lam": 2.0},
+        n_ensembles=2,
+        burn=300,
+        check_every=100,
+        progress=False,
+    )
+
+
+def test_adaptive_emcee_stops_by_itself_passes_its_gates_and_matches_the_moments(adaptive_idata):
+    stats = adaptive_idata.sample_stats.attrs
+    assert stats["stopped"] == "converged"
+    # it stops at a check, long before the cap of 40000 steps
+    assert stats["total_steps"] % 100 == 0 and stats["total_steps"] < 20000
+    assert stats["kept_steps"] == stats["total_steps"] - 300
+    assert adaptive_idata.posterior["theta"].shape == (20, stats["kept_steps"], 3)
+    # below 4000 kept steps the stopping check estimates tau on the full chain, as the final
+    # estimate does: the rule and the gate see the same tau
+    tau = np.array(json.loads(stats["autocorr_time"]))
+    if stats["kept_steps"] < 4000:
+        assert stats["kept_steps"] >= 50 * tau.max()
+    diag = diagnose_sampling(adaptive_idata, warn=False)
+    assert diag.passed, str(diag)
+    assert diag.autocorr_lengths >= 50
+    errors = moment_errors(adaptive_idata, *exact_posterior())
+    bad = {k: round(v, 2) for k, v in errors.items() if not v < Z_MAX}
+    assert not bad, f"moments off by more than {Z_MAX} MCSE: {bad}"
+
+
+def test_adaptive_emcee_capped_short_says_so_and_equals_a_fixed_run():
+    kw = dict(model_kwargs=KWARGS, init_values={"theta": MU0, "lam": 2.0}, burn=100, progress=False)
+    # 500 kept steps are about 9 autocorrelation times: the cap stops the run
+    with pytest.warns(UserWarning, match=r"max_steps=600 .* raise max_steps"):
+        capped = sample_emcee(
+            conjugate_model, key=jax.random.key(12), max_steps=600, check_every=100, **kw
+        )
+    stats = capped.sample_stats.attrs
+    assert stats["stopped"] == "max_steps" and stats["total_steps"] == 600
+    diag = diagnose_sampling(capped, warn=False)
+    assert not diag.passed and diag.autocorr_lengths < 50
+    assert any("autocorrelation times" in m for m in diag.messages)
+    # six blocks of 100 steps continue one emcee state: the same draws as one run of 600
+    fixed = sample_emcee(conjugate_model, key=jax.random.key(12), n_steps=600, **kw)
+    np.testing.assert_array_equal(capped.posterior["theta"].values, fixed.posterior["theta"])
+    np.testing.assert_array_equal(capped.posterior["lam"].values, fixed.posterior["lam"])
+    np.testing.assert_array_equal(capped.sample_stats["lp"].values, fixed.sample_stats["lp"])
+    assert fixed.sample_stats.attrs["stopped"] == "n_steps"
+
+
+def deterministic_model():
+    scale = numpyro.sample("scale", dist.LogNormal(0.0, 1.0))
+    x = numpyro.sample("x", dist.Normal(jnp.zeros(2), scale))
+    numpyro.deterministic("norm", jnp.sqrt(jnp.sum(x**2)))
+    numpyro.sample("obs", dist.Normal(x, 1.0), obs=jnp.array([0.3, -0.2]))
+
+
+def test_chunked_jitted_conversion_equals_the_plain_vmap():
+    """The jitted conversion in batches (here 7, so the last of 3 batches is padded) returns
+    the numbers of the un-jitted ``vmap`` over all draws that it replaces: a positive site
+    (exp of its unconstrained value) and a deterministic site."""
+    info = initialize_model(jax.random.key(0), deterministic_model)
+    z0, unravel = ravel_pytree(info.param_info.z)
+    flat = np.asarray(jax.random.normal(jax.random.key(1), (17, z0.size)))
+
+    def postprocess(z):
+        return info.postprocess_fn(unravel(z))
+
+    reference = jax.vmap(postprocess)(jnp.asarray(flat))
+    for chunk in (7, 17, 100):
+        chunked = _constrained_draws(postprocess, flat, chunk=chunk)
+        assert set(chunked) == {"scale", "x", "norm"}
+        for name, value in reference.items():
+            # the same operations compiled rather than dispatched one by one: equal to a
+            # few units in the last place (exp and sqrt may be fused differently)
+            np.testing.assert_allclose(chunked[name], np.asarray(value), rtol=1e-14, atol=0)
+            assert chunked[name].shape == value.shape
 
 
 # --- gates -------------------------------------------------------------------------------------
@@ -381,10 +477,13 @@ def test_emcee_passes_every_gate_at_these_sizes_but_its_walker_rhat_would_not(em
     # draws, whose autocorrelation differs)
     walker_rhat = az.rhat(emcee_idata.posterior["theta"], method="split")["theta"].values
     predicted = 1 + (tau[1:] - 1) / EMCEE_KEPT  # unconstrained order: lam, theta[0..2]
-    # the between-half variance of 64 halves is estimated to about 18 % (sd) and tau to about
-    # 10 % (emcee's windowed estimate runs low): agreement within 40 % of the excess is about
-    # two standard deviations (measured: 0.97 to 1.31 times the prediction)
-    np.testing.assert_allclose(walker_rhat - 1, predicted - 1, rtol=0.4)
+    # the between-half variance of 80 halves is estimated to about 16 % (sd), and emcee's
+    # windowed tau runs low, so the excess exceeds the prediction on average; measured on keys
+    # 4 to 9 of this fixture: 0.93 to 1.49 times the prediction per coordinate, 1.00 to 1.40
+    # (mean 1.17, sd 0.14) averaged over the three. The averaged ratio must lie within about
+    # three sds of that: 0.8 to 1.6
+    ratio = np.mean((walker_rhat - 1) / (predicted - 1))
+    assert 0.8 < ratio < 1.6, (walker_rhat, predicted)
     assert np.max(walker_rhat) > 1.01  # the old gate would fail this run
 
 

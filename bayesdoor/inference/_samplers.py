@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import json
+import warnings
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar, cast
 
@@ -241,6 +242,52 @@ def sample_nuts(
     )
 
 
+#: draws mapped back to constrained values per compiled call: the jitted ``postprocess_fn``
+#: is compiled once for this batch size, so memory stays bounded whatever the run length
+_CONVERT_CHUNK = 4096
+
+
+#: the stopping checks of an adaptive emcee run estimate tau on at most about this many
+#: steps (emcee's estimate on 192 walkers x 16000 steps x 23 dimensions takes about 10 s)
+_CHECK_ROWS = 2000
+
+
+def _constrained_draws(
+    postprocess: Callable[[jax.Array], Mapping[str, jax.Array]],
+    flat: np.ndarray,
+    chunk: int = _CONVERT_CHUNK,
+) -> dict[str, np.ndarray]:
+    """``vmap(postprocess)(flat)`` jitted, in batches of ``chunk`` draws, as NumPy arrays.
+
+    An un-jitted ``vmap`` of numpyro's ``postprocess_fn`` materialises every intermediate of
+    the model (the likelihood's included) for all draws at once, tens of kB per draw; jitted,
+    XLA drops what the constrained values do not need, and the batches bound what is left.
+    The last batch is padded with copies of its last draw, so one program serves every batch.
+    """
+    total = flat.shape[0]
+    size = min(chunk, total)
+    convert = jax.jit(jax.vmap(postprocess))
+    pieces: list[dict[str, np.ndarray]] = []
+    for begin in range(0, total, size):
+        block = flat[begin : begin + size]
+        filled = block.shape[0]
+        if filled < size:
+            block = np.concatenate([block, np.repeat(block[-1:], size - filled, axis=0)])
+        out = convert(jnp.asarray(block))
+        pieces.append({name: np.asarray(v)[:filled] for name, v in out.items()})
+    return {name: np.concatenate([p[name] for p in pieces]) for name in pieces[0]}
+
+
+def _run_length_reached(
+    tau: np.ndarray, previous: np.ndarray | None, kept: int, lengths: float, tolerance: float
+) -> bool:
+    """emcee's stopping rule: kept steps >= ``lengths`` x every tau, and tau settled."""
+    if previous is None or not np.all(np.isfinite(tau)) or not np.all(tau > 0):
+        return False
+    settled = np.all(np.abs(previous - tau) / tau < tolerance)
+    return bool(kept >= lengths * np.max(tau) and settled)
+
+
 @_standard_promotion
 def sample_emcee(
     model: Callable[..., Any],
@@ -248,9 +295,13 @@ def sample_emcee(
     key: jax.Array,
     model_kwargs: Mapping[str, Any] | None = None,
     init_values: Mapping[str, Any] | None = None,
-    n_walkers: int = 32,
+    n_walkers: int | None = None,
     n_ensembles: int = 4,
-    n_steps: int = 3000,
+    n_steps: int | None = None,
+    max_steps: int = 40000,
+    check_every: int = 500,
+    min_autocorr_lengths: float = 50.0,
+    tau_tolerance: float = 0.01,
     burn: int = 1000,
     thin: int = 1,
     init_scale: float = 1e-2,
@@ -261,8 +312,9 @@ def sample_emcee(
     The sampler runs on the model's unconstrained space: the log density is numpyro's
     ``-potential_fn`` (priors, likelihood and the Jacobians of the transforms), jitted and
     vmapped over walkers (emcee's ``vectorize=True``); the draws are mapped back to
-    constrained values (with deterministic sites) by numpyro's ``postprocess_fn``. A log
-    density that is NaN (a failed simulation) is treated as ``-inf``, a rejected proposal.
+    constrained values (with deterministic sites) by numpyro's ``postprocess_fn``, jitted
+    and in batches. A log density that is NaN (a failed simulation) is treated as ``-inf``, a
+    rejected proposal.
 
     ``n_ensembles`` independent ensembles of ``n_walkers`` walkers each run side by side
     (the stretch move of Goodman and Weare within each ensemble, one vectorised log density
@@ -271,6 +323,17 @@ def sample_emcee(
     near ``1 + tau / N`` for ``N`` kept steps and reaches 1.01 only after about 100 to 150
     autocorrelation times; independent ensembles are what :func:`diagnose_sampling` compares
     instead (a nested R-hat, Margossian et al. 2024). All ensembles start in the same ball.
+
+    The run length is adaptive by default (``n_steps=None``), as emcee's documentation
+    recommends: the ensembles advance in blocks of ``check_every`` steps (emcee's own
+    ``sample``, continuing from the last state); after each block emcee's integrated
+    autocorrelation time ``tau`` of every unconstrained coordinate is estimated on the
+    steps after ``burn``, and the run stops once those steps number at least
+    ``min_autocorr_lengths`` times the largest ``tau`` and no ``tau`` moved by
+    ``tau_tolerance`` (relative) since the previous block, or at ``max_steps``. A run that
+    the cap stops short of that length warns here, and fails the length gate of
+    :func:`diagnose_sampling`. The blocks do not change the draws: a run that stops after
+    ``N`` steps equals a run of ``n_steps=N`` with the same key.
 
     Parameters
     ----------
@@ -284,21 +347,36 @@ def sample_emcee(
         Constrained values around which the walkers start, e.g. a CMA-ES optimum;
         ``None``: the prior median.
     n_walkers
-        Walkers per ensemble (at least twice the number of unconstrained dimensions); in the
-        output each walker is a ``chain``, as in ``arviz.from_emcee``, ensemble by ensemble.
+        Walkers per ensemble, at least ``2 * ndim + 2`` for ``ndim`` unconstrained
+        dimensions: a walker's stretch partner comes from the other half of its ensemble,
+        whose ``n_walkers / 2`` walkers must span all ``ndim`` directions (an affine hull of
+        dimension ``n_walkers / 2 - 1``). ``None``: exactly that. In the output each walker is
+        a ``chain``, as in ``arviz.from_emcee``, ensemble by ensemble.
     n_ensembles
         Independent ensembles (at least 2 for the nested R-hat of :func:`diagnose_sampling`;
         1 is a single emcee ensemble, whose R-hat is taken over walkers).
     n_steps
-        Ensemble steps, including the burn-in.
+        Ensemble steps, including the burn-in, for a run of fixed length; ``None``: the
+        adaptive length described above.
+    max_steps
+        Adaptive runs: the most ensemble steps, including the burn-in.
+    check_every
+        Adaptive runs: steps between two estimates of the autocorrelation time.
+    min_autocorr_lengths
+        Adaptive runs: steps after the burn-in, in autocorrelation times, at which the run
+        may stop (emcee's documentation recommends 50; :func:`diagnose_sampling`'s gate).
+    tau_tolerance
+        Adaptive runs: the largest relative change of every ``tau`` between two checks at
+        which the run may stop (emcee's documentation uses 1 %).
     burn
         Steps discarded at the start.
     thin
-        Keep every ``thin``-th step after the burn-in.
+        Keep every ``thin``-th step after the burn-in (the autocorrelation time is
+        estimated on every step).
     init_scale
         Standard deviation of the start ball in unconstrained coordinates.
     progress
-        Show emcee's progress bar.
+        Show emcee's progress bar (one per block of an adaptive run).
 
     Returns
     -------
@@ -306,28 +384,45 @@ def sample_emcee(
         ``posterior`` (walkers as chains), ``sample_stats`` (``lp`` per draw,
         ``acceptance_fraction`` and ``ensemble`` per walker, and the attributes
         ``autocorr_time``, emcee's integrated autocorrelation time per unconstrained
-        coordinate as JSON, and ``kept_steps``), ``log_likelihood``, ``observed_data`` and
+        coordinate as JSON, ``kept_steps``, ``total_steps`` and ``stopped``: ``"n_steps"``,
+        ``"converged"`` or ``"max_steps"``), ``log_likelihood``, ``observed_data`` and
         provenance attributes.
 
     Raises
     ------
     ValueError
-        If a count is invalid, there are too few walkers, or a walker of the start ball has a
-        non-finite log density (start closer to the posterior, or shrink ``init_scale``).
+        If a count is invalid, there are fewer than ``2 * ndim + 2`` walkers, or a walker of
+        the start ball has a non-finite log density (start closer to the posterior, or
+        shrink ``init_scale``).
+
+    Warns
+    -----
+    UserWarning
+        When ``max_steps`` stops an adaptive run before it reaches its length.
 
     References
     ----------
     D. Foreman-Mackey, D. W. Hogg, D. Lang and J. Goodman, "emcee: The MCMC Hammer",
     PASP 125 (2013); J. Goodman and J. Weare, "Ensemble samplers with affine invariance",
-    CAMCoS 5 (2010).
+    CAMCoS 5 (2010); emcee's documentation, "Autocorrelation analysis & convergence" and
+    "Saving & monitoring progress".
     """
-    _positive("n_steps", n_steps)
+    length = max_steps if n_steps is None else n_steps
+    _positive("n_steps" if n_steps is not None else "max_steps", length)
+    _positive("n_ensembles", n_ensembles)
+    _positive("check_every", check_every)
     _positive("burn", burn, 0)
     _positive("thin", thin)
-    if burn >= n_steps:
-        raise ValueError(f"burn={burn} must be smaller than n_steps={n_steps}")
+    if burn >= length:
+        name = "n_steps" if n_steps is not None else "max_steps"
+        raise ValueError(f"burn={burn} must be smaller than {name}={length}")
     if not init_scale > 0:
         raise ValueError(f"init_scale={init_scale} must be positive, e.g. 1e-2")
+    if not min_autocorr_lengths > 0 or not 0 < tau_tolerance < 1:
+        raise ValueError(
+            f"min_autocorr_lengths={min_autocorr_lengths} must be positive and "
+            f"tau_tolerance={tau_tolerance} in (0, 1): emcee's documentation uses 50 and 0.01"
+        )
     model_kwargs = dict(model_kwargs or {})
     key_init, key_ball, key_numpy = jax.random.split(key, 3)
     info = initialize_model(
@@ -338,7 +433,17 @@ def sample_emcee(
     )
     z0, unravel = ravel_pytree(info.param_info.z)
     ndim = z0.size
-    _positive("n_walkers", n_walkers, 2 * ndim)
+    fewest = 2 * ndim + 2
+    if n_walkers is None:
+        n_walkers = fewest
+    elif isinstance(n_walkers, bool) or not isinstance(n_walkers, int | np.integer):
+        raise ValueError(f"n_walkers={n_walkers!r} must be an integer >= {fewest}, or None")
+    elif n_walkers < fewest:
+        raise ValueError(
+            f"n_walkers={n_walkers} is too few for {ndim} unconstrained dimensions: the stretch "
+            f"move needs at least 2 * ndim + 2 = {fewest} walkers per ensemble (each half must "
+            f"span every direction); pass n_walkers >= {fewest}, or None for {fewest}"
+        )
 
     batched = jax.jit(jax.vmap(lambda z: -info.potential_fn(unravel(z))))
 
@@ -359,20 +464,51 @@ def sample_emcee(
     sampler = emcee.EnsembleSampler(
         total, ndim, log_prob, moves=_IndependentEnsembles(n_ensembles), vectorize=True
     )
-    start = emcee.State(ball, log_prob=lp0, random_state=np.random.RandomState(seed).get_state())
-    sampler.run_mcmc(start, n_steps, progress=progress)
+    state = emcee.State(ball, log_prob=lp0, random_state=np.random.RandomState(seed).get_state())
+    stopped = "n_steps" if n_steps is not None else "max_steps"
+    previous: np.ndarray | None = None
+    while sampler.iteration < length:
+        block = length - sampler.iteration if n_steps is not None else check_every
+        state = sampler.run_mcmc(state, min(block, length - sampler.iteration), progress=progress)
+        if n_steps is None and sampler.iteration > burn:
+            kept = sampler.iteration - burn
+            # tol=0: emcee's own length check is the rule below, not a logged warning; the
+            # check thins long chains (its cost grows with the steps, the estimate of a tau
+            # of many thinning intervals barely moves: the full chain gives the final tau)
+            step = max(1, kept // _CHECK_ROWS)
+            tau = sampler.get_autocorr_time(discard=burn, thin=step, tol=0)
+            if _run_length_reached(tau, previous, kept, min_autocorr_lengths, tau_tolerance):
+                stopped = "converged"
+                break
+            previous = tau
+    steps = sampler.iteration
+
+    with np.errstate(invalid="ignore", divide="ignore"):  # NaN for too short runs
+        tau = sampler.get_autocorr_time(discard=burn, tol=0)
+    if stopped == "max_steps":
+        warnings.warn(
+            f"emcee stopped at max_steps={max_steps} before its adaptive length: {steps - burn} "
+            f"kept steps = {(steps - burn) / np.max(tau):.1f} autocorrelation times (largest "
+            f"tau {np.max(tau):.0f} steps; {min_autocorr_lengths:g} asked, tau settled to "
+            f"{tau_tolerance:g}): raise max_steps to about "
+            f"{burn + int(np.ceil(min_autocorr_lengths * np.max(tau) * 1.2))}, or use NUTS",
+            UserWarning,
+            stacklevel=3,
+        )
 
     chain = sampler.get_chain(discard=burn, thin=thin)  # (draw, walker, ndim)
     draws = chain.shape[0]
-    flat = jnp.asarray(np.swapaxes(chain, 0, 1).reshape(total * draws, ndim), z0.dtype)
-    constrained = jax.vmap(lambda z: info.postprocess_fn(unravel(z)))(flat)
-    samples = {
-        name: np.asarray(v).reshape((total, draws, *v.shape[1:])) for name, v in constrained.items()
-    }
+    flat = np.swapaxes(chain, 0, 1).reshape(total * draws, ndim).astype(z0.dtype)
+    constrained = _constrained_draws(lambda z: info.postprocess_fn(unravel(z)), flat)
+    samples = {name: v.reshape((total, draws, *v.shape[1:])) for name, v in constrained.items()}
     settings = {
         "n_walkers": n_walkers,
         "n_ensembles": n_ensembles,
         "n_steps": n_steps,
+        "max_steps": max_steps,
+        "check_every": check_every,
+        "min_autocorr_lengths": min_autocorr_lengths,
+        "tau_tolerance": tau_tolerance,
         "burn": burn,
         "thin": thin,
         "init_scale": init_scale,
@@ -393,8 +529,9 @@ def sample_emcee(
     )
     # emcee's own convergence measure (Goodman and Weare 2010; emcee's docs ask for runs of
     # at least 50 autocorrelation times), per unconstrained coordinate, in steps
-    with np.errstate(invalid="ignore", divide="ignore"):  # NaN for too short runs
-        tau = sampler.get_autocorr_time(discard=burn, quiet=True)
-    idata["sample_stats"].attrs["autocorr_time"] = json.dumps(np.asarray(tau).tolist())
-    idata["sample_stats"].attrs["kept_steps"] = n_steps - burn
+    stats = idata["sample_stats"].attrs
+    stats["autocorr_time"] = json.dumps(np.asarray(tau).tolist())
+    stats["kept_steps"] = steps - burn
+    stats["total_steps"] = steps
+    stats["stopped"] = stopped
     return idata

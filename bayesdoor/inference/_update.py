@@ -111,8 +111,12 @@ class FitSettings:
         Surrogate training simulations per polynomial term, and held-out simulations.
     num_warmup, num_samples, num_chains, target_accept
         NUTS settings.
-    emcee_walkers, emcee_steps, emcee_burn, emcee_thin
-        emcee settings (walkers are raised to twice the dimension plus two when fewer).
+    emcee_walkers, emcee_steps, emcee_max_steps, emcee_burn, emcee_thin
+        emcee settings (:func:`sample_emcee`): walkers per ensemble (``None``: twice the
+        sampled dimension plus two, the fewest the stretch move needs; fewer is an error),
+        steps of a fixed-length run (``None``: run until the kept steps reach 50
+        autocorrelation times and the estimate has settled to 1 %, at most
+        ``emcee_max_steps``), burn-in and thinning.
     predictive_draws
         Posterior draws kept in the ``posterior_predictive`` group.
     """
@@ -133,8 +137,9 @@ class FitSettings:
     num_samples: int = 500
     num_chains: int = 4
     target_accept: float = 0.9
-    emcee_walkers: int = 48
-    emcee_steps: int = 9000
+    emcee_walkers: int | None = None
+    emcee_steps: int | None = None
+    emcee_max_steps: int = 30000
     emcee_burn: int = 1000
     emcee_thin: int = 5
     predictive_draws: int = 400
@@ -157,7 +162,7 @@ class FitSettings:
 
         1 s of motion per run; CMA-ES 120 evaluations, no restart; a surrogate on twice as
         many simulations as terms and 16 held-out ones; NUTS 2 chains x (150 + 150); emcee
-        600 steps (200 burn-in); 100 predictive draws.
+        600 steps (200 burn-in, a fixed length) with the fewest walkers; 100 predictive draws.
         """
         return cls(
             max_motion_s=1.0,
@@ -168,7 +173,6 @@ class FitSettings:
             num_warmup=150,
             num_samples=150,
             num_chains=2,
-            emcee_walkers=24,
             emcee_steps=600,
             emcee_burn=200,
             emcee_thin=1,
@@ -1242,8 +1246,9 @@ def fit_campaign(
                 model,
                 key=jax.random.fold_in(key_sample, stage),
                 init_values=init,
-                n_walkers=max(settings.emcee_walkers, 2 * (d + data.y.shape[1]) + 2),
+                n_walkers=settings.emcee_walkers,
                 n_steps=settings.emcee_steps,
+                max_steps=settings.emcee_max_steps,
                 burn=settings.emcee_burn,
                 thin=settings.emcee_thin,
                 init_scale=0.1,

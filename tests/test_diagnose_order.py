@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bayesdoor.diagnose import order_log_psd, order_peak
+from bayesdoor.diagnose import harmonic_comb, order_log_psd, order_peak
 from bayesdoor.systems.door import DOOR_CATALOGUE
 
 FS = 2048.0
@@ -57,3 +57,62 @@ def test_order_spectra_refuse_bad_shapes_and_short_strokes():
         order_log_psd(x, FS, v[:2], t_start=T_START, t_stop=t_stop, segment_m=0.5)
     with pytest.raises(ValueError, match=r"segment_m=2\.0"):
         order_log_psd(x, FS, v, t_start=T_START, t_stop=t_stop, segment_m=2.0)
+
+
+# ------------------------------------------------------------------------ harmonic comb
+
+PERIOD = 2.0 * np.pi * 0.03
+COMB_SPEEDS = np.linspace(0.25, 0.5, 6)
+
+
+def _comb_spectra(tones: dict[float, float], seed: int, draws: int = 3):
+    """Order spectra of 6 runs x 4 channels of white noise, the measured ones with tones
+    ``{wavenumber: amplitude}`` (growing as the speed squared), the draws without."""
+    t = np.arange(int(3.6 * FS)) / FS
+    v = DOOR_CATALOGUE.speed_profile(COMB_SPEEDS, t)
+    z = np.cumsum(v, axis=1) / FS
+    rng = np.random.default_rng(seed)
+    shape = (COMB_SPEEDS.size, 4, t.size)
+    t_stop = np.array([t[np.flatnonzero(row > 1e-6)[-1]] for row in v])
+    kw = {"t_start": np.full(COMB_SPEEDS.size, 0.25), "t_stop": t_stop, "segment_m": 0.5}
+    tone = np.zeros_like(v)
+    for k, a in tones.items():
+        tone += a * (v / COMB_SPEEDS[:, None]) ** 2 * np.sin(2 * np.pi * k * z)
+    measured = order_log_psd(rng.standard_normal(shape) + tone[:, None], FS, v, **kw)
+    predictive = [order_log_psd(rng.standard_normal(shape), FS, v, **kw) for _ in range(draws)]
+    return measured, predictive
+
+
+def test_comb_finds_wheel_harmonics_and_is_calibrated_without_them():
+    measured, predictive = _comb_spectra({3 / PERIOD: 0.08, 5 / PERIOD: 0.08}, seed=0)
+    comb = harmonic_comb(measured, predictive, PERIOD, range(1, 9))
+    assert comb.significant and comb.found == (3, 5), comb.describe()
+    # without tones: z is a standard normal score (8 harmonics x 10 seeds; the empirical
+    # null's scale is estimated from about 100 bins, so its sd is known to ~10 %)
+    zs = []
+    for seed in range(10):
+        comb = harmonic_comb(*_comb_spectra({}, seed=100 + seed), PERIOD, range(1, 9))
+        assert not comb.significant, comb.describe()
+        zs.append(comb.z)
+    z = np.concatenate(zs)
+    assert abs(z.mean()) < 0.3 and 0.7 < z.std() < 1.3, (z.mean(), z.std())
+
+
+def test_comb_needs_two_harmonics_on_the_comb():
+    # one strong line at a harmonic: present, but one line may be a rail tone
+    one = harmonic_comb(*_comb_spectra({7 / PERIOD: 0.15}, seed=1), PERIOD, range(1, 9))
+    assert one.found == (7,) and not one.significant, one.describe()
+    # two lines 0.7 resolution bins (1.4 cycles per metre) off their harmonics: off the comb
+    off = {7 / PERIOD + 1.4: 0.15, 4 / PERIOD - 1.4: 0.15}
+    comb = harmonic_comb(*_comb_spectra(off, seed=2), PERIOD, range(1, 9))
+    assert not comb.on_comb[[3, 6]].any() and not comb.significant, comb.describe()
+
+
+def test_comb_refuses_bad_arguments():
+    measured, predictive = _comb_spectra({}, seed=3, draws=1)
+    with pytest.raises(ValueError, match="period_m"):
+        harmonic_comb(measured, predictive, -1.0, (1, 2))
+    with pytest.raises(ValueError, match="predictive"):
+        harmonic_comb(measured, [], PERIOD, (1, 2))
+    with pytest.raises(ValueError, match="alpha"):
+        harmonic_comb(measured, predictive, PERIOD, (1, 2), alpha=2.0)

@@ -52,9 +52,9 @@ from ._rest import RestLines as RestLines
 from ._rest import rest_lines as rest_lines
 from ._rest import rest_segments as rest_segments
 from ._signatures import AbstractSignature as AbstractSignature
-from ._signatures import AnyOf as AnyOf
 from ._signatures import Check as Check
 from ._signatures import CrossAxisCoherence as CrossAxisCoherence
+from ._signatures import FirstOf as FirstOf
 from ._signatures import FixedFrequency as FixedFrequency
 from ._signatures import HarmonicComb as HarmonicComb
 from ._signatures import Match as Match

@@ -396,14 +396,23 @@ class HarmonicComb(AbstractSignature):
         )
 
 
-class AnyOf(AbstractSignature):
-    """A cause that may show in several ways: the best match of any of ``signatures``."""
+class FirstOf(AbstractSignature):
+    """The first of ``signatures`` that can examine the features (returns a match).
+
+    For a cause with a matched test that needs more than the residual maps, and a fallback:
+    the door's wheel is judged by its harmonic comb when order spectra were computed, by a
+    tracking tone at a harmonic otherwise (a single tone within 4 % of a harmonic is as
+    likely a rail period: on the rig, a 26.0 mm rail tone passed as harmonic 7).
+    """
 
     signatures: tuple[AbstractSignature, ...]
 
     def match(self, features: Features) -> Match | None:
-        found = [m for s in self.signatures if (m := s.match(features)) is not None]
-        return _best(found)
+        for signature in self.signatures:
+            found = signature.match(features)
+            if found is not None:
+                return found
+        return None
 
 
 class CrossAxisCoherence(AbstractSignature):

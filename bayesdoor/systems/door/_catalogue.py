@@ -15,11 +15,11 @@ import numpy as np
 
 from ...diagnose import (
     AbstractRefit,
-    AnyOf,
     Candidate,
     Catalogue,
     CrossAxisCoherence,
     ExtensionProposal,
+    FirstOf,
     FixedFrequency,
     HarmonicComb,
     NoResidual,
@@ -232,10 +232,11 @@ DOOR_CATALOGUE = Catalogue(
             name="wheel_eccentricity",
             description="an out-of-round wheel: tones at the wheel rotation frequency "
             "v / (2 pi R) and its harmonics",
-            signature=AnyOf(
+            # the comb of k / (2 pi R) in the order spectra when the diagnosis computed them
+            signature=FirstOf(
                 (
-                    SpeedTracking(wavelengths=_WHEEL_WAVELENGTHS, labels=WHEEL_HARMONICS),
                     HarmonicComb(period_m=WHEEL_CIRCUMFERENCE, harmonics=WHEEL_HARMONICS),
+                    SpeedTracking(wavelengths=_WHEEL_WAVELENGTHS, labels=WHEEL_HARMONICS),
                 )
             ),
             refit=WheelRefit(),

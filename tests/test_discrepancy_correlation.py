@@ -10,6 +10,7 @@ import numpy as np
 import numpyro.distributions as dist
 import pytest
 import scipy.stats
+from numpyro.infer import Predictive
 from numpyro.infer.util import log_density
 from numpyro.infer.util import log_likelihood as numpyro_log_likelihood
 
@@ -23,6 +24,7 @@ from bayesdoor.inference import (
     SamplingTransform,
     band_correlation,
     make_model,
+    sample_nuts,
 )
 
 FS = 2048.0
@@ -248,3 +250,31 @@ def test_model_error_refuses_inconsistent_correlation_settings():
         ModelError(infer_correlation=True)
     with pytest.raises(ValueError, match="needs shared=True"):
         ModelError(correlation=2.0, shared=False)
+
+
+def test_nuts_samples_the_length_and_replicates_are_finite(key):
+    """The sampled site, a start value for it, and posterior-predictive replicates through
+    the correlated distribution's ``sample`` (a short chain: this checks the plumbing, the
+    closed form is checked above)."""
+    k1, k2, k3, k4 = jax.random.split(key, 4)
+    data, transform = _data(k1), SamplingTransform.box(("a", "b"), [0.0, 0.0], [1.0, 2.0])
+    error = ModelError(correlation=2.0, infer_correlation=True)
+    model = make_model(data, _forward(data, k2), transform, error)
+    _, init = _params(transform, {"discrepancy_length": jnp.asarray(2.0)})
+    idata = sample_nuts(
+        model,
+        key=k3,
+        init_values=init,
+        num_warmup=50,
+        num_samples=50,
+        num_chains=1,
+        progress=False,
+    )
+    length = np.asarray(idata["posterior"]["discrepancy_length"].values)
+    assert length.shape == (1, 50) and np.all(length > 0)
+    samples = {
+        n: jnp.asarray(idata["posterior"][n].values[0])
+        for n in ("z", "sigma_operating", "run_scatter", "discrepancy_length")
+    }
+    y = Predictive(model, posterior_samples=samples, return_sites=["y"])(k4, y=None)["y"]
+    assert y.shape == (50, *data.y.shape) and np.all(np.isfinite(np.asarray(y)))

@@ -1229,7 +1229,7 @@ def fit_campaign(
         if error.shared:
             init["run_scatter"] = rho_init
         if error.infer_correlation:
-            init["discrepancy_length"] = length_init
+            init["discrepancy_length"] = jnp.asarray(length_init)
         if method == "nuts":
             idata = sample_nuts(
                 model,

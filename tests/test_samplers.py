@@ -296,6 +296,7 @@ def adaptive_idata():
         n_ensembles=2,
         burn=300,
         check_every=100,
+        thin=None,
         progress=False,
     )
 
@@ -306,10 +307,13 @@ def test_adaptive_emcee_stops_by_itself_passes_its_gates_and_matches_the_moments
     # it stops at a check, long before the cap of 40000 steps
     assert stats["total_steps"] % 100 == 0 and stats["total_steps"] < 20000
     assert stats["kept_steps"] == stats["total_steps"] - 300
-    assert adaptive_idata.posterior["theta"].shape == (20, stats["kept_steps"], 3)
+    # thin=None: every (smallest tau // 2)-th step, emcee's recipe (tau about 50 here)
+    tau = np.array(json.loads(stats["autocorr_time"]))
+    assert stats["thin"] == int(tau.min()) // 2 and stats["thin"] > 10
+    draws = len(range(300 + stats["thin"] - 1, stats["total_steps"], stats["thin"]))
+    assert adaptive_idata.posterior["theta"].shape == (20, draws, 3)
     # below 4000 kept steps the stopping check estimates tau on the full chain, as the final
     # estimate does: the rule and the gate see the same tau
-    tau = np.array(json.loads(stats["autocorr_time"]))
     if stats["kept_steps"] < 4000:
         assert stats["kept_steps"] >= 50 * tau.max()
     diag = diagnose_sampling(adaptive_idata, warn=False)

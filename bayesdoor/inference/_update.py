@@ -116,7 +116,8 @@ class FitSettings:
         sampled dimension plus two, the fewest the stretch move needs; fewer is an error),
         steps of a fixed-length run (``None``: run until the kept steps reach 50
         autocorrelation times and the estimate has settled to 1 %, at most
-        ``emcee_max_steps``), burn-in and thinning.
+        ``emcee_max_steps``), burn-in and thinning (``None``: half the smallest
+        autocorrelation time, emcee's documented choice).
     predictive_draws
         Posterior draws kept in the ``posterior_predictive`` group.
     """
@@ -139,9 +140,9 @@ class FitSettings:
     target_accept: float = 0.9
     emcee_walkers: int | None = None
     emcee_steps: int | None = None
-    emcee_max_steps: int = 30000
+    emcee_max_steps: int = 40000
     emcee_burn: int = 1000
-    emcee_thin: int = 5
+    emcee_thin: int | None = None
     predictive_draws: int = 400
 
     def __post_init__(self) -> None:

@@ -447,3 +447,42 @@ def test_catalogue_holds_the_design_names():
         "mains_hum",
         "none",
     )
+
+
+def _with_orders(case):
+    features = find_features(
+        case["measured"],
+        case["predictive"],
+        FS,
+        channels=CHANNELS,
+        t_start=case["t_start"],
+        t_stop=case["t_stop"],
+        speeds=case["speeds"],
+        speed_profiles=case["profiles"],
+        within_run=False,
+        order_segment_m=0.5,
+        pairs=PAIRS,
+        band=(2.0, 400.0),
+    )
+    return rank_causes(features, DOOR_CATALOGUE)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_wheel_comb_in_the_order_spectra_decides_the_wheel(seed):
+    # two wheel harmonics 3 dB over the base on every channel: too weak for the residual
+    # maps of every seed, a comb in the order spectra; with nothing added the verdict is none
+    case = make_case(NONE, 40 + seed)
+    assert _with_orders(case).verdict == NONE
+    rng = np.random.default_rng(seed)
+    harmonics = (3, 6)
+    for k in harmonics:
+        lam = WHEEL_CIRCUMFERENCE / k
+        for r, v_max in enumerate(case["speeds"]):
+            for c, name in enumerate(CHANNELS):
+                amplitude = np.sqrt(3 * excess_power(3.0, v_max / lam, name))
+                phase = rng.uniform(0, 2 * np.pi)
+                case["measured"][r, c] += tone(case["profiles"][r], lam, amplitude, phase)
+    assert diagnose_case(case).verdict == NONE
+    ranking = _with_orders(case)
+    assert ranking.verdict == "wheel_eccentricity", [c.evidence for c in ranking.causes[:2]]
+    assert ranking.cause("wheel_eccentricity").parameters["labels_found"] == harmonics

@@ -10,6 +10,7 @@ import numpy as np
 import numpyro
 import numpyro.distributions as dist
 import pytest
+from _toy_system import DURATION, FS, REST, ToySystem
 from jax.flatten_util import ravel_pytree
 from numpyro.infer.util import initialize_model
 
@@ -18,6 +19,7 @@ from bayesdoor.inference import (
     SamplingGateWarning,
     configuration_hash,
     diagnose_sampling,
+    fit_campaign,
     load_posterior,
     nested_rhat,
     sample_emcee,
@@ -26,6 +28,7 @@ from bayesdoor.inference import (
     summary_table,
 )
 from bayesdoor.inference._samplers import _constrained_draws
+from bayesdoor.io import make_campaign
 
 # --- the target: a conjugate model whose posterior is known in closed form -------------------
 # theta ~ N(MU0, S0), y_i ~ N(theta, SY) (i = 1..10): a correlated 3-d Gaussian posterior;
@@ -342,6 +345,36 @@ def test_adaptive_emcee_capped_short_says_so_and_equals_a_fixed_run():
     np.testing.assert_array_equal(capped.posterior["lam"].values, fixed.posterior["lam"])
     np.testing.assert_array_equal(capped.sample_stats["lp"].values, fixed.sample_stats["lp"])
     assert fixed.sample_stats.attrs["stopped"] == "n_steps"
+
+
+@pytest.mark.slow
+def test_fit_campaign_emcee_walkers_follow_the_sampled_dimension():
+    """fit_campaign(quick=True, method="emcee") on the toy system: 2 parameters, 2 speeds x 2
+    channels of discrepancy scales and 2 run scatters, 8 sampled dimensions, so 4 ensembles
+    of 2 * 8 + 2 = 18 walkers (the quick fit once ran 24 walkers on 23 dimensions of the
+    door). About 40 s with a warm compilation cache, 3 min cold, on the loaded machine."""
+    toy = ToySystem()
+    speeds = np.array([0.3, 0.5] * 3)
+    rng = np.random.default_rng(0)
+    values = {"k": 0.5 + 0.02 * rng.standard_normal(6), "m": np.ones(6), "law": np.full(6, 2.0)}
+    campaign = make_campaign(
+        np.asarray(toy.simulate_values(values, speeds).signals),
+        channels=["X", "Z"],
+        fs=FS,
+        state=["healthy"] * 6,
+        v_max=speeds,
+        t_start=np.full(6, REST),
+        t_stop=np.full(6, DURATION),
+        system="toy",
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # quick sizes fail the gates by design
+        fit = fit_campaign(toy, campaign, method="emcee", quick=True, progress=False)
+    post = fit.idata.posterior
+    ndim = sum(int(np.prod(post[n].shape[2:])) for n in ("z", "sigma_operating", "run_scatter"))
+    assert ndim == 8
+    assert json.loads(post.attrs["settings"])["n_walkers"] == 18
+    assert post.sizes["chain"] == 4 * 18
 
 
 def deterministic_model():

@@ -330,7 +330,9 @@ def sample_emcee(
     autocorrelation time ``tau`` of every unconstrained coordinate is estimated on the
     steps after ``burn``, and the run stops once those steps number at least
     ``min_autocorr_lengths`` times the largest ``tau`` and no ``tau`` moved by
-    ``tau_tolerance`` (relative) since the previous block, or at ``max_steps``. A run that
+    ``tau_tolerance`` (relative) since the previous block (the checks thin long chains
+    to about 2000 steps for speed; a stop is confirmed on the full chain), or at
+    ``max_steps``. A run that
     the cap stops short of that length warns here, and fails the length gate of
     :func:`diagnose_sampling`. The blocks do not change the draws: a run that stops after
     ``N`` steps equals a run of ``n_steps=N`` with the same key.
@@ -478,12 +480,15 @@ def sample_emcee(
             kept = sampler.iteration - burn
             # tol=0: emcee's own length check is the rule below, not a logged warning; the
             # check thins long chains (its cost grows with the steps, the estimate of a tau
-            # of many thinning intervals barely moves: the full chain gives the final tau)
+            # of many thinning intervals barely moves), and a stop is confirmed on the full
+            # chain, the estimate the length gate of diagnose_sampling reads
             step = max(1, kept // _CHECK_ROWS)
             tau = sampler.get_autocorr_time(discard=burn, thin=step, tol=0)
             if _run_length_reached(tau, previous, kept, min_autocorr_lengths, tau_tolerance):
-                stopped = "converged"
-                break
+                full = tau if step == 1 else sampler.get_autocorr_time(discard=burn, tol=0)
+                if kept >= min_autocorr_lengths * np.max(full):
+                    stopped = "converged"
+                    break
             previous = tau
     steps = sampler.iteration
 

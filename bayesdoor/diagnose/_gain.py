@@ -3,17 +3,14 @@
 Both models are judged on the same spectra (log10 Welch PSD per run, channel and bin) of runs
 they were not fitted on. Each model's predictive distribution of a run's spectrum is
 
-    y_rcf ~ Normal(m_rcf + delta_cf, s_r^2 + sigma_cf^2)
+    y_rcf ~ Normal(m_rcf + delta_cf, s_r^2 + sigma_c^2)
 
 with ``m`` the model's simulated spectrum, ``s_r^2`` the Welch variance of the run's estimate,
 and the model's discrepancy estimated on the training runs: ``delta_c(f)`` its smooth part (the
 running median over frequency of the training runs' mean residual, :func:`smooth_discrepancy`)
-and ``sigma_c^2(f)`` the remaining scatter per channel, a running mean over the same window
-(local: a narrow feature the model lacks inflates the scatter near it only, not over the whole
-band, where it would make every run's gain depend on that run's misfit everywhere). The base
-model thus competes with an anonymous smooth discrepancy (Kennedy and O'Hagan 2001); a named
-extension wins only where it predicts what a smooth correction cannot: a resonance, a tone, a
-line, a leak's spectral shape.
+and ``sigma_c^2`` the remaining scatter per channel. The base model thus competes with an
+anonymous smooth discrepancy (Kennedy and O'Hagan 2001); a named extension wins only where it
+predicts what a smooth correction cannot: a resonance, a tone, a line, a leak's spectral shape.
 """
 
 from __future__ import annotations
@@ -22,7 +19,6 @@ import dataclasses
 from typing import Any
 
 import numpy as np
-import scipy.ndimage
 
 from .._types import Float
 from ._residual import smooth_discrepancy
@@ -49,11 +45,11 @@ class Discrepancy:
     smooth
         ``delta_c(f)``, decades, added to the model's spectrum.
     variance
-        ``sigma_c^2(f)`` per channel and bin, decades^2.
+        ``sigma_c^2`` per channel, decades^2.
     """
 
     smooth: Float[np.ndarray, "channel freq"]
-    variance: Float[np.ndarray, "channel freq"]
+    variance: Float[np.ndarray, " channel"]
 
 
 def estimate_discrepancy(
@@ -76,16 +72,12 @@ def estimate_discrepancy(
     Returns
     -------
     Discrepancy
-        ``smooth`` the running median of the run-mean residual; ``variance`` the running mean
-        over the same window of the runs' mean squared remaining residual, less the mean Welch
-        variance, floored at ``SIGMA_FLOOR^2``.
+        ``smooth`` the running median of the run-mean residual; ``variance`` the mean squared
+        remaining residual less the mean Welch variance, floored at ``SIGMA_FLOOR^2``.
     """
     resid = np.asarray(measured, dtype=float) - np.asarray(model, dtype=float)
     smooth = smooth_discrepancy(resid.mean(axis=0), half_width)
-    scatter = scipy.ndimage.uniform_filter1d(
-        np.mean((resid - smooth) ** 2, axis=0), 2 * int(half_width) + 1, axis=-1, mode="nearest"
-    )
-    excess = scatter - np.mean(log_variance)
+    excess = np.mean((resid - smooth) ** 2, axis=(0, 2)) - np.mean(log_variance)
     return Discrepancy(smooth=smooth, variance=np.maximum(excess, SIGMA_FLOOR**2))
 
 
@@ -96,7 +88,7 @@ def log_predictive(
     discrepancy: Discrepancy,
 ) -> Float[np.ndarray, "*pop run"]:
     """Log predictive density of each run's spectrum (summed over channels and bins)."""
-    var = np.asarray(log_variance)[:, None, None] + discrepancy.variance
+    var = np.asarray(log_variance)[:, None, None] + discrepancy.variance[None, :, None]
     r = np.asarray(measured) - np.asarray(model) - discrepancy.smooth
     return -0.5 * np.sum(np.log(2.0 * np.pi * var) + r**2 / var, axis=(-2, -1))
 

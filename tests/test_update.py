@@ -171,9 +171,11 @@ def test_cmaes_stops_at_a_tenth_of_js_standard_error():
     assert ruled.j - free.j <= se
 
 
-def test_settings_refuse_bad_workers_and_tolerance():
+def test_settings_refuse_bad_workers_tolerance_and_chain_method():
     with pytest.raises(ValueError, match="workers=0 must be an integer >= 1"):
         FitSettings(workers=0)
+    with pytest.raises(ValueError, match="chain_method='parallel'"):
+        FitSettings(chain_method="parallel")
     with pytest.raises(ValueError, match=r"cmaes_tolerance=-0.1 must be positive"):
         FitSettings(cmaes_tolerance=-0.1)
 

@@ -111,6 +111,11 @@ class FitSettings:
         Surrogate training simulations per polynomial term, and held-out simulations.
     num_warmup, num_samples, num_chains, target_accept
         NUTS settings.
+    chain_method
+        How NUTS runs its chains (:func:`sample_nuts`): ``"vectorized"`` (one vmapped
+        program, the fastest on a CPU) or ``"sequential"`` (one chain after another; a
+        likelihood with a Cholesky per step, ``ModelError(correlation=...)``, deadlocked
+        inside XLA with vectorised chains on the demo fit).
     emcee_walkers, emcee_steps, emcee_max_steps, emcee_burn, emcee_thin
         emcee settings (:func:`sample_emcee`): walkers per ensemble (``None``: twice the
         sampled dimension plus two, the fewest the stretch move needs; fewer is an error),
@@ -138,6 +143,7 @@ class FitSettings:
     num_samples: int = 500
     num_chains: int = 4
     target_accept: float = 0.9
+    chain_method: str = "vectorized"
     emcee_walkers: int | None = None
     emcee_steps: int | None = None
     emcee_max_steps: int = 40000
@@ -146,6 +152,10 @@ class FitSettings:
     predictive_draws: int = 400
 
     def __post_init__(self) -> None:
+        if self.chain_method not in ("vectorized", "sequential"):
+            raise ValueError(
+                f"chain_method={self.chain_method!r}: use 'vectorized' or 'sequential'"
+            )
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
             raise ValueError(
                 f"workers={self.workers!r} must be an integer >= 1 (threads simulating at once; "
@@ -1240,6 +1250,7 @@ def fit_campaign(
                 num_samples=settings.num_samples,
                 num_chains=settings.num_chains,
                 target_accept=settings.target_accept,
+                chain_method=settings.chain_method,
                 progress=progress,
             )
         else:

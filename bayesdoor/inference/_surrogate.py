@@ -8,6 +8,7 @@ error on held-out simulations (per feature) enters the likelihood as an extra va
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import equinox as eqx
@@ -166,21 +167,45 @@ def simulate_design(
     """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers={workers!r} must be an integer >= 1 (threads at once)")
-    points = np.asarray(thetas, dtype=float)
+
+    def batch(padded: np.ndarray) -> tuple[Array, Array]:
+        out = _batched(forward, jnp.asarray(padded))
+        return out.features, out.ok
+
+    return map_padded_chunks(batch, thetas, chunk, workers, first_alone=True)
+
+
+def map_padded_chunks(
+    batch: Callable[[np.ndarray], tuple[Array, Array]],
+    x: Float[np.ndarray, "point param"] | Float[Array, "point param"],
+    chunk: int,
+    workers: int,
+    *,
+    first_alone: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Features and success of ``batch`` over the rows of ``x``, ``chunk`` rows at a time.
+
+    Each chunk is padded to ``chunk`` rows by repeating its last row (one compilation per
+    chunk size) and the padding is cut from the results. ``workers`` threads run chunks at
+    once; with ``first_alone`` the first chunk runs before the others start, so that threads
+    do not each compile.
+    """
+    points = np.atleast_2d(np.asarray(x, dtype=float))
 
     def one(start: int) -> tuple[np.ndarray, np.ndarray]:
         block = points[start : start + chunk]
         padded = np.concatenate([block, np.repeat(block[-1:], chunk - len(block), axis=0)])
-        out = _batched(forward, jnp.asarray(padded))
-        return np.asarray(out.features)[: len(block)], np.asarray(out.ok)[: len(block)]
+        features, ok = batch(padded)
+        return np.asarray(features)[: len(block)], np.asarray(ok)[: len(block)]
 
     starts = list(range(0, len(points), chunk))
-    results = [one(starts[0])]
-    if workers > 1 and len(starts) > 2:
-        with ThreadPoolExecutor(workers) as pool:
-            results += list(pool.map(one, starts[1:]))
+    results = [one(starts[0])] if first_alone else []
+    rest = starts[1:] if first_alone else starts
+    if workers > 1 and len(rest) > 1:
+        with ThreadPoolExecutor(min(workers, len(rest))) as pool:
+            results += list(pool.map(one, rest))
     else:
-        results += [one(start) for start in starts[1:]]
+        results += [one(start) for start in rest]
     return np.concatenate([f for f, _ in results]), np.concatenate([k for _, k in results])
 
 

@@ -22,7 +22,6 @@ import json
 import time
 import warnings
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Literal
 
@@ -56,7 +55,7 @@ from ._likelihood import (
 from ._parameterisation import SamplingTransform
 from ._posterior import load_posterior, record_system, save_posterior
 from ._samplers import sample_emcee, sample_nuts
-from ._surrogate import box_around, fit_surrogate
+from ._surrogate import box_around, fit_surrogate, map_padded_chunks
 
 Method = Literal["cmaes", "nuts", "emcee"]
 METHODS: tuple[str, ...] = ("cmaes", "nuts", "emcee")
@@ -468,21 +467,13 @@ def _simulate(
     threads use both cores of a 2-core machine. The first call of a chunk size should run
     with one worker: threads that all miss the compilation cache each compile.
     """
-    x = np.atleast_2d(np.asarray(x, dtype=float))
-
-    def one(start: int) -> tuple[np.ndarray, np.ndarray]:
-        block = x[start : start + chunk]
-        padded = np.concatenate([block, np.repeat(block[-1:], chunk - len(block), axis=0)])
-        f, k = _simulate_chunk(population, jnp.asarray(padded))
-        return np.asarray(f)[: len(block)], np.asarray(k)[: len(block)]
-
-    starts = range(0, len(x), chunk)
-    if workers > 1 and len(starts) > 1:
-        with ThreadPoolExecutor(min(workers, len(starts))) as pool:
-            results = list(pool.map(one, starts))
-    else:
-        results = [one(start) for start in starts]
-    return np.concatenate([f for f, _ in results]), np.concatenate([k for _, k in results])
+    return map_padded_chunks(
+        lambda padded: _simulate_chunk(population, jnp.asarray(padded)),
+        x,
+        chunk,
+        workers,
+        first_alone=False,
+    )
 
 
 class _PartialForward(AbstractForward):

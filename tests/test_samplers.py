@@ -1,6 +1,8 @@
 """NUTS and emcee on a target with known moments (and wrong targets), gates, ArviZ output, files."""
 
+import io
 import json
+import sys
 import warnings
 
 import arviz as az
@@ -266,6 +268,49 @@ def test_emcee_same_key_same_draws_other_key_differs():
     one = sample_emcee(conjugate_model, key=jax.random.key(5), n_ensembles=1, **kw)
     assert one.posterior["theta"].shape == (10, 30, 3)
     assert diagnose_sampling(one, warn=False).rhat_method == "split-rank"
+
+
+class _Terminal(io.StringIO):
+    """A standard error that says it is a terminal."""
+
+    def isatty(self):
+        return True
+
+
+def _short_run(sampler, progress):
+    """40 iterations (warm-up included), so a drawn tqdm bar ends at ``40/40``."""
+    if sampler == "nuts":
+        return sample_nuts(
+            conjugate_model,
+            key=jax.random.key(5),
+            model_kwargs=KWARGS,
+            num_warmup=20,
+            num_samples=20,
+            num_chains=1,
+            progress=progress,
+        )
+    return sample_emcee(
+        conjugate_model,
+        key=jax.random.key(5),
+        model_kwargs=KWARGS,
+        n_steps=40,
+        burn=10,
+        progress=progress,
+    )
+
+
+@pytest.mark.filterwarnings("ignore:More chains")
+@pytest.mark.parametrize("sampler", ["nuts", "emcee"])
+def test_progress_bar_only_when_asked_for_and_on_a_terminal(sampler, monkeypatch):
+    """A bar redrawn into a log file or pipe (CI, ``bayesdoor demo > log``) floods it."""
+    for stream, progress, drawn in (
+        (_Terminal(), True, True),
+        (io.StringIO(), True, False),
+        (_Terminal(), False, False),
+    ):
+        monkeypatch.setattr(sys, "stderr", stream)
+        _short_run(sampler, progress)
+        assert ("40/40" in stream.getvalue()) == drawn, (type(stream).__name__, progress)
 
 
 def test_unknown_init_site_is_named():

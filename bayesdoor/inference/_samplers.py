@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import json
+import sys
 import warnings
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar, cast
@@ -46,6 +47,17 @@ def _standard_promotion(sampler: _F) -> _F:
             return sampler(*args, **kwargs)
 
     return cast(_F, wrapped)
+
+
+def _show_progress(progress: bool) -> bool:
+    """Whether to draw a progress bar: asked for and standard error is a terminal.
+
+    numpyro's and emcee's bars are tqdm bars on standard error, redrawn in place with carriage
+    returns; written to a file or a pipe (CI, ``bayesdoor demo > log 2>&1``) every redraw
+    stays, thousands of lines per run.
+    """
+    isatty = getattr(sys.stderr, "isatty", None)
+    return progress and callable(isatty) and bool(isatty())
 
 
 def _init_strategy(
@@ -163,7 +175,7 @@ def sample_nuts(
         and share the persistent compilation cache (simulation-based calibration); every
         keyword argument must then be an array.
     progress
-        Show numpyro's progress bar.
+        Show numpyro's progress bar, when standard error is a terminal.
 
     Returns
     -------
@@ -205,7 +217,7 @@ def sample_nuts(
         num_samples=num_samples,
         num_chains=num_chains,
         chain_method=chain_method,
-        progress_bar=progress,
+        progress_bar=_show_progress(progress),
         jit_model_args=jit_model_args,
     )
     mcmc.run(key, extra_fields=_NUTS_FIELDS, **model_kwargs)
@@ -381,7 +393,8 @@ def sample_emcee(
     init_scale
         Standard deviation of the start ball in unconstrained coordinates.
     progress
-        Show emcee's progress bar (one per block of an adaptive run).
+        Show emcee's progress bar (one per block of an adaptive run), when standard
+        error is a terminal.
 
     Returns
     -------
@@ -473,9 +486,10 @@ def sample_emcee(
     state = emcee.State(ball, log_prob=lp0, random_state=np.random.RandomState(seed).get_state())
     stopped = "n_steps" if n_steps is not None else "max_steps"
     previous: np.ndarray | None = None
+    shown = _show_progress(progress)
     while sampler.iteration < length:
         block = length - sampler.iteration if n_steps is not None else check_every
-        state = sampler.run_mcmc(state, min(block, length - sampler.iteration), progress=progress)
+        state = sampler.run_mcmc(state, min(block, length - sampler.iteration), progress=shown)
         if n_steps is None and sampler.iteration > burn:
             kept = sampler.iteration - burn
             # tol=0: emcee's own length check is the rule below, not a logged warning; the

@@ -10,16 +10,15 @@ import numpy as np
 import numpyro.distributions as dist
 import pytest
 import scipy.stats
+from _helpers import TableForward
 from numpyro.infer import Predictive
 from numpyro.infer.util import log_density
 from numpyro.infer.util import log_likelihood as numpyro_log_likelihood
 
 from bayesdoor.inference import (
-    AbstractForward,
     CalibrationData,
     CorrelatedDiscrepancyNormal,
     DiscrepancyNormal,
-    ForwardOutput,
     ModelError,
     SamplingTransform,
     band_correlation,
@@ -28,19 +27,6 @@ from bayesdoor.inference import (
 )
 
 FS = 2048.0
-
-
-class TableForward(AbstractForward):
-    """Fixed features shifted by the sum of the parameters (an independent stand-in)."""
-
-    names: tuple[str, ...]
-    operating: jax.Array
-    features: jax.Array
-    variance: jax.Array
-
-    def __call__(self, theta):
-        shift = jnp.sum(theta) * jnp.ones_like(self.features)
-        return ForwardOutput(self.features + shift, self.variance, jnp.asarray(True))
 
 
 def _dense(y, loc, run_variance, covariance, run_operating):

@@ -10,15 +10,14 @@ import numpyro.distributions as dist
 import pytest
 import scipy.signal
 import scipy.stats
+from _helpers import TableForward
 from numpyro.infer.util import log_density
 from numpyro.infer.util import log_likelihood as numpyro_log_likelihood
 
 from bayesdoor.inference import (
-    AbstractForward,
     CalibrationData,
     DiscrepancyNormal,
     FeatureSpec,
-    ForwardOutput,
     ModelError,
     SamplingTransform,
     log_likelihood,
@@ -30,20 +29,6 @@ from bayesdoor.inference import (
 from bayesdoor.systems import ElevatorDoor
 
 FS = 2048.0
-
-
-class TableForward(AbstractForward):
-    """A forward model that returns fixed features (an independent stand-in for a simulator)."""
-
-    names: tuple[str, ...]
-    operating: jax.Array
-    features: jax.Array
-    variance: jax.Array
-    ok: bool
-
-    def __call__(self, theta):
-        shift = jnp.sum(theta) * jnp.ones_like(self.features)
-        return ForwardOutput(self.features + shift, self.variance, jnp.asarray(self.ok))
 
 
 # ---------------------------------------------------------------------------------------------

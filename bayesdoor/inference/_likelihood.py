@@ -25,6 +25,12 @@ process discrepancy on the band grid; :class:`CorrelatedDiscrepancyNormal`). A m
 (a resonance the model places slightly off) moves neighbouring bands together; independent
 bands count each of them as separate evidence about the parameters that move them.
 
+With ``ModelError(common=True)`` the discrepancy has a part common to every operating point:
+``delta_ocb = gamma_cb + delta'_ocb``, ``gamma_cb ~ Normal(0, tau_c^2)``. A model-form error
+(a resonance the reduced model places a few per cent off) misses every speed the same way at
+the same frequency; per operating point alone, the three speeds would count as three
+independent looks at the parameters that move it.
+
 ``ModelError(shared=False)`` is the earlier, independent form ``y_rcb ~ Normal(m, s_r^2 +
 sigma_c(f_b)^2 + e_ocb^2)`` (``rho = 1``): every run adds its own model error, so ten runs of
 one speed shrink the parameters' posterior as if the model's error were noise.
@@ -294,6 +300,11 @@ class ModelError(eqx.Module):
     LogNormal(ln correlation, correlation_scale)``, one for every channel and operating point:
     with the default scale 1 a length of a third or three times the prior median is still
     plausible (1.1 sd).
+
+    With ``common`` (needs ``shared``, not with ``correlation``) the discrepancy of every
+    operating point also holds a part common to all of them, one draw per channel and band,
+    ``gamma_cb ~ Normal(0, tau_c^2)`` with ``tau_c ~ HalfNormal(scale)`` (the site
+    ``sigma_common``), marginalised in closed form with the rest (:class:`DiscrepancyNormal`).
     """
 
     scale: float = eqx.field(static=True, default=0.5)
@@ -305,6 +316,7 @@ class ModelError(eqx.Module):
     correlation: float = eqx.field(static=True, default=0.0)
     infer_correlation: bool = eqx.field(static=True, default=False)
     correlation_scale: float = eqx.field(static=True, default=1.0)
+    common: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         if not (self.scale > 0 and self.slope_scale > 0 and self.scatter_scale > 0):
@@ -327,6 +339,12 @@ class ModelError(eqx.Module):
                 f"correlation={self.correlation!r} needs shared=True: the correlated "
                 "discrepancy is the one shared by the runs of an operating point"
             )
+        if self.common and (not self.shared or self.correlation > 0):
+            raise ValueError(
+                f"common=True needs shared=True and correlation=0 (got shared={self.shared!r}, "
+                f"correlation={self.correlation!r}): the common part is added to the "
+                "discrepancy shared by the runs of an operating point, independent over bands"
+            )
 
     def correlation_length(self) -> float | None:
         """The fixed correlation length in bands, ``None`` for independent bands."""
@@ -336,19 +354,23 @@ class ModelError(eqx.Module):
 class DiscrepancyNormal(dist.Distribution):
     """Gaussian features of runs that share a discrepancy per operating point.
 
-    ``y_r = loc_r + delta_o(r) + eps_r`` elementwise, ``delta_o ~ Normal(0, shared_variance_o)``
-    common to the runs at operating point ``o``, ``eps_r ~ Normal(0, run_variance_r)``
-    independent. The runs of one operating point are jointly Gaussian with covariance
-    ``diag(run_variance) + shared_variance 11^T`` per element, handled in closed form
-    (Sherman-Morrison), so the cost is linear in the runs.
+    ``y_r = loc_r + gamma + delta_o(r) + eps_r`` elementwise, ``delta_o ~ Normal(0,
+    shared_variance_o)`` common to the runs at operating point ``o``, ``gamma ~ Normal(0,
+    common_variance)`` common to every run (absent unless given), ``eps_r ~ Normal(0,
+    run_variance_r)`` independent. The runs of one operating point are jointly Gaussian with
+    covariance ``diag(run_variance) + shared_variance 11^T`` per element, handled in closed form
+    (Sherman-Morrison), and ``gamma`` adds ``common_variance 11^T`` over every run (Sherman-
+    Morrison again, on each operating point's precision-weighted mean), so the cost is linear in
+    the runs.
 
     ``log_prob`` returns, per element, the leave-one-out conditional ``log p(y_i | y_-i)`` given
-    the other runs of its operating point: the pointwise terms PSIS-LOO needs for a model whose
-    likelihood does not factorise over runs (Buerkner, Gabry and Vehtari 2021). They do not sum
-    to the joint density: :meth:`joint_log_prob` is that, and a model observing this
-    distribution adds ``joint_log_prob - sum(log_prob)`` as a factor (as :func:`make_model`
-    does). With ``shared_variance = 0`` both are the independent Gaussian. ``sample`` draws
-    from the joint (a fresh discrepancy per operating point).
+    the other runs of its operating point (with ``gamma``: given every other run): the pointwise
+    terms PSIS-LOO needs for a model whose likelihood does not factorise over runs (Buerkner,
+    Gabry and Vehtari 2021). They do not sum to the joint density: :meth:`joint_log_prob` is
+    that, and a model observing this distribution adds ``joint_log_prob - sum(log_prob)`` as a
+    factor (as :func:`make_model` does). With ``shared_variance = 0`` and no ``gamma`` both are
+    the independent Gaussian. ``sample`` draws from the joint (a fresh discrepancy per operating
+    point).
 
     Parameters
     ----------
@@ -360,6 +382,9 @@ class DiscrepancyNormal(dist.Distribution):
         The variance of the discrepancy at each operating point (non-negative).
     run_operating
         The operating point (index into the first axis of ``shared_variance``) of each run.
+    common_variance
+        The variance of the discrepancy common to every operating point, per channel and band
+        (non-negative); ``None``: no common part.
 
     References
     ----------
@@ -383,6 +408,7 @@ class DiscrepancyNormal(dist.Distribution):
         shared_variance: Float[Array, "op channel band"],
         run_operating: Int[Array, " run"],
         *,
+        common_variance: Float[Array, "#channel #band"] | None = None,
         validate_args: bool | None = None,
     ):
         self.loc = loc
@@ -391,6 +417,9 @@ class DiscrepancyNormal(dist.Distribution):
             shared_variance, (shared_variance.shape[0], *loc.shape[1:])
         )
         self.run_operating = run_operating
+        self.common_variance = (
+            None if common_variance is None else jnp.broadcast_to(common_variance, loc.shape[1:])
+        )
         super().__init__(batch_shape=loc.shape, validate_args=validate_args)
 
     def _sums(self, value):
@@ -404,6 +433,17 @@ class DiscrepancyNormal(dist.Distribution):
 
         return r, w, total(w), total(r * w), total(r * r * w), total(jnp.log(self.run_variance))
 
+    def _common(self, p, a):
+        """``1 / (1 + s p)`` per operating point, and the common part's posterior mean and
+        variance given every run (zero without a common part)."""
+        k = 1.0 / (1.0 + self.shared_variance * p)
+        if self.common_variance is None:
+            zero = jnp.zeros(p.shape[1:])
+            return k, zero, zero
+        t = self.common_variance
+        big_p, big_a = jnp.sum(p * k, axis=0), jnp.sum(a * k, axis=0)
+        return k, t * big_a / (1.0 + t * big_p), t / (1.0 + t * big_p)
+
     def joint_log_prob(self, value: Float[Array, "run channel band"]) -> Float[Array, ""]:
         """log p(y) of every run together (the discrepancy marginalised)."""
         _, _, p, a, q, log_v = self._sums(value)
@@ -414,11 +454,26 @@ class DiscrepancyNormal(dist.Distribution):
         group = (
             counts * jnp.log(2.0 * jnp.pi) + log_v + jnp.log1p(s * p) + q - s * a**2 / (1.0 + s * p)
         )
-        return -0.5 * jnp.sum(group)
+        total = jnp.sum(group)
+        if self.common_variance is not None:
+            k = 1.0 / (1.0 + s * p)
+            t = self.common_variance
+            big_p, big_a = jnp.sum(p * k, axis=0), jnp.sum(a * k, axis=0)
+            total = total + jnp.sum(jnp.log1p(t * big_p) - t * big_a**2 / (1.0 + t * big_p))
+        return -0.5 * total
 
     def log_prob(self, value: Float[Array, "run channel band"]) -> Float[Array, "run channel band"]:
-        """Per element, ``log p(y_i | y_-i)`` given the other runs of its operating point."""
+        """Per element, ``log p(y_i | y_-i)`` given the other runs of its operating point (with
+        a common part: given every other run)."""
         r, w, p, a, _, _ = self._sums(value)
+        if self.common_variance is not None:
+            # Woodbury, as in CorrelatedDiscrepancyNormal: with delta_hat and K the posterior
+            # mean and variance of the run's whole discrepancy given all runs, C^-1 r =
+            # W (r - delta_hat) and diag(C^-1) = W - W^2 K
+            mean, variance = self.discrepancy_posterior(value)
+            g = w * (r - mean[self.run_operating])
+            precision = w - w * w * variance[self.run_operating]
+            return jax.scipy.stats.norm.logpdf(r, r - g / precision, jnp.sqrt(1.0 / precision))
         s = self.shared_variance[self.run_operating]
         p_others = p[self.run_operating] - w
         a_others = a[self.run_operating] - r * w
@@ -429,10 +484,21 @@ class DiscrepancyNormal(dist.Distribution):
     def discrepancy_posterior(
         self, value: Float[Array, "run channel band"]
     ) -> tuple[Float[Array, "op channel band"], Float[Array, "op channel band"]]:
-        """Mean and variance of each operating point's discrepancy given the runs ``value``."""
+        """Mean and variance of each operating point's whole discrepancy (its own part and the
+        common part) given the runs ``value``."""
         _, _, p, a, _, _ = self._sums(value)
         s = self.shared_variance
-        return s * a / (1.0 + s * p), s / (1.0 + s * p)
+        k, common_mean, common_variance = self._common(p, a)
+        return k * (common_mean + s * a), k**2 * common_variance + s * k
+
+    def common_posterior(
+        self, value: Float[Array, "run channel band"]
+    ) -> tuple[Float[Array, "channel band"], Float[Array, "channel band"]]:
+        """Mean and variance of the common part given the runs ``value`` (zero without one):
+        the discrepancy at an operating point no run measured is this plus its own prior."""
+        _, _, p, a, _, _ = self._sums(value)
+        _, mean, variance = self._common(p, a)
+        return mean, variance
 
     def sample(self, key, sample_shape=()):
         k_shared, k_run = jax.random.split(key)
@@ -440,7 +506,13 @@ class DiscrepancyNormal(dist.Distribution):
             k_shared, sample_shape + self.shared_variance.shape
         )
         own = jnp.sqrt(self.run_variance) * jax.random.normal(k_run, sample_shape + self.shape())
-        return self.loc + shared[..., self.run_operating, :, :] + own
+        out = self.loc + shared[..., self.run_operating, :, :] + own
+        if self.common_variance is not None:
+            common = jnp.sqrt(self.common_variance) * jax.random.normal(
+                jax.random.fold_in(key, 2), sample_shape + self.common_variance.shape
+            )
+            out = out + common[..., None, :, :]
+        return out
 
     @property
     def mean(self):
@@ -448,7 +520,8 @@ class DiscrepancyNormal(dist.Distribution):
 
     @property
     def variance(self):
-        return self.run_variance + self.shared_variance[self.run_operating]
+        own = self.run_variance + self.shared_variance[self.run_operating]
+        return own if self.common_variance is None else own + self.common_variance
 
 
 def band_correlation(n_band: int, length: Float[Array, ""] | float) -> Float[Array, "band band"]:
@@ -605,6 +678,7 @@ def feature_distribution(
     run_scatter: Float[Array, " channel"] | None = None,
     shared: bool = True,
     correlation_length: Float[Array, ""] | float | None = None,
+    common: Float[Array, " channel"] | None = None,
 ) -> tuple[DiscrepancyNormal, Bool[Array, ""]]:
     """The distribution of the measured features at ``theta``, and whether the model ran.
 
@@ -633,19 +707,22 @@ def feature_distribution(
         The shared discrepancy's correlation length over the bands (in bands, positive;
         :func:`band_correlation`); the forward model's own error stays independent over the
         bands. ``None``: independent bands.
+    common
+        ``tau_c``, the scale (decades) of each channel's discrepancy common to every operating
+        point (needs ``shared``, not with ``correlation_length``); ``None``: none.
 
     Returns
     -------
     distribution
         A :class:`DiscrepancyNormal` over ``data.y`` (a :class:`CorrelatedDiscrepancyNormal`
         with a correlation length).
+    ok
+        False when the forward model failed.
 
     Raises
     ------
     ValueError
-        For a correlation length without ``shared``.
-    ok
-        False when the forward model failed.
+        For a correlation length or a common part without ``shared``, or both together.
     """
     out = forward(theta)
     loc = out.features[data.run_operating]
@@ -657,7 +734,7 @@ def feature_distribution(
     run_variance = data.welch_variance[:, None, None] * rho[None, :, None] ** 2
     ok = out.ok & jnp.all(jnp.isfinite(loc))
     loc = jnp.where(ok, loc, data.y)
-    if correlation_length is not None:
+    if correlation_length is not None and common is None:
         if not shared:
             raise ValueError(
                 f"correlation_length={correlation_length!r} needs shared=True: only the "
@@ -668,6 +745,22 @@ def feature_distribution(
         covariance = scale[..., :, None] * correlation * scale[..., None, :]
         covariance = covariance + jax.vmap(jax.vmap(jnp.diag))(out.variance)
         return CorrelatedDiscrepancyNormal(loc, run_variance, covariance, data.run_operating), ok
+    if common is not None:
+        if not shared or correlation_length is not None:
+            raise ValueError(
+                "common= needs shared=True and no correlation_length: the common part is added "
+                "to the discrepancy shared by the runs of an operating point, independent over "
+                "the bands"
+            )
+        shared_variance = jnp.broadcast_to(discrepancy + out.variance, out.features.shape)
+        common_variance = jnp.broadcast_to(common[:, None] ** 2, data.y.shape[1:])
+        return DiscrepancyNormal(
+            loc,
+            run_variance,
+            shared_variance,
+            data.run_operating,
+            common_variance=common_variance,
+        ), ok
     shared_variance = jnp.broadcast_to(discrepancy + out.variance, out.features.shape)
     if not shared:
         run_variance = run_variance + shared_variance[data.run_operating]
@@ -685,6 +778,7 @@ def predictive_normal(
     run_scatter: Float[Array, " channel"] | None = None,
     shared: bool = True,
     correlation_length: Float[Array, ""] | float | None = None,
+    common: Float[Array, " channel"] | None = None,
 ) -> tuple[Float[Array, "run channel band"], Float[Array, "run channel band"], Bool[Array, ""]]:
     """Mean and marginal standard deviation of each measured feature, and whether the model ran.
 
@@ -708,6 +802,7 @@ def predictive_normal(
         run_scatter=run_scatter,
         shared=shared,
         correlation_length=correlation_length,
+        common=common,
     )
     return d.mean, jnp.sqrt(d.variance), ok
 
@@ -722,6 +817,7 @@ def log_likelihood(
     run_scatter: Float[Array, " channel"] | None = None,
     shared: bool = True,
     correlation_length: Float[Array, ""] | float | None = None,
+    common: Float[Array, " channel"] | None = None,
 ) -> Float[Array, ""]:
     """The log likelihood of all runs; ``-inf`` (with finite gradients) where the model failed.
 
@@ -736,6 +832,7 @@ def log_likelihood(
         run_scatter=run_scatter,
         shared=shared,
         correlation_length=correlation_length,
+        common=common,
     )
     return jnp.where(ok, d.joint_log_prob(data.y), -jnp.inf)
 
@@ -753,7 +850,8 @@ def make_model(
     channel, with ``per_operating``), ``sigma_model`` (per channel: sampled, or the root mean
     square of ``sigma_operating`` over the operating points), ``sigma_slope``
     (when the slope is on), ``run_scatter`` (per channel, with a shared discrepancy),
-    ``discrepancy_length`` (with ``infer_correlation``),
+    ``discrepancy_length`` (with ``infer_correlation``), ``sigma_common`` (per channel, with
+    ``common``),
     ``solver_failed`` (a ``-inf`` factor when the forward model failed), ``shared_discrepancy``
     (a factor: the joint density less the sum of the pointwise terms, zero for the independent
     form) and the observed ``y`` with one log-likelihood term per run, channel and band, the
@@ -830,6 +928,11 @@ def make_model(
                 if error.shared
                 else None
             )
+            tau = (
+                numpyro.sample("sigma_common", dist.HalfNormal(error.scale))
+                if error.common
+                else None
+            )
         features, ok = feature_distribution(
             theta,
             sigma,
@@ -839,6 +942,7 @@ def make_model(
             run_scatter=rho,
             shared=error.shared,
             correlation_length=length,
+            common=tau,
         )
         numpyro.factor("solver_failed", jnp.where(ok, 0.0, -jnp.inf))
         if y is not None and error.shared:

@@ -655,10 +655,21 @@ class FitResult:
     def model_error_draws(self) -> np.ndarray | None:
         """Model-error scales per channel, (draw, channel), decades (``cmaes``: the point once).
 
-        With scales per operating point, their root mean square over the operating points.
+        With scales per operating point, their root mean square over the operating points;
+        with a part common to every operating point, that and the common scale in quadrature.
         """
         sigma = self.discrepancy_draws()
-        return np.sqrt(np.mean(sigma**2, axis=1)) if sigma.ndim == 3 else sigma
+        sigma = np.sqrt(np.mean(sigma**2, axis=1)) if sigma.ndim == 3 else sigma
+        tau = self.common_draws()
+        return sigma if tau is None else np.sqrt(sigma**2 + tau**2)
+
+    def common_draws(self) -> np.ndarray | None:
+        """Scales of the discrepancy common to every operating point, (draw, channel), decades;
+        ``None`` without one (``ModelError(common=False)``, or a CMA-ES point)."""
+        if self.idata is None or "sigma_common" not in self.idata["posterior"]:
+            return None
+        tau = np.asarray(self.idata["posterior"]["sigma_common"].values)
+        return tau.reshape(-1, tau.shape[-1])
 
     def discrepancy_draws(self) -> np.ndarray:
         """Discrepancy scales as fitted: (draw, op, channel) per operating point, else
@@ -759,6 +770,7 @@ class FitResult:
                     "correlation",
                     "infer_correlation",
                     "correlation_scale",
+                    "common",
                 )
             },
             "bounds": [np.asarray(b).tolist() for b in self.bounds],
@@ -963,6 +975,17 @@ def _point_error(
     if not error.per_operating:
         excess = excess.mean(axis=0)
     return np.sqrt(np.maximum(excess, _SIGMA_FLOOR**2)), rho
+
+
+def _common_point(
+    residual: Float[np.ndarray, "run channel band"], data: CalibrationData
+) -> np.ndarray:
+    """A start for the common discrepancy's scale per channel: the root mean square over the
+    bands of the operating points' mean residuals averaged over the operating points (what
+    every speed misses alike), floored at ``_SIGMA_FLOOR``."""
+    index = np.asarray(data.run_operating)
+    means = np.stack([residual[index == o].mean(axis=0) for o in range(data.operating.shape[0])])
+    return np.maximum(np.sqrt(np.mean(means.mean(axis=0) ** 2, axis=-1)), _SIGMA_FLOOR)
 
 
 def _start_point(
@@ -1187,6 +1210,7 @@ def fit_campaign(
     forward = _PartialForward.build(system, population, free, fixed_law)
     centre, sigma_init, rho_init = theta_opt, jnp.asarray(sigma_point), jnp.asarray(scatter_point)
     length_init = error.correlation_length()
+    tau_init = jnp.asarray(_common_point(residual, data)) if error.common else None
     timings["sensitivity"] = time.perf_counter() - t0
     timings["surrogate"] = timings["sampling"] = 0.0
     for stage in range(settings.box_moves + 1):
@@ -1211,7 +1235,9 @@ def fit_campaign(
         )
         transform = SamplingTransform.box(free, box[0].tolist(), box[1].tolist())
 
-        def density(th, sigma=sigma_init, rho=rho_init, forward=surrogate, length=length_init):
+        def density(
+            th, sigma=sigma_init, rho=rho_init, forward=surrogate, length=length_init, tau=tau_init
+        ):
             return log_likelihood(
                 th,
                 sigma,
@@ -1220,6 +1246,7 @@ def fit_campaign(
                 run_scatter=rho,
                 shared=error.shared,
                 correlation_length=length,
+                common=tau,
             )
 
         try:
@@ -1232,6 +1259,8 @@ def fit_campaign(
             init["run_scatter"] = rho_init
         if error.infer_correlation:
             init["discrepancy_length"] = jnp.asarray(length_init)
+        if tau_init is not None:
+            init["sigma_common"] = tau_init
         if method == "nuts":
             idata = sample_nuts(
                 model,
@@ -1290,6 +1319,9 @@ def fit_campaign(
                 rho_init = jnp.asarray(rho.reshape(-1, rho.shape[-1]).mean(axis=0))
             if error.infer_correlation:
                 length_init = float(np.mean(post["discrepancy_length"].values))
+            if error.common:
+                tau = np.asarray(post["sigma_common"].values)
+                tau_init = jnp.asarray(tau.reshape(-1, tau.shape[-1]).mean(axis=0))
         else:
             message += "; raise box_fraction or box_moves"
             warnings.warn(message, UserWarning, stacklevel=2)
@@ -1331,7 +1363,14 @@ def _add_predictive(idata: az.InferenceData, model, n_draws: int, key: jax.Array
     keep = slice(None, None, step)
     samples = {
         name: jnp.asarray(np.asarray(post[name].values)[:, keep]).reshape(-1, *post[name].shape[2:])
-        for name in ("z", "sigma_model", "sigma_operating", "run_scatter", "discrepancy_length")
+        for name in (
+            "z",
+            "sigma_model",
+            "sigma_operating",
+            "run_scatter",
+            "discrepancy_length",
+            "sigma_common",
+        )
         if name in post
     }
     kept = len(range(n_draw)[keep])
@@ -1425,12 +1464,17 @@ def posterior_predictive(
         cal_mean, cal_ok = _draw_features(result, system, calibration, cal_duration, draws, pick)
         length = _length_draws(result)
         length = length[pick % len(length)]
-        delta_mean, delta_var = _discrepancy_posterior(calibration, cal_mean, sigma_op, rho, length)
+        tau = result.common_draws()
+        tau = None if tau is None else tau[pick % len(tau)]
+        delta_mean, delta_var, common_mean, common_var = _discrepancy_posterior(
+            calibration, cal_mean, sigma_op, rho, length, tau
+        )
         ok = ok & cal_ok
         ops = np.asarray(data.operating)[np.asarray(data.run_operating)]
         measured = np.asarray(calibration.operating)
-        shift = np.zeros_like(mean)
-        spread = np.broadcast_to(sigma[:, None, :, None] ** 2, mean.shape).copy()
+        own = sigma_op if sigma_op.ndim == 2 else np.sqrt(np.mean(sigma_op**2, axis=1))
+        shift = np.broadcast_to(common_mean[:, None], mean.shape).copy()
+        spread = own[:, None, :, None] ** 2 + common_var[:, None]
         for i, op in enumerate(ops):
             match = np.flatnonzero(np.isclose(measured, op))
             if match.size:
@@ -1477,13 +1521,23 @@ def _discrepancy_posterior(
     sigma: Float[np.ndarray, "draw *op channel"],
     rho: Float[np.ndarray, "draw channel"],
     length: Float[np.ndarray, " draw"],
-) -> tuple[Float[np.ndarray, "draw op channel band"], Float[np.ndarray, "draw op channel band"]]:
+    tau: Float[np.ndarray, "draw channel"] | None = None,
+) -> tuple[
+    Float[np.ndarray, "draw op channel band"],
+    Float[np.ndarray, "draw op channel band"],
+    Float[np.ndarray, "draw channel band"],
+    Float[np.ndarray, "draw channel band"],
+]:
     """Per draw, mean and marginal variance of the discrepancy at each operating point of
-    ``data`` (correlated over the bands where ``length`` is not NaN)."""
+    ``data`` (correlated over the bands where ``length`` is not NaN), and of its part common
+    to every operating point (``tau``, its scale; zero without it): the discrepancy at an
+    operating point ``data`` did not measure is that part plus a fresh one of its own."""
     shape = (data.operating.shape[0], *data.y.shape[1:])
     correlated = bool(np.all(np.isfinite(length)))
+    common = tau is not None
+    tau = np.zeros(rho.shape) if tau is None else tau
 
-    def one(loc, s, r, ell):
+    def one(loc, s, r, ell, t):
         run_variance = data.welch_variance[:, None, None] * r[None, :, None] ** 2
         variance = jnp.broadcast_to(s[..., None] ** 2, shape)
         if correlated:
@@ -1496,12 +1550,20 @@ def _discrepancy_posterior(
             )
         else:
             features = DiscrepancyNormal(
-                jnp.asarray(loc), run_variance, variance, data.run_operating
+                jnp.asarray(loc),
+                run_variance,
+                variance,
+                data.run_operating,
+                common_variance=jnp.broadcast_to(t[:, None] ** 2, shape[1:]) if common else None,
             )
-        return features.discrepancy_posterior(data.y)
+        return (*features.discrepancy_posterior(data.y), *features.common_posterior(data.y))
 
     simulated = np.where(np.isfinite(simulated), simulated, np.asarray(data.y)[None])
-    mean, variance = jax.vmap(one)(
-        jnp.asarray(simulated), jnp.asarray(sigma), jnp.asarray(rho), jnp.asarray(length)
+    out = jax.vmap(one)(
+        jnp.asarray(simulated),
+        jnp.asarray(sigma),
+        jnp.asarray(rho),
+        jnp.asarray(length),
+        jnp.asarray(tau),
     )
-    return np.asarray(mean), np.asarray(variance)
+    return tuple(np.asarray(o) for o in out)  # type: ignore[return-value]

@@ -7,11 +7,20 @@ import itertools
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpyro.distributions as dist
 import pytest
 import scipy.stats
+from _helpers import TableForward
 from numpyro.infer.util import log_density
+from numpyro.infer.util import log_likelihood as numpyro_log_likelihood
 
-from bayesdoor.inference import DiscrepancyNormal, ModelError
+from bayesdoor.inference import (
+    CalibrationData,
+    DiscrepancyNormal,
+    ModelError,
+    SamplingTransform,
+    make_model,
+)
 
 
 def _problem(seed, n_channel=2, n_band=3):
@@ -106,7 +115,7 @@ def test_samples_have_the_common_covariance():
     """Draws from the joint: runs at different operating points covary by tau^2 (the common
     part), runs at one operating point by tau^2 + s_o. 40000 draws: the sample covariance's
     standard error is under 0.01 here, the tolerance 0.02."""
-    y, loc, v, s, t, ops = _problem(3, n_channel=1, n_band=1)
+    _, loc, v, s, t, ops = _problem(3, n_channel=1, n_band=1)
     d = DiscrepancyNormal(
         jnp.asarray(loc),
         jnp.asarray(v),
@@ -128,3 +137,49 @@ def test_model_error_refuses_common_without_sharing_or_with_correlation():
     with pytest.raises(ValueError, match="common=True needs shared=True"):
         ModelError(common=True, correlation=2.0)
     assert ModelError(common=True).common
+
+
+def test_numpyro_model_density_is_the_dense_marginal(key):
+    """make_model with ModelError(common=True): the log density less its priors (now with
+    sigma_common ~ HalfNormal(scale)) is the dense joint of the reference above, the pointwise
+    terms its leave-one-out conditionals. Three runs at two speeds, tiny Welch features."""
+    k1, k2 = jax.random.split(key)
+    x = jax.random.normal(k1, (3, 2, 4096))
+    data = CalibrationData.from_signals(
+        x, 2048.0, np.array([0.3, 0.5, 0.3]), np.full(3, 0.1), np.full(3, 1.9)
+    )
+    m = jax.random.normal(k2, (2, *data.y.shape[1:])) - 3.0
+    forward = TableForward(("a", "b"), data.operating, m, 0.01 * jnp.ones_like(m))
+    transform = SamplingTransform.box(("a", "b"), [0.0, 0.0], [1.0, 2.0])
+    error = ModelError(common=True)
+    model = make_model(data, forward, transform, error)
+    theta = np.array([0.25, 1.5])
+    sigma, rho, tau = (
+        np.array([[0.2, 0.05], [0.1, 0.3]]),
+        np.array([0.5, 1.3]),
+        np.array([0.4, 0.1]),
+    )
+    params = {
+        "z": transform.to_sampling(jnp.asarray(theta)),
+        "sigma_operating": jnp.asarray(sigma),
+        "run_scatter": jnp.asarray(rho),
+        "sigma_common": jnp.asarray(tau),
+    }
+    y = np.asarray(data.y)
+    ops = np.asarray(data.run_operating)
+    n_band = y.shape[-1]
+    shared = np.broadcast_to(sigma[..., None] ** 2 + 0.01, (2, 2, n_band))
+    common = np.broadcast_to(tau[:, None] ** 2, (2, n_band))
+    run_variance = np.broadcast_to(
+        np.asarray(data.welch_variance)[:, None, None] * rho[None, :, None] ** 2, y.shape
+    )
+    loc = np.asarray(m)[ops] + theta.sum()
+    joint, conditional, _, _ = _dense(y, loc, run_variance, shared, common, ops)
+    priors = float(transform.prior().log_prob(params["z"]))
+    priors += float(dist.HalfNormal(error.scale).log_prob(params["sigma_operating"]).sum())
+    priors += float(dist.LogNormal(0.0, error.scatter_scale).log_prob(params["run_scatter"]).sum())
+    priors += float(dist.HalfNormal(error.scale).log_prob(params["sigma_common"]).sum())
+    density = float(log_density(model, (), {}, params)[0])
+    assert density - priors == pytest.approx(joint, rel=1e-10)
+    pointwise = numpyro_log_likelihood(model, {k: v[None] for k, v in params.items()})["y"][0]
+    np.testing.assert_allclose(np.asarray(pointwise), conditional, rtol=1e-9)

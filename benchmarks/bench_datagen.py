@@ -53,7 +53,8 @@ from bayesdoor.datagen import (
 )
 from bayesdoor.systems import DoorParameters, ElevatorDoor, SolverConfig
 
-jax.config.update("jax_enable_x64", True)
+# float64 comes with importing bayesdoor; no persistent compilation cache (configure_jax):
+# the compile overheads and the training with compiling are cold compiles on every run
 SPEEDS = (0.3, 0.4, 0.5)
 FS = 2048.0
 

@@ -23,7 +23,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
-jax.config.update("jax_enable_x64", True)
+from bayesdoor import configure_jax
+
+# as the command line sets JAX up: the cache of $BAYESDOOR_JAX_CACHE or ./.jax_cache
+configure_jax()
 
 #: the issue's target for 12 runs on the 2-core development machine
 TARGET_S = 600.0

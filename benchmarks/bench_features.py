@@ -22,7 +22,8 @@ import scipy.signal
 
 from bayesdoor.features import cnn_input, segment_weights, welch_psd
 
-jax.config.update("jax_enable_x64", True)
+# float64 comes with importing bayesdoor; no persistent compilation cache (configure_jax):
+# compile_s is a cold compile on every run
 
 FS = 2048.0
 N_TIME = 7168  # 3.5 s

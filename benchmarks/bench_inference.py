@@ -67,6 +67,7 @@ import numpy as np
 from numpyro.infer import init_to_value
 from numpyro.infer.util import initialize_model
 
+from bayesdoor import configure_jax
 from bayesdoor.datasets import cache_dir, demo_paths, load_demo_campaign, load_demo_truth
 from bayesdoor.inference import (
     CalibrationData,
@@ -89,12 +90,8 @@ from bayesdoor.inference import (
 from bayesdoor.io import atomic_write
 from bayesdoor.systems import ElevatorDoor
 
-jax.config.update("jax_enable_x64", True)
 ROOT = Path(__file__).resolve().parent.parent
-jax.config.update(
-    "jax_compilation_cache_dir", os.environ.get("BAYESDOOR_JAX_CACHE", str(ROOT / ".jax_cache"))
-)
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+configure_jax(os.environ.get("BAYESDOOR_JAX_CACHE", ROOT / ".jax_cache"))
 
 #: the surrogate's fitting code: a change to it refits a cached surrogate
 SURROGATE_SOURCE = ROOT / "bayesdoor" / "inference" / "_surrogate.py"

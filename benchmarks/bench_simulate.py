@@ -22,7 +22,8 @@ from bayesdoor.systems import DoorDamage, DoorParameters, SolverConfig
 from bayesdoor.systems.door import initial_state, make_args, rhs, sample_times, solve
 from bayesdoor.systems.door._simulate import solve_batch
 
-jax.config.update("jax_enable_x64", True)
+# float64 comes with importing bayesdoor; no persistent compilation cache (configure_jax):
+# compile_s is a cold compile on every run
 
 
 def _batch_args(batch: int, v_max: float, dtype):

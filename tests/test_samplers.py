@@ -13,8 +13,7 @@ import numpyro
 import numpyro.distributions as dist
 import pytest
 from _toy_system import DURATION, FS, REST, ToySystem
-from jax.flatten_util import ravel_pytree
-from numpyro.infer.util import initialize_model
+from numpyro.infer.util import potential_energy
 
 from bayesdoor.inference import (
     POSTERIOR_GROUPS,
@@ -29,7 +28,6 @@ from bayesdoor.inference import (
     save_posterior,
     summary_table,
 )
-from bayesdoor.inference._samplers import _constrained_draws
 from bayesdoor.io import make_campaign
 
 # --- the target: a conjugate model whose posterior is known in closed form -------------------
@@ -427,26 +425,34 @@ def deterministic_model():
     numpyro.sample("obs", dist.Normal(x, 1.0), obs=jnp.array([0.3, -0.2]))
 
 
-def test_chunked_jitted_conversion_equals_the_plain_vmap():
-    """The jitted conversion in batches (here 7, so the last of 3 batches is padded) returns
-    the numbers of the un-jitted ``vmap`` over all draws that it replaces: a positive site
-    (exp of its unconstrained value) and a deterministic site."""
-    info = initialize_model(jax.random.key(0), deterministic_model)
-    z0, unravel = ravel_pytree(info.param_info.z)
-    flat = np.asarray(jax.random.normal(jax.random.key(1), (17, z0.size)))
-
-    def postprocess(z):
-        return info.postprocess_fn(unravel(z))
-
-    reference = jax.vmap(postprocess)(jnp.asarray(flat))
-    for chunk in (7, 17, 100):
-        chunked = _constrained_draws(postprocess, flat, chunk=chunk)
-        assert set(chunked) == {"scale", "x", "norm"}
-        for name, value in reference.items():
-            # the same operations compiled rather than dispatched one by one: equal to a
-            # few units in the last place (exp and sqrt may be fused differently)
-            np.testing.assert_allclose(chunked[name], np.asarray(value), rtol=1e-14, atol=0)
-            assert chunked[name].shape == value.shape
+@pytest.mark.filterwarnings("ignore:More chains")
+@pytest.mark.parametrize("n_steps", [40, 138, 200])
+def test_every_emcee_draw_is_converted_whole_and_in_place(n_steps):
+    """Every walker's every kept step comes back as the constrained values of the point emcee
+    scored: 4 ensembles x 8 walkers x (n_steps - 10) kept steps = 960, 4096 or 6080 draws,
+    less than, exactly and more than one compiled batch of the conversion of 4096 draws (the
+    last batch padded). The references are independent of that conversion: numpyro's
+    potential energy at the unconstrained point rebuilt from the draw (log of the positive
+    site) against emcee's own log probability of that step, and numpy's norm of ``x`` against
+    the deterministic site of the same draw."""
+    idata = sample_emcee(
+        deterministic_model, key=jax.random.key(7), n_steps=n_steps, burn=10, thin=1, progress=False
+    )
+    post = idata.posterior
+    assert (post.sizes["chain"], post.sizes["draw"]) == (32, n_steps - 10)
+    scale, x, norm = (post[name].values for name in ("scale", "x", "norm"))
+    unconstrained = {"scale": jnp.log(jnp.asarray(scale)), "x": jnp.asarray(x)}
+    potential = jax.jit(
+        jax.vmap(jax.vmap(lambda z: potential_energy(deterministic_model, (), {}, z)))
+    )
+    # the same log density, compiled in another program and reached through exp and log of
+    # the positive site: equal to about 1e-15 relative; a draw converted from another step
+    # would differ by the log density's spread over the chain, order 1
+    np.testing.assert_allclose(
+        -np.asarray(potential(unconstrained)), idata.sample_stats["lp"].values, rtol=1e-12
+    )
+    # sqrt of a sum of two squares, compiled or in numpy: a few units in the last place
+    np.testing.assert_allclose(norm, np.sqrt(np.sum(x**2, axis=-1)), rtol=1e-14, atol=0)
 
 
 # --- gates -------------------------------------------------------------------------------------

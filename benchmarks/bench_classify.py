@@ -23,6 +23,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _timing import median_s
 
 from bayesdoor.classify import TrainConfig, fit_ood, predict, train_ensemble
 from bayesdoor.features import cnn_input
@@ -40,15 +41,6 @@ def _data(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     )
     x = -6.0 + 2.0 * f + patterns[y][:, None, :] + 0.4 * rng.standard_normal((n, 4, 25))
     return x, y
-
-
-def _median_s(fn, calls: int) -> float:
-    times = []
-    for _ in range(calls):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def _cpu_s(fn) -> float:
@@ -77,10 +69,10 @@ def main() -> None:
     t0 = time.perf_counter()
     ensemble = _train(x, y, 10, 0)  # includes compiling the epoch step
     first_s = time.perf_counter() - t0
-    vmapped_s = _median_s(lambda: _train(x, y, 10, 1), args.repeats)
+    vmapped_s = median_s(lambda: _train(x, y, 10, 1), args.repeats)
     vmapped_cpu_s = _cpu_s(lambda: _train(x, y, 10, 2))
     _train(x, y, 1, 0)  # compile the one-member step
-    loop_s = _median_s(lambda: [_train(x, y, 1, 10 + m) for m in range(10)], args.repeats)
+    loop_s = median_s(lambda: [_train(x, y, 1, 10 + m) for m in range(10)], args.repeats)
     loop_cpu_s = _cpu_s(lambda: [_train(x, y, 1, 20 + m) for m in range(10)])
 
     x_val, _ = _data(540, 1)
@@ -90,12 +82,12 @@ def main() -> None:
     t0 = time.perf_counter()
     jax.block_until_ready(predict(ensemble, one))
     predict_compile_s = time.perf_counter() - t0
-    one_us = 1e6 * _median_s(lambda: jax.block_until_ready(predict(ensemble, one)), args.calls)
+    one_us = 1e6 * median_s(lambda: jax.block_until_ready(predict(ensemble, one)), args.calls)
     jax.block_until_ready(predict(ensemble, batch))
     batch_calls = max(20, args.calls // 20)
     batch_us = (
         1e6
-        * _median_s(lambda: jax.block_until_ready(predict(ensemble, batch)), batch_calls)
+        * median_s(lambda: jax.block_until_ready(predict(ensemble, batch)), batch_calls)
         / args.batch
     )
 
@@ -110,7 +102,7 @@ def main() -> None:
         return np.mean([np.asarray(forward(net, z)) for net in members], axis=0)
 
     loop_predict(one)
-    loop_one_us = 1e6 * _median_s(lambda: loop_predict(one), args.calls // 4)
+    loop_one_us = 1e6 * median_s(lambda: loop_predict(one), args.calls // 4)
 
     # one run end to end: 3.5 s of 4 channels at 2048 Hz -> 4 x 25 log PSD -> all members
     signals = jnp.asarray(np.random.default_rng(4).standard_normal((1, 4, 7168)))
@@ -120,7 +112,7 @@ def main() -> None:
         return jax.block_until_ready(predict(ensemble, features(signals)))
 
     run_to_report()
-    run_us = 1e6 * _median_s(run_to_report, args.calls)
+    run_us = 1e6 * median_s(run_to_report, args.calls)
 
     result = {
         "train_samples": N_TRAIN,

@@ -42,6 +42,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _timing import median_s
 
 from bayesdoor.classify import fit_classifier, predict
 from bayesdoor.datagen import (
@@ -57,15 +58,6 @@ from bayesdoor.systems import DoorParameters, ElevatorDoor, SolverConfig
 # the compile overheads and the training with compiling are cold compiles on every run
 SPEEDS = (0.3, 0.4, 0.5)
 FS = 2048.0
-
-
-def _median_s(fn, calls: int) -> float:
-    times = []
-    for _ in range(calls):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def _source(door: ElevatorDoor) -> GaussianScatter:
@@ -273,8 +265,8 @@ def time_one_run(ensemble, calls: int) -> dict:
 
     two_calls()
     one_call()
-    two_us = 1e6 * _median_s(two_calls, calls)
-    fused_us = 1e6 * _median_s(one_call, calls)
+    two_us = 1e6 * median_s(two_calls, calls)
+    fused_us = 1e6 * median_s(one_call, calls)
     return {
         "two_jitted_calls_us": two_us,
         "one_fused_jit_us": fused_us,

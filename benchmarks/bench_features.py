@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.signal
+from _timing import median_s
 
 from bayesdoor.features import cnn_input, segment_weights, welch_psd
 
@@ -27,15 +28,6 @@ from bayesdoor.features import cnn_input, segment_weights, welch_psd
 
 FS = 2048.0
 N_TIME = 7168  # 3.5 s
-
-
-def _median_s(fn, calls: int) -> float:
-    times = []
-    for _ in range(calls):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def _features(x, weights=None):
@@ -55,7 +47,7 @@ def time_jax(x: np.ndarray, calls: int, weights=None) -> dict:
     compiled = jax.jit(_features).lower(*args).compile()
     compile_s = time.perf_counter() - t0
     jax.block_until_ready(compiled(*args))
-    median = _median_s(lambda: jax.block_until_ready(compiled(*args)), calls)
+    median = median_s(lambda: jax.block_until_ready(compiled(*args)), calls)
     return {"compile_s": compile_s, "median_ms": 1e3 * median}
 
 
@@ -72,11 +64,11 @@ def main() -> None:
     batch_calls = max(10, args.calls // args.batch)
 
     single = time_jax(one, args.calls)
-    scipy_single_ms = 1e3 * _median_s(lambda: _scipy_features(one), args.calls)
+    scipy_single_ms = 1e3 * median_s(lambda: _scipy_features(one), args.calls)
     window = segment_weights(N_TIME, FS, 0.25, 2.4)
     windowed = time_jax(one, args.calls, window)
     batched = time_jax(batch, batch_calls)
-    scipy_batch_ms = 1e3 * _median_s(lambda: _scipy_features(batch), batch_calls)
+    scipy_batch_ms = 1e3 * median_s(lambda: _scipy_features(batch), batch_calls)
 
     psd, features = jax.jit(_features)(jnp.asarray(one))
     ref_psd, ref_features = _scipy_features(one)

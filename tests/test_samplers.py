@@ -3,6 +3,7 @@
 import io
 import json
 import sys
+import types
 import warnings
 
 import arviz as az
@@ -300,7 +301,9 @@ def _short_run(sampler, progress):
 @pytest.mark.filterwarnings("ignore:More chains")
 @pytest.mark.parametrize("sampler", ["nuts", "emcee"])
 def test_progress_bar_only_when_asked_for_and_on_a_terminal(sampler, monkeypatch):
-    """A bar redrawn into a log file or pipe (CI, ``bayesdoor demo > log``) floods it."""
+    """A bar redrawn into a log file or pipe (CI, ``bayesdoor demo > log``) floods it; a
+    Jupyter kernel's standard error is no terminal but shows the bar in place."""
+    monkeypatch.delitem(sys.modules, "ipykernel", raising=False)
     for stream, progress, drawn in (
         (_Terminal(), True, True),
         (io.StringIO(), True, False),
@@ -309,6 +312,12 @@ def test_progress_bar_only_when_asked_for_and_on_a_terminal(sampler, monkeypatch
         monkeypatch.setattr(sys, "stderr", stream)
         _short_run(sampler, progress)
         assert ("40/40" in stream.getvalue()) == drawn, (type(stream).__name__, progress)
+    monkeypatch.setitem(sys.modules, "ipykernel", types.ModuleType("ipykernel"))
+    for progress in (True, False):
+        stream = io.StringIO()
+        monkeypatch.setattr(sys, "stderr", stream)
+        _short_run(sampler, progress)
+        assert ("40/40" in stream.getvalue()) == progress, ("ipykernel", progress)
 
 
 def test_unknown_init_site_is_named():

@@ -50,14 +50,16 @@ def _standard_promotion(sampler: _F) -> _F:
 
 
 def _show_progress(progress: bool) -> bool:
-    """Whether to draw a progress bar: asked for and standard error is a terminal.
+    """Whether to draw a progress bar: asked for, and standard error is a terminal or this is
+    a Jupyter kernel (whose standard error is no terminal but draws the bars in place).
 
     numpyro's and emcee's bars are tqdm bars on standard error, redrawn in place with carriage
     returns; written to a file or a pipe (CI, ``bayesdoor demo > log 2>&1``) every redraw
     stays, thousands of lines per run.
     """
     isatty = getattr(sys.stderr, "isatty", None)
-    return progress and callable(isatty) and bool(isatty())
+    terminal = callable(isatty) and bool(isatty())
+    return progress and (terminal or "ipykernel" in sys.modules)
 
 
 def _init_strategy(

@@ -11,17 +11,25 @@ campaign is larger and fitted on its own.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
 
 from bayesdoor.diagnose import (
     DECISIVE_SE,
+    LOCAL_BINS,
     NONE,
     ExtensionProposal,
     compare_held_out,
     diagnose_campaign,
+    estimate_discrepancy,
     extension_gain,
+    feature_bins,
+    log_predictive,
+    residual_map,
+    smooth_discrepancy,
 )
 from bayesdoor.inference import FitSettings, fit_campaign
 from bayesdoor.rig import (
@@ -224,6 +232,114 @@ def test_decision_rule():
     assert not worse_j.decisive
     with pytest.raises(ValueError, match="at least 2"):
         compare_held_out(before[:1], before[:1], np.ones(1), np.ones(1))
+
+
+def _map_with_regions(speeds):
+    """A residual map of two channels (1 Hz bins, 0-99 Hz) whose regions are replaced below:
+    one strong line on channel ``a`` at 20 Hz gives a real ``Region`` to copy."""
+    rng = np.random.default_rng(3)
+    freqs = np.arange(100.0)
+    truth = np.full((len(speeds), 2, 100), -3.0)
+    draws = truth + rng.normal(0.0, 0.05, (20, *truth.shape))
+    measured = truth + rng.normal(0.0, 0.05, truth.shape)
+    measured[:, 0, 20] += 2.0
+    res = residual_map(
+        freqs, measured, draws, np.full(len(speeds), 0.01), channels=("a", "b"), speeds=speeds
+    )
+    line = next(r for r in res.regions if r.channel == "a" and r.domain == "frequency")
+    assert line.low <= 20.0 <= line.high
+    return res, line
+
+
+def test_feature_bins_mark_the_fixed_frequency_regions_with_their_margin():
+    speeds = np.array([0.3, 0.4])
+    res, line = _map_with_regions(speeds)
+    fixed = dataclasses.replace(line, low=20.0, high=21.0)
+    deficit = dataclasses.replace(line, channel="b", low=60.0, high=60.0, z=-abs(line.z))
+    # a tone tracking the speed (100 /m: 30 Hz at 0.3 m/s, 40 Hz at 0.4) is not marked
+    tracking = dataclasses.replace(line, channel="b", domain="wavenumber", low=100.0, high=100.0)
+    res = dataclasses.replace(res, regions=(fixed, deficit, tracking))
+    freqs = np.arange(100.0)
+    mask = feature_bins(res, freqs, margin=LOCAL_BINS)
+    assert LOCAL_BINS == 2
+    assert set(np.flatnonzero(mask[0])) == set(range(18, 24))
+    assert set(np.flatnonzero(mask[1])) == set(range(58, 63))
+    bare = feature_bins(res, freqs, margin=0)
+    assert set(np.flatnonzero(bare[0])) == {20, 21} and set(np.flatnonzero(bare[1])) == {60}
+    with pytest.raises(ValueError, match="margin"):
+        feature_bins(res, freqs, margin=-1)
+    with pytest.raises(ValueError, match="two bins"):
+        feature_bins(res, freqs[:1])
+
+
+def _line_case(n_runs=6, n_f=90, line_bin=45, seed=4):
+    """Spectra of one channel: each run's broadband misfit has its own size (0.05-0.3
+    decades), and a line of 2 decades the base model lacks; the extension adds it."""
+    rng = np.random.default_rng(seed)
+    scale = np.linspace(0.05, 0.3, n_runs)[:, None, None]
+    measured = -3.0 + scale * rng.standard_normal((n_runs, 1, n_f))
+    measured[:, :, line_bin] += 2.0
+    base = np.full_like(measured, -3.0)
+    extended = base.copy()
+    extended[:, :, line_bin] += 2.0
+    return measured, base, extended, np.full(n_runs, 1e-3)
+
+
+def test_local_variance_is_the_running_mean_in_feature_bins_and_pooled_elsewhere():
+    measured, base, _, lv = _line_case()
+    local = np.zeros((1, 90), dtype=bool)
+    local[0, 43:48] = True
+    disc = estimate_discrepancy(base, measured, lv, 15, local=local)
+    # reference by hand: the remaining residual's square, averaged over runs
+    resid = measured - base
+    square = np.mean((resid - smooth_discrepancy(resid.mean(axis=0), 15)) ** 2, axis=0)[0]
+    pooled = np.mean(np.delete(square, range(43, 48))) - lv.mean()
+    for k in range(90):
+        if 43 <= k < 48:
+            expected = np.mean(square[k - 2 : k + 3]) - lv.mean()
+        else:
+            expected = pooled
+        assert disc.variance[0, k] == pytest.approx(expected, rel=1e-12)
+    # without feature bins: one value per channel over every bin (the variance before)
+    every = estimate_discrepancy(base, measured, lv, 15)
+    np.testing.assert_allclose(every.variance, np.mean(square) - lv.mean(), rtol=1e-12)
+    with pytest.raises(ValueError, match="local has shape"):
+        estimate_discrepancy(base, measured, lv, 15, local=local[:, :10])
+
+
+def test_a_runs_misfit_elsewhere_barely_moves_its_gain_with_the_line_bins_local():
+    """Two models that differ only at a line; the held-out runs' misfit away from the line is
+    tripled. With one variance per channel (the line inflates the base model's value over the
+    whole band) each held-out run's gain moves by tens to hundreds; with the line's bins local
+    the models' terms outside them differ only through the smooth part's shift (the line moves
+    the 31-bin running median by about one rank), so the gain moves by a few at most."""
+    local = np.zeros((1, 90), dtype=bool)
+    local[0, 43:48] = True
+    train, test = np.arange(0, 6, 2), np.arange(1, 6, 2)
+    outside = np.r_[0:40, 51:90]
+    for seed in range(4, 9):
+        measured, base, extended, lv = _line_case(seed=seed)
+        worse = measured.copy()
+        worse[np.ix_(test, [0], outside)] = -3.0 + 3.0 * (
+            measured[np.ix_(test, [0], outside)] + 3.0
+        )
+        moved = {}
+        for name, mask in (("local", local), ("pooled", None)):
+            gains = []
+            for y in (measured, worse):
+                lpd = [
+                    log_predictive(
+                        m[test],
+                        y[test],
+                        lv[test],
+                        estimate_discrepancy(m[train], y[train], lv[train], 15, local=mask),
+                    )
+                    for m in (base, extended)
+                ]
+                gains.append(lpd[1] - lpd[0])
+            moved[name] = np.max(np.abs(gains[1] - gains[0]))
+        assert moved["pooled"] > 100.0, moved
+        assert moved["local"] < 0.1 * moved["pooled"], moved
 
 
 @pytest.mark.slow

@@ -20,7 +20,14 @@ import xarray as xr
 from .._types import Float, Int
 from ..features import motion_window as detect_motion_window
 from ._features import Features, find_features
-from ._gain import RULE, Gain, compare_held_out, estimate_discrepancy, log_predictive
+from ._gain import (
+    RULE,
+    Gain,
+    compare_held_out,
+    estimate_discrepancy,
+    feature_bins,
+    log_predictive,
+)
 from ._gain import objective_per_run as j_per_run
 from ._rank import MIN_VERDICT_SCORE, NONE, Catalogue, CauseScore, Ranking, rank_causes
 from ._refit import (
@@ -239,10 +246,14 @@ class _Measured:
         base_signals: np.ndarray,
         sample_times: np.ndarray,
         band: tuple[float, float],
+        features: Features | None,
     ) -> RefitSetup:
         spectra = Spectra.of_measured(
             self.signals, self.fs, self.t_start, self.t_stop, band, nperseg=int(self.fs)
         )
+        if features is not None:
+            local = feature_bins(features.residuals, spectra.freqs)
+            spectra = dataclasses.replace(spectra, local=local)
         return RefitSetup(
             system=system,
             point=dict(point),
@@ -350,7 +361,7 @@ class _HeldOut:
 
 def _held_out(spectra: Spectra, model: np.ndarray, train: np.ndarray, test: np.ndarray) -> _HeldOut:
     y, lv = spectra.measured, spectra.log_variance
-    disc = estimate_discrepancy(model[train], y[train], lv[train], SMOOTH_BINS)
+    disc = estimate_discrepancy(model[train], y[train], lv[train], SMOOTH_BINS, local=spectra.local)
     return _HeldOut(
         lpd=log_predictive(model[test], y[test], lv[test], disc),
         j=j_per_run(model[test] + disc.smooth, y[test]),
@@ -546,7 +557,7 @@ def diagnose_campaign(
     timings["features"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    setup = measured.setup(system, fit.point, base_signals, sample_times, band)
+    setup = measured.setup(system, fit.point, base_signals, sample_times, band, features)
     recipes = {c.name: c.refit for c in catalogue.candidates}
     plausible = [
         c
@@ -660,6 +671,7 @@ def extension_gain(
     fit: FitResult,
     seed: int = 0,
     quick: bool = False,
+    features: Features | None = None,
 ) -> tuple[Gain, tuple[RefitResult, ...]]:
     """The held-out gain of one model extension forced onto a campaign's healthy runs.
 
@@ -681,6 +693,10 @@ def extension_gain(
         Seeds the refits.
     quick
         The refit budget of :meth:`DiagnosisSettings.quick`.
+    features
+        The residual features of these runs under ``fit`` (``Diagnosis.features``): the
+        discrepancy's scatter is local in their bins, as in :func:`diagnose_campaign`;
+        ``None``: one value per channel everywhere.
 
     Returns
     -------
@@ -707,7 +723,7 @@ def extension_gain(
     sims, ok, sample_times = _simulate_rows(system, measured, [dict(fit.point)])
     if not ok[0]:
         raise RuntimeError("the base model failed to simulate the runs at the fit's point")
-    setup = measured.setup(system, fit.point, sims[0], sample_times, _band(fit))
+    setup = measured.setup(system, fit.point, sims[0], sample_times, _band(fit), features)
     fits, gain = _cross_validate(
         setup, proposal, folds, seed=seed, max_evals=settings.refit_evals, bases={}
     )

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 
-from .._types import Float, Int
+from .._types import Bool, Float, Int
 from ._gain import estimate_discrepancy, log_predictive
 from ._welch_stats import windowed_log_psd
 
@@ -122,6 +122,10 @@ class Spectra:
         The measured runs' log10 PSDs.
     log_variance
         Welch variance of each measured run's log10 estimate.
+    local
+        Per channel and bin, whether the discrepancy's scatter is local there
+        (:func:`~bayesdoor.diagnose.feature_bins`: the residual features' bins, fixed before
+        any refit and the same for every model); ``None``: one value per channel everywhere.
     """
 
     fs: float
@@ -132,6 +136,7 @@ class Spectra:
     freqs: Float[np.ndarray, " freq"]
     measured: Float[np.ndarray, "run channel freq"]
     log_variance: Float[np.ndarray, " run"]
+    local: Bool[np.ndarray, "channel freq"] | None = None
 
     @classmethod
     def of_measured(
@@ -142,6 +147,7 @@ class Spectra:
         t_stop: Float[np.ndarray, " run"],
         band: tuple[float, float],
         nperseg: int,
+        local: Bool[np.ndarray, "channel freq"] | None = None,
     ) -> Spectra:
         freqs, y, log_var = windowed_log_psd(signals, fs, t_start, t_stop, nperseg=nperseg)
         keep = (freqs >= band[0]) & (freqs <= band[1])
@@ -154,6 +160,7 @@ class Spectra:
             freqs=freqs[keep],
             measured=y[..., keep],
             log_variance=log_var,
+            local=local,
         )
 
     def model(
@@ -387,7 +394,7 @@ def _profile_lpd(spectra: Spectra, model: np.ndarray, runs: np.ndarray) -> np.nd
     out = np.full(model.shape[0], -np.inf)
     for i, m in enumerate(model):
         if np.all(np.isfinite(m)):
-            disc = estimate_discrepancy(m, y, lv, SMOOTH_BINS)
+            disc = estimate_discrepancy(m, y, lv, SMOOTH_BINS, local=spectra.local)
             out[i] = float(log_predictive(m, y, lv, disc).sum())
     return out
 

@@ -1474,7 +1474,9 @@ def posterior_predictive(
         measured = np.asarray(calibration.operating)
         own = sigma_op if sigma_op.ndim == 2 else np.sqrt(np.mean(sigma_op**2, axis=1))
         shift = np.broadcast_to(common_mean[:, None], mean.shape).copy()
-        spread = own[:, None, :, None] ** 2 + common_var[:, None]
+        spread = np.broadcast_to(
+            own[:, None, :, None] ** 2 + common_var[:, None], mean.shape
+        ).copy()
         for i, op in enumerate(ops):
             match = np.flatnonzero(np.isclose(measured, op))
             if match.size:

@@ -19,8 +19,12 @@ from bayesdoor.inference import (
     DiscrepancyNormal,
     ModelError,
     SamplingTransform,
+    fit_campaign,
     make_model,
+    posterior_predictive,
 )
+from bayesdoor.rig import VirtualRig
+from bayesdoor.systems import ElevatorDoor
 
 
 def _problem(seed, n_channel=2, n_band=3):
@@ -183,3 +187,40 @@ def test_numpyro_model_density_is_the_dense_marginal(key):
     assert density - priors == pytest.approx(joint, rel=1e-10)
     pointwise = numpyro_log_likelihood(model, {k: v[None] for k, v in params.items()})["y"][0]
     np.testing.assert_allclose(np.asarray(pointwise), conditional, rtol=1e-9)
+
+
+@pytest.mark.slow
+def test_fit_and_predictive_with_a_common_part():
+    """A quick NUTS fit with the common part on rig runs at two speeds, then replicates of
+    those runs and of one at a speed no calibration run measured (0.4 m/s): every replicate
+    finite, and the unmeasured speed's band is wider than the measured speeds' (there the
+    discrepancy is the common part's posterior plus a fresh own part, not a posterior given
+    runs at that speed)."""
+    recording = VirtualRig().run(
+        ["healthy"] * 4,
+        [0.3, 0.5, 0.3, 0.4],
+        key=jax.random.key(3),
+        split=["calibration"] * 3 + ["test"],
+    )
+    door = ElevatorDoor()
+    result = fit_campaign(
+        door,
+        recording.campaign,
+        method="nuts",
+        quick=True,
+        progress=False,
+        error=ModelError(common=True),
+    )
+    tau = result.common_draws()
+    assert tau is not None and tau.shape[1] == 4 and np.all(tau > 0)
+    sigma = result.discrepancy_draws()
+    np.testing.assert_allclose(
+        result.model_error_draws(), np.sqrt(np.mean(sigma**2, axis=1) + tau**2), rtol=1e-12
+    )
+    replicates, data, ok = posterior_predictive(
+        result, door, recording.campaign, [0, 1, 2, 3], key=jax.random.key(4), n_draws=40
+    )
+    assert ok.all() and np.all(np.isfinite(replicates))
+    assert replicates.shape == (40, *np.asarray(data.y).shape)
+    width = np.std(replicates, axis=0).mean(axis=(1, 2))
+    assert width[3] > width[:3].max(), width

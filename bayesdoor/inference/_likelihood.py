@@ -433,15 +433,21 @@ class DiscrepancyNormal(dist.Distribution):
 
         return r, w, total(w), total(r * w), total(r * r * w), total(jnp.log(self.run_variance))
 
+    def _level(self, p, a):
+        """``k = 1 / (1 + s p)`` per operating point, and the sums over operating points of
+        ``p k`` and ``a k``: the precision and precision-weighted residual each operating
+        point's mean offers the common part (its variance ``s + 1 / p``)."""
+        k = 1.0 / (1.0 + self.shared_variance * p)
+        return k, jnp.sum(p * k, axis=0), jnp.sum(a * k, axis=0)
+
     def _common(self, p, a):
         """``1 / (1 + s p)`` per operating point, and the common part's posterior mean and
         variance given every run (zero without a common part)."""
-        k = 1.0 / (1.0 + self.shared_variance * p)
+        k, big_p, big_a = self._level(p, a)
         if self.common_variance is None:
             zero = jnp.zeros(p.shape[1:])
             return k, zero, zero
         t = self.common_variance
-        big_p, big_a = jnp.sum(p * k, axis=0), jnp.sum(a * k, axis=0)
         return k, t * big_a / (1.0 + t * big_p), t / (1.0 + t * big_p)
 
     def joint_log_prob(self, value: Float[Array, "run channel band"]) -> Float[Array, ""]:
@@ -456,9 +462,8 @@ class DiscrepancyNormal(dist.Distribution):
         )
         total = jnp.sum(group)
         if self.common_variance is not None:
-            k = 1.0 / (1.0 + s * p)
+            _, big_p, big_a = self._level(p, a)
             t = self.common_variance
-            big_p, big_a = jnp.sum(p * k, axis=0), jnp.sum(a * k, axis=0)
             total = total + jnp.sum(jnp.log1p(t * big_p) - t * big_a**2 / (1.0 + t * big_p))
         return -0.5 * total
 

@@ -24,6 +24,22 @@ channel's value over the whole band, so each run's gain was mostly that run's mi
 elsewhere scaled by the extended model's smaller variance, not the feature. The feature bins
 are fixed before any refit, from the residual map of all the diagnosed runs, and are the same
 for the base model and every extension, so neither chooses where it is judged leniently.
+
+The held-out judgement of one extension against the base model asks a narrower question:
+where the extension predicts something different, does it predict better? Its scatter is
+split by :func:`changed_bins`, the bins of each run and channel where the two models'
+predictions differ (:func:`estimate_change_discrepancy`). This mask *replaces* the residual
+map's for the judgement rather than joining it. Where the two models predict the same
+spectrum they have the same residual, so with one scatter estimated on exactly those bins
+they score the same there and the run's gain comes from the extension's bins alone, whatever
+the run's misfit elsewhere (a second, unrelated feature included: it lies outside and
+cancels). Inside, the mask follows the extension's whole effect: a broad refitted mode's
+skirts, and a tone that tracks the speed, in its own bin in each run. A residual-map mask
+joined to it would put an unrelated feature's error into the extension's bins, for both
+models alike, and diluted the comparison. Inside, the scatter is local in frequency where
+training runs were changed near the same bins (a fixed-frequency effect: the residual map's
+local variance again) and one value per channel where none were (a tracking tone in a
+held-out run at a frequency no training run's tone reached).
 """
 
 from __future__ import annotations
@@ -46,6 +62,12 @@ SIGMA_FLOOR = 0.01
 #: fs``) spreads a line over two bins on either side of its own, so a feature's error reaches
 #: two bins past the significant ones
 LOCAL_BINS = 2
+#: the two models' predictions differ in a bin when their log10 spectra differ there by more
+#: than this fraction of the run's Welch standard deviation: a bin where they differ by less
+#: carries an expected log-density difference under ``fraction^2 / 2 = 1/32`` nats for the
+#: true model, too little for one bin to tell the models apart (a statement about one bin; many
+#: such bins still add up, and stay in the per-channel part, where both models score alike)
+CHANGE_FRACTION = 0.25
 #: the decision rule, in words (reported with every diagnosis)
 RULE = (
     f"an extension is confirmed when, on held-out runs, its log predictive density exceeds the "
@@ -65,11 +87,12 @@ class Discrepancy:
         ``delta_c(f)``, decades, added to the model's spectrum.
     variance
         ``sigma_c^2(f)`` per channel and bin, decades^2: one value per channel except in the
-        feature bins it was estimated with.
+        feature bins it was estimated with; per run too when the bins it is local in differ
+        between runs (:meth:`ChangeDiscrepancy.at`).
     """
 
     smooth: Float[np.ndarray, "channel freq"]
-    variance: Float[np.ndarray, "channel freq"]
+    variance: Float[np.ndarray, "*run channel freq"]
 
 
 def feature_bins(
@@ -171,6 +194,161 @@ def estimate_discrepancy(
     running = scipy.ndimage.uniform_filter1d(square, 2 * LOCAL_BINS + 1, axis=-1, mode="nearest")
     excess = np.where(near, running, pooled) - np.mean(log_variance)
     return Discrepancy(smooth=smooth, variance=np.maximum(excess, SIGMA_FLOOR**2))
+
+
+def changed_bins(
+    base: Float[np.ndarray, "run channel freq"],
+    extended: Float[np.ndarray, "run channel freq"],
+    log_variance: Float[np.ndarray, " run"],
+    *,
+    fraction: float = CHANGE_FRACTION,
+    margin: int = LOCAL_BINS,
+) -> Bool[np.ndarray, "run channel freq"]:
+    """The bins of each run and channel where an extension changes the base model's prediction.
+
+    A bin is marked where the two models' log10 spectra differ by more than ``fraction`` of
+    the run's Welch standard deviation, then widened by ``margin`` bins on either side (the
+    Hann window's main lobe spreads a line over two bins either side of its own, so the
+    change a narrow effect makes reaches past its marked bins by that much). Only the two
+    predictions enter, never a measured spectrum, and the mask is the same for both models of
+    the comparison: neither chooses where it is judged. Per run, so that a tone which tracks
+    the speed is marked at its own bin in every run; the whole change, so that a broad mode's
+    skirts are marked with its peak.
+
+    Parameters
+    ----------
+    base, extended
+        log10 spectra of the two models for the same runs.
+    log_variance
+        Welch variance of each run's log10 estimate.
+    fraction
+        The change that counts, in Welch standard deviations (> 0).
+    margin
+        Bins added on either side.
+
+    Returns
+    -------
+    mask
+        Per run, channel and bin, whether the extension changes the prediction there.
+
+    Raises
+    ------
+    ValueError
+        For a ``fraction`` that is not positive, a negative ``margin``, or spectra whose shapes
+        differ or do not match ``log_variance``.
+    """
+    if not np.isfinite(fraction) or fraction <= 0:
+        raise ValueError(
+            f"fraction must be a positive number of Welch standard deviations, got {fraction!r}"
+        )
+    if isinstance(margin, bool) or int(margin) != margin or margin < 0:
+        raise ValueError(f"margin must be an integer >= 0 (bins), got {margin!r}")
+    a, b = np.asarray(base, dtype=float), np.asarray(extended, dtype=float)
+    lv = np.asarray(log_variance, dtype=float)
+    if a.shape != b.shape or a.ndim != 3 or lv.shape != a.shape[:1]:
+        raise ValueError(
+            f"base {a.shape} and extended {b.shape} must both be (run, channel, freq) and "
+            f"log_variance {lv.shape} (run,) of the same runs"
+        )
+    mask = np.abs(b - a) > fraction * np.sqrt(lv)[:, None, None]
+    if margin:
+        widen = np.ones((1, 1, 2 * int(margin) + 1), dtype=bool)
+        mask = scipy.ndimage.binary_dilation(mask, structure=widen)
+    return mask
+
+
+@dataclasses.dataclass(frozen=True)
+class ChangeDiscrepancy:
+    """A model's discrepancy on its training runs, its scatter split by an extension's bins.
+
+    Attributes
+    ----------
+    smooth
+        ``delta_c(f)``, decades, added to the model's spectrum.
+    changed
+        The scatter in the extension's bins, decades^2, per channel and bin: local where
+        training runs were changed within ``LOCAL_BINS`` of the bin, the channel's value over
+        all its changed training bins elsewhere.
+    unchanged
+        The scatter in the other bins, decades^2, one value per channel.
+    """
+
+    smooth: Float[np.ndarray, "channel freq"]
+    changed: Float[np.ndarray, "channel freq"]
+    unchanged: Float[np.ndarray, " channel"]
+
+    def at(self, mask: Bool[np.ndarray, "run channel freq"]) -> Discrepancy:
+        """The discrepancy of runs whose changed bins are ``mask``."""
+        m = np.asarray(mask, dtype=bool)
+        if m.shape[1:] != self.changed.shape:
+            raise ValueError(
+                f"mask has shape {m.shape}; it must be (run, channel, freq) with (channel, "
+                f"freq) = {self.changed.shape}"
+            )
+        return Discrepancy(
+            smooth=self.smooth, variance=np.where(m, self.changed, self.unchanged[:, None])
+        )
+
+
+def estimate_change_discrepancy(
+    model: Float[np.ndarray, "run channel freq"],
+    measured: Float[np.ndarray, "run channel freq"],
+    log_variance: Float[np.ndarray, " run"],
+    half_width: int,
+    changed: Bool[np.ndarray, "run channel freq"],
+) -> ChangeDiscrepancy:
+    """The smooth discrepancy and the scatter of a model on its training runs, split by the
+    bins where an extension changes the prediction (:func:`changed_bins`).
+
+    Parameters
+    ----------
+    model, measured
+        log10 spectra of the simulated and the measured training runs.
+    log_variance
+        Welch variance of each measured run's log10 estimate.
+    half_width
+        Half-width (bins) of the running median.
+    changed
+        The extension's bins in each training run.
+
+    Returns
+    -------
+    ChangeDiscrepancy
+        ``smooth`` as :func:`estimate_discrepancy`. With ``e`` the squared remaining residual:
+        ``unchanged`` the mean of ``e`` over each channel's unchanged (run, bin) pairs;
+        ``changed`` at a bin the mean of ``e`` over the changed pairs within ``LOCAL_BINS`` of
+        it, or, where there are none, over all the channel's changed pairs. Where a channel
+        has no pair of one kind, the other kind's value. Both less the mean Welch variance,
+        floored at ``SIGMA_FLOOR^2``.
+
+    Raises
+    ------
+    ValueError
+        For a ``changed`` mask whose shape is not that of the spectra.
+    """
+    resid = np.asarray(measured, dtype=float) - np.asarray(model, dtype=float)
+    m = np.asarray(changed, dtype=bool)
+    if m.shape != resid.shape:
+        raise ValueError(
+            f"changed has shape {m.shape}; it must be (run, channel, freq) = {resid.shape}, "
+            "one flag per training run, channel and bin"
+        )
+    smooth = smooth_discrepancy(resid.mean(axis=0), half_width)
+    square = (resid - smooth) ** 2
+    n_in, n_out = m.sum(axis=(0, 2)), (~m).sum(axis=(0, 2))
+    s_in, s_out = (square * m).sum(axis=(0, 2)), (square * ~m).sum(axis=(0, 2))
+    inside = np.where(n_in > 0, s_in / np.maximum(n_in, 1), s_out / np.maximum(n_out, 1))
+    outside = np.where(n_out > 0, s_out / np.maximum(n_out, 1), inside)
+    width = 2 * LOCAL_BINS + 1
+    near_sum = scipy.ndimage.uniform_filter1d((square * m).sum(axis=0), width, mode="constant")
+    near_n = scipy.ndimage.uniform_filter1d(m.sum(axis=0).astype(float), width, mode="constant")
+    local = np.where(near_n * width > 0.5, near_sum / np.maximum(near_n, 1e-300), inside[:, None])
+    welch = np.mean(log_variance)
+    return ChangeDiscrepancy(
+        smooth=smooth,
+        changed=np.maximum(local - welch, SIGMA_FLOOR**2),
+        unchanged=np.maximum(outside - welch, SIGMA_FLOOR**2),
+    )
 
 
 def log_predictive(

@@ -23,8 +23,9 @@ from ._features import Features, find_features
 from ._gain import (
     RULE,
     Gain,
+    changed_bins,
     compare_held_out,
-    estimate_discrepancy,
+    estimate_change_discrepancy,
     feature_bins,
     log_predictive,
 )
@@ -359,9 +360,13 @@ class _HeldOut:
     j: np.ndarray
 
 
-def _held_out(spectra: Spectra, model: np.ndarray, train: np.ndarray, test: np.ndarray) -> _HeldOut:
+def _held_out(
+    spectra: Spectra, model: np.ndarray, changed: np.ndarray, train: np.ndarray, test: np.ndarray
+) -> _HeldOut:
     y, lv = spectra.measured, spectra.log_variance
-    disc = estimate_discrepancy(model[train], y[train], lv[train], SMOOTH_BINS, local=spectra.local)
+    disc = estimate_change_discrepancy(
+        model[train], y[train], lv[train], SMOOTH_BINS, changed[train]
+    ).at(changed[test])
     return _HeldOut(
         lpd=log_predictive(model[test], y[test], lv[test], disc),
         j=j_per_run(model[test] + disc.smooth, y[test]),
@@ -381,7 +386,11 @@ def _cross_validate(
 
     The held-out runs of every fold are simulated exactly at the values fitted without them,
     all in one simulation (:func:`exact_spectra`); the extended model's discrepancy is
-    estimated on the training runs from the spectra it was fitted with.
+    estimated on the training runs from the spectra it was fitted with. Both models' scatter
+    is split by the bins where the extension changes the prediction (:func:`changed_bins` of
+    the two models' spectra of every run in the fold: the training runs' as fitted, the
+    held-out runs' as simulated), so the judgement asks where the extension predicts
+    something different, does it predict better.
     """
     base = setup.base_spectra
     fits = [
@@ -404,8 +413,9 @@ def _cross_validate(
         model = fit.spectra.copy()
         model[test] = held[start : start + len(test)]
         start += len(test)
-        before.append(_held_out(setup.spectra, base, train, test))
-        after.append(_held_out(setup.spectra, model, train, test))
+        changed = changed_bins(base, model, setup.spectra.log_variance)
+        before.append(_held_out(setup.spectra, base, changed, train, test))
+        after.append(_held_out(setup.spectra, model, changed, train, test))
     gain = compare_held_out(
         np.concatenate([h.lpd for h in before]),
         np.concatenate([h.lpd for h in after]),
@@ -695,8 +705,9 @@ def extension_gain(
         The refit budget of :meth:`DiagnosisSettings.quick`.
     features
         The residual features of these runs under ``fit`` (``Diagnosis.features``): the
-        discrepancy's scatter is local in their bins, as in :func:`diagnose_campaign`;
-        ``None``: one value per channel everywhere.
+        refit's discrepancy scatter is local in their bins, as in :func:`diagnose_campaign`;
+        ``None``: one value per channel everywhere. The held-out judgement splits it by the
+        bins the extension changes either way.
 
     Returns
     -------

@@ -16,6 +16,7 @@ from ._gain import CHANGE_FRACTION as CHANGE_FRACTION
 from ._gain import DECISIVE_SE as DECISIVE_SE
 from ._gain import LOCAL_BINS as LOCAL_BINS
 from ._gain import RULE as RULE
+from ._gain import SIGMA_FLOOR as SIGMA_FLOOR
 from ._gain import ChangeDiscrepancy as ChangeDiscrepancy
 from ._gain import Discrepancy as Discrepancy
 from ._gain import Gain as Gain

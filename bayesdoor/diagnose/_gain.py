@@ -36,7 +36,7 @@ the run's misfit elsewhere (a second, unrelated feature included: it lies outsid
 cancels). Inside, the mask follows the extension's whole effect: a broad refitted mode's
 skirts, and a tone that tracks the speed, in its own bin in each run. A residual-map mask
 joined to it would put an unrelated feature's error into the extension's bins, for both
-models alike, and diluted the comparison. Inside, the scatter is local in frequency where
+models alike, and dilute the comparison there. Inside, the scatter is local in frequency where
 training runs were changed near the same bins (a fixed-frequency effect: the residual map's
 local variance again) and one value per channel where none were (a tracking tone in a
 held-out run at a frequency no training run's tone reached).

@@ -963,7 +963,7 @@ def _point_error(
         excess = np.mean(residual**2, axis=(0, 2)) - np.mean(welch)
         return np.sqrt(np.maximum(excess, _SIGMA_FLOOR**2)), rho
     counts = np.bincount(index, minlength=n_op)
-    means = np.stack([residual[index == o].mean(axis=0) for o in range(n_op)])
+    means = _operating_means(residual, data)
     spread = residual - means[index]
     replicated = counts[index] > 1
     if replicated.any():
@@ -977,14 +977,21 @@ def _point_error(
     return np.sqrt(np.maximum(excess, _SIGMA_FLOOR**2)), rho
 
 
+def _operating_means(
+    residual: Float[np.ndarray, "run channel band"], data: CalibrationData
+) -> Float[np.ndarray, "op channel band"]:
+    """The mean residual of the runs at each operating point."""
+    index = np.asarray(data.run_operating)
+    return np.stack([residual[index == o].mean(axis=0) for o in range(data.operating.shape[0])])
+
+
 def _common_point(
     residual: Float[np.ndarray, "run channel band"], data: CalibrationData
 ) -> np.ndarray:
     """A start for the common discrepancy's scale per channel: the root mean square over the
     bands of the operating points' mean residuals averaged over the operating points (what
     every speed misses alike), floored at ``_SIGMA_FLOOR``."""
-    index = np.asarray(data.run_operating)
-    means = np.stack([residual[index == o].mean(axis=0) for o in range(data.operating.shape[0])])
+    means = _operating_means(residual, data)
     return np.maximum(np.sqrt(np.mean(means.mean(axis=0) ** 2, axis=-1)), _SIGMA_FLOOR)
 
 

@@ -73,18 +73,22 @@ def _dense(y, loc, run_variance, shared, common, run_operating):
     return joint, conditional, post, common_post
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_closed_form_matches_dense_normals(seed):
-    """Joint, conditionals, each operating point's discrepancy and the common part's posterior
-    agree with the dense computation to rounding (1e-10: float64, a few hundred operations)."""
-    y, loc, v, s, t, ops = _problem(seed)
-    d = DiscrepancyNormal(
+def _distribution(loc, v, s, t, ops):
+    return DiscrepancyNormal(
         jnp.asarray(loc),
         jnp.asarray(v),
         jnp.asarray(s),
         jnp.asarray(ops),
         common_variance=jnp.asarray(t),
     )
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_closed_form_matches_dense_normals(seed):
+    """Joint, conditionals, each operating point's discrepancy and the common part's posterior
+    agree with the dense computation to rounding (1e-10: float64, a few hundred operations)."""
+    y, loc, v, s, t, ops = _problem(seed)
+    d = _distribution(loc, v, s, t, ops)
     joint, conditional, post, common_post = _dense(y, loc, v, s, t, ops)
     np.testing.assert_allclose(float(d.joint_log_prob(jnp.asarray(y))), joint, rtol=1e-10)
     np.testing.assert_allclose(np.asarray(d.log_prob(jnp.asarray(y))), conditional, rtol=1e-9)
@@ -120,13 +124,7 @@ def test_samples_have_the_common_covariance():
     part), runs at one operating point by tau^2 + s_o. 40000 draws: the sample covariance's
     standard error is under 0.01 here, the tolerance 0.02."""
     _, loc, v, s, t, ops = _problem(3, n_channel=1, n_band=1)
-    d = DiscrepancyNormal(
-        jnp.asarray(loc),
-        jnp.asarray(v),
-        jnp.asarray(s),
-        jnp.asarray(ops),
-        common_variance=jnp.asarray(t),
-    )
+    d = _distribution(loc, v, s, t, ops)
     draws = np.asarray(d.sample(jax.random.key(0), (40000,)))[:, :, 0, 0]
     cov = np.cov(draws.T)
     assert abs(cov[0, 2] - t[0, 0]) < 0.02

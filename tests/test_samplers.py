@@ -304,6 +304,9 @@ def test_progress_bar_only_when_asked_for_and_on_a_terminal(sampler, monkeypatch
     """A bar redrawn into a log file or pipe (CI, ``bayesdoor demo > log``) floods it; a
     Jupyter kernel's standard error is no terminal but shows the bar in place."""
     monkeypatch.delitem(sys.modules, "ipykernel", raising=False)
+    # numpyro turns its own bar off under these variables (pytest-xdist workers, CI services)
+    monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
+    monkeypatch.delenv("CI", raising=False)
     for stream, progress, drawn in (
         (_Terminal(), True, True),
         (io.StringIO(), True, False),

@@ -373,7 +373,69 @@ def markdown(rows: Sequence[Mapping[str, Any]], command: str, wall: float, figur
             f"{np.sqrt(r['lambda']):.1f} | {r['bins_over_3']} of {r['bins']} | "
             f"{fmt({True: 'yes', False: 'no'}.get(v['named']), 's')} | {v['verdict'][:90]} |"
         )
-    return "\n".join(lines) + "\n"
+    lines += ["", "## What the numbers show (written by the script)", ""]
+    for kind in (TABLE, TESTS):
+        mine = [r for r in rows if r["kind"] == kind and "error" not in r]
+        if mine:
+            lines += [f"{'6-run table' if kind == TABLE else '8-run test'} cases:", ""]
+            lines += [f"- {text}" for text in separation(mine)]
+            lines.append("")
+    return "\n".join(lines)
+
+
+#: the strength figures compared with the verdicts, and how each is named in the text
+FIGURES = {
+    "sqrt_lambda": "sqrt(lambda)",
+    "z_max": "largest z",
+    "z_mean_max": "largest run-mean z",
+}
+
+
+def _figure_value(row: Mapping[str, Any], name: str) -> float:
+    return float(np.sqrt(row["lambda"])) if name == "sqrt_lambda" else float(row[name])
+
+
+def separation(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Per strength figure: the weakest named case, and the cases not named above it.
+
+    Every case weaker than the weakest named one is, by construction, not named; the
+    sentences count them and list the stronger cases that were not named either.
+    """
+    named = [r for r in rows if r["verdict"]["named"]]
+    missed = [r for r in rows if r["verdict"]["named"] is False]
+    if not named:
+        return [f"nothing named in {len(rows)} cases; the strongest missed: {_strongest(missed)}"]
+    out = [f"{len(named)} of {len(rows)} named."]
+    for name, label in FIGURES.items():
+        floor = min(named, key=lambda r: _figure_value(r, name))
+        low = _figure_value(floor, name)
+        below = [r for r in missed if _figure_value(r, name) < low]
+        above = sorted(
+            (r for r in missed if _figure_value(r, name) >= low),
+            key=lambda r: -_figure_value(r, name),
+        )
+        out.append(
+            f"{label}: the weakest named case is {_label(floor)} at {low:.1f}; "
+            f"{len(below)} cases lie below it (none named), {len(above)} not named lie above it"
+            + (
+                ": " + ", ".join(f"{_label(r)} {_figure_value(r, name):.1f}" for r in above)
+                if above
+                else ""
+            )
+            + "."
+        )
+    return out
+
+
+def _label(row: Mapping[str, Any]) -> str:
+    return f"{row['effect']} {row['seed']}"
+
+
+def _strongest(rows: Sequence[Mapping[str, Any]]) -> str:
+    if not rows:
+        return "-"
+    best = max(rows, key=lambda r: r["lambda"])
+    return f"{_label(best)}, sqrt(lambda) {np.sqrt(best['lambda']):.1f}"
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -65,8 +65,21 @@ from diagnosis import Settings as TableSettings
 TEST_FILE = ROOT / "tests" / "test_diagnose_job.py"
 #: the two sets of cases: the diagnosis table's and the diagnosis tests'
 TABLE, TESTS = "table", "tests"
-#: a change of 3 Welch standard deviations in one bin: the scale on the figure
+#: a change of 3 Welch standard deviations in one bin (the table's count of such bins)
 Z_MARK = 3.0
+#: the two-sided level at which one bin of a case stands out of all its bins (Bonferroni)
+LEVEL = 0.05
+
+
+def bonferroni_z(bins: int) -> float:
+    """The ``|z|`` one bin needs to stand out of ``bins`` at ``LEVEL`` (two-sided Bonferroni).
+
+    A reference for the largest ``|z|``: a test of each bin's measured PSD against an exact
+    prediction, whose only scatter is the Welch estimator's, flags nothing weaker in any bin.
+    """
+    import scipy.stats
+
+    return float(scipy.stats.norm.isf(LEVEL / (2.0 * bins)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -274,6 +287,7 @@ def test_verdicts() -> dict[tuple[str, int], dict[str, Any]]:
 def figure(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
     """Largest per-bin ``|z|`` against ``sqrt(lambda)``, named filled, not named open."""
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -300,9 +314,23 @@ def figure(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
             fontsize=7,
             color=colour,
         )
-    ax.axhline(Z_MARK, color="0.6", lw=0.8, ls=":")
+    bins = max(row["bins"] for row in rows)
+    ax.axhline(bonferroni_z(bins), color="0.5", lw=0.8, ls=":")
+    ax.annotate(
+        f"one bin in {bins} at {LEVEL:g} (Bonferroni)",
+        (ax.get_xlim()[1], bonferroni_z(bins)),
+        xytext=(-4, -10),
+        textcoords="offset points",
+        ha="right",
+        fontsize=7,
+        color="0.4",
+    )
     ax.set_xscale("log")
     ax.set_yscale("log")
+    for axis, ticks in ((ax.xaxis, (5, 10, 20, 50, 100, 200)), (ax.yaxis, (2, 3, 5, 10, 20))):
+        axis.set_major_locator(matplotlib.ticker.FixedLocator(ticks))
+        axis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+        axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set_xlabel(r"$\sqrt{\lambda}$ = sqrt(sum of $z^2$ over runs, channels, 4-96 Hz bins)")
     ax.set_ylabel(r"largest $|z|$ in one run, channel and bin")
     ax.set_title("Hidden effects: strength against verdict (filled: named)", fontsize=10)
@@ -405,7 +433,15 @@ def separation(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     missed = [r for r in rows if r["verdict"]["named"] is False]
     if not named:
         return [f"nothing named in {len(rows)} cases; the strongest missed: {_strongest(missed)}"]
-    out = [f"{len(named)} of {len(rows)} named."]
+    bins = max(r["bins"] for r in rows)
+    limit = bonferroni_z(bins)
+    faint = [r for r in rows if r["z_max"] < limit]
+    out = [
+        f"{len(named)} of {len(rows)} named. One bin stands out of {bins} at {LEVEL:g} "
+        f"(two-sided Bonferroni) from |z| = {limit:.2f}; {len(faint)} cases change no bin "
+        f"that much ({', '.join(_label(r) for r in faint) or '-'}), "
+        f"{sum(bool(r['verdict']['named']) for r in faint)} of them named."
+    ]
     for name, label in FIGURES.items():
         floor = min(named, key=lambda r: _figure_value(r, name))
         low = _figure_value(floor, name)

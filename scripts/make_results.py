@@ -59,6 +59,7 @@ STEPS: tuple[Step, ...] = (
     ),
     Step("diagnosis", "scripts/diagnosis.py"),
     Step("diagnosis_gain", "scripts/diagnosis_gain.py"),
+    Step("diagnosis_strength", "scripts/diagnosis_strength.py"),
     *(
         Step(name, f"benchmarks/{name}.py", ("--json",), ("--quick",) if quick else (), name)
         for name, quick in (

@@ -429,8 +429,11 @@ def separation(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     Every case weaker than the weakest named one is, by construction, not named; the
     sentences count them and list the stronger cases that were not named either.
     """
+    rows = [r for r in rows if r["verdict"]["named"] is not None]
     named = [r for r in rows if r["verdict"]["named"]]
-    missed = [r for r in rows if r["verdict"]["named"] is False]
+    missed = [r for r in rows if not r["verdict"]["named"]]
+    if not rows:
+        return ["no verdicts for these cases (see --verdicts)"]
     if not named:
         return [f"nothing named in {len(rows)} cases; the strongest missed: {_strongest(missed)}"]
     bins = max(r["bins"] for r in rows)

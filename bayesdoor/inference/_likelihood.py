@@ -470,21 +470,31 @@ class DiscrepancyNormal(dist.Distribution):
     def log_prob(self, value: Float[Array, "run channel band"]) -> Float[Array, "run channel band"]:
         """Per element, ``log p(y_i | y_-i)`` given the other runs of its operating point (with
         a common part: given every other run)."""
-        r, w, p, a, _, _ = self._sums(value)
         if self.common_variance is not None:
-            # Woodbury, as in CorrelatedDiscrepancyNormal: with delta_hat and K the posterior
-            # mean and variance of the run's whole discrepancy given all runs, C^-1 r =
-            # W (r - delta_hat) and diag(C^-1) = W - W^2 K
-            mean, variance = self.discrepancy_posterior(value)
-            g = w * (r - mean[self.run_operating])
-            precision = w - w * w * variance[self.run_operating]
-            return jax.scipy.stats.norm.logpdf(r, r - g / precision, jnp.sqrt(1.0 / precision))
+            return self._conditional(value, *self.discrepancy_posterior(value))
+        r, w, p, a, _, _ = self._sums(value)
         s = self.shared_variance[self.run_operating]
         p_others = p[self.run_operating] - w
         a_others = a[self.run_operating] - r * w
         mean = s * a_others / (1.0 + s * p_others)
         variance = self.run_variance + s / (1.0 + s * p_others)
         return jax.scipy.stats.norm.logpdf(r, mean, jnp.sqrt(variance))
+
+    def _conditional(
+        self,
+        value: Float[Array, "run channel band"],
+        mean: Float[Array, "op channel band"],
+        variance: Float[Array, "op channel band"],
+    ) -> Float[Array, "run channel band"]:
+        """``log p(y_i | y_-i)`` from the discrepancy's posterior mean and marginal variance
+        given every element (Woodbury): with ``g = C^-1 r`` and ``G = diag(C^-1)`` of the joint
+        covariance ``C``, ``g = W (r - delta_hat)`` and ``G = W - W^2 K`` (``W`` the run's
+        precision), and the conditional is ``Normal(r - g / G, 1 / G)``."""
+        r = value - self.loc
+        w = 1.0 / self.run_variance
+        g = w * (r - mean[self.run_operating])
+        precision = w - w * w * variance[self.run_operating]
+        return jax.scipy.stats.norm.logpdf(r, r - g / precision, jnp.sqrt(1.0 / precision))
 
     def discrepancy_posterior(
         self, value: Float[Array, "run channel band"]
@@ -650,13 +660,7 @@ class CorrelatedDiscrepancyNormal(DiscrepancyNormal):
         and ``K`` the discrepancy's posterior mean and variance given all runs), and the
         conditional is ``Normal(r - g / G, 1 / G)``.
         """
-        mean, covariance = self.discrepancy_posterior_covariance(value)
-        r = value - self.loc
-        w = 1.0 / self.run_variance
-        k = jnp.diagonal(covariance, axis1=-2, axis2=-1)[self.run_operating]
-        g = w * (r - mean[self.run_operating])
-        precision = w - w * w * k
-        return jax.scipy.stats.norm.logpdf(r, r - g / precision, jnp.sqrt(1.0 / precision))
+        return self._conditional(value, *self.discrepancy_posterior(value))
 
     def sample(self, key, sample_shape=()):
         k_shared, k_run = jax.random.split(key)

@@ -77,6 +77,15 @@ class ExtensionProposal:
         as (value, standard error): refitted and judged as usual, but reported at the
         measured value, which does not absorb the base model's errors as the refit's does
         (the refit's value is reported next to it).
+    gains
+        Free parameters that each scale one signal added to one channel only, by the
+        channel's name (a mode's participation: channel c reads s_c p''). For an extension
+        that needs a new solve they are profiled exactly instead of searched: every
+        candidate of the other free parameters is solved with the gains at 0 (signals O) and
+        at 1 (O + P), and since a Welch PSD is quadratic in s, PSD(O + s P) =
+        PSD(O) + s (PSD(O + P) - PSD(O - P)) / 2 + s^2 ((PSD(O + P) + PSD(O - P)) / 2 -
+        PSD(O)) with O - P = 2 O - (O + P), each gain is fitted on its channel (the
+        discrepancy is estimated channel by channel) without another solve.
     """
 
     extension: Any
@@ -89,6 +98,7 @@ class ExtensionProposal:
     grid: Mapping[str, tuple[float, ...]] = dataclasses.field(default_factory=dict)
     held: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     measured: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    gains: Mapping[str, str] = dataclasses.field(default_factory=dict)
 
 
 class AbstractRefit(eqx.Module):
@@ -472,6 +482,173 @@ def _parabola(points: np.ndarray, values: np.ndarray, best: int) -> tuple[float,
     return float(np.clip(-b / (2 * a), x[0], x[2])), float(1.0 / np.sqrt(2.0 * a))
 
 
+#: magnitudes of a gain's profile grid, as fractions of its box (both signs and 0 are tried)
+_GAIN_GRID = np.geomspace(1e-3, 1.0, 25)
+
+
+def _profile_gain(
+    spectra: Spectra,
+    power: Float[np.ndarray, "3 run freq"],
+    runs: Int[np.ndarray, " r"],
+    channel: int,
+    box: tuple[float, float],
+) -> tuple[float, float]:
+    """The gain s of one channel that maximises its training density, and that density.
+
+    ``power`` holds the linear Welch PSDs of O, O + P and O - P of the channel's runs. The
+    density is profiled over a grid of both signs (magnitudes log-spaced over the box, so a
+    faint mode and a strong one are both resolved), refined by a bounded Brent search
+    between the best point's neighbours.
+    """
+    y, lv = spectra.measured[runs][:, channel : channel + 1], spectra.log_variance[runs]
+    local = None if spectra.local is None else spectra.local[channel : channel + 1]
+    a = power[0]
+    b = (power[1] - power[2]) / 4.0
+    c = (power[1] + power[2]) / 2.0 - a
+    tiny = np.finfo(float).tiny
+
+    def lpd(s: float) -> float:
+        m = np.log10(np.maximum(a + 2.0 * s * b + s * s * c, tiny))[:, None, :]
+        disc = estimate_discrepancy(m, y, lv, SMOOTH_BINS, local=local)
+        return float(log_predictive(m, y, lv, disc).sum())
+
+    lo, hi = box
+    grid = np.unique(
+        np.clip(np.concatenate([-hi * _GAIN_GRID[::-1], [0.0], hi * _GAIN_GRID]), lo, hi)
+    )
+    grid = np.unique(np.concatenate([grid, np.clip(-lo * _GAIN_GRID, lo, hi)]))
+    values = np.array([lpd(s) for s in grid])
+    i = int(np.argmax(values))
+    left, right = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    if right > left:
+        found = scipy.optimize.minimize_scalar(
+            lambda s: -lpd(s),
+            bounds=(left, right),
+            method="bounded",
+            options={"xatol": 1e-4 * (hi - lo)},
+        )
+        if -found.fun > values[i]:
+            return float(found.x), float(-found.fun)
+    return float(grid[i]), float(values[i])
+
+
+def _refit_with_gains(
+    setup: RefitSetup,
+    proposal: ExtensionProposal,
+    model: _Model,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    train: np.ndarray,
+    *,
+    seed: int,
+    max_evals: int,
+    uncertainty: bool,
+    progress: bool,
+) -> RefitResult:
+    """:func:`refit_extension` for a solved extension whose proposal names ``gains``."""
+    from ..inference import minimize_cmaes
+
+    free = model.free
+    channels = list(setup.system.channels)
+    unknown = {n: c for n, c in proposal.gains.items() if n not in free or c not in channels}
+    if unknown:
+        raise ValueError(
+            f"the proposal's gains {unknown} must map free parameters to the system's "
+            f"channels {channels}"
+        )
+    gained = [free.index(n) for n in proposal.gains]
+    search = [i for i in range(len(free)) if i not in gained]
+    profiles: dict[tuple[float, ...], dict[str, float]] = {}
+
+    def objective(x: np.ndarray) -> np.ndarray:
+        x = np.atleast_2d(x)
+        full = np.zeros((2 * len(x), len(free)))
+        full[: len(x), search] = x
+        full[len(x) :, search] = x
+        full[len(x) :, gained] = 1.0
+        signals = model.solve(model.values(full, len(train)), train)
+        off, on = signals[: len(x)], signals[len(x) :]
+        power = 10.0 ** setup.spectra.model(np.stack([off, on, 2.0 * off - on], axis=1), train)
+        out = np.full(len(x), np.inf)
+        for r, row in enumerate(x):
+            if not np.all(np.isfinite(power[r])):
+                continue
+            total, gains = 0.0, {}
+            for k, channel in enumerate(channels):
+                names = [n for n, c in proposal.gains.items() if c == channel]
+                if names:
+                    i = free.index(names[0])
+                    s, value = _profile_gain(
+                        setup.spectra,
+                        power[r][:, :, k],
+                        train,
+                        k,
+                        (float(lower[i]), float(upper[i])),
+                    )
+                    gains[names[0]] = s
+                else:
+                    m = np.log10(power[r][0][:, k : k + 1])
+                    y = setup.spectra.measured[train][:, k : k + 1]
+                    lv = setup.spectra.log_variance[train]
+                    local = None if setup.spectra.local is None else setup.spectra.local[k : k + 1]
+                    disc = estimate_discrepancy(m, y, lv, SMOOTH_BINS, local=local)
+                    value = float(log_predictive(m, y, lv, disc).sum())
+                total += value
+            profiles[tuple(map(float, row))] = gains
+            out[r] = -total
+        return out
+
+    start = np.clip([float(proposal.start.get(n, model.fixed[n])) for n in free], lower, upper)[
+        search
+    ]
+    if len(search) == 1:
+        _, x_best, evaluations = _minimize_scalar(
+            objective, float(lower[search][0]), float(upper[search][0]), max_evals
+        )
+    else:
+        result = minimize_cmaes(
+            objective,
+            start,
+            lower=lower[search],
+            upper=upper[search],
+            seed=seed + 1,
+            sigma0=0.2,
+            max_evals=max_evals,
+            popsize=POPULATION,
+            progress=progress,
+        )
+        x_best, evaluations = np.asarray(result.x_best, dtype=float), result.evaluations
+    key = tuple(map(float, x_best))
+    if key not in profiles:
+        objective(x_best[None])
+    optimum = np.empty(len(free))
+    optimum[search] = x_best
+    for n, s in profiles[key].items():
+        optimum[free.index(n)] = s
+    sd = np.full(len(free), np.nan)
+    if uncertainty:
+        sd[search] = _laplace_sd(
+            objective, x_best, lower[search], upper[search], np.random.default_rng(seed)
+        )
+        d = len(search)
+        evaluations += 3 * (1 + d + d * (d + 1) // 2)
+    every = np.arange(len(setup.operating))
+    spectra = setup.spectra.model(
+        model.solve(model.values(optimum[None], len(every)), every)[0], every
+    )
+    train_lpd = float(_profile_lpd(setup.spectra, spectra[None, train], train)[0])
+    return RefitResult(
+        proposal=proposal,
+        values={**model.fixed, **dict(zip(free, map(float, optimum), strict=True))},
+        sd=dict(zip(free, map(float, sd), strict=True)),
+        train=train,
+        spectra=spectra,
+        train_lpd=train_lpd,
+        evaluations=evaluations,
+        solves=model.solves,
+    )
+
+
 def refit_extension(
     setup: RefitSetup,
     proposal: ExtensionProposal,
@@ -530,6 +707,19 @@ def refit_extension(
     extended, free, lower, upper, fixed = _boxes(setup.system, proposal)
     model = _Model(setup, proposal, extended, fixed, {} if bases is None else bases)
     train = np.asarray(train, dtype=int)
+    if proposal.gains and not model.output_only:
+        return _refit_with_gains(
+            setup,
+            proposal,
+            model,
+            lower,
+            upper,
+            train,
+            seed=seed,
+            max_evals=max_evals,
+            uncertainty=uncertainty,
+            progress=progress,
+        )
     gridded = model.nonlinear if model.surrogate else []
     search = [i for i, n in enumerate(free) if n not in gridded]
 

@@ -4,6 +4,7 @@ from ._catalogue import DOOR_CATALOGUE as DOOR_CATALOGUE
 from ._catalogue import WHEEL_CIRCUMFERENCE as WHEEL_CIRCUMFERENCE
 from ._extensions import EXTENSIONS as EXTENSIONS
 from ._extensions import AbstractDoorExtension as AbstractDoorExtension
+from ._extensions import CoupledFrameMode as CoupledFrameMode
 from ._extensions import FrameMode as FrameMode
 from ._extensions import MainsHum as MainsHum
 from ._extensions import RailWaviness as RailWaviness
@@ -17,6 +18,7 @@ from ._model import DoorConstants as DoorConstants
 from ._model import contact_kinematics as contact_kinematics
 from ._model import make_args as make_args
 from ._model import rhs as rhs
+from ._model import state_size as state_size
 from ._params import PARAMETERS as PARAMETERS
 from ._params import STATES as STATES
 from ._params import DoorDamage as DoorDamage

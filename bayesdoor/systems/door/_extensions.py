@@ -13,7 +13,10 @@ Two kinds:
   running surface under a wheel inside the equations of motion: they need a new solve;
 - *output* extensions (``frame_mode``, ``sensor_cross_axis``, ``mains_hum``) act on the
   simulated sensor signals only, so they can be applied to, and refitted on, signals already
-  simulated (:meth:`ElevatorDoor.apply_output_extensions`).
+  simulated (:meth:`ElevatorDoor.apply_output_extensions`);
+- extensions with their own *coordinates* (``n_dof``: :class:`CoupledFrameMode`, a frame
+  mode that carries the rail) add equations of motion coupled to the door's through the
+  wheel contact: they need a new solve.
 
 The rig's effects (``bayesdoor.rig``) are the separate higher-fidelity counterparts used to
 make test data; these are the reduced model's own, simpler and differentiable, versions.
@@ -113,6 +116,34 @@ class AbstractDoorExtension(eqx.Module):
     ) -> Float[Array, "channel time"]:
         """The sensor signals of one run with this extension's effect (output extensions)."""
         return signals
+
+    #: coordinates this extension adds to the door's equations of motion (each with its
+    #: velocity in the state); they act through :meth:`wheel_lift`, :meth:`dof_accelerations`
+    #: and :meth:`sensor_accelerations`
+    n_dof: ClassVar[int] = 0
+
+    def wheel_lift(
+        self, x: Float[Array, " dof"], values: Mapping[str, Float[Array, ""]], xp=jnp
+    ) -> Float[Array, ""]:
+        """Rise of the rail under both wheels for the extension's coordinates ``x`` (m)."""
+        return 0.0 * xp.sum(x)
+
+    def dof_accelerations(
+        self,
+        x: Float[Array, " dof"],
+        v: Float[Array, " dof"],
+        wheel_load: Float[Array, ""],
+        values: Mapping[str, Float[Array, ""]],
+        xp=jnp,
+    ) -> Float[Array, " dof"]:
+        """Accelerations of the extension's coordinates, given the wheels' dynamic load (N)."""
+        return 0.0 * x
+
+    def sensor_accelerations(
+        self, a: Float[Array, " dof"], values: Mapping[str, Float[Array, ""]], xp=jnp
+    ) -> Float[Array, " 4"]:
+        """What the four channels read of the extension's accelerations ``a`` (m/s^2)."""
+        return xp.zeros(len(g.CHANNELS), dtype=a.dtype)
 
 
 class FrameMode(AbstractDoorExtension):
@@ -221,6 +252,95 @@ class FrameMode(AbstractDoorExtension):
         u = self.response(drive, time[1] - time[0], v["frequency_hz"], v["damping_ratio"])
         p = jnp.stack([jnp.asarray(v[f"participation_{c}"], signals.dtype) for c in g.CHANNELS])
         return signals + p[:, None] * u[None, :]
+
+
+class CoupledFrameMode(AbstractDoorExtension):
+    """A structural mode of the frame that carries the rail (``frame_mode``, solved with the door).
+
+    A modal coordinate p (modal mass m_p = 20 kg, the frame's) of frequency f and damping
+    ratio zeta lifts the rail under both wheels by ``rail_lift`` lambda per unit p. Its
+    generalised force is that of the wheel contacts through the lift, so the wheels'
+    vertical load drives it and its lift feeds back into the contacts:
+    m_p (p'' + 2 zeta w p' + w^2 p) = -lambda (F_L + F_R - m g), w = 2 pi f, with p measured
+    from its static sag under the door's weight m g (the sag only lowers the panel's rest
+    height, which no sensor reads). Channel c reads ``participation_c`` times p''. Where
+    :class:`FrameMode` is excited by the base model's horizontal accelerations and leaves the
+    door unchanged, this mode is excited by the vertical wheel forces, as a frame mode under
+    the rail is, and with a strong lift it shifts the door's own modes. It rings while the door
+    moves and decays at rest; the peak sits near f whatever the door speed (the coupling moves
+    it slightly: the *installed* frequency depends on lambda and the contact stiffness).
+
+    Parameters (full names ``frame_mode.*``): ``frequency_hz`` (10-300 Hz, of the bare mode),
+    ``damping_ratio`` (0.005-0.1), ``rail_lift`` (0-0.3; 0 is off),
+    ``participation_<channel>`` (-1 to 1).
+    """
+
+    name: ClassVar[str] = "frame_mode"
+    needs_resolve: ClassVar[bool] = True
+    n_dof: ClassVar[int] = 1
+
+    #: what drives the mode (a configuration that reads apart from :class:`FrameMode`'s)
+    coupling: str = eqx.field(static=True, default="wheel_contact")
+
+    def __check_init__(self):
+        if self.coupling != "wheel_contact":
+            raise ValueError(
+                f"CoupledFrameMode.coupling={self.coupling!r}: the only coupling is "
+                "'wheel_contact' (use FrameMode for a mode driven by the channels)"
+            )
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        return (
+            _spec(
+                self.name,
+                "frequency_hz",
+                "Hz",
+                55.0,
+                10.0,
+                300.0,
+                "natural frequency of the bare mode (before its coupling to the door)",
+            ),
+            _spec(self.name, "damping_ratio", "-", 0.02, 0.005, 0.1, "damping ratio of the mode"),
+            _spec(
+                self.name,
+                "rail_lift",
+                "-",
+                0.0,
+                0.0,
+                0.3,
+                "rise of the rail under the wheels per unit modal displacement",
+            ),
+            *(
+                _spec(
+                    self.name,
+                    f"participation_{c}",
+                    "-",
+                    0.0,
+                    -1.0,
+                    1.0,
+                    f"share of the mode's acceleration seen on {c}",
+                )
+                for c in g.CHANNELS
+            ),
+        )
+
+    def wheel_lift(self, x, values, xp=jnp):
+        return self.local(values)["rail_lift"] * x[0]
+
+    def dof_accelerations(self, x, v, wheel_load, values, xp=jnp):
+        p = self.local(values)
+        w = 2.0 * np.pi * p["frequency_hz"]
+        acc = (
+            -(w**2) * x[0]
+            - 2.0 * p["damping_ratio"] * w * v[0]
+            - p["rail_lift"] * wheel_load / g.FRAME_MODAL_MASS
+        )
+        return xp.stack([acc])
+
+    def sensor_accelerations(self, a, values, xp=jnp):
+        p = self.local(values)
+        return xp.stack([p[f"participation_{c}"] * a[0] for c in g.CHANNELS])
 
 
 class SensorCrossAxis(AbstractDoorExtension):

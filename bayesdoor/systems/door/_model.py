@@ -4,7 +4,9 @@ Generalised coordinates q = (s, y, theta, phi, q1, q2, q3):
 s slide of the panel centre along Z, y its vertical position (0 = wheels touching the undeformed
 rail), theta pitch about X, phi sway about the rail line, q1..q3 the frame's modal coordinates
 (header X, racking Z, rail vertical). The state is (q, q_dot, latch) with one approach-velocity
-latch per contact (left wheel, right wheel, +X groove wall, -X groove wall): 18 entries.
+latch per contact (left wheel, right wheel, +X groove wall, -X groove wall): 18 entries, then
+the coordinates x and velocities of extensions that add their own (``n_dof``; none for the
+base door).
 
 Every function here takes an array namespace ``xp`` (``numpy`` or ``jax.numpy``) so the very same
 equations run in diffrax and in the scipy reference integrator used by the tests and benchmarks.
@@ -170,11 +172,12 @@ def _unit(i, xp, dtype):
     return xp.asarray(e, dtype=dtype)
 
 
-def contact_kinematics(q, args: DoorArgs, xp: ModuleType = jnp):
+def contact_kinematics(q, args: DoorArgs, xp: ModuleType = jnp, lift=0.0):
     """Gaps of the four contacts and their Jacobians d(gap)/dq (rows: L, R, +X wall, -X wall).
 
     Also returns the Jacobians of the wheel rolling coordinates (for rolling resistance) and of
-    the shoe's (Z, X) position (for friction).
+    the shoe's (Z, X) position (for friction). ``lift`` raises the rail under both wheels
+    (extensions' coordinates, which are not among q).
     """
     dtype = q.dtype
     c = args.constants
@@ -194,8 +197,8 @@ def contact_kinematics(q, args: DoorArgs, xp: ModuleType = jnp):
             fl, dfl = _flat(zeta, args, xp)
         else:
             fl, dfl = 0.0 * zeta, 0.0 * zeta
-        lift = c.torsion_lift * q1 + c.racking_tilt * (zeta - g.RACKING_PIVOT) * q2
-        gap = r + lift + psi * q3 - y - th * zl - fl
+        frame_lift = c.torsion_lift * q1 + c.racking_tilt * (zeta - g.RACKING_PIVOT) * q2
+        gap = r + frame_lift + lift + psi * q3 - y - th * zl - fl
         slope = dr + c.racking_tilt * q2 + dpsi * q3 - dfl  # d(gap)/d(zeta)
         dzeta = e[S] - g.RAIL_HEIGHT * e[TH] - e[Q2]
         jac = (
@@ -249,10 +252,38 @@ def _solve_mass(force, q, args: DoorArgs, xp):
     return acc * (1.0 - mask) + scatter @ acc_lat
 
 
+def extension_dofs(args: DoorArgs) -> int:
+    """Coordinates the solved extensions add to the state (each with its velocity)."""
+    return sum(e.n_dof for e in args.extensions)
+
+
+def state_size(args: DoorArgs) -> int:
+    """Length of the state vector: (q, q_dot, latch, x, x_dot), x the extensions' coordinates."""
+    return STATE_SIZE + 2 * extension_dofs(args)
+
+
+def _extension_slices(args: DoorArgs):
+    """(extension, slice of its coordinates within x) for every extension with coordinates."""
+    out, start = [], 0
+    for e in args.extensions:
+        if e.n_dof:
+            out.append((e, slice(start, start + e.n_dof)))
+            start += e.n_dof
+    return out
+
+
 def accelerations(t, state, args: DoorArgs, xp: ModuleType = jnp):
-    """Generalised accelerations and latch rates: the full right-hand side pieces."""
-    q, v, latch = state[:N_DOF], state[N_DOF : 2 * N_DOF], state[2 * N_DOF :]
-    gaps, jacs, roll_jacs, jz, jx = contact_kinematics(q, args, xp)
+    """Generalised accelerations, latch rates and the extensions' coordinate accelerations."""
+    q, v = state[:N_DOF], state[N_DOF : 2 * N_DOF]
+    latch = state[2 * N_DOF : STATE_SIZE]
+    n_ext = extension_dofs(args)
+    x, xv = state[STATE_SIZE : STATE_SIZE + n_ext], state[STATE_SIZE + n_ext :]
+    owned = _extension_slices(args)
+    values = args.extension_values
+    lift = 0.0 * q[S]
+    for e, part in owned:
+        lift = lift + e.wheel_lift(x[part], values, xp)
+    gaps, jacs, roll_jacs, jz, jx = contact_kinematics(q, args, xp, lift)
     rates = jacs @ v
     k = xp.stack([args.k_contact, args.k_contact, args.k_shoe, args.k_shoe])
     n = xp.stack([args.n, args.n, g.SHOE_N + 0.0 * args.n, g.SHOE_N + 0.0 * args.n])
@@ -298,18 +329,23 @@ def accelerations(t, state, args: DoorArgs, xp: ModuleType = jnp):
     frame = xp.concatenate([0.0 * q[:4], -args.frame_k * q[4:] - args.frame_c * v[4:]])
     acc = _solve_mass(force + gravity + frame, q, args, xp)
     latch_dot = latch_rate(gaps, rates, latch, xp=xp)
-    return acc, latch_dot
+    # the wheels' load beyond the door's weight (zero at rest: the wheels alone carry it)
+    wheel_load = normal[0] + normal[1] - args.mass * g.GRAVITY
+    ext_acc = [e.dof_accelerations(x[part], xv[part], wheel_load, values, xp) for e, part in owned]
+    ext_acc = xp.concatenate(ext_acc) if ext_acc else 0.0 * x
+    return acc, latch_dot, ext_acc
 
 
 def rhs(t, state, args: DoorArgs, xp: ModuleType = jnp):
-    """d(state)/dt for the state (q, q_dot, latch)."""
-    acc, latch_dot = accelerations(t, state, args, xp)
-    return xp.concatenate([state[N_DOF : 2 * N_DOF], acc, latch_dot])
+    """d(state)/dt for the state (q, q_dot, latch, x, x_dot)."""
+    acc, latch_dot, ext_acc = accelerations(t, state, args, xp)
+    xv = state[STATE_SIZE + extension_dofs(args) :]
+    return xp.concatenate([state[N_DOF : 2 * N_DOF], acc, latch_dot, xv, ext_acc])
 
 
 def sensor_signals(t, state, args: DoorArgs, xp: ModuleType = jnp):
     """Absolute accelerations at the four channels A1X, A1Z, A2X, A2Z (m/s^2)."""
-    acc, _ = accelerations(t, state, args, xp)
+    acc, _, ext_acc = accelerations(t, state, args, xp)
     lateral = args.constants.rail_lateral
     a_panel = lateral * g.rail_mode_shape(state[S], xp)[0]
     a_header = lateral * float(g.rail_mode_shape(g.A2_Z)[0])
@@ -317,12 +353,16 @@ def sensor_signals(t, state, args: DoorArgs, xp: ModuleType = jnp):
     a1z = acc[S] - g.A1_Y * acc[TH]
     a2x = acc[Q1] + a_header * acc[Q3]
     a2z = acc[Q2]
-    return xp.stack([a1x, a1z, a2x, a2z])
+    out = xp.stack([a1x, a1z, a2x, a2z])
+    for e, part in _extension_slices(args):
+        out = out + e.sensor_accelerations(ext_acc[part], args.extension_values, xp)
+    return out
 
 
 def static_residual(q, args: DoorArgs, xp: ModuleType = jnp):
     """Generalised forces at rest with the commanded position 0 (zero at equilibrium)."""
     dtype = q.dtype
-    state = xp.concatenate([q, 0.0 * q, xp.full((N_LATCH,), 0.05, dtype=dtype)])
-    acc, _ = accelerations(xp.asarray(0.0, dtype=dtype), state, args, xp)
+    rest = xp.zeros(2 * extension_dofs(args), dtype=dtype)
+    state = xp.concatenate([q, 0.0 * q, xp.full((N_LATCH,), 0.05, dtype=dtype), rest])
+    acc, _, _ = accelerations(xp.asarray(0.0, dtype=dtype), state, args, xp)
     return acc

@@ -10,7 +10,15 @@ import numpy as np
 
 from ..._types import Array, Float, Int
 from . import _geometry as g
-from ._model import N_DOF, N_LATCH, DoorArgs, rhs, sensor_signals, static_residual
+from ._model import (
+    N_DOF,
+    N_LATCH,
+    DoorArgs,
+    extension_dofs,
+    rhs,
+    sensor_signals,
+    static_residual,
+)
 
 #: status codes of a solve (``SimulationResult.status``)
 STATUS_OK = 0
@@ -98,11 +106,16 @@ def static_equilibrium(args: DoorArgs, iterations: int = 30) -> Float[Array, " 7
     return jax.lax.fori_loop(0, iterations, body, q0)
 
 
-def initial_state(args: DoorArgs) -> Float[Array, " 18"]:
-    """Static equilibrium, at rest, with every approach-velocity latch at its floor."""
+def initial_state(args: DoorArgs) -> Float[Array, " state"]:
+    """Static equilibrium, at rest, with every approach-velocity latch at its floor.
+
+    18 entries for the base door; extensions with their own coordinates start at rest too
+    (those are measured from their static position).
+    """
     q = static_equilibrium(args)
     dtype = q.dtype
-    return jnp.concatenate([q, jnp.zeros(N_DOF, dtype), jnp.full((N_LATCH,), 0.05, dtype)])
+    rest = jnp.zeros(2 * extension_dofs(args), dtype)
+    return jnp.concatenate([q, jnp.zeros(N_DOF, dtype), jnp.full((N_LATCH,), 0.05, dtype), rest])
 
 
 def sample_times(duration: float, fs: float = g.SAMPLING_RATE_HZ, dtype=jnp.float64):

@@ -42,7 +42,7 @@ from bayesdoor.rig import (
     WheelEccentricity,
 )
 from bayesdoor.systems import ElevatorDoor
-from bayesdoor.systems.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE
+from bayesdoor.systems.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE, CoupledFrameMode
 from bayesdoor.systems.door import FrameMode as FrameModeExtension
 
 DOOR = ElevatorDoor()
@@ -96,6 +96,10 @@ def check_parameters(name: str, cause, recording, rig) -> None:
         # (the linearised rig at rest) is the reference; 1 Hz is one bin of the spectra
         installed = rig.rest_state().frequencies_hz
         reference = installed[np.argmin(np.abs(installed - truth["frequency_hz"]))]
+        if isinstance(cause.proposal.extension, CoupledFrameMode):
+            # a mode that carries the rail is fitted by its bare frequency, as the rig's is
+            # defined (modal mass 20 kg, lifting the rail under both wheels)
+            reference = truth["frequency_hz"]
         assert abs(_mean(p, "frame_mode.frequency_hz") - reference) < 1.0, (p, reference)
     elif name == "rail_waviness":
         # a tone at 4-60 Hz refined to a fraction of a 1 Hz bin over runs 0.3-0.5 m/s

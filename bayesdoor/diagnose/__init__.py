@@ -20,10 +20,12 @@ from ._gain import SIGMA_FLOOR as SIGMA_FLOOR
 from ._gain import ChangeDiscrepancy as ChangeDiscrepancy
 from ._gain import Discrepancy as Discrepancy
 from ._gain import Gain as Gain
+from ._gain import TrackingChangeDiscrepancy as TrackingChangeDiscrepancy
 from ._gain import changed_bins as changed_bins
 from ._gain import compare_held_out as compare_held_out
 from ._gain import estimate_change_discrepancy as estimate_change_discrepancy
 from ._gain import estimate_discrepancy as estimate_discrepancy
+from ._gain import estimate_tracking_change_discrepancy as estimate_tracking_change_discrepancy
 from ._gain import feature_bins as feature_bins
 from ._gain import log_predictive as log_predictive
 from ._job import Cause as Cause
@@ -32,6 +34,7 @@ from ._job import DiagnosisSettings as DiagnosisSettings
 from ._job import diagnose_campaign as diagnose_campaign
 from ._job import extension_gain as extension_gain
 from ._job import held_out_folds as held_out_folds
+from ._job import tracks_speed as tracks_speed
 from ._order import OrderSpectra as OrderSpectra
 from ._order import order_log_psd as order_log_psd
 from ._order import order_peak as order_peak

@@ -290,6 +290,26 @@ class ChangeDiscrepancy:
         )
 
 
+def _change_parts(
+    model: np.ndarray, measured: np.ndarray, half_width: int, changed: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Smooth part, squared remaining residual, mask, and the changed and unchanged means."""
+    resid = np.asarray(measured, dtype=float) - np.asarray(model, dtype=float)
+    m = np.asarray(changed, dtype=bool)
+    if m.shape != resid.shape:
+        raise ValueError(
+            f"changed has shape {m.shape}; it must be (run, channel, freq) = {resid.shape}, "
+            "one flag per training run, channel and bin"
+        )
+    smooth = smooth_discrepancy(resid.mean(axis=0), half_width)
+    square = (resid - smooth) ** 2
+    n_in, n_out = m.sum(axis=(0, 2)), (~m).sum(axis=(0, 2))
+    s_in, s_out = (square * m).sum(axis=(0, 2)), (square * ~m).sum(axis=(0, 2))
+    inside = np.where(n_in > 0, s_in / np.maximum(n_in, 1), s_out / np.maximum(n_out, 1))
+    outside = np.where(n_out > 0, s_out / np.maximum(n_out, 1), inside)
+    return smooth, square, m, inside, outside
+
+
 def estimate_change_discrepancy(
     model: Float[np.ndarray, "run channel freq"],
     measured: Float[np.ndarray, "run channel freq"],
@@ -326,19 +346,7 @@ def estimate_change_discrepancy(
     ValueError
         For a ``changed`` mask whose shape is not that of the spectra.
     """
-    resid = np.asarray(measured, dtype=float) - np.asarray(model, dtype=float)
-    m = np.asarray(changed, dtype=bool)
-    if m.shape != resid.shape:
-        raise ValueError(
-            f"changed has shape {m.shape}; it must be (run, channel, freq) = {resid.shape}, "
-            "one flag per training run, channel and bin"
-        )
-    smooth = smooth_discrepancy(resid.mean(axis=0), half_width)
-    square = (resid - smooth) ** 2
-    n_in, n_out = m.sum(axis=(0, 2)), (~m).sum(axis=(0, 2))
-    s_in, s_out = (square * m).sum(axis=(0, 2)), (square * ~m).sum(axis=(0, 2))
-    inside = np.where(n_in > 0, s_in / np.maximum(n_in, 1), s_out / np.maximum(n_out, 1))
-    outside = np.where(n_out > 0, s_out / np.maximum(n_out, 1), inside)
+    smooth, square, m, inside, outside = _change_parts(model, measured, half_width, changed)
     width = 2 * LOCAL_BINS + 1
     near_sum = scipy.ndimage.uniform_filter1d((square * m).sum(axis=0), width, mode="constant")
     near_n = scipy.ndimage.uniform_filter1d(m.sum(axis=0).astype(float), width, mode="constant")
@@ -348,6 +356,189 @@ def estimate_change_discrepancy(
         smooth=smooth,
         changed=np.maximum(local - welch, SIGMA_FLOOR**2),
         unchanged=np.maximum(outside - welch, SIGMA_FLOOR**2),
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackingChangeDiscrepancy:
+    """A model's discrepancy on its training runs, its scatter in the changed bins of an
+    extension that tracks the speed local in frequency and in wavenumber
+    (:func:`estimate_tracking_change_discrepancy`).
+
+    Attributes
+    ----------
+    smooth
+        ``delta_c(f)``, decades, added to the model's spectrum.
+    unchanged
+        The scatter in the unchanged bins, decades^2, one value per channel.
+    everywhere
+        The scatter over all of a channel's changed training pairs, decades^2: a window's
+        value where it holds no changed training pair.
+    square
+        The training runs' squared remaining residual, decades^2 (the Welch variance not
+        taken off).
+    changed
+        The training runs' changed bins.
+    freqs
+        The bins, Hz, equally spaced.
+    speeds
+        The training runs' speeds, m/s.
+    welch
+        The training runs' mean Welch variance, decades^2 (taken off the local means).
+    """
+
+    smooth: Float[np.ndarray, "channel freq"]
+    unchanged: Float[np.ndarray, " channel"]
+    everywhere: Float[np.ndarray, " channel"]
+    square: Float[np.ndarray, "train channel freq"]
+    changed: Bool[np.ndarray, "train channel freq"]
+    freqs: Float[np.ndarray, " freq"]
+    speeds: Float[np.ndarray, " train"]
+    welch: float
+
+    def _window(self, target: np.ndarray) -> np.ndarray:
+        """Scatter over the changed training pairs within ``LOCAL_BINS`` bins of ``target``.
+
+        ``target`` (run, train, freq) is, for each bin of each run judged, the frequency in
+        each training run around which its bins are gathered; the result (run, channel,
+        freq) is the mean over all training runs together, less the Welch variance, floored;
+        ``everywhere`` where the window holds no changed pair.
+        """
+        f = self.freqs
+        step = float(f[1] - f[0])
+        reach = LOCAL_BINS * step + 1e-9 * step
+        lo = np.searchsorted(f, target - reach, side="left")
+        hi = np.searchsorted(f, target + reach, side="right")
+        train = np.arange(self.square.shape[0])[None, :, None]
+        zeros = np.zeros((*self.square.shape[:2], 1))
+
+        def gather(values: np.ndarray) -> np.ndarray:
+            # running sums over frequency, (channel, train, freq + 1), differenced at the
+            # window's edges and summed over the training runs
+            cumulative = np.concatenate([zeros, np.cumsum(values, axis=-1)], axis=-1)
+            c = cumulative.transpose(1, 0, 2)
+            return (c[:, train, hi] - c[:, train, lo]).sum(axis=2).transpose(1, 0, 2)
+
+        total, n = gather(self.square * self.changed), gather(self.changed.astype(float))
+        mean = np.maximum(total / np.maximum(n, 1.0) - self.welch, SIGMA_FLOOR**2)
+        return np.where(n > 0.5, mean, self.everywhere[None, :, None])
+
+    def at(
+        self, mask: Bool[np.ndarray, "run channel freq"], speeds: Float[np.ndarray, " run"]
+    ) -> Discrepancy:
+        """The discrepancy of runs at ``speeds`` whose changed bins are ``mask``.
+
+        In a changed bin ``f`` of a run at speed ``v`` the scatter is the larger of two
+        means of the training runs' squared remaining residual over their changed bins: within
+        ``LOCAL_BINS`` bins of ``f`` (the same frequency) and within ``LOCAL_BINS`` bins of
+        ``f v' / v`` in a training run at ``v'`` (the same wavenumber ``f / v``).
+        """
+        m = np.asarray(mask, dtype=bool)
+        v = np.asarray(speeds, dtype=float)
+        if m.ndim != 3 or m.shape[1:] != self.square.shape[1:] or v.shape != m.shape[:1]:
+            raise ValueError(
+                f"mask has shape {m.shape} and speeds {v.shape}; they must be (run, channel, "
+                f"freq) with (channel, freq) = {self.square.shape[1:]} and (run,)"
+            )
+        if np.any(~np.isfinite(v) | (v <= 0)):
+            raise ValueError(f"speeds must be positive m/s, one per run; got {v.tolist()}")
+        f = self.freqs[None, None, :]
+        shape = (v.size, self.speeds.size, self.freqs.size)
+        same_frequency = self._window(np.broadcast_to(f, shape))
+        same_wavenumber = self._window(f * (self.speeds[None, :, None] / v[:, None, None]))
+        local = np.maximum(same_frequency, same_wavenumber)
+        return Discrepancy(
+            smooth=self.smooth, variance=np.where(m, local, self.unchanged[None, :, None])
+        )
+
+
+def estimate_tracking_change_discrepancy(
+    model: Float[np.ndarray, "run channel freq"],
+    measured: Float[np.ndarray, "run channel freq"],
+    log_variance: Float[np.ndarray, " run"],
+    half_width: int,
+    changed: Bool[np.ndarray, "run channel freq"],
+    freqs: Float[np.ndarray, " freq"],
+    speeds: Float[np.ndarray, " run"],
+) -> TrackingChangeDiscrepancy:
+    """As :func:`estimate_change_discrepancy`, for an extension whose effect tracks the speed:
+    the scatter in its changed bins local in frequency and in the order domain (``f / v``,
+    cycles per metre), the larger of the two.
+
+    Why: a tone excited by a spatial period (a rail's wavelength, a wheel's circumference over
+    a harmonic) and its harmonics lie at ``f = kappa v``, a different bin in every run. A
+    model's error there, the base model's missing tone or the extension's misfit of its
+    level, belongs to the wavenumber ``kappa``, not to the bin: in a training run it lies at
+    ``kappa v'``. A variance local in frequency alone takes, at a held-out run's tone, the
+    training runs' error at whatever lies in the same bins: at close speeds their own tones a
+    bin or two away (the base model's missing tone is then judged against its own size), at
+    distant speeds the spectrum between their tones; which one depends on how close the
+    nearest training speed lies, so the runs' gains scatter. Gathered at the same
+    wavenumber, every held-out run's tone is judged against the training runs' error at that
+    tone, whatever the speeds. But the bins such an extension changes also hold errors that
+    stay at their frequency (the base model's slightly misplaced door modes, which the tone
+    passes through and excites), which a window in wavenumber gathers from other
+    frequencies. The error in a bin is the sum of a part at its wavenumber and a part at its
+    frequency; each window's mean measures one of them, plus the residual common to both, so
+    the larger of the two is the estimate that counts neither twice and misses neither
+    where it dominates (within a factor 2 of their sum).
+
+    Each window is ``LOCAL_BINS`` bins of each training run's own spectrum: the Hann main
+    lobe is fixed in frequency, so its width in wavenumber scales with each run's speed. At
+    equal speeds the two windows coincide and this is :func:`estimate_change_discrepancy`
+    exactly. The unchanged bins keep one value per channel, as there: both models predict
+    the same spectrum and score alike. Nothing here depends on a measured held-out spectrum:
+    the held-out runs enter through their changed bins (the two models' predictions) and
+    their speeds (:meth:`TrackingChangeDiscrepancy.at`).
+
+    Parameters
+    ----------
+    model, measured
+        log10 spectra of the simulated and the measured training runs.
+    log_variance
+        Welch variance of each measured run's log10 estimate.
+    half_width
+        Half-width (bins) of the running median.
+    changed
+        The extension's bins in each training run.
+    freqs
+        The bins, Hz, equally spaced.
+    speeds
+        Each training run's speed (the one the tone's frequency is proportional to), m/s.
+
+    Returns
+    -------
+    TrackingChangeDiscrepancy
+
+    Raises
+    ------
+    ValueError
+        For a ``changed`` mask whose shape is not that of the spectra, ``freqs`` that do not
+        match their bins or are not equally spaced, or speeds that are not positive, one per
+        training run.
+    """
+    smooth, square, m, inside, outside = _change_parts(model, measured, half_width, changed)
+    f = np.asarray(freqs, dtype=float)
+    if f.shape != square.shape[-1:] or f.size < 2 or not np.allclose(np.diff(f), f[1] - f[0]):
+        raise ValueError(
+            f"freqs has shape {f.shape}; it must hold the {square.shape[-1]} equally spaced "
+            "bins of the spectra, in Hz"
+        )
+    v = np.asarray(speeds, dtype=float)
+    if v.shape != square.shape[:1] or np.any(~np.isfinite(v) | (v <= 0)):
+        raise ValueError(
+            f"speeds={v.tolist()} must be positive m/s, one per training run ({square.shape[0]})"
+        )
+    welch = float(np.mean(log_variance))
+    return TrackingChangeDiscrepancy(
+        smooth=smooth,
+        unchanged=np.maximum(outside - welch, SIGMA_FLOOR**2),
+        everywhere=np.maximum(inside - welch, SIGMA_FLOOR**2),
+        square=square,
+        changed=m,
+        freqs=f,
+        speeds=v,
+        welch=welch,
     )
 
 

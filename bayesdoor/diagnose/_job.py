@@ -26,6 +26,7 @@ from ._gain import (
     changed_bins,
     compare_held_out,
     estimate_change_discrepancy,
+    estimate_tracking_change_discrepancy,
     feature_bins,
     log_predictive,
 )
@@ -40,6 +41,7 @@ from ._refit import (
     exact_spectra,
     refit_extension,
 )
+from ._signatures import AbstractSignature, FirstOf, HarmonicComb, SpeedTracking
 
 if TYPE_CHECKING:
     from ..inference import FitResult
@@ -360,13 +362,43 @@ class _HeldOut:
     j: np.ndarray
 
 
+def tracks_speed(signature: AbstractSignature) -> bool:
+    """Whether a cause with this signature is a tone at a fixed wavenumber, ``f = v / lambda``.
+
+    True for :class:`SpeedTracking` and :class:`HarmonicComb` (the comb of a revolution in the
+    order spectra), and for a :class:`FirstOf` all of whose signatures are; such a cause's
+    extension is judged with its scatter local in the order domain
+    (:func:`estimate_tracking_change_discrepancy`), every other one's local in frequency.
+    """
+    if isinstance(signature, FirstOf):
+        return all(tracks_speed(s) for s in signature.signatures)
+    return isinstance(signature, SpeedTracking | HarmonicComb)
+
+
 def _held_out(
-    spectra: Spectra, model: np.ndarray, changed: np.ndarray, train: np.ndarray, test: np.ndarray
+    spectra: Spectra,
+    model: np.ndarray,
+    changed: np.ndarray,
+    train: np.ndarray,
+    test: np.ndarray,
+    speeds: np.ndarray | None,
 ) -> _HeldOut:
+    """One model's held-out density and J; ``speeds``: its changed bins local in order."""
     y, lv = spectra.measured, spectra.log_variance
-    disc = estimate_change_discrepancy(
-        model[train], y[train], lv[train], SMOOTH_BINS, changed[train]
-    ).at(changed[test])
+    if speeds is None:
+        disc = estimate_change_discrepancy(
+            model[train], y[train], lv[train], SMOOTH_BINS, changed[train]
+        ).at(changed[test])
+    else:
+        disc = estimate_tracking_change_discrepancy(
+            model[train],
+            y[train],
+            lv[train],
+            SMOOTH_BINS,
+            changed[train],
+            spectra.freqs,
+            speeds[train],
+        ).at(changed[test], speeds[test])
     return _HeldOut(
         lpd=log_predictive(model[test], y[test], lv[test], disc),
         j=j_per_run(model[test] + disc.smooth, y[test]),
@@ -381,6 +413,7 @@ def _cross_validate(
     seed: int,
     max_evals: int,
     bases: dict[tuple[float, ...], np.ndarray],
+    tracking: bool,
 ) -> tuple[list[RefitResult], Gain]:
     """Refit on each fold's training runs, judge its held-out runs, both models alike.
 
@@ -390,7 +423,9 @@ def _cross_validate(
     is split by the bins where the extension changes the prediction (:func:`changed_bins` of
     the two models' spectra of every run in the fold: the training runs' as fitted, the
     held-out runs' as simulated), so the judgement asks where the extension predicts
-    something different, does it predict better.
+    something different, does it predict better. For an extension whose effect ``tracking``
+    the speed (a tone at ``f = v / lambda`` of each run's operating speed) the scatter in the
+    changed bins is local in the order domain, else in frequency.
     """
     base = setup.base_spectra
     fits = [
@@ -407,6 +442,7 @@ def _cross_validate(
         for n in proposal.free
     }
     held = exact_spectra(setup, proposal, values, tests)
+    speeds = np.asarray(setup.operating, dtype=float) if tracking else None
     before, after = [], []
     start = 0
     for fit, (train, test) in zip(fits, folds, strict=True):
@@ -414,8 +450,8 @@ def _cross_validate(
         model[test] = held[start : start + len(test)]
         start += len(test)
         changed = changed_bins(base, model, setup.spectra.log_variance)
-        before.append(_held_out(setup.spectra, base, changed, train, test))
-        after.append(_held_out(setup.spectra, model, changed, train, test))
+        before.append(_held_out(setup.spectra, base, changed, train, test, speeds))
+        after.append(_held_out(setup.spectra, model, changed, train, test, speeds))
     gain = compare_held_out(
         np.concatenate([h.lpd for h in before]),
         np.concatenate([h.lpd for h in after]),
@@ -569,6 +605,7 @@ def diagnose_campaign(
     t0 = time.perf_counter()
     setup = measured.setup(system, fit.point, base_signals, sample_times, band, features)
     recipes = {c.name: c.refit for c in catalogue.candidates}
+    tracking = {c.name: tracks_speed(c.signature) for c in catalogue.candidates}
     plausible = [
         c
         for c in ranking.causes
@@ -603,6 +640,7 @@ def diagnose_campaign(
                     seed=seed + 101 * (rank + 1) + 7 * k,
                     max_evals=settings.refit_evals,
                     bases=bases,
+                    tracking=tracking[score.name],
                 )
             except (ValueError, RuntimeError) as err:
                 notes.append(f"{score.name} ({proposal.label}): refit failed: {err}")
@@ -682,6 +720,7 @@ def extension_gain(
     seed: int = 0,
     quick: bool = False,
     features: Features | None = None,
+    catalogue: Catalogue | None = None,
 ) -> tuple[Gain, tuple[RefitResult, ...]]:
     """The held-out gain of one model extension forced onto a campaign's healthy runs.
 
@@ -708,6 +747,12 @@ def extension_gain(
         refit's discrepancy scatter is local in their bins, as in :func:`diagnose_campaign`;
         ``None``: one value per channel everywhere. The held-out judgement splits it by the
         bins the extension changes either way.
+    catalogue
+        The system's catalogue (``None``: ``system.catalogue``): when it holds a cause named
+        as the extension (``proposal.extension``, a name or a module with a ``name``) whose
+        signature tracks the speed (:func:`tracks_speed`), the judgement's scatter in the
+        changed bins is local in the order domain, as in :func:`diagnose_campaign`; otherwise
+        local in frequency.
 
     Returns
     -------
@@ -735,7 +780,22 @@ def extension_gain(
     if not ok[0]:
         raise RuntimeError("the base model failed to simulate the runs at the fit's point")
     setup = measured.setup(system, fit.point, sims[0], sample_times, _band(fit), features)
+    catalogue = getattr(system, "catalogue", None) if catalogue is None else catalogue
+    ext = proposal.extension
+    name = ext if isinstance(ext, str) else getattr(ext, "name", None)
+    signatures = (
+        {c.name: c.signature for c in catalogue.candidates}
+        if isinstance(catalogue, Catalogue)
+        else {}
+    )
+    tracking = name in signatures and tracks_speed(signatures[name])
     fits, gain = _cross_validate(
-        setup, proposal, folds, seed=seed, max_evals=settings.refit_evals, bases={}
+        setup,
+        proposal,
+        folds,
+        seed=seed,
+        max_evals=settings.refit_evals,
+        bases={},
+        tracking=tracking,
     )
     return gain, tuple(fits)

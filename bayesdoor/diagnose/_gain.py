@@ -362,7 +362,7 @@ def estimate_change_discrepancy(
 @dataclasses.dataclass(frozen=True)
 class TrackingChangeDiscrepancy:
     """A model's discrepancy on its training runs, its scatter in the changed bins of an
-    extension that tracks the speed local in frequency and in wavenumber
+    extension that tracks the speed local in wavenumber
     (:func:`estimate_tracking_change_discrepancy`).
 
     Attributes
@@ -428,10 +428,10 @@ class TrackingChangeDiscrepancy:
     ) -> Discrepancy:
         """The discrepancy of runs at ``speeds`` whose changed bins are ``mask``.
 
-        In a changed bin ``f`` of a run at speed ``v`` the scatter is the larger of two
-        means of the training runs' squared remaining residual over their changed bins: within
-        ``LOCAL_BINS`` bins of ``f`` (the same frequency) and within ``LOCAL_BINS`` bins of
-        ``f v' / v`` in a training run at ``v'`` (the same wavenumber ``f / v``).
+        A changed bin ``f`` of a run at speed ``v`` lies at wavenumber ``f / v``; in a
+        training run at ``v'`` that wavenumber is the bin ``f v' / v``, and the scatter is the
+        mean of the training runs' squared remaining residual over their changed bins within
+        ``LOCAL_BINS`` bins of it, all training runs together.
         """
         m = np.asarray(mask, dtype=bool)
         v = np.asarray(speeds, dtype=float)
@@ -442,11 +442,9 @@ class TrackingChangeDiscrepancy:
             )
         if np.any(~np.isfinite(v) | (v <= 0)):
             raise ValueError(f"speeds must be positive m/s, one per run; got {v.tolist()}")
-        f = self.freqs[None, None, :]
-        shape = (v.size, self.speeds.size, self.freqs.size)
-        same_frequency = self._window(np.broadcast_to(f, shape))
-        same_wavenumber = self._window(f * (self.speeds[None, :, None] / v[:, None, None]))
-        local = np.maximum(same_frequency, same_wavenumber)
+        local = self._window(
+            self.freqs[None, None, :] * (self.speeds[None, :, None] / v[:, None, None])
+        )
         return Discrepancy(
             smooth=self.smooth, variance=np.where(m, local, self.unchanged[None, :, None])
         )
@@ -462,8 +460,8 @@ def estimate_tracking_change_discrepancy(
     speeds: Float[np.ndarray, " run"],
 ) -> TrackingChangeDiscrepancy:
     """As :func:`estimate_change_discrepancy`, for an extension whose effect tracks the speed:
-    the scatter in its changed bins local in frequency and in the order domain (``f / v``,
-    cycles per metre), the larger of the two.
+    the scatter in its changed bins local in the order domain (``f / v``, cycles per metre)
+    instead of in frequency.
 
     Why: a tone excited by a spatial period (a rail's wavelength, a wheel's circumference over
     a harmonic) and its harmonics lie at ``f = kappa v``, a different bin in every run. A
@@ -475,21 +473,19 @@ def estimate_tracking_change_discrepancy(
     distant speeds the spectrum between their tones; which one depends on how close the
     nearest training speed lies, so the runs' gains scatter. Gathered at the same
     wavenumber, every held-out run's tone is judged against the training runs' error at that
-    tone, whatever the speeds. But the bins such an extension changes also hold errors that
-    stay at their frequency (the base model's slightly misplaced door modes, which the tone
-    passes through and excites), which a window in wavenumber gathers from other
-    frequencies. The error in a bin is the sum of a part at its wavenumber and a part at its
-    frequency; each window's mean measures one of them, plus the residual common to both, so
-    the larger of the two is the estimate that counts neither twice and misses neither
-    where it dominates (within a factor 2 of their sum).
+    tone, whatever the speeds. What it does not serve: the bins such an extension changes
+    can also hold errors that stay at their frequency (a door mode the base model misplaces
+    slightly, which the tone passes and excites); a window in wavenumber gathers those from
+    other frequencies (docs/diagnosis.md, session 7, measures both this and the larger of
+    the two windows).
 
-    Each window is ``LOCAL_BINS`` bins of each training run's own spectrum: the Hann main
-    lobe is fixed in frequency, so its width in wavenumber scales with each run's speed. At
-    equal speeds the two windows coincide and this is :func:`estimate_change_discrepancy`
-    exactly. The unchanged bins keep one value per channel, as there: both models predict
-    the same spectrum and score alike. Nothing here depends on a measured held-out spectrum:
-    the held-out runs enter through their changed bins (the two models' predictions) and
-    their speeds (:meth:`TrackingChangeDiscrepancy.at`).
+    The window is ``LOCAL_BINS`` bins of each training run's own spectrum: the Hann main lobe
+    is fixed in frequency, so its width in wavenumber scales with each run's speed. At equal
+    speeds it is :func:`estimate_change_discrepancy`'s window exactly. The unchanged bins
+    keep one value per channel, as there: both models predict the same spectrum and score
+    alike. Nothing here depends on a measured held-out spectrum: the held-out runs enter
+    through their changed bins (the two models' predictions) and their speeds
+    (:meth:`TrackingChangeDiscrepancy.at`).
 
     Parameters
     ----------

@@ -39,6 +39,7 @@ from ._refit import (
     RefitSetup,
     Spectra,
     exact_spectra,
+    held_out_spectra,
     refit_extension,
 )
 from ._signatures import AbstractSignature, FirstOf, HarmonicComb, SpeedTracking
@@ -654,7 +655,16 @@ def diagnose_campaign(
             n: {"mean": float(np.mean([f.values[n] for f in fits])), "sd": None}
             for n in proposal.free
         }
-        if gain.decisive:
+        explained, symptom = recipes[score.name].explains(  # type: ignore[union-attr]
+            score.parameters,
+            setup.spectra.freqs,
+            setup.spectra.measured,
+            setup.base_spectra,
+            held_out_spectra(fits, folds),
+            tuple(system.channels),
+        )
+        confirmed_here = gain.decisive and explained
+        if confirmed_here:
             every = np.arange(len(runs))
             final = refit_extension(
                 setup,
@@ -676,12 +686,15 @@ def diagnose_campaign(
             f"refit of {score.name} ({proposal.label}) on half of the runs, tested on the other "
             f"half both ways: {gain.describe()}"
         )
+        if symptom:
+            verb = "explains" if explained else "does not explain"
+            words += f"; the refit {verb} its own feature: {symptom}"
         refitted[score.name] = dataclasses.replace(
             _signature_cause(score),
             evidence=f"{score.evidence}. {words}",
             parameters={**dict(score.parameters), **parameters},
             gain=gain,
-            confirmed=gain.decisive,
+            confirmed=confirmed_here,
             label=proposal.label,
             proposal=proposal,
         )

@@ -60,6 +60,10 @@ _COUPLED_BOX_HZ = 4.0
 #: start and box of a rail-carrying mode's lift per unit modal displacement (modal mass 20 kg)
 _RAIL_LIFT_START = 0.1
 _RAIL_LIFT_BOX = (0.01, 0.3)
+#: a refitted mode explains its feature when the residual's mean square near its frequency
+#: falls under this share of the base model's (at least this far either side, Hz)
+_SYMPTOM_SHARE = 0.5
+_SYMPTOM_HALF_WIDTH_HZ = 1.5
 
 
 class FrameModeRefit(AbstractRefit):
@@ -121,6 +125,29 @@ class FrameModeRefit(AbstractRefit):
                 label=f"a mode near {f:.1f} Hz",
             ),
         )
+
+    def explains(self, parameters, freqs, measured, base, extended, channels):
+        """The mode must take away most of the excess that named it: over the bins within
+        the feature's half-power band of its frequency (at least 1.5 Hz either side) on the
+        channels that show it, the mean squared residual (log10 PSD, held-out runs) must fall
+        to under half of the base model's. A missing resonance is a peak of tens of dB there
+        (on the virtual rig 20-35 dB over the base model), which a right mode removes almost
+        entirely; a mode that gains elsewhere leaves it."""
+        f = float(parameters["frequency_hz"])
+        zeta = float(parameters.get("damping_ratio", 0.02))
+        shown = [channels.index(c) for c in parameters.get("channels", ()) if c in channels]
+        rows = shown or list(range(len(channels)))
+        near = np.abs(np.asarray(freqs) - f) <= max(_SYMPTOM_HALF_WIDTH_HZ, 2.0 * zeta * f)
+        if not near.any():
+            return False, f"no bin within the feature's band at {f:.1f} Hz"
+        before = float(np.mean((measured - base)[:, rows][..., near] ** 2))
+        after = float(np.mean((measured - extended)[:, rows][..., near] ** 2))
+        ratio = after / before if before > 0 else np.inf
+        words = (
+            f"near {f:.1f} Hz on {', '.join(channels[i] for i in rows)} the held-out "
+            f"residual's mean square went from {before:.3g} to {after:.3g} (log10 PSD)"
+        )
+        return bool(ratio < _SYMPTOM_SHARE), words
 
 
 class WheelRefit(AbstractRefit):

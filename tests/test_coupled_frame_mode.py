@@ -184,3 +184,24 @@ def test_gains_must_name_free_parameters_and_channels(refit_case):
     )
     with pytest.raises(ValueError, match="A3X"):
         refit_extension(setup, proposal, np.array([0, 1]), seed=0, max_evals=8)
+
+
+def test_one_solve_gives_each_gains_signal_as_two_solves_do():
+    """The door returns the participations' signals from one solve (the sensors' derivative
+    along them); the generic way solves twice, at 0 and at 1. The dynamics do not depend on
+    the participations, so both solve the same trajectory: they agree to round-off
+    (1e-9 of the signals' range), and the signals at zero gains are the door's own."""
+    door = ElevatorDoor(extensions=(CoupledFrameMode(),))
+    values = _mode_values(door, frequency_hz=45.0, rail_lift=0.15)
+    values = {**values, **OPT}
+    gains = tuple(P + f"participation_{c}" for c in CHANNELS)
+    result, slope = door.simulate_gains(values, np.array([0.4]), gains, duration=1.0)
+    generic, slope2 = super(ElevatorDoor, door).simulate_gains(
+        values, np.array([0.4]), gains, duration=1.0
+    )
+    scale = np.abs(np.asarray(slope2)).max()
+    assert scale > 0
+    np.testing.assert_allclose(np.asarray(slope), np.asarray(slope2), rtol=0, atol=1e-9 * scale)
+    np.testing.assert_allclose(
+        np.asarray(result.signals), np.asarray(generic.signals), rtol=0, atol=1e-12
+    )

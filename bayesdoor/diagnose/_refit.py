@@ -81,11 +81,12 @@ class ExtensionProposal:
         Free parameters that each scale one signal added to one channel only, by the
         channel's name (a mode's participation: channel c reads s_c p''). For an extension
         that needs a new solve they are profiled exactly instead of searched: every
-        candidate of the other free parameters is solved with the gains at 0 (signals O) and
-        at 1 (O + P), and since a Welch PSD is quadratic in s, PSD(O + s P) =
-        PSD(O) + s (PSD(O + P) - PSD(O - P)) / 2 + s^2 ((PSD(O + P) + PSD(O - P)) / 2 -
-        PSD(O)) with O - P = 2 O - (O + P), each gain is fitted on its channel (the
-        discrepancy is estimated channel by channel) without another solve.
+        candidate of the other free parameters is solved once for the signals O with the
+        gains at 0 and the signal P each gain scales (``AbstractSystem.simulate_gains``), and
+        since a Welch PSD is quadratic in s, PSD(O + s P) = PSD(O) + s (PSD(O + P) -
+        PSD(O - P)) / 2 + s^2 ((PSD(O + P) + PSD(O - P)) / 2 - PSD(O)), each gain is fitted
+        on its channel (the discrepancy is estimated channel by channel) without another
+        solve.
     """
 
     extension: Any
@@ -370,6 +371,32 @@ class _Model:
         signals = np.where(failed[:, None, None], np.nan, signals)
         return signals.reshape(pop, n_runs, *signals.shape[1:])
 
+    def solve_gains(
+        self, vals: Mapping[str, np.ndarray], runs: np.ndarray, gains: Sequence[str]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Signals (row, run, channel, time) with the ``gains`` at zero, and the signal each
+        gain scales (``AbstractSystem.simulate_gains``); NaN where the solve failed."""
+        pop, n_runs = next(iter(vals.values())).shape
+        flat = {k: jnp.asarray(np.reshape(v, -1), dtype=float) for k, v in vals.items()}
+        flat.update(
+            {k: jnp.full(pop * n_runs, float(v), dtype=float) for k, v in self.setup.point.items()}
+        )
+        result, slope = self.extended.simulate_gains(
+            flat,
+            jnp.asarray(np.tile(self.setup.operating[runs], pop)),
+            tuple(gains),
+            duration=self.setup.duration,
+            check=False,
+        )
+        self.solves += pop * n_runs
+        n_time = self.setup.base_signals.shape[-1]
+        failed = (np.asarray(result.status) != 0)[:, None, None]
+        out = []
+        for signals in (result.signals, slope):
+            x = np.where(failed, np.nan, np.asarray(signals)[..., :n_time])
+            out.append(x.reshape(pop, n_runs, *x.shape[1:]))
+        return out[0], out[1]
+
     def basis(self, point: tuple[float, ...]) -> np.ndarray:
         """Signal change per unit of each linear parameter at a grid point, every run."""
         if point not in self.bases:
@@ -593,13 +620,12 @@ def _refit_with_gains(
 
     def objective(x: np.ndarray) -> np.ndarray:
         x = np.atleast_2d(x)
-        full = np.zeros((2 * len(x), len(free)))
-        full[: len(x), search] = x
-        full[len(x) :, search] = x
-        full[len(x) :, gained] = 1.0
-        signals = model.solve(model.values(full, len(train)), train)
-        off, on = signals[: len(x)], signals[len(x) :]
-        power = 10.0 ** setup.spectra.model(np.stack([off, on, 2.0 * off - on], axis=1), train)
+        full = np.zeros((len(x), len(free)))
+        full[:, search] = x
+        off, slope = model.solve_gains(model.values(full, len(train)), train, list(proposal.gains))
+        power = 10.0 ** setup.spectra.model(
+            np.stack([off, off + slope, off - slope], axis=1), train
+        )
         out = np.full(len(x), np.inf)
         for r, row in enumerate(x):
             if not np.all(np.isfinite(power[r])):

@@ -153,6 +153,30 @@ class AbstractSystem(eqx.Module):
             its status is non-zero and its signals are zero.
         """
 
+    def simulate_gains(
+        self,
+        values: Mapping[str, Float[Array, "*batch"] | float],
+        operating: Float[Array, " batch"] | float,
+        gains: Sequence[str],
+        *,
+        duration: float | None = None,
+        check: bool = True,
+    ) -> tuple[SimulationResult, Float[Array, "batch channel time"]]:
+        """Runs with the ``gains`` at zero, and the signal each gain scales.
+
+        A gain is a parameter that scales one signal added to one channel only (a mode's
+        participation on a channel): the signals are linear in it and the dynamics do not
+        depend on it. Returns the healthy runs of :meth:`simulate_values` with every gain at
+        zero and d(signals)/d(gain) summed over the gains, which holds each gain's signal on
+        its own channel. This default simulates twice (gains at 0 and at 1); a system may
+        get both from one simulation.
+        """
+        off = {**values, **dict.fromkeys(gains, 0.0)}
+        on = {**values, **dict.fromkeys(gains, 1.0)}
+        zero = self.simulate_values(off, operating, duration=duration, check=check)
+        one = self.simulate_values(on, operating, duration=duration, check=check)
+        return zero, one.signals - zero.signals
+
     @property
     def extension_names(self) -> tuple[str, ...]:
         """Catalogue names of the model extensions switched on (none by default)."""

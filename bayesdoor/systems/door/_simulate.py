@@ -138,21 +138,48 @@ _OUTPUTS = {
 }
 
 
+def _with_gains(gains: tuple[str, ...]):
+    """The sensors and their derivative along every gain at once (eight rows).
+
+    The gains scale signals added to the channels only, so at a fixed state the sensors are
+    linear in them and the derivative is each gain's signal on its channel (forward mode).
+    """
+
+    def fn(t, y, a):
+        def sensors(values):
+            return sensor_signals(t, y, eqx.tree_at(lambda x: x.extension_values, a, values), jnp)
+
+        values = a.extension_values
+        unknown = [g for g in gains if g not in values]
+        if unknown:
+            raise ValueError(f"gains {unknown} are not parameters of the solved extensions")
+        tangent = {
+            k: jnp.ones_like(v) if k in gains else jnp.zeros_like(v) for k, v in values.items()
+        }
+        out, slope = jax.jvp(sensors, (values,), (tangent,))
+        return jnp.concatenate([out, slope])
+
+    return fn
+
+
 @eqx.filter_jit
 def solve(
     args: DoorArgs,
     ts: Float[Array, " time"],
     config: SolverConfig,
     output: str = "sensors",
-    y0: Float[Array, " 18"] | None = None,
+    y0: Float[Array, " state"] | None = None,
+    gains: tuple[str, ...] = (),
 ) -> tuple[Float[Array, "channel time"], Int[Array, ""]]:
     """Integrate one run from rest and return its signals (channel, time) and status.
 
     ``output="sensors"`` gives the four accelerometer channels, ``"states"`` the full state
-    (for reference comparisons). ``y0`` replaces the default start (static equilibrium at
-    rest). A failed solve never raises here: its signals are zeroed and
-    its status is non-zero, so batched and likelihood code can mask it (and gradients stay
-    finite).
+    (for reference comparisons). ``gains`` (full names of solved extensions' parameters that
+    only scale what a channel reads, such as a rail-carrying mode's participations) append
+    four rows to the sensors: their derivative along every gain at once, each gain's signal
+    on its channel. ``y0`` replaces the default start (static equilibrium at rest). A failed
+    solve never raises here: its signals are zeroed and its status is non-zero, so batched
+    and likelihood code can mask it (and gradients stay finite).
     """
     if output not in _OUTPUTS:
         raise ValueError(f"output must be one of {sorted(_OUTPUTS)}, got {output!r}")
@@ -173,7 +200,7 @@ def solve(
         dt0=dt0,
         y0=y0,
         args=args,
-        saveat=diffrax.SaveAt(ts=ts, fn=_OUTPUTS[output]),
+        saveat=diffrax.SaveAt(ts=ts, fn=_with_gains(gains) if gains else _OUTPUTS[output]),
         stepsize_controller=controller,
         max_steps=config.max_steps,
         throw=False,
@@ -188,7 +215,7 @@ def solve(
 
 @eqx.filter_jit
 def solve_batch(
-    args: DoorArgs, ts: Float[Array, " time"], config: SolverConfig
+    args: DoorArgs, ts: Float[Array, " time"], config: SolverConfig, gains: tuple[str, ...] = ()
 ) -> tuple[Float[Array, "batch channel time"], Int[Array, " batch"]]:
     """:func:`solve` vmapped over a batch of arguments (leading axis of every leaf)."""
-    return jax.vmap(solve, in_axes=(0, None, None))(args, ts, config)
+    return jax.vmap(lambda a: solve(a, ts, config, gains=gains))(args)

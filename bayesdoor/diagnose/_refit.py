@@ -524,6 +524,35 @@ def _minimize_scalar(
     return float(values[i]), np.array([grid[i]]), len(grid) + int(result.nfev)
 
 
+def _search(
+    objective: Callable[[np.ndarray], np.ndarray],
+    start: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    seed: int,
+    max_evals: int,
+    progress: bool,
+) -> tuple[float, np.ndarray, int]:
+    """Minimise over a box: :func:`_minimize_scalar` for one parameter, else CMA-ES (the
+    population of ``POPULATION`` evaluated in one call). Returns (value, point, evaluations)."""
+    from ..inference import minimize_cmaes
+
+    if len(start) == 1:
+        return _minimize_scalar(objective, float(lower[0]), float(upper[0]), max_evals)
+    result = minimize_cmaes(
+        objective,
+        start,
+        lower=lower,
+        upper=upper,
+        seed=seed,
+        sigma0=0.2,
+        max_evals=max_evals,
+        popsize=POPULATION,
+        progress=progress,
+    )
+    return float(result.f_best), np.asarray(result.x_best, dtype=float), result.evaluations
+
+
 def _parabola(points: np.ndarray, values: np.ndarray, best: int) -> tuple[float, float]:
     """Vertex and standard deviation of a negative log density sampled on a 1-D grid.
 
@@ -604,7 +633,6 @@ def _refit_with_gains(
     progress: bool,
 ) -> RefitResult:
     """:func:`refit_extension` for a solved extension whose proposal names ``gains``."""
-    from ..inference import minimize_cmaes
 
     free = model.free
     channels = list(setup.system.channels)
@@ -658,23 +686,9 @@ def _refit_with_gains(
     start = np.clip([float(proposal.start.get(n, model.fixed[n])) for n in free], lower, upper)[
         search
     ]
-    if len(search) == 1:
-        _, x_best, evaluations = _minimize_scalar(
-            objective, float(lower[search][0]), float(upper[search][0]), max_evals
-        )
-    else:
-        result = minimize_cmaes(
-            objective,
-            start,
-            lower=lower[search],
-            upper=upper[search],
-            seed=seed + 1,
-            sigma0=0.2,
-            max_evals=max_evals,
-            popsize=POPULATION,
-            progress=progress,
-        )
-        x_best, evaluations = np.asarray(result.x_best, dtype=float), result.evaluations
+    _, x_best, evaluations = _search(
+        objective, start, lower[search], upper[search], seed + 1, max_evals, progress
+    )
     key = tuple(map(float, x_best))
     if key not in profiles:
         objective(x_best[None])
@@ -759,7 +773,6 @@ def refit_extension(
     -------
     RefitResult
     """
-    from ..inference import minimize_cmaes
 
     extended, free, lower, upper, fixed = _boxes(setup.system, proposal)
     model = _Model(setup, proposal, extended, fixed, {} if bases is None else bases)
@@ -798,25 +811,17 @@ def refit_extension(
     evaluations = 0
     for g_index, point in enumerate(grid):
         objective = objective_at(dict(zip(gridded, point, strict=True)))
-        if len(search) == 1:
-            f_best, x_best, spent = _minimize_scalar(
-                objective, float(lower[search][0]), float(upper[search][0]), max_evals
-            )
-        else:
-            result = minimize_cmaes(
-                objective,
-                start[search],
-                lower=lower[search],
-                upper=upper[search],
-                seed=seed + 1 + g_index,
-                sigma0=0.2,
-                max_evals=max_evals,
-                popsize=POPULATION,
-                progress=progress,
-            )
-            f_best, x_best, spent = result.f_best, result.x_best, result.evaluations
+        f_best, x_best, spent = _search(
+            objective,
+            start[search],
+            lower[search],
+            upper[search],
+            seed + 1 + g_index,
+            max_evals,
+            progress,
+        )
         evaluations += spent
-        outcomes.append((float(f_best), np.asarray(x_best, dtype=float), point))
+        outcomes.append((f_best, x_best, point))
     values_f = np.array([o[0] for o in outcomes])
     best = int(np.argmin(values_f))
     _, x_search, point = outcomes[best]

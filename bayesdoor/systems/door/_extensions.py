@@ -51,6 +51,21 @@ def _spec(
     return ParameterSpec(f"{owner}.{quantity}", unit, nominal, lower, upper, text)
 
 
+def _mode_specs(
+    owner: str, frequency_text: str, participation_text: str
+) -> tuple[ParameterSpec, ParameterSpec, tuple[ParameterSpec, ...]]:
+    """A mode's frequency (10-300 Hz), damping ratio (0.005-0.1) and the participation of
+    every channel (-1 to 1, 0 is off; ``participation_text`` formatted with the channel)."""
+    return (
+        _spec(owner, "frequency_hz", "Hz", 55.0, 10.0, 300.0, frequency_text),
+        _spec(owner, "damping_ratio", "-", 0.02, 0.005, 0.1, "damping ratio of the mode"),
+        tuple(
+            _spec(owner, f"participation_{c}", "-", 0.0, -1.0, 1.0, participation_text.format(c))
+            for c in g.CHANNELS
+        ),
+    )
+
+
 class AbstractDoorExtension(eqx.Module):
     """One model extension: a catalogue name, static configuration and fitted parameters.
 
@@ -179,30 +194,12 @@ class FrameMode(AbstractDoorExtension):
 
     @property
     def parameters(self) -> tuple[ParameterSpec, ...]:
-        return (
-            _spec(
-                self.name,
-                "frequency_hz",
-                "Hz",
-                55.0,
-                10.0,
-                300.0,
-                "natural frequency of the missing structural mode",
-            ),
-            _spec(self.name, "damping_ratio", "-", 0.02, 0.005, 0.1, "damping ratio of the mode"),
-            *(
-                _spec(
-                    self.name,
-                    f"participation_{c}",
-                    "-",
-                    0.0,
-                    -1.0,
-                    1.0,
-                    f"share of the mode's relative acceleration seen on {c}",
-                )
-                for c in g.CHANNELS
-            ),
+        frequency, damping, participations = _mode_specs(
+            self.name,
+            "natural frequency of the missing structural mode",
+            "share of the mode's relative acceleration seen on {}",
         )
+        return (frequency, damping, *participations)
 
     def response(
         self,
@@ -291,39 +288,21 @@ class CoupledFrameMode(AbstractDoorExtension):
 
     @property
     def parameters(self) -> tuple[ParameterSpec, ...]:
-        return (
-            _spec(
-                self.name,
-                "frequency_hz",
-                "Hz",
-                55.0,
-                10.0,
-                300.0,
-                "natural frequency of the bare mode (before its coupling to the door)",
-            ),
-            _spec(self.name, "damping_ratio", "-", 0.02, 0.005, 0.1, "damping ratio of the mode"),
-            _spec(
-                self.name,
-                "rail_lift",
-                "-",
-                0.0,
-                0.0,
-                0.3,
-                "rise of the rail under the wheels per unit modal displacement",
-            ),
-            *(
-                _spec(
-                    self.name,
-                    f"participation_{c}",
-                    "-",
-                    0.0,
-                    -1.0,
-                    1.0,
-                    f"share of the mode's acceleration seen on {c}",
-                )
-                for c in g.CHANNELS
-            ),
+        frequency, damping, participations = _mode_specs(
+            self.name,
+            "natural frequency of the bare mode (before its coupling to the door)",
+            "share of the mode's acceleration seen on {}",
         )
+        lift = _spec(
+            self.name,
+            "rail_lift",
+            "-",
+            0.0,
+            0.0,
+            0.3,
+            "rise of the rail under the wheels per unit modal displacement",
+        )
+        return (frequency, damping, lift, *participations)
 
     def wheel_lift(self, x, values, xp=jnp):
         return self.local(values)["rail_lift"] * x[0]

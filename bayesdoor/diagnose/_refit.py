@@ -482,8 +482,7 @@ def _laplace_sd(
     """
     d = len(x)
     width = upper - lower
-    n_terms = 1 + d + d * (d + 1) // 2
-    pts = x + 0.02 * width * rng.uniform(-1.0, 1.0, (3 * n_terms, d))
+    pts = x + 0.02 * width * rng.uniform(-1.0, 1.0, (_laplace_evaluations(d), d))
     pts = np.clip(pts, lower, upper)
     f = objective(pts)
     ok = np.isfinite(f)
@@ -501,6 +500,36 @@ def _laplace_sd(
         return np.full(d, np.nan)
     var = np.diag(cov)
     return np.where(var > 0, np.sqrt(np.abs(var)) * width, np.nan)
+
+
+def _laplace_evaluations(d: int) -> int:
+    """Objective evaluations :func:`_laplace_sd` spends on ``d`` parameters."""
+    return 3 * (1 + d + d * (d + 1) // 2)
+
+
+def _result(
+    setup: RefitSetup,
+    proposal: ExtensionProposal,
+    model: _Model,
+    optimum: np.ndarray,
+    sd: np.ndarray,
+    train: np.ndarray,
+    spectra: np.ndarray,
+    evaluations: int,
+) -> RefitResult:
+    """The refit's result at ``optimum`` (free parameters in ``model.free`` order), with the
+    training density of ``spectra`` (every run's)."""
+    free = model.free
+    return RefitResult(
+        proposal=proposal,
+        values={**model.fixed, **dict(zip(free, map(float, optimum), strict=True))},
+        sd=dict(zip(free, map(float, sd), strict=True)),
+        train=train,
+        spectra=spectra,
+        train_lpd=float(_profile_lpd(setup.spectra, spectra[None, train], train)[0]),
+        evaluations=evaluations,
+        solves=model.solves,
+    )
 
 
 def _minimize_scalar(
@@ -573,6 +602,18 @@ def _parabola(points: np.ndarray, values: np.ndarray, best: int) -> tuple[float,
 _GAIN_GRID = np.geomspace(1e-3, 1.0, 25)
 
 
+def _channel_lpd(
+    spectra: Spectra, model: Float[np.ndarray, "run freq"], runs: np.ndarray, channel: int
+) -> float:
+    """Training log predictive density of one channel's model spectra (its discrepancy
+    estimated on that channel alone, as :func:`_profile_lpd` estimates every channel's)."""
+    y, lv = spectra.measured[runs][:, channel : channel + 1], spectra.log_variance[runs]
+    local = None if spectra.local is None else spectra.local[channel : channel + 1]
+    m = model[:, None, :]
+    disc = estimate_discrepancy(m, y, lv, SMOOTH_BINS, local=local)
+    return float(log_predictive(m, y, lv, disc).sum())
+
+
 def _profile_gain(
     spectra: Spectra,
     power: Float[np.ndarray, "3 run freq"],
@@ -587,17 +628,14 @@ def _profile_gain(
     faint mode and a strong one are both resolved), refined by a bounded Brent search
     between the best point's neighbours.
     """
-    y, lv = spectra.measured[runs][:, channel : channel + 1], spectra.log_variance[runs]
-    local = None if spectra.local is None else spectra.local[channel : channel + 1]
     a = power[0]
     b = (power[1] - power[2]) / 4.0
     c = (power[1] + power[2]) / 2.0 - a
     tiny = np.finfo(float).tiny
 
     def lpd(s: float) -> float:
-        m = np.log10(np.maximum(a + 2.0 * s * b + s * s * c, tiny))[:, None, :]
-        disc = estimate_discrepancy(m, y, lv, SMOOTH_BINS, local=local)
-        return float(log_predictive(m, y, lv, disc).sum())
+        m = np.log10(np.maximum(a + 2.0 * s * b + s * s * c, tiny))
+        return _channel_lpd(spectra, m, runs, channel)
 
     lo, hi = box
     grid = np.unique(
@@ -672,12 +710,7 @@ def _refit_with_gains(
                     )
                     gains[names[0]] = s
                 else:
-                    m = np.log10(power[r][0][:, k : k + 1])
-                    y = setup.spectra.measured[train][:, k : k + 1]
-                    lv = setup.spectra.log_variance[train]
-                    local = None if setup.spectra.local is None else setup.spectra.local[k : k + 1]
-                    disc = estimate_discrepancy(m, y, lv, SMOOTH_BINS, local=local)
-                    value = float(log_predictive(m, y, lv, disc).sum())
+                    value = _channel_lpd(setup.spectra, np.log10(power[r][0][:, k]), train, k)
                 total += value
             profiles[tuple(map(float, row))] = gains
             out[r] = -total
@@ -701,23 +734,12 @@ def _refit_with_gains(
         sd[search] = _laplace_sd(
             objective, x_best, lower[search], upper[search], np.random.default_rng(seed)
         )
-        d = len(search)
-        evaluations += 3 * (1 + d + d * (d + 1) // 2)
+        evaluations += _laplace_evaluations(len(search))
     every = np.arange(len(setup.operating))
     spectra = setup.spectra.model(
         model.solve(model.values(optimum[None], len(every)), every)[0], every
     )
-    train_lpd = float(_profile_lpd(setup.spectra, spectra[None, train], train)[0])
-    return RefitResult(
-        proposal=proposal,
-        values={**model.fixed, **dict(zip(free, map(float, optimum), strict=True))},
-        sd=dict(zip(free, map(float, sd), strict=True)),
-        train=train,
-        spectra=spectra,
-        train_lpd=train_lpd,
-        evaluations=evaluations,
-        solves=model.solves,
-    )
+    return _result(setup, proposal, model, optimum, sd, train, spectra, evaluations)
 
 
 def refit_extension(
@@ -840,22 +862,10 @@ def refit_extension(
         sd[search] = _laplace_sd(
             objective, x_search, lower[search], upper[search], np.random.default_rng(seed)
         )
-        d = len(search)
-        evaluations += 3 * (1 + d + d * (d + 1) // 2)
+        evaluations += _laplace_evaluations(len(search))
     every = np.arange(len(setup.operating))
     spectra = _batched(model, setup.spectra, optimum[None], every, exact=exact)[0]
-    train_lpd = float(_profile_lpd(setup.spectra, spectra[None, train], train)[0])
-    values = {**fixed, **dict(zip(free, map(float, optimum), strict=True))}
-    return RefitResult(
-        proposal=proposal,
-        values=values,
-        sd=dict(zip(free, map(float, sd), strict=True)),
-        train=train,
-        spectra=spectra,
-        train_lpd=train_lpd,
-        evaluations=evaluations,
-        solves=model.solves,
-    )
+    return _result(setup, proposal, model, optimum, sd, train, spectra, evaluations)
 
 
 def exact_spectra(

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import jax.numpy as jnp
@@ -68,12 +69,29 @@ class DiagnosisSettings:
     folds
         Folds of the held-out judgement (at most one per run): each fold's extension is
         fitted on the other runs and judged on its own.
+    workers
+        Folds refitted at once (threads; the solves release the interpreter). The results
+        do not depend on it.
     """
 
     predictive_draws: int = 8
     max_candidates: int = 5
     refit_evals: int = 240
     folds: int = 2
+    workers: int = 2
+
+    def __post_init__(self) -> None:
+        least = {
+            "predictive_draws": 1,
+            "max_candidates": 0,
+            "refit_evals": 1,
+            "folds": 2,
+            "workers": 1,
+        }
+        for name, low in least.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"DiagnosisSettings.{name}={value!r} must be an integer >= {low}")
 
     @classmethod
     def quick(cls) -> DiagnosisSettings:
@@ -415,6 +433,7 @@ def _cross_validate(
     max_evals: int,
     bases: dict[tuple[float, ...], np.ndarray],
     tracking: bool,
+    workers: int = 1,
 ) -> tuple[list[RefitResult], Gain]:
     """Refit on each fold's training runs, judge its held-out runs, both models alike.
 
@@ -426,15 +445,27 @@ def _cross_validate(
     held-out runs' as simulated), so the judgement asks where the extension predicts
     something different, does it predict better. For an extension whose effect ``tracking``
     the speed (a tone at ``f = v / lambda`` of each run's operating speed) the scatter in the
-    changed bins is local in the order domain, else in frequency.
+    changed bins is local in the order domain, else in frequency. ``workers`` threads refit
+    folds at once; every fold has its own seed, so the fits do not depend on it.
     """
     base = setup.base_spectra
-    fits = [
-        refit_extension(
-            setup, proposal, train, seed=seed + k, max_evals=max_evals, bases=bases, exact=False
+
+    def refit(k: int) -> RefitResult:
+        return refit_extension(
+            setup,
+            proposal,
+            folds[k][0],
+            seed=seed + k,
+            max_evals=max_evals,
+            bases=bases,
+            exact=False,
         )
-        for k, (train, _) in enumerate(folds)
-    ]
+
+    if workers > 1 and len(folds) > 1:
+        with ThreadPoolExecutor(min(workers, len(folds))) as pool:
+            fits = list(pool.map(refit, range(len(folds))))
+    else:
+        fits = [refit(k) for k in range(len(folds))]
     tests = np.concatenate([test for _, test in folds])
     values = {
         n: np.concatenate(
@@ -642,6 +673,7 @@ def diagnose_campaign(
                     max_evals=settings.refit_evals,
                     bases=bases,
                     tracking=tracking[score.name],
+                    workers=settings.workers,
                 )
             except (ValueError, RuntimeError) as err:
                 notes.append(f"{score.name} ({proposal.label}): refit failed: {err}")
@@ -810,5 +842,6 @@ def extension_gain(
         max_evals=settings.refit_evals,
         bases={},
         tracking=tracking,
+        workers=settings.workers,
     )
     return gain, tuple(fits)

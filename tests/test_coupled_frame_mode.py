@@ -205,3 +205,27 @@ def test_one_solve_gives_each_gains_signal_as_two_solves_do():
     np.testing.assert_allclose(
         np.asarray(result.signals), np.asarray(generic.signals), rtol=0, atol=1e-12
     )
+
+
+def test_the_installed_peak_is_where_the_refitted_mode_raises_the_spectrum_most():
+    from bayesdoor.systems.door._catalogue import FrameModeRefit, installed_peak_hz
+
+    freqs = np.arange(4.0, 97.0)
+    base = np.zeros((3, 4, freqs.size))
+    # a peak at 61.3 Hz (1.2 Hz wide) on every run and channel, and a door mode moved at
+    # 30 Hz (a rise larger than the peak's but outside the 6 Hz window around the bare 58 Hz)
+    extended = base + 2.0 * np.exp(-0.5 * ((freqs - 61.3) / 1.2) ** 2)
+    extended[..., freqs == 30.0] += 5.0
+    assert installed_peak_hz(freqs, base, extended, 58.0) == pytest.approx(61.3, abs=0.1)
+    recipe = FrameModeRefit()
+    parameters = {"frequency_hz": 60.0, "channels": ("A1X",)}
+    coupled, output = recipe.propose(parameters, band=(4.0, 96.0))
+    values = {"frame_mode.frequency_hz": 58.0}
+    got = recipe.derived(coupled, values, freqs, base, extended)
+    assert set(got) == {"frame_mode.installed_frequency_hz"}
+    assert got["frame_mode.installed_frequency_hz"] == pytest.approx(61.3, abs=0.1)
+    # an output mode's peak is its frequency: nothing derived
+    assert recipe.derived(output, values, freqs, base, extended) == {}
+    # the largest rise at the window's edge is reported at its bin, unrefined
+    assert installed_peak_hz(freqs, base, extended, 55.0) == 61.0
+    assert np.isnan(installed_peak_hz(freqs, base, extended, 200.0))

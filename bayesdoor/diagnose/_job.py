@@ -711,6 +711,10 @@ def diagnose_campaign(
                 bases=bases,
             )
             parameters = {n: {"mean": final.values[n], "sd": final.sd[n]} for n in proposal.free}
+            derived = recipes[score.name].derived(  # type: ignore[union-attr]
+                proposal, final.values, setup.spectra.freqs, setup.base_spectra, final.spectra
+            )
+            parameters.update({n: {"mean": v, "sd": None} for n, v in derived.items()})
         parameters.update(held)
         for n, (value, sd) in proposal.measured.items():
             parameters[n] = {"mean": value, "sd": sd, "refit": parameters[n]["mean"]}

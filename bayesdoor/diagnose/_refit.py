@@ -132,6 +132,20 @@ class AbstractRefit(eqx.Module):
         """
         return True, ""
 
+    def derived(
+        self,
+        proposal: ExtensionProposal,
+        values: Mapping[str, float],
+        freqs: Float[np.ndarray, " freq"],
+        base: Float[np.ndarray, "run channel freq"],
+        extended: Float[np.ndarray, "run channel freq"],
+    ) -> dict[str, float]:
+        """Quantities a user reads off the refitted extension besides its parameters (for a
+        mode that carries the rail, the frequency of its peak as installed in the door),
+        from the spectra of the base and of the extension refitted on every run. The default
+        recipe has none."""
+        return {}
+
 
 def held_out_spectra(
     fits: Sequence[RefitResult], folds: Sequence[tuple[np.ndarray, np.ndarray]]

@@ -207,25 +207,34 @@ def test_one_solve_gives_each_gains_signal_as_two_solves_do():
     )
 
 
-def test_the_installed_peak_is_where_the_refitted_mode_raises_the_spectrum_most():
-    from bayesdoor.systems.door._catalogue import FrameModeRefit, installed_peak_hz
+def test_the_installed_frequency_is_the_extended_doors_mode_at_rest_nearest_the_bare_one():
+    from bayesdoor.rig import Effects, VirtualRig
+    from bayesdoor.rig import FrameMode as RigFrameMode
+    from bayesdoor.systems.door._catalogue import FrameModeRefit
 
-    freqs = np.arange(4.0, 97.0)
-    base = np.zeros((3, 4, freqs.size))
-    # a peak at 61.3 Hz (1.2 Hz wide) on every run and channel, and a door mode moved at
-    # 30 Hz (a rise larger than the peak's but outside the 6 Hz window around the bare 58 Hz)
-    extended = base + 2.0 * np.exp(-0.5 * ((freqs - 61.3) / 1.2) ** 2)
-    extended[..., freqs == 30.0] += 5.0
-    assert installed_peak_hz(freqs, base, extended, 58.0) == pytest.approx(61.3, abs=0.1)
     recipe = FrameModeRefit()
-    parameters = {"frequency_hz": 60.0, "channels": ("A1X",)}
-    coupled, output = recipe.propose(parameters, band=(4.0, 96.0))
-    values = {"frame_mode.frequency_hz": 58.0}
-    got = recipe.derived(coupled, values, freqs, base, extended)
-    assert set(got) == {"frame_mode.installed_frequency_hz"}
-    assert got["frame_mode.installed_frequency_hz"] == pytest.approx(61.3, abs=0.1)
+    coupled, output = recipe.propose({"frequency_hz": 60.0, "channels": ("A1X",)}, band=(4, 96))
+    door = ElevatorDoor().with_extensions(coupled.extension)
+    values = {p.name: p.nominal for p in door.parameters}
+    values.update(DoorParameters.paper_optimum().to_dict())
+    # without lift the mode is not coupled: its own (damped) frequency
+    bare = {**values, "frame_mode.frequency_hz": 40.0, "frame_mode.rail_lift": 0.0}
+    got = recipe.derived(coupled, door, bare)["frame_mode.installed_frequency_hz"]
+    zeta = values["frame_mode.damping_ratio"]
+    assert got == pytest.approx(40.0 * np.sqrt(1.0 - zeta**2), abs=1e-4)
+    # the rig's strongly lifted mode of seed 3 (bare 26.4 Hz, lift 0.17): the rig's own
+    # linearisation puts it at 23.9 Hz; the reduced door with the same mode within 1 Hz
+    truth = RigFrameMode.from_seed(3)
+    lifted = {
+        **values,
+        "frame_mode.frequency_hz": truth.frequency_hz,
+        "frame_mode.damping_ratio": truth.damping_ratio,
+        "frame_mode.rail_lift": truth.rail_lift,
+    }
+    got = recipe.derived(coupled, door, lifted)["frame_mode.installed_frequency_hz"]
+    rig = VirtualRig(effects=Effects(frame_mode=truth)).rest_state().frequencies_hz
+    expected = rig[np.argmin(np.abs(rig - truth.frequency_hz))]
+    assert abs(got - truth.frequency_hz) > 1.5  # the lift moves it
+    assert got == pytest.approx(expected, abs=1.0)
     # an output mode's peak is its frequency: nothing derived
-    assert recipe.derived(output, values, freqs, base, extended) == {}
-    # the largest rise at the window's edge is reported at its bin, unrefined
-    assert installed_peak_hz(freqs, base, extended, 55.0) == 61.0
-    assert np.isnan(installed_peak_hz(freqs, base, extended, 200.0))
+    assert recipe.derived(output, ElevatorDoor().with_extensions(output.extension), {}) == {}

@@ -712,7 +712,9 @@ def diagnose_campaign(
             )
             parameters = {n: {"mean": final.values[n], "sd": final.sd[n]} for n in proposal.free}
             derived = recipes[score.name].derived(  # type: ignore[union-attr]
-                proposal, final.values, setup.spectra.freqs, setup.base_spectra, final.spectra
+                proposal,
+                system.with_extensions(proposal.extension),
+                {**setup.point, **final.values},
             )
             parameters.update({n: {"mean": v, "sd": None} for n, v in derived.items()})
         parameters.update(held)

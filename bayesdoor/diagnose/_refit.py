@@ -135,15 +135,13 @@ class AbstractRefit(eqx.Module):
     def derived(
         self,
         proposal: ExtensionProposal,
+        system: AbstractSystem,
         values: Mapping[str, float],
-        freqs: Float[np.ndarray, " freq"],
-        base: Float[np.ndarray, "run channel freq"],
-        extended: Float[np.ndarray, "run channel freq"],
     ) -> dict[str, float]:
         """Quantities a user reads off the refitted extension besides its parameters (for a
-        mode that carries the rail, the frequency of its peak as installed in the door),
-        from the spectra of the base and of the extension refitted on every run. The default
-        recipe has none."""
+        mode that carries the rail, the frequency of its peak as installed in the door).
+        ``system`` is the base system with the proposal's extension, ``values`` every one of
+        its parameters at the refit on every run. The default recipe has none."""
         return {}
 
 

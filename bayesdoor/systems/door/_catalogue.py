@@ -66,9 +66,6 @@ _RAIL_LIFT_BOX = (0.01, 0.3)
 #: the benchmark's campaign: the folds' peaks a fraction of a hertz apart), false alarms 1.22
 _SYMPTOM_SHARE = 1.0
 _SYMPTOM_HALF_WIDTH_HZ = 1.5
-#: the installed peak of a rail-carrying mode is looked for this far either side of its bare
-#: frequency, Hz (the rig's lifts move it by up to 2.6 Hz)
-_INSTALLED_WINDOW_HZ = 6.0
 
 
 class FrameModeRefit(AbstractRefit):
@@ -154,43 +151,23 @@ class FrameModeRefit(AbstractRefit):
         )
         return bool(ratio < _SYMPTOM_SHARE), words
 
-    def derived(self, proposal, values, freqs, base, extended):
+    def derived(self, proposal, system, values):
         """For a mode that carries the rail, its installed frequency: the rail's lift couples
-        it to the door's wheel contact, which moves the peak a user sees away from the bare
-        frequency the refit fits (on the virtual rig by up to 2.6 Hz). It is where the
-        refitted extension raises the predicted spectrum most (log10 PSD, mean over runs and
-        channels) within 6 Hz of the bare frequency, refined by a parabola through that bin
-        and its neighbours; ``frame_mode.installed_frequency_hz``. An output mode has none
-        (its peak is its frequency)."""
+        it to the door's wheel contact, which moves the peak a measurement shows away from
+        the bare frequency the refit fits (on the virtual rig by up to 2.6 Hz). It is the
+        extended door's mode at rest (:meth:`ElevatorDoor.rest_modes`, the equations
+        linearised at the static equilibrium) nearest the bare frequency, at the refitted
+        values; ``frame_mode.installed_frequency_hz``. An output mode has none (its peak is
+        its frequency)."""
         if not isinstance(proposal.extension, CoupledFrameMode):
             return {}
+        frequencies, _ = system.rest_modes(values)
+        bare = float(values["frame_mode.frequency_hz"])
         return {
-            "frame_mode.installed_frequency_hz": installed_peak_hz(
-                freqs, base, extended, float(values["frame_mode.frequency_hz"])
+            "frame_mode.installed_frequency_hz": float(
+                frequencies[np.argmin(np.abs(frequencies - bare))]
             )
         }
-
-
-def installed_peak_hz(
-    freqs: np.ndarray, base: np.ndarray, extended: np.ndarray, bare_hz: float
-) -> float:
-    """Where ``extended`` rises most over ``base`` (log10 spectra, run x channel x freq, mean
-    over runs and channels) within ``_INSTALLED_WINDOW_HZ`` of ``bare_hz``: the bin, refined
-    by the vertex of the parabola through it and its two neighbours (the bin itself at the
-    window's edge or without a maximum there). NaN when no bin lies in the window."""
-    f = np.asarray(freqs, dtype=float)
-    rise = np.mean(np.asarray(extended) - np.asarray(base), axis=(0, 1))
-    inside = np.flatnonzero(np.abs(f - bare_hz) <= _INSTALLED_WINDOW_HZ)
-    if inside.size == 0:
-        return float("nan")
-    i = int(inside[np.argmax(rise[inside])])
-    if i in (inside[0], inside[-1]):
-        return float(f[i])
-    a, b, c = rise[i - 1], rise[i], rise[i + 1]
-    curvature = a - 2.0 * b + c
-    if not curvature < 0:
-        return float(f[i])
-    return float(f[i] + 0.5 * (a - c) / curvature * (f[i + 1] - f[i]))
 
 
 class WheelRefit(AbstractRefit):

@@ -13,6 +13,7 @@ from . import _geometry as g
 from ._model import (
     N_DOF,
     N_LATCH,
+    STATE_SIZE,
     DoorArgs,
     extension_dofs,
     rhs,
@@ -116,6 +117,35 @@ def initial_state(args: DoorArgs) -> Float[Array, " state"]:
     dtype = q.dtype
     rest = jnp.zeros(2 * extension_dofs(args), dtype)
     return jnp.concatenate([q, jnp.zeros(N_DOF, dtype), jnp.full((N_LATCH,), 0.05, dtype), rest])
+
+
+def rest_modes(args: DoorArgs) -> tuple[Float[np.ndarray, " mode"], Float[np.ndarray, " mode"]]:
+    """Frequencies (Hz) and damping ratios of the door's modes at rest, extensions included.
+
+    The flow of (q, q_dot, x, x_dot) is linearised at the static equilibrium (the drive at
+    its closed position, the latches at their floor, the extensions' coordinates at their
+    static position) by central differences, as the virtual rig's ``rest_state`` does
+    (steps of 1 nm and 1 um/s, far inside the contact indentation and the friction's
+    regularisation). The modes are the eigenvalues with a positive imaginary part, sorted
+    by frequency.
+    """
+    state0 = initial_state(args)
+    n_ext = extension_dofs(args)
+    moving = np.r_[0 : 2 * N_DOF, STATE_SIZE : STATE_SIZE + 2 * n_ext]
+    velocity = np.r_[N_DOF : 2 * N_DOF, STATE_SIZE + n_ext : STATE_SIZE + 2 * n_ext]
+
+    def flow(y):
+        return rhs(0.0, state0.at[moving].set(y), args)[moving]
+
+    y0 = state0[moving]
+    steps = jnp.where(jnp.isin(jnp.asarray(moving), jnp.asarray(velocity)), 1e-6, 1e-9)
+    shifts = jnp.diag(steps)
+    f = jax.vmap(flow)(jnp.concatenate([y0 + shifts, y0 - shifts]))
+    jac = np.asarray((f[: len(moving)] - f[len(moving) :]).T / (2.0 * steps))
+    eig = np.linalg.eigvals(jac)
+    eig = eig[eig.imag > 1e-6]
+    eig = eig[np.argsort(eig.imag)]
+    return eig.imag / (2.0 * np.pi), -eig.real / np.abs(eig)
 
 
 def sample_times(duration: float, fs: float = g.SAMPLING_RATE_HZ, dtype=jnp.float64):

@@ -17,7 +17,15 @@ from ._extensions import AbstractDoorExtension, extension
 from ._model import make_args
 from ._params import PARAMETERS, STATES, DoorDamage, DoorParameters, check_parameter_values
 from ._profile import max_speed_limit, motion_duration, record_duration
-from ._simulate import STATUS_MESSAGES, STATUS_OK, SolverConfig, sample_times, solve, solve_batch
+from ._simulate import (
+    STATUS_MESSAGES,
+    STATUS_OK,
+    SolverConfig,
+    rest_modes,
+    sample_times,
+    solve,
+    solve_batch,
+)
 
 V_MAX_RANGE = (0.1, round(max_speed_limit(), 3))
 
@@ -387,6 +395,38 @@ class ElevatorDoor(AbstractSystem):
         return self.simulate_batch(
             theta, damage, operating, duration=duration, check=check, extension_values=ext
         )
+
+    def rest_modes(self, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """Frequencies (Hz, damped) and damping ratios of the healthy door's modes at rest.
+
+        The equations (with the extensions that have coordinates of their own, such as a
+        frame mode that carries the rail) linearised at the static equilibrium; ``values``
+        names every parameter, as for :meth:`simulate_values`. A mode coupled to the door
+        through the wheel contact is found here at its installed frequency, which is the
+        peak a measurement shows, not at its bare one.
+
+        Examples
+        --------
+        >>> from bayesdoor.systems import DoorParameters, ElevatorDoor
+        >>> from bayesdoor.systems.door import CoupledFrameMode
+        >>> door = ElevatorDoor().with_extensions(CoupledFrameMode())
+        >>> values = {p.name: p.nominal for p in door.parameters}
+        >>> values.update(DoorParameters.paper_optimum().to_dict())
+        >>> values.update({"frame_mode.frequency_hz": 40.0, "frame_mode.rail_lift": 0.0})
+        >>> f, zeta = door.rest_modes(values)
+        >>> bool(abs(f[abs(f - 40.0).argmin()] - 40.0) < 0.01)  # no lift: the bare mode
+        True
+        """
+        theta, damage, ext = self._from_values(values)
+        args = make_args(
+            theta,
+            damage,
+            0.4,
+            dtype=self._dtype(),
+            extensions=self.extensions,
+            extension_values=self._extension_values(ext),
+        )
+        return rest_modes(args)
 
     def _from_values(self, values, state: str = "healthy", severity=None):
         """Table 2 parameters, damage and extension values of :meth:`simulate_values`."""

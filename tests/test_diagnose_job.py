@@ -366,11 +366,23 @@ def test_a_runs_misfit_elsewhere_barely_moves_its_gain_with_the_line_bins_local(
         assert moved["local"] < 0.1 * moved["pooled"], moved
 
 
+def _full_size_case(name: str) -> pytest.ParameterSet:
+    # the wheel at its drawn sizes moves no bin of the 1 Hz spectra far enough to stand out
+    # (scripts/diagnosis_strength.py: largest |z| 2.0-4.8 for seeds 0-9 at 8 runs, and more
+    # runs do not raise a single bin's z); not run at this size, so not strict
+    if name == "wheel_eccentricity":
+        reason = "wheel tones under the Welch scatter at the drawn sizes (not run at 12 runs)"
+        return pytest.param(name, marks=pytest.mark.xfail(strict=False, reason=reason))
+    return pytest.param(name)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", range(2, 7))
-@pytest.mark.parametrize("name", [*EFFECTS, NONE])
+@pytest.mark.parametrize("name", [_full_size_case(n) for n in [*EFFECTS, NONE]])
 def test_full_size(name, seed):
-    """Eight runs over the whole speed range, the base model fitted on each campaign."""
+    """Twelve runs over the whole speed range, the base model fitted on each campaign (the
+    command's default sizes). 30 cases of about 9 minutes each (the 12-run benchmark took 550 s):
+    never run in full (session 8)."""
     recording, rig = record(name, seed, SPEEDS_SLOW)
     diagnosis = diagnose_campaign(
         DOOR, recording.campaign, seed=seed, progress=False, catalogue=DOOR_CATALOGUE

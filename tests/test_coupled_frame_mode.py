@@ -238,3 +238,14 @@ def test_the_installed_frequency_is_the_extended_doors_mode_at_rest_nearest_the_
     assert got == pytest.approx(expected, abs=1.0)
     # an output mode's peak is its frequency: nothing derived
     assert recipe.derived(output, ElevatorDoor().with_extensions(output.extension), {}) == {}
+
+
+def test_no_mode_is_proposed_for_a_line_present_at_rest():
+    # a resonance decays at rest: a feature with a line at its frequency before the motion
+    # (mains hum) gets no frame-mode refit, a feature without one gets both forms
+    from bayesdoor.systems.door._catalogue import FrameModeRefit
+
+    parameters = {"frequency_hz": 59.8, "channels": ("A2X",), "line_at_rest": True}
+    assert FrameModeRefit().propose(parameters, band=(4.0, 96.0)) == ()
+    parameters["line_at_rest"] = False
+    assert len(FrameModeRefit().propose(parameters, band=(4.0, 96.0))) == 2

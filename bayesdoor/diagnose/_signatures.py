@@ -141,8 +141,9 @@ class FixedFrequency(AbstractSignature):
     centroid of the half-power band of the run-averaged excess power; over the channels that
     show the mode, the strongest region of each, weighted by its statistic),
     ``damping_ratio`` (half-power width over twice the frequency; an upper bound near the
-    resolution, since the width includes the window's main lobe), ``excess_db`` and
-    ``channels``.
+    resolution, since the width includes the window's main lobe), ``excess_db``,
+    ``channels`` and ``line_at_rest`` (whether a line lies at the frequency at rest before
+    the motion).
     """
 
     band: tuple[float, float] = eqx.field(static=True)
@@ -182,10 +183,11 @@ class FixedFrequency(AbstractSignature):
                     _unshared_fraction(res.regions, features.coherence.freqs, p) for p in pairs
                 ]
                 leak = max(fractions, default=0.0) >= self.max_coherent_fraction
+            at_rest = _absent_before_motion(features, np.array([f]))
             checks = (
                 _speed_check(features, region, FIXED),
                 _in_most_runs(region, features.n_runs),
-                _absent_before_motion(features, np.array([f])),
+                at_rest,
                 Check("no broadband coherence excess", None if leak is None else not leak),
             )
             matches.append(
@@ -204,6 +206,7 @@ class FixedFrequency(AbstractSignature):
                         ),
                         "excess_db": region.excess_db,
                         "channels": tuple(sorted({r.channel for r in same})),
+                        "line_at_rest": at_rest.passed is False,
                     },
                     strength=abs(region.z),
                 )

@@ -98,7 +98,11 @@ def check_parameters(name: str, cause, recording, rig) -> None:
         reference = installed[np.argmin(np.abs(installed - truth["frequency_hz"]))]
         if isinstance(cause.proposal.extension, CoupledFrameMode):
             # a mode that carries the rail is fitted by its bare frequency, as the rig's is
-            # defined (modal mass 20 kg, lifting the rail under both wheels)
+            # defined (modal mass 20 kg, lifting the rail under both wheels); the installed
+            # frequency it reports is compared with the rig's (session 8: 42.69 / 23.87 Hz
+            # for seeds 2 / 3, the rig's 42.12 / 23.86)
+            installed_fit = _mean(p, "frame_mode.installed_frequency_hz")
+            assert abs(installed_fit - reference) < 1.0, (p, reference)
             reference = truth["frequency_hz"]
         assert abs(_mean(p, "frame_mode.frequency_hz") - reference) < 1.0, (p, reference)
     elif name == "rail_waviness":

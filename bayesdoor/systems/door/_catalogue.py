@@ -223,9 +223,8 @@ class RailRefit(AbstractRefit):
     wavelengths profiled per fold named rail seed 1 (26.00 mm for the rig's 26.00, +6.7 SE,
     where the signature's 27.79 mm gives 3.8 SE) but lost seed 3 (the folds' wavelengths
     averaging 9.79 mm for the rig's 9.74: 3.8 SE, against 5.7 SE in session 7 held at the
-    signature's 9.67 mm), so the wavelength stays held.
-    The amplitude (micrometres on a contact
-    preloaded by a fraction of a millimetre) acts linearly: one solve per run.
+    signature's 9.67 mm), so the wavelength stays held. The amplitude (micrometres on a
+    contact preloaded by a fraction of a millimetre) acts linearly: one solve per run.
     """
 
     def propose(

@@ -418,6 +418,7 @@ class ElevatorDoor(AbstractSystem):
         True
         """
         theta, damage, ext = self._from_values(values)
+        # any speed: at t = 0 the drive rests at the closed position whatever its peak speed
         args = make_args(
             theta,
             damage,

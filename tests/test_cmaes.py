@@ -132,6 +132,25 @@ def test_same_seed_same_result_other_seed_differs():
     assert a.f_best != c.f_best
 
 
+def test_runs_in_threads_at_once_give_their_own_results():
+    # the diagnosis refits two folds in two threads: each run must draw from its own
+    # generator. The objective sleeps so that the two threads' draws interleave
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    def slow(X):
+        time.sleep(0.002)
+        return rosenbrock(X)
+
+    kw = dict(lower=-np.ones(4), upper=np.ones(4), max_evals=300, progress=False, restarts=1)
+    alone = [minimize_cmaes(slow, np.zeros(4), seed=s, **kw) for s in (3, 4)]
+    with ThreadPoolExecutor(2) as pool:
+        together = list(pool.map(lambda s: minimize_cmaes(slow, np.zeros(4), seed=s, **kw), (3, 4)))
+    for a, b in zip(alone, together, strict=True):
+        np.testing.assert_array_equal(a.x_best, b.x_best)
+        np.testing.assert_array_equal(a.history.best_f, b.history.best_f)
+
+
 def test_bounds_respected_when_the_optimum_lies_outside():
     seen = []
 

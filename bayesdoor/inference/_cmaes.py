@@ -247,8 +247,10 @@ def minimize_cmaes(
     lower, upper
         Box bounds (pycma's ``BoundTransform`` keeps every candidate inside).
     seed
-        Positive integer seed; same seed and settings, same result. (pycma seeds NumPy's
-        global generator with it.)
+        Positive integer seed; same seed and settings, same result. Each run draws from
+        a generator of its own seeded with it (pycma's numbers for that seed), so runs in
+        several threads at once give each one's result; with ``integer_variables`` pycma
+        seeds NumPy's global generator, which threads would share.
     sigma0
         Initial step size as a fraction of each coordinate's box width.
     integer_variables
@@ -313,7 +315,14 @@ def minimize_cmaes(
     with _progress_bar(progress, max_evals) as advance:
         for run in range(restarts + 1):
             run_start = evaluations
-            es = cma.CMAEvolutionStrategy(x0, sigma0, opts)
+            run_opts = dict(opts)
+            if not integer_variables:
+                # this run's own generator, not NumPy's global one that pycma seeds: the
+                # same numbers (np.random.seed(s) then np.random.randn), but runs in
+                # several threads at once no longer draw from one shared stream (pycma's
+                # integer handling draws from the global one, so it keeps pycma's seeding)
+                run_opts["randn"] = np.random.RandomState(int(run_opts.pop("seed"))).randn
+            es = cma.CMAEvolutionStrategy(x0, sigma0, run_opts)
             while not es.stop():
                 population = es.ask()
                 values = np.asarray(objective(np.asarray(population)), dtype=np.float64)

@@ -68,27 +68,35 @@ def test_held_out_folds_refuse_too_few_runs():
         held_out_folds(np.array([0.3, 0.4, 0.5, 0.6]), 1)
 
 
-def test_exact_spectra_give_each_run_its_own_values():
-    # an output extension (A2Z reads a fraction of A2X) at a different fraction per run,
-    # against the leak mixed into the base signals by hand and the same Welch spectra
+def _door_setup(speeds, leak: float = 0.0) -> RefitSetup:
+    """The paper's door simulated for 2 s at ``speeds``, its spectra of the motion window
+    (0.25-1.9 s, 4-96 Hz) as the measurement, A2Z reading ``leak`` times A2X in it."""
     door = ElevatorDoor()
     values = DoorParameters.paper_optimum().to_dict()
-    speeds = np.array([0.3, 0.5])
-    result = door.simulate_values(values, speeds, duration=2.0)
+    result = door.simulate_values(values, np.asarray(speeds), duration=2.0)
     assert np.all(np.asarray(result.status) == 0)
     signals = np.asarray(result.signals)
+    measured = signals.copy()
+    measured[:, 3] += leak * signals[:, 2]
     fs = door.sampling_rate_hz
-    t_start, t_stop = np.array([0.25, 0.25]), np.array([1.9, 1.9])
-    spectra = Spectra.of_measured(signals, fs, t_start, t_stop, (4.0, 96.0), nperseg=int(fs))
-    setup = RefitSetup(
+    window = np.full(len(speeds), 0.25), np.full(len(speeds), 1.9)
+    return RefitSetup(
         system=door,
         point=values,
-        operating=speeds,
+        operating=np.asarray(speeds),
         duration=2.0,
         time=np.asarray(result.time),
         base_signals=signals,
-        spectra=spectra,
+        spectra=Spectra.of_measured(measured, fs, *window, (4.0, 96.0), nperseg=int(fs)),
     )
+
+
+def test_exact_spectra_give_each_run_its_own_values():
+    # an output extension (A2Z reads a fraction of A2X) at a different fraction per run,
+    # against the leak mixed into the base signals by hand and the same Welch spectra
+    setup = _door_setup([0.3, 0.5])
+    signals, fs = setup.base_signals, setup.spectra.fs
+    t_start, t_stop = setup.spectra.t_start, setup.spectra.t_stop
     proposal = ExtensionProposal(
         extension=SensorCrossAxis(sensor="A2", into="Z"),
         start={"sensor_cross_axis.fraction": 0.0},
@@ -109,24 +117,8 @@ def test_folds_refitted_at_once_give_the_fits_of_one_at_a_time():
     # and in one: every fold has its own seed, so the fits and the judgement are the same
     from bayesdoor.diagnose._job import DiagnosisSettings, _cross_validate
 
-    door = ElevatorDoor()
-    values = DoorParameters.paper_optimum().to_dict()
     speeds = np.array([0.3, 0.35, 0.45, 0.5])
-    result = door.simulate_values(values, speeds, duration=2.0)
-    signals = np.asarray(result.signals)
-    measured = signals.copy()
-    measured[:, 3] += 0.08 * signals[:, 2]
-    fs = door.sampling_rate_hz
-    window = np.full(len(speeds), 0.25), np.full(len(speeds), 1.9)
-    setup = RefitSetup(
-        system=door,
-        point=values,
-        operating=speeds,
-        duration=2.0,
-        time=np.asarray(result.time),
-        base_signals=signals,
-        spectra=Spectra.of_measured(measured, fs, *window, (4.0, 96.0), nperseg=int(fs)),
-    )
+    setup = _door_setup(speeds, leak=0.08)
     proposal = ExtensionProposal(
         extension=SensorCrossAxis(sensor="A2", into="Z"),
         start={"sensor_cross_axis.fraction": 0.0},

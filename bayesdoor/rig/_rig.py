@@ -152,9 +152,7 @@ def _linearise_at_rest(a: d.RunArgs):
 
     x0 = jnp.concatenate([q0, jnp.zeros_like(q0)])
     steps = jnp.concatenate([jnp.full(d.N_DOF, 1e-9), jnp.full(d.N_DOF, 1e-6)])
-    shifts = jnp.diag(steps)
-    f = jax.vmap(flow)(jnp.concatenate([x0 + shifts, x0 - shifts]))
-    jac = (f[: 2 * d.N_DOF] - f[2 * d.N_DOF :]).T / (2.0 * steps)
+    jac = door.central_jacobian(flow, x0, steps)
     return d.contact_coordinates(q0, a)[: d.N_CONTACT], jac
 
 
@@ -385,14 +383,8 @@ class VirtualRig(eqx.Module):
         args = self._run_args({k: np.atleast_1d(self._true_value(k)) for k in names})
         one = jax.tree_util.tree_map(lambda x: x[0], args)
         gaps, jac = (np.asarray(x) for x in _linearise_at_rest(one))
-        eig = np.linalg.eigvals(jac)
-        eig = eig[eig.imag > 1e-6]
-        order = np.argsort(eig.imag)
-        return RestState(
-            indentation_m=gaps,
-            frequencies_hz=eig.imag[order] / (2.0 * np.pi),
-            damping_ratios=-eig.real[order] / np.abs(eig[order]),
-        )
+        frequencies, damping = door.oscillatory_modes(jac)
+        return RestState(indentation_m=gaps, frequencies_hz=frequencies, damping_ratios=damping)
 
     def _true_value(self, name: str) -> float:
         if name in SCATTERED:

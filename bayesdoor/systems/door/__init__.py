@@ -28,7 +28,9 @@ from ._profile import motion_duration as motion_duration
 from ._profile import record_duration as record_duration
 from ._simulate import STATUS_MESSAGES as STATUS_MESSAGES
 from ._simulate import SolverConfig as SolverConfig
+from ._simulate import central_jacobian as central_jacobian
 from ._simulate import initial_state as initial_state
+from ._simulate import oscillatory_modes as oscillatory_modes
 from ._simulate import sample_times as sample_times
 from ._simulate import solve as solve
 from ._simulate import static_equilibrium as static_equilibrium

@@ -119,6 +119,26 @@ def initial_state(args: DoorArgs) -> Float[Array, " state"]:
     return jnp.concatenate([q, jnp.zeros(N_DOF, dtype), jnp.full((N_LATCH,), 0.05, dtype), rest])
 
 
+def central_jacobian(
+    flow, x0: Float[Array, " n"], steps: Float[Array, " n"]
+) -> Float[Array, "n n"]:
+    """Jacobian of ``flow`` at ``x0`` by central differences, a step per coordinate; the
+    2 n displaced points in one vmapped evaluation."""
+    shifts = jnp.diag(steps)
+    f = jax.vmap(flow)(jnp.concatenate([x0 + shifts, x0 - shifts]))
+    n = x0.shape[0]
+    return (f[:n] - f[n:]).T / (2.0 * steps)
+
+
+def oscillatory_modes(jac) -> tuple[Float[np.ndarray, " mode"], Float[np.ndarray, " mode"]]:
+    """Frequencies (Hz, damped) and damping ratios of a linear flow's oscillatory modes: its
+    eigenvalues with a positive imaginary part, sorted by frequency."""
+    eig = np.linalg.eigvals(np.asarray(jac))
+    eig = eig[eig.imag > 1e-6]
+    eig = eig[np.argsort(eig.imag)]
+    return eig.imag / (2.0 * np.pi), -eig.real / np.abs(eig)
+
+
 def rest_modes(args: DoorArgs) -> tuple[Float[np.ndarray, " mode"], Float[np.ndarray, " mode"]]:
     """Frequencies (Hz) and damping ratios of the door's modes at rest, extensions included.
 
@@ -137,15 +157,8 @@ def rest_modes(args: DoorArgs) -> tuple[Float[np.ndarray, " mode"], Float[np.nda
     def flow(y):
         return rhs(0.0, state0.at[moving].set(y), args)[moving]
 
-    y0 = state0[moving]
-    steps = jnp.where(jnp.isin(jnp.asarray(moving), jnp.asarray(velocity)), 1e-6, 1e-9)
-    shifts = jnp.diag(steps)
-    f = jax.vmap(flow)(jnp.concatenate([y0 + shifts, y0 - shifts]))
-    jac = np.asarray((f[: len(moving)] - f[len(moving) :]).T / (2.0 * steps))
-    eig = np.linalg.eigvals(jac)
-    eig = eig[eig.imag > 1e-6]
-    eig = eig[np.argsort(eig.imag)]
-    return eig.imag / (2.0 * np.pi), -eig.real / np.abs(eig)
+    steps = jnp.asarray(np.where(np.isin(moving, velocity), 1e-6, 1e-9))
+    return oscillatory_modes(central_jacobian(flow, state0[moving], steps))
 
 
 def sample_times(duration: float, fs: float = g.SAMPLING_RATE_HZ, dtype=jnp.float64):

@@ -140,29 +140,3 @@ def test_folds_refitted_at_once_give_the_fits_of_one_at_a_time():
         DiagnosisSettings(workers=0)
     with pytest.raises(ValueError, match="folds"):
         DiagnosisSettings(folds=1)
-
-
-def test_a_quadrature_search_finds_the_phase_the_tone_does_not_show():
-    # two (a cos phi, a sin phi) pairs: the "tone" fixes each amplitude sharply, a weak term
-    # prefers one phase; started at the opposite phases and a tenth of the amplitudes, the
-    # search with its phase scan ends at both amplitudes and phases
-    from bayesdoor.diagnose._refit import _search_quadrature
-
-    amplitude, phase = np.array([10.0, 6.0]), np.array([2.0, -1.0])
-
-    def objective(x):
-        x = np.atleast_2d(x)
-        c, s = x[:, 0::2], x[:, 1::2]
-        ring = 100.0 * (np.hypot(c, s) - amplitude) ** 2
-        return np.sum(ring + 0.5 * (1.0 - np.cos(np.arctan2(s, c) - phase)), axis=1)
-
-    start = np.array([-1.0, 0.0, -0.6, 0.0])
-    box = np.full(4, 20.0)
-    value, x, spent = _search_quadrature(
-        objective, start, -box, box, [(0, 1), (2, 3)], seed=1, max_evals=96, progress=False
-    )
-    got_amplitude = np.hypot(x[0::2], x[1::2])
-    got_phase = np.arctan2(x[1::2], x[0::2])
-    np.testing.assert_allclose(got_amplitude, amplitude, rtol=0.01)
-    assert np.all(np.abs(np.angle(np.exp(1j * (got_phase - phase)))) < 0.1), got_phase
-    assert value < 0.1 and spent > 96

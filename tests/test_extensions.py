@@ -23,7 +23,6 @@ from bayesdoor.systems.door import (
     WheelEccentricity,
     extension,
     motion_duration,
-    wheel_polar,
 )
 
 FS = 2048.0
@@ -129,32 +128,6 @@ def test_an_extended_door_is_never_described_as_the_base_one():
     right = ElevatorDoor().with_extensions(WheelEccentricity(wheel="right"))
     assert describe_system(left) != describe_system(right)
     assert left.describe() != right.describe()
-
-
-def test_a_quadrature_wheel_is_the_polar_wheel_at_the_same_radius():
-    """a cos(k alpha + phi) = c cos(k alpha) - s sin(k alpha), c = a cos phi, s = a sin phi:
-    the same height and slope under the wheel, and wheel_polar gives a and phi back."""
-    amplitudes, phases = (12e-6, 0.0, 4e-6), (0.3, 1.0, 5.2)
-    polar = WheelEccentricity(wheel="left", harmonics=3)
-    quad = WheelEccentricity(wheel="left", harmonics=3, quadrature=True)
-    values_polar, values_quad = {}, {}
-    for k, (a, phi) in enumerate(zip(amplitudes, phases, strict=True), 1):
-        values_polar[f"wheel_eccentricity.amplitude_{k}"] = a
-        values_polar[f"wheel_eccentricity.phase_{k}"] = phi
-        values_quad[f"wheel_eccentricity.cos_{k}"] = a * np.cos(phi)
-        values_quad[f"wheel_eccentricity.sin_{k}"] = a * np.sin(phi)
-    zeta = jnp.linspace(-0.4, 1.2, 301)
-    for got, want in zip(
-        quad.surface(zeta, 0, values_quad), polar.surface(zeta, 0, values_polar), strict=True
-    ):
-        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-18)
-    assert quad.surface(zeta, 1, values_quad) is None  # the other wheel is untouched
-    assert {p.name for p in quad.parameters} == set(values_quad)
-    back = wheel_polar(values_quad, 3)
-    for k in (1, 3):
-        assert back[f"wheel_eccentricity.amplitude_{k}"] == pytest.approx(amplitudes[k - 1])
-        assert back[f"wheel_eccentricity.phase_{k}"] == pytest.approx(phases[k - 1])
-    assert back["wheel_eccentricity.amplitude_2"] == 0.0
 
 
 def test_bad_extensions_and_values_are_refused_by_name():

@@ -35,10 +35,6 @@ if TYPE_CHECKING:
 
 #: population members per vectorised simulation (fixed, so one compilation serves a refit)
 POPULATION = 8
-#: phases tried per quadrature pair in each scan (:func:`_search_quadrature`)
-PHASE_STEPS = 8
-#: the amplitudes scanned in each sweep, +- this fraction of a pair's amplitude
-AMPLITUDE_WIDTHS = (0.5, 0.125, 0.03)
 #: half-width (bins) of the smooth discrepancy's running median (the residual map's too)
 SMOOTH_BINS = 15
 
@@ -91,13 +87,6 @@ class ExtensionProposal:
         PSD(O - P)) / 2 + s^2 ((PSD(O + P) + PSD(O - P)) / 2 - PSD(O)), each gain is fitted
         on its channel (the discrepancy is estimated channel by channel) without another
         solve.
-    quadrature
-        Pairs of linear free parameters ``(c, s)`` = ``(a cos phi, a sin phi)`` of one
-        oscillation (a wheel harmonic's radius). A spectrum fixes ``a`` through the tone but
-        ``phi`` only through weaker interplay elsewhere, so the search may settle in the wrong
-        phase: after a first search, each pair's phase is scanned at its amplitude
-        (``PHASE_STEPS`` phases, the other pairs held, twice over), and a second, narrower
-        search starts from the best point (:func:`_search_quadrature`).
     """
 
     extension: Any
@@ -111,7 +100,6 @@ class ExtensionProposal:
     held: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     measured: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     gains: Mapping[str, str] = dataclasses.field(default_factory=dict)
-    quadrature: tuple[tuple[str, str], ...] = ()
 
 
 class AbstractRefit(eqx.Module):
@@ -585,11 +573,9 @@ def _search(
     seed: int,
     max_evals: int,
     progress: bool,
-    sigma0: float = 0.2,
 ) -> tuple[float, np.ndarray, int]:
     """Minimise over a box: :func:`_minimize_scalar` for one parameter, else CMA-ES (the
-    population of ``POPULATION`` evaluated in one call; ``sigma0`` a fraction of the box).
-    Returns (value, point, evaluations)."""
+    population of ``POPULATION`` evaluated in one call). Returns (value, point, evaluations)."""
     from ..inference import minimize_cmaes
 
     if len(start) == 1:
@@ -600,95 +586,12 @@ def _search(
         lower=lower,
         upper=upper,
         seed=seed,
-        sigma0=sigma0,
+        sigma0=0.2,
         max_evals=max_evals,
         popsize=POPULATION,
         progress=progress,
     )
     return float(result.f_best), np.asarray(result.x_best, dtype=float), result.evaluations
-
-
-def _search_quadrature(
-    objective: Callable[[np.ndarray], np.ndarray],
-    start: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    pairs: Sequence[tuple[int, int]],
-    seed: int,
-    max_evals: int,
-    progress: bool,
-) -> tuple[float, np.ndarray, int]:
-    """:func:`_search`, then a scan of each quadrature pair's phase, then a narrower search.
-
-    ``pairs``: indices into the searched parameters of each ``(a cos phi, a sin phi)``. The
-    scan puts each pair in turn at ``PHASE_STEPS`` phases at its amplitude (clipped to the
-    box), the others held, keeping the best, then at amplitudes within a shrinking fraction
-    (``AMPLITUDE_WIDTHS``) of its own at that phase; three sweeps, the last one at finer
-    phases within one step of each pair's best; the second search (``sigma0`` a quarter of the
-    first's) starts from the best point found, in each pair's amplitude (up to the smaller
-    bound of its two parts) and phase (within half a turn either side). The best of everything
-    evaluated is returned.
-    """
-    f_best, x_best, spent = _search(objective, start, lower, upper, seed, max_evals, progress)
-    step = 2.0 * np.pi / PHASE_STEPS
-    for sweep, width in enumerate(AMPLITUDE_WIDTHS):
-        for ic, i_s in pairs:
-            amplitude = float(np.hypot(x_best[ic], x_best[i_s]))
-            if amplitude == 0.0:
-                continue
-            now = float(np.arctan2(x_best[i_s], x_best[ic]))
-            if sweep < 2:  # every phase around the circle
-                phases = step * np.arange(PHASE_STEPS)
-            else:  # one step either side of the best, finer
-                phases = now + np.linspace(-step, step, PHASE_STEPS + 1)
-            # the phases at the amplitude, then the amplitudes (within +-width) at the phase
-            for rows_of in ("phase", "amplitude"):
-                amplitude = float(np.hypot(x_best[ic], x_best[i_s]))
-                now = float(np.arctan2(x_best[i_s], x_best[ic]))
-                if rows_of == "phase":
-                    a, phi = np.full(len(phases), amplitude), phases
-                else:
-                    a = amplitude * (1.0 + width * np.linspace(-1.0, 1.0, PHASE_STEPS + 1))
-                    phi = np.full(len(a), now)
-                rows = np.repeat(x_best[None], len(a), axis=0)
-                rows[:, ic], rows[:, i_s] = a * np.cos(phi), a * np.sin(phi)
-                rows = np.clip(rows, lower, upper)
-                values = objective(rows)
-                spent += len(rows)
-                i = int(np.argmin(values))
-                if values[i] < f_best:
-                    f_best, x_best = float(values[i]), rows[i]
-    # the second search in polar coordinates (each pair's amplitude and phase): a ring of
-    # nearly equal values is a curved valley in (c, s), a straight one in (a, phi)
-    cs = [i for pair in pairs for i in pair]
-    reach = np.min(np.abs(np.stack([lower[cs], upper[cs]])))
-    polar_lo, polar_hi, y0 = lower.copy(), upper.copy(), x_best.copy()
-    for ic, i_s in pairs:
-        y0[ic], y0[i_s] = np.hypot(x_best[ic], x_best[i_s]), np.arctan2(x_best[i_s], x_best[ic])
-        y0[ic] = min(y0[ic], reach)
-        polar_lo[ic], polar_hi[ic] = 0.0, reach
-        polar_lo[i_s], polar_hi[i_s] = y0[i_s] - np.pi, y0[i_s] + np.pi
-
-    def cartesian(y: np.ndarray) -> np.ndarray:
-        x = np.array(np.atleast_2d(y), dtype=float)
-        for ic, i_s in pairs:
-            a, phi = x[:, ic].copy(), x[:, i_s].copy()
-            x[:, ic], x[:, i_s] = a * np.cos(phi), a * np.sin(phi)
-        return x
-
-    f2, y2, spent2 = _search(
-        lambda y: objective(cartesian(y)),
-        y0,
-        polar_lo,
-        polar_hi,
-        seed + 7919,
-        max_evals,
-        progress,
-        sigma0=0.05,
-    )
-    if f2 < f_best:
-        f_best, x_best = f2, cartesian(y2)[0]
-    return f_best, x_best, spent + spent2
 
 
 def _parabola(points: np.ndarray, values: np.ndarray, best: int) -> tuple[float, float]:
@@ -940,37 +843,16 @@ def refit_extension(
     grid = list(itertools.product(*(proposal.grid[n] for n in gridded))) or [()]
     outcomes = []
     evaluations = 0
-    searched = [free[i] for i in search]
-    unknown = [n for pair in proposal.quadrature for n in pair if n not in searched]
-    if unknown:
-        raise ValueError(
-            f"the proposal's quadrature pairs name {unknown}, which are not searched free "
-            f"parameters ({searched})"
-        )
-    pairs = [(searched.index(c), searched.index(s)) for c, s in proposal.quadrature]
     for g_index, point in enumerate(grid):
         objective = objective_at(dict(zip(gridded, point, strict=True)))
-        f_best, x_best, spent = (
-            _search_quadrature(
-                objective,
-                start[search],
-                lower[search],
-                upper[search],
-                pairs,
-                seed + 1 + g_index,
-                max_evals,
-                progress,
-            )
-            if pairs
-            else _search(
-                objective,
-                start[search],
-                lower[search],
-                upper[search],
-                seed + 1 + g_index,
-                max_evals,
-                progress,
-            )
+        f_best, x_best, spent = _search(
+            objective,
+            start[search],
+            lower[search],
+            upper[search],
+            seed + 1 + g_index,
+            max_evals,
+            progress,
         )
         evaluations += spent
         outcomes.append((f_best, x_best, point))

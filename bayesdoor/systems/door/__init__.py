@@ -11,7 +11,6 @@ from ._extensions import RailWaviness as RailWaviness
 from ._extensions import SensorCrossAxis as SensorCrossAxis
 from ._extensions import WheelEccentricity as WheelEccentricity
 from ._extensions import extension as extension
-from ._extensions import wheel_polar as wheel_polar
 from ._geometry import CHANNELS as CHANNELS
 from ._model import STATE_SIZE as STATE_SIZE
 from ._model import DoorArgs as DoorArgs

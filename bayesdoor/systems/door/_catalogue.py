@@ -34,7 +34,6 @@ from ._extensions import (
     RailWaviness,
     SensorCrossAxis,
     WheelEccentricity,
-    wheel_polar,
 )
 from ._profile import commanded_motion
 
@@ -183,24 +182,12 @@ class FrameModeRefit(AbstractRefit):
 class WheelRefit(AbstractRefit):
     """An out-of-round wheel with the harmonics the residual shows, each wheel in turn.
 
-    Free: the radius of every harmonic found as its two quadrature parts (a_k cos phi_k and
-    a_k sin phi_k, :class:`WheelEccentricity` with ``quadrature=True``), each acting linearly
-    (micrometres on a contact preloaded by a fraction of a millimetre). The tones do not see
-    the phases, but what a harmonic does to the rest of the spectrum does; held at a nominal
-    phase, the extension's side effects had the wrong sign where the phase was not that one
-    (session 9: on the virtual rig's wheel seed 7 at three times its size, the slowest run
-    lost 35 nats of held-out density at 80-90 Hz while the tones gained). The amplitudes and
-    phases are reported (:meth:`derived`). Nothing is proposed when no tone lies at a wheel
-    harmonic. Both wheels have the same radius, so their tones are the same: the left and the
-    right wheel are both proposed (the refit keeps the one that fits the training runs best).
+    Free: the radius amplitude of every harmonic found (phases at their nominal values: the
+    spectra barely see them), each acting linearly (micrometres on a contact preloaded by a
+    fraction of a millimetre). Nothing is proposed when no tone lies at a wheel harmonic. Both
+    wheels have the same radius, so their tones are the same: the left and the right wheel are
+    both proposed (the refit keeps the one that fits the training runs best).
     """
-
-    def derived(self, proposal, system, values):
-        """Each harmonic's radius amplitude and phase from its two quadrature parts."""
-        extension = proposal.extension
-        if not isinstance(extension, WheelEccentricity) or not extension.quadrature:
-            return {}
-        return wheel_polar(values, extension.harmonics)
 
     def propose(
         self, parameters: Mapping[str, Any], *, band: tuple[float, float]
@@ -211,22 +198,15 @@ class WheelRefit(AbstractRefit):
         if not found:
             return ()
         harmonics = max(found)
-        start = {}
-        for k in sorted(found):
-            start[f"wheel_eccentricity.cos_{k}"] = -5e-6 / k
-            start[f"wheel_eccentricity.sin_{k}"] = 0.0
+        start = {f"wheel_eccentricity.amplitude_{k}": 5e-6 / k for k in found}
         return tuple(
             ExtensionProposal(
-                extension=WheelEccentricity(wheel=wheel, harmonics=harmonics, quadrature=True),
+                extension=WheelEccentricity(wheel=wheel, harmonics=harmonics),
                 start=start,
                 free=tuple(start),
                 key=tuple(start),
                 linear=tuple(start),
                 label=f"{wheel} wheel, harmonics {sorted(found)}",
-                quadrature=tuple(
-                    (f"wheel_eccentricity.cos_{k}", f"wheel_eccentricity.sin_{k}")
-                    for k in sorted(found)
-                ),
             )
             for wheel in ("left", "right")
         )

@@ -452,18 +452,7 @@ class WheelEccentricity(AbstractDoorExtension):
     the wheel's rotation frequency and its harmonics, tracking the door speed.
 
     Parameters: ``wheel_eccentricity.amplitude_<k>`` (0-50 um; 0 is off) and
-    ``wheel_eccentricity.phase_<k>`` (0 to 2 pi rad) for k = 1..H. With ``quadrature=True``
-    the same radius is written a_k cos(k alpha + phi_k) = c_k cos(k alpha) - s_k sin(k alpha)
-    with ``wheel_eccentricity.cos_<k>`` = a_k cos phi_k and ``wheel_eccentricity.sin_<k>`` =
-    a_k sin phi_k (-50 to 50 um each): the radius, and so the solve's response at these
-    micrometre sizes, is linear in both, so a refit can fit the phases through linear signal
-    changes (:func:`wheel_polar` gives back amplitudes and phases).
-
-    Why the phases are fitted: the tones at the harmonics do not depend on them, but what a
-    harmonic does elsewhere does (its interplay with the rail's own waviness through the
-    contact). Measured on the virtual rig (session 9; the harmonics 4 and 6 of 15 and 10 um
-    at 0.3 m/s): four draws of the two phases moved the door's predicted PSD at 86 Hz by
-    -0.39 to +0.43 decades, while a Welch bin's standard deviation is about 0.23.
+    ``wheel_eccentricity.phase_<k>`` (0 to 2 pi rad) for k = 1..H.
     """
 
     name: ClassVar[str] = "wheel_eccentricity"
@@ -471,7 +460,6 @@ class WheelEccentricity(AbstractDoorExtension):
 
     wheel: str = eqx.field(static=True, default="right")
     harmonics: int = eqx.field(static=True, default=1)
-    quadrature: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         if self.wheel not in WHEELS:
@@ -483,21 +471,6 @@ class WheelEccentricity(AbstractDoorExtension):
 
     @property
     def parameters(self) -> tuple[ParameterSpec, ...]:
-        if self.quadrature:
-            return tuple(
-                _spec(
-                    self.name,
-                    f"{part}_{k}",
-                    "m",
-                    0.0,
-                    -50e-6,
-                    50e-6,
-                    f"radius amplitude of harmonic {k} of the {self.wheel} wheel times the "
-                    f"{part} of its phase",
-                )
-                for k in range(1, self.harmonics + 1)
-                for part in ("cos", "sin")
-            )
         specs = []
         for k in range(1, self.harmonics + 1):
             specs.append(
@@ -531,42 +504,11 @@ class WheelEccentricity(AbstractDoorExtension):
         alpha = zeta / g.WHEEL_RADIUS
         height, slope = 0.0 * zeta, 0.0 * zeta
         for k in range(1, self.harmonics + 1):
-            if self.quadrature:
-                c, s = v[f"cos_{k}"], v[f"sin_{k}"]
-                cos, sin = xp.cos(k * alpha), xp.sin(k * alpha)
-                height = height + c * cos - s * sin
-                slope = slope - (c * sin + s * cos) * (k / g.WHEEL_RADIUS)
-                continue
             arg = k * alpha + v[f"phase_{k}"]
             a = v[f"amplitude_{k}"]
             height = height + a * xp.cos(arg)
             slope = slope - a * (k / g.WHEEL_RADIUS) * xp.sin(arg)
         return height, slope
-
-
-def wheel_polar(values: Mapping[str, float], harmonics: int) -> dict[str, float]:
-    """Amplitudes and phases of a quadrature :class:`WheelEccentricity`'s values.
-
-    ``wheel_eccentricity.amplitude_<k>`` = hypot(c_k, s_k) and ``wheel_eccentricity.phase_<k>``
-    = atan2(s_k, c_k) in [0, 2 pi), for every harmonic ``k`` whose ``cos_<k>`` and ``sin_<k>``
-    are in ``values`` (the others are left out).
-
-    Examples
-    --------
-    >>> polar = wheel_polar(
-    ...     {"wheel_eccentricity.cos_2": 0.0, "wheel_eccentricity.sin_2": 3e-6}, harmonics=2
-    ... )
-    >>> [round(v, 6) for v in polar.values()]  # 3 um at a quarter turn
-    [3e-06, 1.570796]
-    """
-    out = {}
-    for k in range(1, harmonics + 1):
-        c, s = values.get(f"wheel_eccentricity.cos_{k}"), values.get(f"wheel_eccentricity.sin_{k}")
-        if c is None or s is None:
-            continue
-        out[f"wheel_eccentricity.amplitude_{k}"] = float(np.hypot(c, s))
-        out[f"wheel_eccentricity.phase_{k}"] = float(np.mod(np.arctan2(s, c), 2.0 * np.pi))
-    return out
 
 
 class RailWaviness(AbstractDoorExtension):

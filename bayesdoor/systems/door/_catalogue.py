@@ -225,8 +225,8 @@ class RailRefit(AbstractRefit):
     averaging 9.79 mm for the rig's 9.74: 3.8 SE, against 5.7 SE in session 7 held at the
     signature's 9.67 mm), so the wavelength stays held. The amplitude (micrometres on a
     contact preloaded by a fraction of a millimetre) acts linearly: one solve per run. The
-    phase stays at 0: fitted as two quadrature parts, as the wheel's harmonics are (session
-    9, rail seeds 0-9 at 8 runs), it named seeds 0 and 1 (seed 1 at the signature's 7 % off
+    phase stays at 0: fitted as two quadrature parts (session 9, rail seeds 0-9 at 8 runs;
+    docs/diagnosis.md), it named seeds 0 and 1 (seed 1 at the signature's 7 % off
     wavelength) but lost seed 2, and moved no other verdict (4 named of 10 either way with
     the wavelength in tolerance; nothing hidden: 0 of 6 false alarms either way).
     """

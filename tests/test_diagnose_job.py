@@ -370,16 +370,6 @@ def test_a_runs_misfit_elsewhere_barely_moves_its_gain_with_the_line_bins_local(
         assert moved["local"] < 0.1 * moved["pooled"], moved
 
 
-def _full_size_case(name: str) -> pytest.ParameterSet:
-    # the wheel at its drawn sizes moves no bin of the 1 Hz spectra far enough to stand out
-    # (scripts/diagnosis_strength.py: largest |z| 2.0-4.8 for seeds 0-9 at 8 runs, and more
-    # runs do not raise a single bin's z); not run at this size, so not strict
-    if name == "wheel_eccentricity":
-        reason = "wheel tones under the Welch scatter at the drawn sizes (not run at 12 runs)"
-        return pytest.param(name, marks=pytest.mark.xfail(strict=False, reason=reason))
-    return pytest.param(name)
-
-
 #: full-size cases measured to fail (session 9, at 28208c9: ``none-2`` passed, 14 min for the
 #: two at once)
 _FULL_SIZE_FAILING = {
@@ -388,16 +378,27 @@ _FULL_SIZE_FAILING = {
 }
 
 
+def _full_size_case(name: str, seed: int) -> pytest.ParameterSet:
+    if (name, seed) in _FULL_SIZE_FAILING:
+        reason = _FULL_SIZE_FAILING[(name, seed)]
+        return pytest.param(name, seed, marks=pytest.mark.xfail(strict=True, reason=reason))
+    # the wheel at its drawn sizes moves no bin of the 1 Hz spectra far enough to stand out
+    # (scripts/diagnosis_strength.py: largest |z| 2.0-4.8 for seeds 0-9 at 8 runs, and more
+    # runs do not raise a single bin's z); not run at this size, so not strict
+    if name == "wheel_eccentricity":
+        reason = "wheel tones under the Welch scatter at the drawn sizes (not run at 12 runs)"
+        return pytest.param(name, seed, marks=pytest.mark.xfail(strict=False, reason=reason))
+    return pytest.param(name, seed)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", range(2, 7))
-@pytest.mark.parametrize("name", [_full_size_case(n) for n in [*EFFECTS, NONE]])
-def test_full_size(name, seed, request):
+@pytest.mark.parametrize(
+    ("name", "seed"), [_full_size_case(n, s) for n in [*EFFECTS, NONE] for s in range(2, 7)]
+)
+def test_full_size(name, seed):
     """Twelve runs over the whole speed range, the base model fitted on each campaign (the
     command's default sizes). 30 cases of about 9 minutes each (the 12-run benchmark took 550 s):
     never run in full; session 9 ran two (``none-2`` passed, ``rail_waviness-2`` failed)."""
-    if (name, seed) in _FULL_SIZE_FAILING:
-        reason = _FULL_SIZE_FAILING[(name, seed)]
-        request.applymarker(pytest.mark.xfail(strict=True, reason=reason))
     recording, rig = record(name, seed, SPEEDS_SLOW)
     diagnosis = diagnose_campaign(
         DOOR, recording.campaign, seed=seed, progress=False, catalogue=DOOR_CATALOGUE

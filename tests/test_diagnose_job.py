@@ -398,7 +398,8 @@ def _full_size_case(name: str, seed: int) -> pytest.ParameterSet:
 def test_full_size(name, seed):
     """Twelve runs over the whole speed range, the base model fitted on each campaign (the
     command's default sizes). 30 cases of about 9 minutes each (the 12-run benchmark took 550 s):
-    never run in full; session 9 ran two (``none-2`` passed, ``rail_waviness-2`` failed)."""
+    never run in full; session 9 ran four (``none-2``, ``mains_hum-2`` and
+    ``sensor_cross_axis-2`` passed, ``rail_waviness-2`` failed)."""
     recording, rig = record(name, seed, SPEEDS_SLOW)
     diagnosis = diagnose_campaign(
         DOOR, recording.campaign, seed=seed, progress=False, catalogue=DOOR_CATALOGUE

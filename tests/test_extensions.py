@@ -343,6 +343,35 @@ def test_rail_waviness_tone_is_at_speed_over_wavelength(surface_runs):
         np.testing.assert_allclose(_tone(change[m], t[m], (2.0, 60.0)), v / WAVELENGTH, rtol=0.01)
 
 
+def test_rail_waviness_with_independent_phases_is_one_sine_per_wheel():
+    """Quadrature parts (s, c) = a (cos phi, sin phi) under a wheel give a sin(k zeta + phi)
+    there (the rail at phase phi), nothing under the other wheel; the slope is d/dzeta."""
+    a, phi, lam = 7e-6, 1.1, 0.023
+    zeta = jnp.linspace(-0.3, 1.2, 101)
+    free = RailWaviness(independent=True)
+    values = {p.name: p.nominal for p in free.parameters}
+    values.update(
+        {
+            "rail_waviness.wavelength_m": lam,
+            "rail_waviness.sin_right_m": a * np.cos(phi),
+            "rail_waviness.cos_right_m": a * np.sin(phi),
+        }
+    )
+    fixed = RailWaviness(phase=phi)
+    one = {"rail_waviness.wavelength_m": lam, "rail_waviness.amplitude_m": a}
+    height, slope = free.surface(zeta, 1, values)
+    want, want_slope = fixed.surface(zeta, 1, one)
+    np.testing.assert_allclose(height, want, atol=1e-15)
+    np.testing.assert_allclose(slope, want_slope, rtol=1e-12, atol=1e-15)
+    grad = jax.vmap(jax.grad(lambda z: free.surface(z, 1, values)[0]))(zeta)
+    np.testing.assert_allclose(slope, grad, rtol=1e-9, atol=1e-15)
+    left, left_slope = free.surface(zeta, 0, values)
+    assert float(jnp.abs(left).max()) == 0.0 and float(jnp.abs(left_slope).max()) == 0.0
+    assert {p.name for p in free.parameters} >= {
+        f"rail_waviness.{q}_{w}_m" for q in ("sin", "cos") for w in ("left", "right")
+    }
+
+
 # ---------------------------------------------------------------------------------------------
 # gradients
 

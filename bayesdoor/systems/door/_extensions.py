@@ -519,18 +519,27 @@ class RailWaviness(AbstractDoorExtension):
     The phase is static (spectral features barely see it: it only shifts the relative phase
     of the two wheels' excitations, which their 0.7 m spacing fixes anyway).
 
+    With ``independent=True`` each wheel meets the irregularity at its own phase: under wheel
+    w it adds s_w sin(2 pi zeta / lambda) + c_w cos(2 pi zeta / lambda), four parameters
+    linear in the height. A real rail is not periodic over the wheels' 0.7 m to a fraction
+    of a wavelength, and a wavelength estimated 1 % off turns the two wheels' relative phase
+    by 0.7 m / lambda hundredths of a cycle (a fifth of a cycle at 35 mm); with the phases
+    free the tone's level no longer hinges on that.
+
     Parameters: ``rail_waviness.wavelength_m`` (4-200 mm) and ``rail_waviness.amplitude_m``
-    (0-30 um; 0 is off).
+    (0-30 um; 0 is off); with ``independent``, also ``rail_waviness.sin_left_m``,
+    ``cos_left_m``, ``sin_right_m`` and ``cos_right_m`` (-30 to 30 um; 0 is off).
     """
 
     name: ClassVar[str] = "rail_waviness"
     needs_resolve: ClassVar[bool] = True
 
     phase: float = eqx.field(static=True, default=0.0)
+    independent: bool = eqx.field(static=True, default=False)
 
     @property
     def parameters(self) -> tuple[ParameterSpec, ...]:
-        return (
+        specs = (
             _spec(
                 self.name,
                 "wavelength_m",
@@ -550,12 +559,35 @@ class RailWaviness(AbstractDoorExtension):
                 "amplitude of the rail irregularity",
             ),
         )
+        if not self.independent:
+            return specs
+        parts = tuple(
+            _spec(
+                self.name,
+                f"{part}_{wheel}_m",
+                "m",
+                0.0,
+                -30e-6,
+                30e-6,
+                f"{part} part of the irregularity under the {wheel} wheel",
+            )
+            for wheel in WHEELS
+            for part in ("sin", "cos")
+        )
+        return specs + parts
 
     def surface(self, zeta, wheel, values, xp=jnp):
         v = self.local(values)
         k = 2.0 * np.pi / v["wavelength_m"]
         arg = k * zeta + self.phase
-        return v["amplitude_m"] * xp.sin(arg), v["amplitude_m"] * k * xp.cos(arg)
+        height = v["amplitude_m"] * xp.sin(arg)
+        slope = v["amplitude_m"] * k * xp.cos(arg)
+        if self.independent:
+            s, c = v[f"sin_{WHEELS[wheel]}_m"], v[f"cos_{WHEELS[wheel]}_m"]
+            sin, cos = xp.sin(k * zeta), xp.cos(k * zeta)
+            height = height + s * sin + c * cos
+            slope = slope + k * (s * cos - c * sin)
+        return height, slope
 
 
 #: the extension class of every catalogue name (``none`` is the base model: no class)

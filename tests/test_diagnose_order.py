@@ -116,3 +116,30 @@ def test_comb_refuses_bad_arguments():
         harmonic_comb(measured, [], PERIOD, (1, 2))
     with pytest.raises(ValueError, match="alpha"):
         harmonic_comb(measured, predictive, PERIOD, (1, 2), alpha=2.0)
+
+
+def test_a_tracking_tone_is_located_at_the_measured_peak_not_the_excess_peak():
+    """A tone at 40 / m beside a trough of the model's spectrum just below it: the log excess
+    (measured over model) peaks in the trough, 2.5 % off; the measured spectrum's own peak
+    within 4 % of it is the tone's: 40.14 / m (the trough skews the measured parabola too),
+    within 0.5 %."""
+    from types import SimpleNamespace
+
+    from bayesdoor.diagnose._signatures import MEASURED_PEAK_WINDOW, _order_wavelength
+
+    k = np.arange(0.0, 100.0, 0.5)
+    kappa = 40.0
+    model = -2.0 - 1.5 * np.exp(-0.5 * ((k - 38.5) / 0.8) ** 2)  # a trough at 38.5 / m
+    line = -1.6 - 0.5 * (k - kappa) ** 2  # the tone, a parabola in log10 PSD
+    measured = np.log10(10.0**model + 10.0**line)
+    orders = SimpleNamespace(wavenumbers=k, log_psd=np.tile(measured, (4, 2, 1)))
+    predictive = SimpleNamespace(log_psd=np.tile(model, (4, 2, 1)))
+    features = SimpleNamespace(
+        orders=orders, order_excess=lambda: orders.log_psd - predictive.log_psd
+    )
+    region = SimpleNamespace(speed=SimpleNamespace(wavelength_m=1.0 / 39.0))
+    excess_peak, _ = order_peak((measured - model)[None], k, 39.0, 0.1)
+    assert abs(excess_peak / kappa - 1.0) > 0.02  # the lean the measured peak corrects
+    lam, sd, from_orders = _order_wavelength(features, region)
+    assert from_orders and MEASURED_PEAK_WINDOW > 0 and np.isfinite(sd)
+    assert 1.0 / lam == pytest.approx(kappa, rel=0.005)

@@ -226,6 +226,9 @@ def _wavelength_sd(region: Region) -> float:
 #: the order-domain peak is searched within this relative distance of the speed fit's
 #: wavenumber (a wheel's neighbouring harmonics lie 1 / k apart, 17 % at k = 6)
 ORDER_WINDOW = 0.1
+#: the measured order spectrum's own peak within this relative distance of the excess's is
+#: taken as the tone's wavenumber (0: the excess's peak)
+MEASURED_PEAK_WINDOW = 0.04
 
 
 def _order_wavelength(features: Features, region: Region) -> tuple[float, float, bool]:
@@ -245,6 +248,17 @@ def _order_wavelength(features: Features, region: Region) -> tuple[float, float,
     )
     if not np.isfinite(kappa) or kappa <= 0:
         return lam, _wavelength_sd(region), False
+    if MEASURED_PEAK_WINDOW:
+        # the excess is a ratio to the base model: a trough of the base spectrum next to the
+        # tone pulls its peak off the tone; the measured spectrum's own peak is the tone's
+        measured, measured_sd = order_peak(
+            features.orders.log_psd.mean(axis=1),
+            features.orders.wavenumbers,
+            kappa,
+            MEASURED_PEAK_WINDOW,
+        )
+        if np.isfinite(measured) and measured > 0:
+            kappa, sd = measured, measured_sd
     return 1.0 / kappa, sd / kappa**2, True
 
 

@@ -18,3 +18,31 @@ jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 def key():
     """A fresh, seeded PRNG key for each test."""
     return jax.random.key(20231)
+
+
+#: tests that take a minute or more on the 2-core machine (session 10, first run on a fresh
+#: machine: the notebooks 02-04 219 s, the diagnosis cases 40-120 s each): started first, so
+#: that ``pytest -n 2`` does not end with one worker on a long test while the other idles
+#: (longest first is the classic rule for sharing jobs between machines)
+_LONG = (
+    "tests/test_examples.py::test_02_03_04",
+    "tests/test_diagnose_job.py::test_hidden_effect_is_named",
+    "tests/test_diagnose_job.py::test_nothing_hidden_gives_none",
+    "tests/test_diagnose_job.py::test_wrong_extension_shows_no_gain",
+    "tests/test_door.py::test_gradient_of_log_psd_loss_matches_central_differences",
+    "tests/test_discrepancy_correlation.py::test_nuts_samples",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    """The long tests first, in their listed order; the rest as collected (a stable sort,
+    the same on every worker). None of them shares a module-scoped fixture with a test left
+    behind, except the diagnosis cases' base fit, which only those use."""
+
+    def rank(item):
+        for i, prefix in enumerate(_LONG):
+            if item.nodeid.startswith(prefix):
+                return i
+        return len(_LONG)
+
+    items.sort(key=rank)

@@ -28,6 +28,7 @@ from ...diagnose import (
 )
 from . import _geometry as g
 from ._extensions import (
+    WHEELS,
     CoupledFrameMode,
     FrameMode,
     MainsHum,
@@ -245,8 +246,8 @@ class RailRefit(AbstractRefit):
         lam = float(parameters["wavelength_m"])
         sd = float(parameters.get("wavelength_sd_m", float("nan")))
         if self.independent:
-            parts = {f"rail_waviness.sin_{w}_m": 3e-6 for w in ("left", "right")}
-            parts.update({f"rail_waviness.cos_{w}_m": 1e-6 for w in ("left", "right")})
+            parts = {f"rail_waviness.sin_{w}_m": 3e-6 for w in WHEELS}
+            parts.update({f"rail_waviness.cos_{w}_m": 1e-6 for w in WHEELS})
             return (
                 ExtensionProposal(
                     extension=RailWaviness(independent=True),
@@ -283,7 +284,7 @@ class RailRefit(AbstractRefit):
                     np.mean(values[f"rail_waviness.cos_{w}_m"]),
                 )
             )
-            for w in ("left", "right")
+            for w in WHEELS
         }
 
 

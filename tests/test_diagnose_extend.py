@@ -140,3 +140,33 @@ def test_folds_refitted_at_once_give_the_fits_of_one_at_a_time():
         DiagnosisSettings(workers=0)
     with pytest.raises(ValueError, match="folds"):
         DiagnosisSettings(folds=1)
+
+
+def test_the_rail_reports_each_wheels_amplitude_with_its_first_order_sd():
+    from bayesdoor.systems.door._catalogue import RailRefit
+
+    recipe = RailRefit(independent=True)
+    (proposal,) = recipe.propose({"wavelength_m": 0.03}, band=(4.0, 200.0))
+    values = {
+        "rail_waviness.sin_left_m": 3e-6,
+        "rail_waviness.cos_left_m": 4e-6,
+        "rail_waviness.sin_right_m": 1e-7,
+        "rail_waviness.cos_right_m": 0.0,
+    }
+    sd = {
+        "rail_waviness.sin_left_m": 0.6e-6,
+        "rail_waviness.cos_left_m": 0.2e-6,
+        "rail_waviness.sin_right_m": 1e-6,
+        "rail_waviness.cos_right_m": 1e-6,
+    }
+    door = ElevatorDoor().with_extensions(proposal.extension)
+    amplitude = recipe.derived(proposal, door, values)
+    assert amplitude["rail_waviness.amplitude_left_m"] == pytest.approx(5e-6)
+    spread = recipe.derived_sd(proposal, values, sd)
+    # (3 * 0.6, 4 * 0.2) um^2 over 5 um: sqrt(1.8^2 + 0.8^2) / 5 um
+    assert spread["rail_waviness.amplitude_left_m"] == pytest.approx(np.hypot(1.8, 0.8) / 5 * 1e-6)
+    # an amplitude under two of its own sds has none (the first order fails near zero)
+    assert "rail_waviness.amplitude_right_m" not in spread
+    # a rail at one phase has neither
+    (common,) = RailRefit().propose({"wavelength_m": 0.03}, band=(4.0, 200.0))
+    assert recipe.derived_sd(common, {}, {}) == {}

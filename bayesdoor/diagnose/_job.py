@@ -716,7 +716,10 @@ def diagnose_campaign(
                 system.with_extensions(proposal.extension),
                 {**setup.point, **final.values},
             )
-            parameters.update({n: {"mean": v, "sd": None} for n, v in derived.items()})
+            derived_sd = recipes[score.name].derived_sd(  # type: ignore[union-attr]
+                proposal, final.values, final.sd
+            )
+            parameters.update({n: {"mean": v, "sd": derived_sd.get(n)} for n, v in derived.items()})
         parameters.update(held)
         for n, (value, sd) in proposal.measured.items():
             parameters[n] = {"mean": value, "sd": sd, "refit": parameters[n]["mean"]}

@@ -144,6 +144,17 @@ class AbstractRefit(eqx.Module):
         its parameters at the refit on every run. The default recipe has none."""
         return {}
 
+    def derived_sd(
+        self,
+        proposal: ExtensionProposal,
+        values: Mapping[str, float],
+        sd: Mapping[str, float],
+    ) -> dict[str, float]:
+        """Standard deviations of :meth:`derived`'s quantities where the recipe can give
+        them, from the refitted ``values`` and their Laplace ``sd``; missing ones are
+        reported without one. The default recipe gives none."""
+        return {}
+
 
 def held_out_spectra(
     fits: Sequence[RefitResult], folds: Sequence[tuple[np.ndarray, np.ndarray]]

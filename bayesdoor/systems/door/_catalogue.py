@@ -287,6 +287,24 @@ class RailRefit(AbstractRefit):
             for w in WHEELS
         }
 
+    def derived_sd(self, proposal, values, sd):
+        """Each wheel's amplitude's sd to first order in its quadrature parts' sds (s sd_s,
+        c sd_c over the amplitude, in quadrature; their covariance neglected). Near zero
+        amplitude the first order fails (the amplitude is Rice-distributed): none is given
+        below two of its own sds' worth of signal."""
+        ext = proposal.extension
+        if not (isinstance(ext, RailWaviness) and ext.independent):
+            return {}
+        out = {}
+        for w in WHEELS:
+            s, c = (float(np.mean(values[f"rail_waviness.{q}_{w}_m"])) for q in ("sin", "cos"))
+            ds, dc = (float(sd.get(f"rail_waviness.{q}_{w}_m", np.nan)) for q in ("sin", "cos"))
+            amplitude = float(np.hypot(s, c))
+            spread = float(np.hypot(s * ds, c * dc)) / amplitude if amplitude > 0 else np.nan
+            if np.isfinite(spread) and amplitude > 2.0 * spread:
+                out[f"rail_waviness.amplitude_{w}_m"] = spread
+        return out
+
 
 class CrossAxisRefit(AbstractRefit):
     """A leak between the two channels of one sensor: every direction of every pair.

@@ -14,6 +14,38 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
+#: ``BAYESDOOR_COMPILE_REPORT=PREFIX``: every JAX duration event (tracing, lowering, XLA
+#: compiling, cache reads) summed per test and written to ``PREFIX.<worker>.json`` at the end,
+#: to see where a run on an empty cache spends its time (off by default)
+_REPORT = os.environ.get("BAYESDOOR_COMPILE_REPORT")
+_durations: dict[str, dict[str, float]] = {}
+_current = ["(collection)"]
+if _REPORT:
+
+    def _listen(event: str, duration: float, **_: object) -> None:
+        per = _durations.setdefault(_current[0], {})
+        per[event] = per.get(event, 0.0) + float(duration)
+
+    jax.monitoring.register_event_duration_secs_listener(_listen)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    _current[0] = item.nodeid
+    try:
+        return (yield)
+    finally:
+        _current[0] = "(between tests)"
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _REPORT:
+        import json
+
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        Path(f"{_REPORT}.{worker}.json").write_text(json.dumps(_durations, indent=1))
+
+
 @pytest.fixture
 def key():
     """A fresh, seeded PRNG key for each test."""

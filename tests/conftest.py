@@ -22,9 +22,14 @@ _durations: dict[str, dict[str, float]] = {}
 _current = ["(collection)"]
 if _REPORT:
 
-    def _listen(event: str, duration: float, **_: object) -> None:
+    def _listen(event: str, duration: float, fun_name: str = "", **_: object) -> None:
         per = _durations.setdefault(_current[0], {})
         per[event] = per.get(event, 0.0) + float(duration)
+        if event.endswith("backend_compile_duration"):
+            # by function, over the whole run: [compiles (or cache reads), seconds]
+            per = _durations.setdefault("(by function)", {})
+            count, total = per.get(fun_name, (0, 0.0))
+            per[fun_name] = (count + 1, total + float(duration))  # type: ignore[assignment]
 
     jax.monitoring.register_event_duration_secs_listener(_listen)
 

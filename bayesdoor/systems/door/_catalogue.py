@@ -224,7 +224,10 @@ class RailRefit(AbstractRefit):
     wavelengths profiled per fold named rail seed 1 (26.00 mm for the rig's 26.00, +6.7 SE,
     where the signature's 27.79 mm gives 3.8 SE) but lost seed 3 (the folds' wavelengths
     averaging 9.79 mm for the rig's 9.74: 3.8 SE, against 5.7 SE in session 7 held at the
-    signature's 9.67 mm), so the wavelength stays held.
+    signature's 9.67 mm), so the wavelength stays held. With each wheel's phase free
+    (session 11, same cases): profiled per fold it lost seed 1 (2.3 SE); profiled on all
+    runs after the judgement it reported seeds 0, 1, 2, 3, 7, 8 at 0.4, 2.4, 0.4, 0.3, 2.3,
+    0.3 % off where the signature is 0.1, 6.9, 0.2, 0.7, 0.5, 0.1 % off (docs/diagnosis.md).
 
     ``independent`` (the catalogue's choice since session 10): each wheel meets the
     irregularity at its own phase, four quadrature parts (``RailWaviness(independent=True)``),

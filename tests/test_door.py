@@ -309,3 +309,21 @@ def test_unknown_state_law_and_severity_are_refused():
         get_law(12)
     with pytest.raises(ValueError, match="unknown contact law 'hertz'"):
         get_law("hertz")
+
+
+def test_the_batched_solve_holds_no_host_callback_so_it_can_be_cached():
+    """JAX writes no program with a host callback to its persistent cache; diffrax's checks of
+    the save times were such callbacks (equinox's ``error_if``), so every process compiled the
+    solves again (bayesdoor._cacheable)."""
+    door = ElevatorDoor()
+    nominal = {p.name: p.nominal for p in door.parameters}
+
+    def signals(k):
+        values = {**nominal, "K": k}
+        return door.simulate_values(
+            values, jnp.asarray([0.3, 0.4]), duration=0.5, check=False
+        ).signals
+
+    text = jax.jit(signals).lower(jnp.asarray([1500.0, 2000.0])).as_text()
+    assert "solve_batch" in text  # the solve is inside what was lowered
+    assert "callback" not in text

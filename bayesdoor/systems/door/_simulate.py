@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..._cacheable import errors_as_nan
 from ..._types import Array, Float, Int
 from . import _geometry as g
 from ._model import (
@@ -235,19 +236,23 @@ def solve(
     else:
         controller = diffrax.ConstantStepSize()
         dt0 = config.dt
-    sol = diffrax.diffeqsolve(
-        term,
-        diffrax.Tsit5(),
-        t0=ts[0],
-        t1=ts[-1],
-        dt0=dt0,
-        y0=y0,
-        args=args,
-        saveat=diffrax.SaveAt(ts=ts, fn=_with_gains(gains) if gains else _OUTPUTS[output]),
-        stepsize_controller=controller,
-        max_steps=config.max_steps,
-        throw=False,
-    )
+    # diffrax's checks of the save times as NaN, not host callbacks: the compiled solve can
+    # then be cached across processes (bayesdoor._cacheable); ts is increasing and inside
+    # [ts[0], ts[-1]] by construction, and a NaN would fail the finite check below
+    with errors_as_nan():
+        sol = diffrax.diffeqsolve(
+            term,
+            diffrax.Tsit5(),
+            t0=ts[0],
+            t1=ts[-1],
+            dt0=dt0,
+            y0=y0,
+            args=args,
+            saveat=diffrax.SaveAt(ts=ts, fn=_with_gains(gains) if gains else _OUTPUTS[output]),
+            stepsize_controller=controller,
+            max_steps=config.max_steps,
+            throw=False,
+        )
     status = _status(sol.result)
     ys = sol.ys
     good = (status == STATUS_OK) & jnp.all(jnp.isfinite(ys))

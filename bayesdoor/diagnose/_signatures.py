@@ -262,6 +262,19 @@ def _order_wavelength(features: Features, region: Region) -> tuple[float, float,
     return 1.0 / kappa, sd / kappa**2, True
 
 
+def _excluded_detail(wavelength: float, excluded: tuple[float, ...]) -> str:
+    """The wavelength and the nearest excluded one, with how far apart they are: a tone at
+    an excluded period (a wheel harmonic, for the rail) is the same excitation as the cause
+    it belongs to, and the report should say how close it came."""
+    if not np.isfinite(wavelength):
+        return f"{wavelength:.4g} m"
+    nearest = min(excluded, key=lambda e: abs(e / wavelength - 1.0))
+    return (
+        f"{wavelength:.4g} m; the nearest excluded is {nearest:.4g} m, "
+        f"{100 * abs(wavelength / nearest - 1.0):.1f} % away"
+    )
+
+
 class SpeedTracking(AbstractSignature):
     """A tone whose frequency is the speed over a spatial period: ``f = v / wavelength``.
 
@@ -345,7 +358,13 @@ class SpeedTracking(AbstractSignature):
                 params["labels_found"] = tuple(found)
             if self.excluded:
                 j = self._nearest(lam, self.excluded)
-                checks.append(Check("wavelength not an excluded one", j is None, f"{lam:.4g} m"))
+                checks.append(
+                    Check(
+                        "wavelength not an excluded one",
+                        j is None,
+                        _excluded_detail(lam, self.excluded),
+                    )
+                )
             checks.append(_absent_before_motion(features, region.runs.frequency_hz))
             matches.append(
                 Match(

@@ -281,12 +281,7 @@ class RailRefit(AbstractRefit):
         if not (isinstance(ext, RailWaviness) and ext.independent):
             return {}
         return {
-            f"rail_waviness.amplitude_{w}_m": float(
-                np.hypot(
-                    np.mean(values[f"rail_waviness.sin_{w}_m"]),
-                    np.mean(values[f"rail_waviness.cos_{w}_m"]),
-                )
-            )
+            f"rail_waviness.amplitude_{w}_m": float(np.hypot(*_quadrature(values, w)))
             for w in WHEELS
         }
 
@@ -300,13 +295,20 @@ class RailRefit(AbstractRefit):
             return {}
         out = {}
         for w in WHEELS:
-            s, c = (float(np.mean(values[f"rail_waviness.{q}_{w}_m"])) for q in ("sin", "cos"))
+            s, c = _quadrature(values, w)
             ds, dc = (float(sd.get(f"rail_waviness.{q}_{w}_m", np.nan)) for q in ("sin", "cos"))
             amplitude = float(np.hypot(s, c))
             spread = float(np.hypot(s * ds, c * dc)) / amplitude if amplitude > 0 else np.nan
             if np.isfinite(spread) and amplitude > 2.0 * spread:
                 out[f"rail_waviness.amplitude_{w}_m"] = spread
         return out
+
+
+def _quadrature(values: Mapping[str, Any], wheel: str) -> tuple[float, float]:
+    """The sine and cosine parts of an independent rail irregularity under ``wheel``."""
+    sine = float(np.mean(values[f"rail_waviness.sin_{wheel}_m"]))
+    cosine = float(np.mean(values[f"rail_waviness.cos_{wheel}_m"]))
+    return sine, cosine
 
 
 class CrossAxisRefit(AbstractRefit):

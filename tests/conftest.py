@@ -19,6 +19,8 @@ jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 #: to see where a run on an empty cache spends its time (off by default)
 _REPORT = os.environ.get("BAYESDOOR_COMPILE_REPORT")
 _durations: dict[str, dict[str, float]] = {}
+#: by function, over the whole run: [compiles (or cache reads), seconds]
+_functions: dict[str, list[float]] = {}
 _current = ["(collection)"]
 if _REPORT:
 
@@ -26,10 +28,9 @@ if _REPORT:
         per = _durations.setdefault(_current[0], {})
         per[event] = per.get(event, 0.0) + float(duration)
         if event.endswith("backend_compile_duration"):
-            # by function, over the whole run: [compiles (or cache reads), seconds]
-            per = _durations.setdefault("(by function)", {})
-            count, total = per.get(fun_name, (0, 0.0))
-            per[fun_name] = (count + 1, total + float(duration))  # type: ignore[assignment]
+            tally = _functions.setdefault(fun_name, [0, 0.0])
+            tally[0] += 1
+            tally[1] += float(duration)
 
     jax.monitoring.register_event_duration_secs_listener(_listen)
 
@@ -48,7 +49,8 @@ def pytest_sessionfinish(session, exitstatus):
         import json
 
         worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
-        Path(f"{_REPORT}.{worker}.json").write_text(json.dumps(_durations, indent=1))
+        report = {**_durations, "(by function)": _functions}
+        Path(f"{_REPORT}.{worker}.json").write_text(json.dumps(report, indent=1))
 
 
 @pytest.fixture

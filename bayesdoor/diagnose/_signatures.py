@@ -262,13 +262,24 @@ def _order_wavelength(features: Features, region: Region) -> tuple[float, float,
     return 1.0 / kappa, sd / kappa**2, True
 
 
+def _closest(wavelength: float, table: tuple[float, ...]) -> tuple[int, float] | None:
+    """Index of the table's wavelength nearest ``wavelength`` and its relative distance
+    ``|table[i] / wavelength - 1|``; ``None`` for an empty table or a wavelength not finite."""
+    if not table or not np.isfinite(wavelength):
+        return None
+    errors = np.abs(np.asarray(table) / wavelength - 1.0)
+    i = int(np.argmin(errors))
+    return i, float(errors[i])
+
+
 def _excluded_detail(wavelength: float, excluded: tuple[float, ...]) -> str:
     """The wavelength and the nearest excluded one, with how far apart they are: a tone at
     an excluded period (a wheel harmonic, for the rail) is the same excitation as the cause
     it belongs to, and the report should say how close it came."""
-    if not np.isfinite(wavelength):
+    closest = _closest(wavelength, excluded)
+    if closest is None:
         return f"{wavelength:.4g} m"
-    nearest = min(excluded, key=lambda e: abs(e / wavelength - 1.0))
+    nearest = excluded[closest[0]]
     return (
         f"{wavelength:.4g} m; the nearest excluded is {nearest:.4g} m, "
         f"{100 * abs(wavelength / nearest - 1.0):.1f} % away"
@@ -310,11 +321,8 @@ class SpeedTracking(AbstractSignature):
             raise ValueError(f"rel_tol must lie in (0, 0.5), got {self.rel_tol}")
 
     def _nearest(self, wavelength: float, table: tuple[float, ...]) -> int | None:
-        if not table or not np.isfinite(wavelength):
-            return None
-        errors = np.abs(np.asarray(table) / wavelength - 1.0)
-        i = int(np.argmin(errors))
-        return i if errors[i] <= self.rel_tol else None
+        closest = _closest(wavelength, table)
+        return closest[0] if closest is not None and closest[1] <= self.rel_tol else None
 
     def match(self, features: Features) -> Match | None:
         res = features.residuals

@@ -11,7 +11,7 @@ $(BIN)/bayesdoor: pyproject.toml
 	$(BIN)/python -m pip install --quiet -e ".[dev]"
 	touch $(BIN)/bayesdoor
 
-.PHONY: install demo test lint bench results docs
+.PHONY: install demo test test-long lint bench results docs
 install: $(BIN)/bayesdoor
 
 demo: install
@@ -19,6 +19,10 @@ demo: install
 
 test: install
 	$(BIN)/python -m pytest -n 2 -q
+
+# the end-to-end tests of a few minutes each, outside the default suite (CI runs them too)
+test-long: install
+	$(BIN)/python -m pytest -n 2 -q -m long
 
 lint: install
 	$(BIN)/ruff check bayesdoor tests benchmarks scripts examples docs/api

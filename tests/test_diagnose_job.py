@@ -178,13 +178,15 @@ _EXPENSIVE = {("frame_mode", 0), ("frame_mode", 1), ("mains_hum", 1), ("rail_wav
 
 def _case(name: str, seed: int, *, slow: bool):
     heavy = slow or (name, seed) in _MEASURED_FAILING or (name, seed) in _EXPENSIVE
-    marks = [pytest.mark.slow] if heavy else []
+    # a case that is not slow still costs 1-3 minutes (session 11, empty JAX cache: 65-170 s
+    # with its share of the base fit): it runs in the long tier, which CI runs after the suite
+    marks = [pytest.mark.slow] if heavy else [pytest.mark.long]
     if (name, seed) in _MEASURED_FAILING:
         marks.append(pytest.mark.xfail(strict=True, reason=_MEASURED_FAILING[(name, seed)]))
     return pytest.param(name, seed, marks=marks)
 
 
-#: the cases that pass at this size stay in the default suite; the measured failures and the
+#: the cases that pass at this size run in the long tier (CI); the measured failures and the
 #: validation seeds run under ``slow`` (they cost 15-50 s each), the failures as strict
 #: expected failures so that a fix shows
 CASES = [_case(name, seed, slow=False) for name in EFFECTS for seed in (0, 1)] + [
@@ -206,13 +208,13 @@ def test_hidden_effect_is_named(name, seed, base_fit):
     assert {"name", "evidence", "parameters", "gain"} <= set(payload["causes"][0])
 
 
-#: seed 1 stays in the default suite; seed 0 (64 s with the rail-carrying mode's refit) runs
-#: under slow so that the default suite keeps within 10 minutes (10 min 29 s with it, session 7)
+#: seed 1 runs in the long tier (49 s with an empty JAX cache, session 11); seed 0 (64 s with
+#: the rail-carrying mode's refit) runs under slow
 @pytest.mark.parametrize(
     "seed",
     [
         pytest.param(0, marks=pytest.mark.slow),
-        1,
+        pytest.param(1, marks=pytest.mark.long),
         pytest.param(2, marks=pytest.mark.slow),
         pytest.param(3, marks=pytest.mark.slow),
     ],
@@ -224,6 +226,7 @@ def test_nothing_hidden_gives_none(seed, base_fit):
     assert not any(c.confirmed for c in diagnosis.causes)
 
 
+@pytest.mark.long
 def test_wrong_extension_shows_no_gain(base_fit):
     """A frame mode forced onto a campaign whose hidden effect is a rail irregularity (tones at
     41-51 Hz; the mode is searched at 72-78 Hz)."""

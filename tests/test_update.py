@@ -22,6 +22,7 @@ from bayesdoor.inference import (
     j_standard_error,
     posterior_predictive,
     run_features,
+    welch_j_standard_error,
 )
 from bayesdoor.io import make_campaign
 from bayesdoor.rig import VirtualRig
@@ -91,6 +92,38 @@ def test_j_standard_error_matches_the_scatter_of_a_perfect_models_j():
     # without two replicated runs there is no run-to-run scatter to measure
     single = np.array([0, 1, 2])
     assert j_standard_error(_features(single, truth[single])) is None
+
+
+def test_welch_j_standard_error_is_the_scatter_of_a_perfect_models_j_under_welch_noise():
+    """Runs that scatter only by their stated Welch variance: the Welch-only standard error
+    is the spread of the perfect model's mean J over many campaigns, as the replicates'
+    estimate is; it scales with the Welch sd and repeats for a seed."""
+    rng = np.random.default_rng(4)
+    operating = np.arange(12)  # no replicates: j_standard_error has nothing to go on
+    truth = rng.normal(size=(12, 3, 40))
+    sd = np.linspace(0.05, 0.15, 12)  # each run its own Welch scatter
+
+    def data(y, scale=1.0):
+        return CalibrationData(
+            y=jnp.asarray(y),
+            welch_variance=jnp.asarray((scale * sd) ** 2),
+            operating=jnp.arange(12.0),
+            run_operating=jnp.asarray(operating),
+            band_centres=jnp.arange(40.0),
+        )
+
+    perfect = []
+    for _ in range(400):
+        y = truth + sd[:, None, None] * rng.standard_normal(truth.shape)
+        perfect.append(float(np.mean(objective_j(y, truth))))
+    se = welch_j_standard_error(data(truth))
+    assert j_standard_error(data(truth)) is None
+    # 400 campaigns: their sd is known to 3.5 % (1/sqrt(2 x 400)), the estimate (512 draws of
+    # 12 runs) to about 1 %; 11 % is three combined sds
+    np.testing.assert_allclose(se, np.std(perfect, ddof=1), rtol=0.11)
+    assert welch_j_standard_error(data(truth)) == se  # the same seed, the same draws
+    # J is homogeneous of degree 1 in the residual: twice the sd, twice the error, exactly
+    np.testing.assert_allclose(welch_j_standard_error(data(truth, 2.0)), 2 * se, rtol=1e-12)
 
 
 def test_the_solve_stops_after_the_last_segment_and_j_is_unchanged():
@@ -166,6 +199,35 @@ def test_cmaes_stops_at_a_tenth_of_js_standard_error():
     print(
         f"J {ruled.j:.5f} after {ruled.cmaes.evaluations}, {free.j:.5f} after "
         f"{free.cmaes.evaluations} evaluations; se {se:.4f}"
+    )
+    assert ruled.cmaes.evaluations < free.cmaes.evaluations
+    assert ruled.j - free.j <= se
+
+
+def test_cmaes_without_replicates_stops_at_a_tenth_of_the_welch_standard_error():
+    """No speed measured twice: the stop falls back on the Welch scatter's standard error,
+    says so in the notes, and still ends before a run to the budget, within one such
+    standard error of its J."""
+    toy, campaign = _toy_campaign([0.3, 0.4, 0.5, 0.6])
+    data, _ = campaign_data(toy, campaign, calibration_runs(campaign))
+    assert j_standard_error(data) is None
+    se = welch_j_standard_error(data)
+    kw = dict(cmaes_max_evals=3000, cmaes_restarts=0)
+    ruled = fit_campaign(toy, campaign, method="cmaes", progress=False, settings=FitSettings(**kw))
+    stop = dict(part.split("=") for part in ruled.cmaes.stop[0].split(", "))
+    assert set(stop) & {"tolfun", "tolfunhist"}, ruled.cmaes.stop
+    np.testing.assert_allclose(float(stop.get("tolfunhist", stop.get("tolfun"))), 0.1 * se)
+    assert any("Welch scatter alone" in note for note in ruled.notes), ruled.notes
+    free = fit_campaign(
+        toy,
+        campaign,
+        method="cmaes",
+        progress=False,
+        settings=FitSettings(cmaes_tolerance=None, **kw),
+    )
+    print(
+        f"J {ruled.j:.5f} after {ruled.cmaes.evaluations}, {free.j:.5f} after "
+        f"{free.cmaes.evaluations} evaluations; Welch se {se:.4f}"
     )
     assert ruled.cmaes.evaluations < free.cmaes.evaluations
     assert ruled.j - free.j <= se

@@ -58,3 +58,4 @@ from ._update import fit_campaign as fit_campaign
 from ._update import j_standard_error as j_standard_error
 from ._update import posterior_predictive as posterior_predictive
 from ._update import simulation_horizon as simulation_horizon
+from ._update import welch_j_standard_error as welch_j_standard_error

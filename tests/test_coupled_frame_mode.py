@@ -150,6 +150,39 @@ def _setup(refit_case):
     return setup, truth
 
 
+def test_a_refits_solves_split_over_threads_are_those_of_one_batch(refit_case):
+    """The final refit solves its population in two threads, each a block of rows (the last
+    block padded): the signals and gain signals are those of one batch to the adaptive
+    solver's round-off, every row in its place, and the solves counted once."""
+    from bayesdoor.diagnose._refit import _boxes, _Model
+
+    setup, _ = _setup(refit_case)
+    parts = {P + f"participation_{c}": c for c in CHANNELS}
+    proposal = ExtensionProposal(
+        extension=CoupledFrameMode(),
+        start={P + "frequency_hz": 44.0, P + "damping_ratio": 0.02, P + "rail_lift": 0.15},
+        free=(P + "frequency_hz", *parts),
+        bounds={P + "frequency_hz": (42.0, 48.0)},
+        gains=parts,
+    )
+    extended, free, _, _, fixed = _boxes(setup.system, proposal)
+    x = np.zeros((3, len(free)))
+    x[:, 0] = [43.0, 45.0, 47.0]  # three rows: blocks of two, the second padded
+    runs = np.array([1])
+    out = {}
+    for workers in (1, 2):
+        model = _Model(setup, proposal, extended, fixed, {}, workers)
+        signals, slope = model.solve_gains(model.values(x, len(runs)), runs, list(parts))
+        out[workers] = signals, slope, model.solves
+    (s1, g1, n1), (s2, g2, n2) = out[1], out[2]
+    assert s1.shape == s2.shape == (3, 1, len(CHANNELS), s1.shape[-1]) and n1 == n2 == 3
+    for one, split in ((s1, s2), (g1, g2)):
+        scale = np.abs(one).max(axis=-1, keepdims=True)
+        np.testing.assert_allclose(split, one, rtol=0, atol=1e-6 * scale.max())
+    # the rows differ (their modes are at different frequencies), so a shuffled row would show
+    assert np.abs(g1[0] - g1[2]).max() > 1e-3 * np.abs(g1).max()
+
+
 def test_the_refit_profiles_the_participations_exactly(refit_case):
     """Frequency searched (42-48 Hz), damping and lift held, the four participations
     profiled from the three Welch spectra: the made values come back to the search's

@@ -70,8 +70,10 @@ class DiagnosisSettings:
         Folds of the held-out judgement (at most one per run): each fold's extension is
         fitted on the other runs and judged on its own.
     workers
-        Folds refitted at once (threads; the solves release the interpreter). The results
-        do not depend on it.
+        Folds refitted at once (threads; the solves release the interpreter), and the
+        threads that solve the population of a confirmed cause's final refit on every run
+        (:func:`refit_extension`'s ``workers``). The folds' results do not depend on it;
+        the final refit's move with it at the adaptive solver's round-off.
     """
 
     predictive_draws: int = 8
@@ -709,6 +711,7 @@ def diagnose_campaign(
                 max_evals=settings.refit_evals,
                 uncertainty=True,
                 bases=bases,
+                workers=settings.workers,
             )
             parameters = {n: {"mean": final.values[n], "sd": final.sd[n]} for n in proposal.free}
             derived = recipes[score.name].derived(  # type: ignore[union-attr]

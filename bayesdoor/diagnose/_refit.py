@@ -19,6 +19,7 @@ import abc
 import dataclasses
 import itertools
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
@@ -26,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 
-from .._types import Bool, Float, Int
+from .._types import Array, Bool, Float, Int
 from ._gain import estimate_discrepancy, log_predictive
 from ._welch_stats import windowed_log_psd
 
@@ -350,8 +351,11 @@ class _Model:
         extended: AbstractSystem,
         fixed: Mapping[str, float],
         bases: dict[tuple[float, ...], np.ndarray],
+        workers: int = 1,
     ):
         self.setup, self.proposal, self.extended, self.fixed = setup, proposal, extended, fixed
+        self.workers = workers
+        self._sizes: set[int] = set()
         self.free = list(proposal.free)
         self.output_only = (
             extended.without_output_extensions().extension_names == setup.system.extension_names
@@ -375,50 +379,77 @@ class _Model:
             vals[name] = np.repeat(x[:, i : i + 1], n_runs, axis=1)
         return vals
 
-    def solve(self, vals: Mapping[str, np.ndarray], runs: np.ndarray) -> np.ndarray:
-        """Signals (row, run, channel, time) of a direct solve; NaN where it failed."""
+    def _by_rows(
+        self,
+        solve: Callable[[Mapping[str, np.ndarray]], tuple[np.ndarray, ...]],
+        vals: Mapping[str, np.ndarray],
+    ) -> tuple[np.ndarray, ...]:
+        """``solve`` of the rows of ``vals``, split into ``workers`` equal blocks (the last
+        padded by repeating its last row) run in threads: XLA runs one vmapped solve on one
+        core and releases the interpreter meanwhile. A block size not solved before runs
+        its first block alone, so that the threads do not each compile it."""
+        pop, n_runs = next(iter(vals.values())).shape
+        self.solves += pop * n_runs
+        if self.workers == 1 or pop < 2:
+            return solve(vals)
+        size = -(-pop // self.workers)
+        blocks = []
+        for start in range(0, pop, size):
+            rows = np.minimum(np.arange(start, start + size), pop - 1)
+            blocks.append({k: np.asarray(v)[rows] for k, v in vals.items()})
+        results = [] if size in self._sizes else [solve(blocks.pop(0))]
+        self._sizes.add(size)
+        with ThreadPoolExecutor(len(blocks)) as pool:
+            results += list(pool.map(solve, blocks))
+        return tuple(np.concatenate(parts)[:pop] for parts in zip(*results, strict=True))
+
+    def _flat(self, vals: Mapping[str, np.ndarray], runs: np.ndarray) -> tuple[dict, Array]:
+        """The rows of ``vals`` (row, run) flattened, the base point added, and the speeds."""
         pop, n_runs = next(iter(vals.values())).shape
         flat = {k: jnp.asarray(np.reshape(v, -1), dtype=float) for k, v in vals.items()}
         flat.update(
             {k: jnp.full(pop * n_runs, float(v), dtype=float) for k, v in self.setup.point.items()}
         )
-        result = self.extended.simulate_values(
-            flat,
-            jnp.asarray(np.tile(self.setup.operating[runs], pop)),
-            duration=self.setup.duration,
-            check=False,
-        )
-        self.solves += pop * n_runs
-        signals = np.asarray(result.signals)[..., : self.setup.base_signals.shape[-1]]
-        failed = np.asarray(result.status) != 0
-        signals = np.where(failed[:, None, None], np.nan, signals)
-        return signals.reshape(pop, n_runs, *signals.shape[1:])
+        return flat, jnp.asarray(np.tile(self.setup.operating[runs], pop))
+
+    def solve(self, vals: Mapping[str, np.ndarray], runs: np.ndarray) -> np.ndarray:
+        """Signals (row, run, channel, time) of a direct solve; NaN where it failed."""
+
+        def block(vals: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+            pop, n_runs = next(iter(vals.values())).shape
+            flat, speeds = self._flat(vals, runs)
+            result = self.extended.simulate_values(
+                flat, speeds, duration=self.setup.duration, check=False
+            )
+            signals = np.asarray(result.signals)[..., : self.setup.base_signals.shape[-1]]
+            failed = np.asarray(result.status) != 0
+            signals = np.where(failed[:, None, None], np.nan, signals)
+            return (signals.reshape(pop, n_runs, *signals.shape[1:]),)
+
+        return self._by_rows(block, vals)[0]
 
     def solve_gains(
         self, vals: Mapping[str, np.ndarray], runs: np.ndarray, gains: Sequence[str]
     ) -> tuple[np.ndarray, np.ndarray]:
         """Signals (row, run, channel, time) with the ``gains`` at zero, and the signal each
         gain scales (``AbstractSystem.simulate_gains``); NaN where the solve failed."""
-        pop, n_runs = next(iter(vals.values())).shape
-        flat = {k: jnp.asarray(np.reshape(v, -1), dtype=float) for k, v in vals.items()}
-        flat.update(
-            {k: jnp.full(pop * n_runs, float(v), dtype=float) for k, v in self.setup.point.items()}
-        )
-        result, slope = self.extended.simulate_gains(
-            flat,
-            jnp.asarray(np.tile(self.setup.operating[runs], pop)),
-            tuple(gains),
-            duration=self.setup.duration,
-            check=False,
-        )
-        self.solves += pop * n_runs
-        n_time = self.setup.base_signals.shape[-1]
-        failed = (np.asarray(result.status) != 0)[:, None, None]
-        out = []
-        for signals in (result.signals, slope):
-            x = np.where(failed, np.nan, np.asarray(signals)[..., :n_time])
-            out.append(x.reshape(pop, n_runs, *x.shape[1:]))
-        return out[0], out[1]
+
+        def block(vals: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+            pop, n_runs = next(iter(vals.values())).shape
+            flat, speeds = self._flat(vals, runs)
+            result, slope = self.extended.simulate_gains(
+                flat, speeds, tuple(gains), duration=self.setup.duration, check=False
+            )
+            n_time = self.setup.base_signals.shape[-1]
+            failed = (np.asarray(result.status) != 0)[:, None, None]
+            out = []
+            for signals in (result.signals, slope):
+                x = np.where(failed, np.nan, np.asarray(signals)[..., :n_time])
+                out.append(x.reshape(pop, n_runs, *x.shape[1:]))
+            return out[0], out[1]
+
+        signals, slope = self._by_rows(block, vals)
+        return signals, slope
 
     def basis(self, point: tuple[float, ...]) -> np.ndarray:
         """Signal change per unit of each linear parameter at a grid point, every run."""
@@ -776,6 +807,7 @@ def refit_extension(
     progress: bool = False,
     bases: dict[tuple[float, ...], np.ndarray] | None = None,
     exact: bool = True,
+    workers: int = 1,
 ) -> RefitResult:
     """Fit one extension's free parameters on the training runs (base parameters held).
 
@@ -813,6 +845,11 @@ def refit_extension(
         the spectra of the linear signal changes (no solve; the same for extensions that act
         on the outputs only), for a caller that judges held-out runs with
         :func:`exact_spectra`.
+    workers
+        Threads that solve at once, each a block of the population's rows (extensions that
+        need a solve; 2 uses both cores of a 2-core machine). The block size moves the
+        adaptive solver's round-off, so the fit may change at the solver's tolerance.
+        Leave 1 where refits already run in threads.
 
     Returns
     -------
@@ -820,7 +857,7 @@ def refit_extension(
     """
 
     extended, free, lower, upper, fixed = _boxes(setup.system, proposal)
-    model = _Model(setup, proposal, extended, fixed, {} if bases is None else bases)
+    model = _Model(setup, proposal, extended, fixed, {} if bases is None else bases, workers)
     train = np.asarray(train, dtype=int)
     if proposal.gains and not model.output_only:
         return _refit_with_gains(

@@ -20,9 +20,10 @@ demo: install
 test: install
 	$(BIN)/python -m pytest -n 2 -q
 
-# the end-to-end tests of a few minutes each, outside the default suite (CI runs them too)
+# the end-to-end tests of a few minutes each, outside the default suite (CI runs them too),
+# with XLA's optimisations on (the default suite turns them off to compile faster)
 test-long: install
-	$(BIN)/python -m pytest -n 2 -q -m long
+	BAYESDOOR_TEST_XLA_OPT=1 $(BIN)/python -m pytest -n 2 -q -m long
 
 lint: install
 	$(BIN)/ruff check bayesdoor tests benchmarks scripts examples docs/api

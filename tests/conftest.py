@@ -3,8 +3,19 @@
 import os
 from pathlib import Path
 
-import jax
-import pytest
+#: XLA's backend optimisations off (JAX's flag for smoke tests): most of a cold run is
+#: compiling, and the tests' programs mostly run once. On an empty cache tests/test_door.py,
+#: test_coupled_frame_mode.py and test_cli_fit.py took 145 s instead of 189 s (session 12);
+#: every test passes either way. Set in the environment, before JAX is imported, so that the
+#: processes the tests start (dask workers, notebook kernels) compile alike: their results
+#: are compared bit for bit. ``BAYESDOOR_TEST_XLA_OPT=1`` (as ``make test-long`` sets) tests
+#: the optimised programs that users run.
+_OPTIMISED = os.environ.get("BAYESDOOR_TEST_XLA_OPT", "0") == "1"
+if not _OPTIMISED:
+    os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1"
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
 
 _CACHE = Path(__file__).resolve().parent.parent / ".jax_cache"
 jax.config.update("jax_enable_x64", True)
@@ -12,13 +23,7 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_compilation_cache_dir", os.environ.get("BAYESDOOR_JAX_CACHE", str(_CACHE)))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-#: XLA's backend optimisations off (JAX's flag for smoke tests): most of a cold run is
-#: compiling, and the tests' programs mostly run once. On an empty cache tests/test_door.py,
-#: test_coupled_frame_mode.py and test_cli_fit.py took 145 s instead of 189 s (session 12);
-#: every test passes either way. ``BAYESDOOR_TEST_XLA_OPT=1`` (as ``make test-long`` sets)
-#: tests the optimised programs that users run.
-if os.environ.get("BAYESDOOR_TEST_XLA_OPT", "0") != "1":
-    jax.config.update("jax_disable_most_optimizations", True)
+jax.config.update("jax_disable_most_optimizations", not _OPTIMISED)
 
 
 #: ``BAYESDOOR_COMPILE_REPORT=PREFIX``: every JAX duration event (tracing, lowering, XLA

@@ -124,6 +124,8 @@ def test_welch_j_standard_error_is_the_scatter_of_a_perfect_models_j_under_welch
     assert welch_j_standard_error(data(truth)) == se  # the same seed, the same draws
     # J is homogeneous of degree 1 in the residual: twice the sd, twice the error, exactly
     np.testing.assert_allclose(welch_j_standard_error(data(truth, 2.0)), 2 * se, rtol=1e-12)
+    with pytest.raises(ValueError, match="draws=1 must be an integer >= 2"):
+        welch_j_standard_error(data(truth), draws=1)
 
 
 def test_the_solve_stops_after_the_last_segment_and_j_is_unchanged():

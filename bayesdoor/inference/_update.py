@@ -375,7 +375,14 @@ def welch_j_standard_error(data: CalibrationData, draws: int = 512, seed: int = 
     -------
     se
         The standard error, decades (J's units).
+
+    Raises
+    ------
+    ValueError
+        When ``draws`` is not an integer of at least 2.
     """
+    if isinstance(draws, bool) or not isinstance(draws, int) or draws < 2:
+        raise ValueError(f"draws={draws!r} must be an integer >= 2 (the sd of J over the draws)")
     y = np.asarray(data.y)
     sd = np.sqrt(np.asarray(data.welch_variance, dtype=np.float64))
     noise = np.random.default_rng(seed).standard_normal((draws, *y.shape)) * sd[:, None, None]

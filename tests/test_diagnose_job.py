@@ -378,7 +378,12 @@ def test_a_runs_misfit_elsewhere_barely_moves_its_gain_with_the_line_bins_local(
 #: two at once)
 #: rail seed 2 failed here in session 9 (verdict none) and passes since session 10 (each
 #: wheel's rail phase free; `pytest -m slow "...::test_full_size[rail_waviness-2]"`, 10 min 12 s)
-_FULL_SIZE_FAILING: dict[tuple[str, int], str] = {}
+#: session 12 ran four more (two at a time, 11-18 min each, at fe7af9a):
+#: mains_hum-3, sensor_cross_axis-3 and none-3 passed, frame_mode-2 failed (below)
+_FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
+    ("frame_mode", 2): "verdict none at 12 runs (session 12; signature verdict rail_waviness; "
+    "named at 8 runs, quick); not investigated",
+}
 
 
 def _full_size_case(name: str, seed: int) -> pytest.ParameterSet:
@@ -400,9 +405,11 @@ def _full_size_case(name: str, seed: int) -> pytest.ParameterSet:
 )
 def test_full_size(name, seed):
     """Twelve runs over the whole speed range, the base model fitted on each campaign (the
-    command's default sizes). 30 cases of about 9 minutes each (the 12-run benchmark took 550 s):
-    never run in full; session 9 ran four (``none-2``, ``mains_hum-2`` and
-    ``sensor_cross_axis-2`` passed, ``rail_waviness-2`` failed)."""
+    command's default sizes). 30 cases of about 9 minutes each (the 12-run benchmark took 552 s
+    in session 12): never run in full; session 9 ran four (``none-2``, ``mains_hum-2`` and
+    ``sensor_cross_axis-2`` passed, ``rail_waviness-2`` failed, and passes since session 10),
+    session 12 four more (``mains_hum-3``, ``sensor_cross_axis-3``, ``none-3`` passed,
+    ``frame_mode-2`` failed)."""
     recording, rig = record(name, seed, SPEEDS_SLOW)
     diagnosis = diagnose_campaign(
         DOOR, recording.campaign, seed=seed, progress=False, catalogue=DOOR_CATALOGUE

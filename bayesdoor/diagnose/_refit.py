@@ -19,7 +19,6 @@ import abc
 import dataclasses
 import itertools
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
@@ -384,24 +383,30 @@ class _Model:
         solve: Callable[[Mapping[str, np.ndarray]], tuple[np.ndarray, ...]],
         vals: Mapping[str, np.ndarray],
     ) -> tuple[np.ndarray, ...]:
-        """``solve`` of the rows of ``vals``, split into ``workers`` equal blocks (the last
-        padded by repeating its last row) run in threads: XLA runs one vmapped solve on one
-        core and releases the interpreter meanwhile. A block size not solved before runs
-        its first block alone, so that the threads do not each compile it."""
+        """``solve`` of the rows of ``vals``, split into ``workers`` equal blocks run in
+        threads (``map_padded_chunks``, the last block padded): XLA
+        runs one vmapped solve on one core and releases the interpreter meanwhile. A block
+        size not solved before runs its first block alone, so that the threads do not each
+        compile it."""
+        from ..inference._surrogate import map_padded_chunks
+
         pop, n_runs = next(iter(vals.values())).shape
         self.solves += pop * n_runs
         if self.workers == 1 or pop < 2:
             return solve(vals)
+        names = list(vals)
         size = -(-pop // self.workers)
-        blocks = []
-        for start in range(0, pop, size):
-            rows = np.minimum(np.arange(start, start + size), pop - 1)
-            blocks.append({k: np.asarray(v)[rows] for k, v in vals.items()})
-        results = [] if size in self._sizes else [solve(blocks.pop(0))]
+        first_alone = size not in self._sizes
         self._sizes.add(size)
-        with ThreadPoolExecutor(len(blocks)) as pool:
-            results += list(pool.map(solve, blocks))
-        return tuple(np.concatenate(parts)[:pop] for parts in zip(*results, strict=True))
+        return map_padded_chunks(
+            lambda rows: solve(
+                {n: rows[:, i * n_runs : (i + 1) * n_runs] for i, n in enumerate(names)}
+            ),
+            np.concatenate([np.asarray(vals[n], dtype=float) for n in names], axis=1),
+            size,
+            self.workers,
+            first_alone=first_alone,
+        )
 
     def _flat(self, vals: Mapping[str, np.ndarray], runs: np.ndarray) -> tuple[dict, Array]:
         """The rows of ``vals`` (row, run) flattened, the base point added, and the speeds."""

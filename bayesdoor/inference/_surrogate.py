@@ -172,18 +172,20 @@ def simulate_design(
         out = _batched(forward, jnp.asarray(padded))
         return out.features, out.ok
 
-    return map_padded_chunks(batch, thetas, chunk, workers, first_alone=True)
+    features, ok = map_padded_chunks(batch, thetas, chunk, workers, first_alone=True)
+    return features, ok
 
 
 def map_padded_chunks(
-    batch: Callable[[np.ndarray], tuple[Array, Array]],
+    batch: Callable[[np.ndarray], tuple[Array | np.ndarray, ...]],
     x: Float[np.ndarray, "point param"] | Float[Array, "point param"],
     chunk: int,
     workers: int,
     *,
     first_alone: bool,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Features and success of ``batch`` over the rows of ``x``, ``chunk`` rows at a time.
+) -> tuple[np.ndarray, ...]:
+    """The outputs of ``batch`` (for example features and success) over the rows of ``x``,
+    ``chunk`` rows at a time, each output's rows in the order of ``x``.
 
     Each chunk is padded to ``chunk`` rows by repeating its last row (one compilation per
     chunk size) and the padding is cut from the results. ``workers`` threads run chunks at
@@ -192,11 +194,10 @@ def map_padded_chunks(
     """
     points = np.atleast_2d(np.asarray(x, dtype=float))
 
-    def one(start: int) -> tuple[np.ndarray, np.ndarray]:
+    def one(start: int) -> tuple[np.ndarray, ...]:
         block = points[start : start + chunk]
         padded = np.concatenate([block, np.repeat(block[-1:], chunk - len(block), axis=0)])
-        features, ok = batch(padded)
-        return np.asarray(features)[: len(block)], np.asarray(ok)[: len(block)]
+        return tuple(np.asarray(out)[: len(block)] for out in batch(padded))
 
     starts = list(range(0, len(points), chunk))
     results = [one(starts[0])] if first_alone else []
@@ -206,7 +207,7 @@ def map_padded_chunks(
             results += list(pool.map(one, rest))
     else:
         results += [one(start) for start in rest]
-    return np.concatenate([f for f, _ in results]), np.concatenate([k for _, k in results])
+    return tuple(np.concatenate(parts) for parts in zip(*results, strict=True))
 
 
 def _ridge_fit(

@@ -510,13 +510,14 @@ def _simulate(
     threads use both cores of a 2-core machine. The first call of a chunk size should run
     with one worker: threads that all miss the compilation cache each compile.
     """
-    return map_padded_chunks(
+    features, ok = map_padded_chunks(
         lambda padded: _simulate_chunk(population, jnp.asarray(padded)),
         x,
         chunk,
         workers,
         first_alone=False,
     )
+    return features, ok
 
 
 class _PartialForward(AbstractForward):

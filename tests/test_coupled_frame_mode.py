@@ -150,13 +150,9 @@ def _setup(refit_case):
     return setup, truth
 
 
-def test_a_refits_solves_split_over_threads_are_those_of_one_batch(refit_case):
-    """The final refit solves its population in two threads, each a block of rows (the last
-    block padded): the signals and gain signals are those of one batch to the adaptive
-    solver's round-off, every row in its place, and the solves counted once."""
-    from bayesdoor.diagnose._refit import _boxes, _Model
-
-    setup, _ = _setup(refit_case)
+def _participations_proposal():
+    """The frequency searched in 42-48 Hz, damping and lift held, the four participations
+    profiled as gains; returns (participation name -> channel, the proposal)."""
     parts = {P + f"participation_{c}": c for c in CHANNELS}
     proposal = ExtensionProposal(
         extension=CoupledFrameMode(),
@@ -165,6 +161,17 @@ def test_a_refits_solves_split_over_threads_are_those_of_one_batch(refit_case):
         bounds={P + "frequency_hz": (42.0, 48.0)},
         gains=parts,
     )
+    return parts, proposal
+
+
+def test_a_refits_solves_split_over_threads_are_those_of_one_batch(refit_case):
+    """The final refit solves its population in two threads, each a block of rows (the last
+    block padded): the signals and gain signals are those of one batch to the adaptive
+    solver's round-off, every row in its place, and the solves counted once."""
+    from bayesdoor.diagnose._refit import _boxes, _Model
+
+    setup, _ = _setup(refit_case)
+    parts, proposal = _participations_proposal()
     extended, free, _, _, fixed = _boxes(setup.system, proposal)
     x = np.zeros((3, len(free)))
     x[:, 0] = [43.0, 45.0, 47.0]  # three rows: blocks of two, the second padded
@@ -189,14 +196,7 @@ def test_the_refit_profiles_the_participations_exactly(refit_case):
     resolution (Brent's 6e-4 Hz; the profile's 2e-4 of its box) from one training run (a
     check of the code, on data the extension itself made, not of the diagnosis)."""
     setup, truth = _setup(refit_case)
-    parts = {P + f"participation_{c}": c for c in CHANNELS}
-    proposal = ExtensionProposal(
-        extension=CoupledFrameMode(),
-        start={P + "frequency_hz": 44.0, P + "damping_ratio": 0.02, P + "rail_lift": 0.15},
-        free=(P + "frequency_hz", *parts),
-        bounds={P + "frequency_hz": (42.0, 48.0)},
-        gains=parts,
-    )
+    parts, proposal = _participations_proposal()
     result = refit_extension(setup, proposal, np.array([1]), seed=0, max_evals=40)
     assert result.values[P + "frequency_hz"] == pytest.approx(truth["frequency_hz"], abs=0.02)
     for name, channel in parts.items():

@@ -384,10 +384,9 @@ class _Model:
         vals: Mapping[str, np.ndarray],
     ) -> tuple[np.ndarray, ...]:
         """``solve`` of the rows of ``vals``, split into ``workers`` equal blocks run in
-        threads (``map_padded_chunks``, the last block padded): XLA
-        runs one vmapped solve on one core and releases the interpreter meanwhile. A block
-        size not solved before runs its first block alone, so that the threads do not each
-        compile it."""
+        threads (``map_padded_chunks``, the last block padded): XLA runs one vmapped solve
+        on one core and releases the interpreter meanwhile. A block size not solved before
+        runs its first block alone, so that the threads do not each compile it."""
         from ..inference._surrogate import map_padded_chunks
 
         pop, n_runs = next(iter(vals.values())).shape

@@ -333,6 +333,27 @@ def test_report_without_features_and_with_no_verdict():
     assert "Gain of the extensions" not in page
 
 
+def test_report_says_what_else_could_give_the_named_symptom():
+    wheel = "wheel_eccentricity: the wavelength 31.28 mm is 0.4 % from the wheel's harmonic 6"
+    payload = {
+        "verdict": "rail_waviness",
+        "causes": [
+            {
+                "name": "rail_waviness",
+                "evidence": "c",
+                "parameters": {},
+                "gain": {},
+                "confirmed": True,
+                "alternatives": [wheel],
+            },
+            {"name": "frame_mode", "evidence": "a", "parameters": {}, "gain": {}},
+        ],
+    }
+    page = diagnosis_page(payload)
+    assert page.count("The same symptom could come from wheel_eccentricity") == 1
+    assert "harmonic 6" in page
+
+
 def test_report_shows_the_speed_dependence_of_a_tracking_tone():
     ranking = diagnose_case(make_case("rail_waviness", 1))
     assert ranking.verdict == "rail_waviness"

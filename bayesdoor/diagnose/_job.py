@@ -127,6 +127,11 @@ class Cause:
     proposal
         The catalogue recipe's proposal the refit chose (``None``: not refitted), so that
         :func:`~bayesdoor.diagnose.verdict_extension` need not ask the recipe again.
+    alternatives
+        Other catalogue causes that give the same symptom, in words with the reason (the
+        recipe's :meth:`~bayesdoor.diagnose.AbstractRefit.alternatives`; refitted causes
+        only): a confirmed cause with alternatives is the best extension of those the
+        catalogue can fit, not a proof against them.
     """
 
     name: str
@@ -139,6 +144,7 @@ class Cause:
     feature: str = ""
     label: str = ""
     proposal: ExtensionProposal | None = None
+    alternatives: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -151,6 +157,7 @@ class Cause:
             "confirmed": self.confirmed,
             "feature": self.feature,
             "configuration": self.label,
+            "alternatives": list(self.alternatives),
         }
 
 
@@ -733,14 +740,16 @@ def diagnose_campaign(
         if symptom:
             verb = "explains" if explained else "does not explain"
             words += f"; the refit {verb} its own feature: {symptom}"
+        merged = {**dict(score.parameters), **parameters}
         refitted[score.name] = dataclasses.replace(
             _signature_cause(score),
             evidence=f"{score.evidence}. {words}",
-            parameters={**dict(score.parameters), **parameters},
+            parameters=merged,
             gain=gain,
             confirmed=confirmed_here,
             label=proposal.label,
             proposal=proposal,
+            alternatives=recipes[score.name].alternatives(merged),  # type: ignore[union-attr]
         )
     timings["refits"] = time.perf_counter() - t0
 
@@ -753,6 +762,11 @@ def diagnose_campaign(
         key=lambda c: (c.score < MIN_VERDICT_SCORE, -c.gain.elpd_difference),  # type: ignore[union-attr]
     )
     verdict = confirmed[0].name if confirmed else NONE
+    if confirmed and confirmed[0].alternatives:
+        notes += [
+            f"the verdict {verdict} could also be {alternative}"
+            for alternative in confirmed[0].alternatives
+        ]
     others = [refitted.get(s.name, _signature_cause(s)) for s in ranking.causes]
     causes = tuple(confirmed) + tuple(c for c in others if not c.confirmed)
     return Diagnosis(

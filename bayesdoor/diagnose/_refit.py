@@ -155,6 +155,14 @@ class AbstractRefit(eqx.Module):
         reported without one. The default recipe gives none."""
         return {}
 
+    def alternatives(self, parameters: Mapping[str, Any]) -> tuple[str, ...]:
+        """Other catalogue causes that would give the same symptom as this refitted cause,
+        each in words with the reason (for a rail irregularity at a wheel harmonic's
+        wavelength, the out-of-round wheel: the spectra cannot tell them apart).
+        ``parameters`` are the cause's, the signature's estimate and the refit's summaries
+        (``{"mean", "sd"}``) together. The default recipe knows none."""
+        return ()
+
 
 def held_out_spectra(
     fits: Sequence[RefitResult], folds: Sequence[tuple[np.ndarray, np.ndarray]]

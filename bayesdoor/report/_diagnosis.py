@@ -415,8 +415,8 @@ def diagnosis_page(
         The diagnosis JSON (DESIGN.md section 5): ``verdict`` and ``causes``, each cause with
         ``name``, ``evidence``, ``parameters`` (numbers or summaries with ``mean``, ``sd``,
         ``q5``, ``q95``) and ``gain``; optional per cause: ``description``, ``score``,
-        ``feature``, ``confirmed``, ``configuration``; optional at the top: ``rule``,
-        ``notes``.
+        ``feature``, ``confirmed``, ``configuration``, ``alternatives`` (other causes of the
+        same symptom, in words); optional at the top: ``rule``, ``notes``.
     features
         The residual features the causes were scored on, for the figures (``None``: text and
         tables only).
@@ -495,6 +495,8 @@ def diagnosis_page(
         if cause.get("configuration"):
             body.append(H.note(f"Extension refitted: {cause['configuration']}"))
         body.append(_evidence_list(cause.get("evidence", "")))
+        for alternative in cause.get("alternatives", []) or []:
+            body.append(H.warning(f"The same symptom could come from {alternative}."))
         body.append(_parameters_table(cause.get("parameters") or {}))
         if features is not None and name != "none":
             signature = _signature_of(name, catalogue)

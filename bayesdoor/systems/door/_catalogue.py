@@ -50,6 +50,10 @@ MAINS_HZ = (50.0, 60.0)
 FRAME_MODE_BAND = (10.0, 300.0)
 
 _WHEEL_WAVELENGTHS = tuple(WHEEL_CIRCUMFERENCE / k for k in WHEEL_HARMONICS)
+#: a tone's wavelength within this fraction of a wheel harmonic's is that harmonic (the
+#: signatures' match; the order spectra of 0.5 m segments resolve 2 cycles per metre, 4 % of
+#: the wheel's sixth harmonic)
+_WHEEL_MATCH = 0.04
 #: search box of a frame mode's refit around the signature's frequency, Hz
 _FREQUENCY_BOX_HZ = 3.0
 #: largest participation of a frame mode searched (the mode's relative acceleration is about
@@ -212,6 +216,25 @@ class WheelRefit(AbstractRefit):
             for wheel in ("left", "right")
         )
 
+    def alternatives(self, parameters: Mapping[str, Any]) -> tuple[str, ...]:
+        """With one harmonic ``k`` found, a rail irregularity of period 2 pi R / k under one
+        wheel: a wheel rolling without slip meets its own profile at that period along the
+        rail, so the tone is the same. Several harmonics of one wheel (a comb) are what the
+        catalogue's rail, one sinusoid, cannot give."""
+        found = {int(k) for k in parameters.get("labels_found", ())}
+        if "label" in parameters:
+            found.add(int(parameters["label"]))
+        if len(found) != 1:
+            return ()
+        (k,) = found
+        return (
+            f"rail_waviness: one tone, at the wheel's harmonic {k}, is also what a rail "
+            f"irregularity of wavelength 2 pi R / {k} = {1e3 * WHEEL_CIRCUMFERENCE / k:.2f} mm "
+            "under that wheel would give (a wheel rolling without slip meets its profile at "
+            "that period along the rail); a second harmonic of the same wheel would tell them "
+            "apart",
+        )
+
 
 class RailRefit(AbstractRefit):
     """A rail irregularity at the residual's wavelength; free: its height under each wheel.
@@ -302,6 +325,44 @@ class RailRefit(AbstractRefit):
             if np.isfinite(spread) and amplitude > 2.0 * spread:
                 out[f"rail_waviness.amplitude_{w}_m"] = spread
         return out
+
+    def alternatives(self, parameters: Mapping[str, Any]) -> tuple[str, ...]:
+        """An out-of-round wheel, when the wavelength lies within the signatures' 4 % of a
+        wheel harmonic's 2 pi R / k: that wheel, rolling without slip, meets its profile at
+        the same period along the rail, and with each wheel's rail phase free the rail
+        extension holds a tone under one wheel alone (session 11: three times the rig's
+        wheel seed 1 was named a rail at 31.28 mm, 0.4 % from the sixth harmonic). The
+        fitted heights under the two wheels are given: a rail lies under both."""
+        lam = _mean(parameters.get("rail_waviness.wavelength_m", parameters.get("wavelength_m")))
+        if not np.isfinite(lam) or lam <= 0:
+            return ()
+        k = int(np.argmin([abs(lam / w - 1.0) for w in _WHEEL_WAVELENGTHS]))
+        off = abs(lam / _WHEEL_WAVELENGTHS[k] - 1.0)
+        if off > _WHEEL_MATCH:
+            return ()
+        harmonic = WHEEL_HARMONICS[k]
+        words = (
+            f"wheel_eccentricity: the wavelength {1e3 * lam:.2f} mm is {100 * off:.1f} % from "
+            f"the wheel's harmonic {harmonic} (2 pi R / {harmonic} = "
+            f"{1e3 * _WHEEL_WAVELENGTHS[k]:.2f} mm): a wheel out of round at that harmonic "
+            "excites the same tone, which these spectra cannot tell from a rail"
+        )
+        heights = [_mean(parameters.get(f"rail_waviness.amplitude_{w}_m", np.nan)) for w in WHEELS]
+        if all(np.isfinite(heights)):
+            words += "; heights fitted under the wheels: " + ", ".join(
+                f"{w} {1e6 * h:.2f} um" for w, h in zip(WHEELS, heights, strict=True)
+            )
+        return (words,)
+
+
+def _mean(value: Any) -> float:
+    """A parameter's value: a number, or the ``mean`` of a summary."""
+    if isinstance(value, Mapping):
+        value = value.get("mean", np.nan)
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
 
 
 def _quadrature(values: Mapping[str, Any], wheel: str) -> tuple[float, float]:
@@ -402,7 +463,9 @@ DOOR_CATALOGUE = Catalogue(
             signature=FirstOf(
                 (
                     HarmonicComb(period_m=WHEEL_CIRCUMFERENCE, harmonics=WHEEL_HARMONICS),
-                    SpeedTracking(wavelengths=_WHEEL_WAVELENGTHS, labels=WHEEL_HARMONICS),
+                    SpeedTracking(
+                        wavelengths=_WHEEL_WAVELENGTHS, labels=WHEEL_HARMONICS, rel_tol=_WHEEL_MATCH
+                    ),
                 )
             ),
             refit=WheelRefit(),
@@ -411,7 +474,7 @@ DOOR_CATALOGUE = Catalogue(
             name="rail_waviness",
             description="a periodic rail irregularity: a tone at v / wavelength, the wavelength "
             "not a wheel harmonic",
-            signature=SpeedTracking(excluded=_WHEEL_WAVELENGTHS),
+            signature=SpeedTracking(excluded=_WHEEL_WAVELENGTHS, rel_tol=_WHEEL_MATCH),
             refit=RailRefit(independent=True),
         ),
         Candidate(

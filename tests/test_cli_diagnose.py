@@ -342,7 +342,7 @@ def test_report_says_what_else_could_give_the_named_symptom():
                 "name": "rail_waviness",
                 "evidence": "c",
                 "parameters": {},
-                "gain": {},
+                "gain": {"delta_elpd": 30.0, "delta_elpd_per_run": [20.0, -2.0, 12.0]},
                 "confirmed": True,
                 "alternatives": [wheel],
             },
@@ -352,6 +352,8 @@ def test_report_says_what_else_could_give_the_named_symptom():
     page = diagnosis_page(payload)
     assert page.count("The same symptom could come from wheel_eccentricity") == 1
     assert "harmonic 6" in page
+    # the gain table counts the runs that gain instead of listing them
+    assert "runs_gaining" in page and "2 of 3" in page and "delta_elpd_per_run" not in page
 
 
 def test_report_shows_the_speed_dependence_of_a_tracking_tone():

@@ -81,7 +81,7 @@ def compute(system, campaign: xr.Dataset, fit, *, seed: int, quick: bool, progre
 
 def summary_lines(payload: dict[str, Any]) -> list[str]:
     """The verdict, the ranked causes with their evidence, parameters and gain, the report."""
-    from ..report import parameter_text
+    from ..report import gain_entries, parameter_text
 
     verdict = payload.get("verdict")
     shown = "undecided (no cause has decisive evidence)" if verdict is None else str(verdict)
@@ -97,7 +97,8 @@ def summary_lines(payload: dict[str, Any]) -> list[str]:
             )
         if gain:
             lines.append(
-                "     gain: " + ", ".join(f"{k} = {parameter_text(v)}" for k, v in gain.items())
+                "     gain: "
+                + ", ".join(f"{k} = {parameter_text(v)}" for k, v in gain_entries(gain).items())
             )
     lines.append(f"report: {payload['report']}")
     return lines

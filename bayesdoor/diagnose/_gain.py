@@ -578,6 +578,10 @@ class Gain:
         Held-out runs.
     decisive
         Whether the rule (:data:`RULE`) is met.
+    per_run
+        The per-run differences ``d_r`` in the held-out runs' order (empty when not
+        known): whether every run gains a little or a few gain much is what decides the
+        standard error.
     """
 
     j_before: float
@@ -588,6 +592,7 @@ class Gain:
     elpd_se: float
     n_runs: int
     decisive: bool
+    per_run: tuple[float, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -600,15 +605,22 @@ class Gain:
             "elpd_se": self.elpd_se,
             "held_out_runs": self.n_runs,
             "decisive": self.decisive,
+            "delta_elpd_per_run": list(self.per_run),
         }
 
     def describe(self) -> str:
-        return (
+        words = (
             f"held-out ELPD {self.elpd_before:.1f} -> {self.elpd_after:.1f} "
             f"({self.elpd_difference:+.1f} +- {self.elpd_se:.1f}), J {self.j_before:.4f} -> "
-            f"{self.j_after:.4f} over {self.n_runs} runs: "
-            + ("decisive" if self.decisive else "not decisive")
+            f"{self.j_after:.4f} over {self.n_runs} runs"
         )
+        if self.per_run:
+            d = np.asarray(self.per_run)
+            words += (
+                f" ({int(np.sum(d > 0))} of {d.size} gain; per run {d.min():+.1f} to "
+                f"{d.max():+.1f}, median {np.median(d):+.1f})"
+            )
+        return words + ": " + ("decisive" if self.decisive else "not decisive")
 
 
 def compare_held_out(
@@ -645,4 +657,5 @@ def compare_held_out(
         elpd_se=se,
         n_runs=int(d.size),
         decisive=decisive,
+        per_run=tuple(float(v) for v in d),
     )

@@ -389,13 +389,25 @@ def _parameters_table(parameters: Mapping[str, Any]) -> str:
     return H.table(("parameter", "value"), [(k, parameter_text(v)) for k, v in parameters.items()])
 
 
+def gain_entries(gain: Mapping[str, Any]) -> dict[str, Any]:
+    """A gain's JSON for a table or a line: the per-run differences summed up as
+    ``runs_gaining`` ("k of n") instead of listed."""
+    entries = {k: v for k, v in gain.items() if k != "delta_elpd_per_run"}
+    per_run = gain.get("delta_elpd_per_run")
+    if per_run:
+        entries["runs_gaining"] = f"{sum(1 for d in per_run if d > 0)} of {len(per_run)}"
+    return entries
+
+
 def gain_rows(causes: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[list[str]]]:
     """The gain table: one row per cause that reports a gain, one column per gain entry."""
-    with_gain = [c for c in causes if isinstance(c.get("gain"), Mapping) and c["gain"]]
+    with_gain = [gain_entries(c["gain"]) for c in causes if isinstance(c.get("gain"), Mapping)]
+    names = [str(c["name"]) for c in causes if isinstance(c.get("gain"), Mapping)]
+    kept = [(n, g) for n, g in zip(names, with_gain, strict=True) if g]
     columns: list[str] = []
-    for c in with_gain:
-        columns += [k for k in c["gain"] if k not in columns]
-    rows = [[str(c["name"]), *(_number(c["gain"].get(k)) for k in columns)] for c in with_gain]
+    for _, g in kept:
+        columns += [k for k in g if k not in columns]
+    rows = [[n, *(_number(g.get(k)) for k in columns)] for n, g in kept]
     return ["cause", *columns], rows
 
 

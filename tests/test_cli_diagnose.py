@@ -24,7 +24,7 @@ from bayesdoor.cli import app
 from bayesdoor.diagnose import Cause, Diagnosis, Gain
 from bayesdoor.inference import FitResult
 from bayesdoor.io import make_campaign, save_campaign
-from bayesdoor.report import diagnosis_page
+from bayesdoor.report import diagnosis_page, gain_figure
 from bayesdoor.systems import ElevatorDoor
 from bayesdoor.systems.door import DOOR_CATALOGUE
 
@@ -354,6 +354,24 @@ def test_report_says_what_else_could_give_the_named_symptom():
     assert "harmonic 6" in page
     # the gain table counts the runs that gain instead of listing them
     assert "runs_gaining" in page and "2 of 3" in page and "delta_elpd_per_run" not in page
+
+
+def test_report_plots_each_runs_gain_against_its_speed(frame_mode):
+    payload = frame_mode.to_json()
+    page = diagnosis_page(payload, features=frame_mode.features, catalogue=DOOR_CATALOGUE)
+    n = frame_mode.features.n_runs
+    gain = payload["causes"][0]["gain"]
+    gain["delta_elpd_per_run"] = [float(d) for d in np.linspace(-2.0, 9.0, n)]
+    gain["delta_elpd_runs"] = list(range(n))[::-1]
+    with_runs = diagnosis_page(payload, features=frame_mode.features, catalogue=DOOR_CATALOGUE)
+    assert len(images(with_runs)) == len(images(page)) + 1
+    assert "held-out gain of each run against its speed" in with_runs
+    speeds = frame_mode.features.residuals.speeds
+    assert gain_figure(payload["causes"], speeds)[:8] == b"\x89PNG\r\n\x1a\n"
+    # nothing to plot: no per-run gains, or positions that do not match them
+    assert gain_figure(frame_mode.to_json()["causes"], speeds) is None
+    gain["delta_elpd_runs"] = [0]
+    assert gain_figure(payload["causes"], speeds) is None
 
 
 def test_report_shows_the_speed_dependence_of_a_tracking_tone():

@@ -582,6 +582,8 @@ class Gain:
         The per-run differences ``d_r`` in the held-out runs' order (empty when not
         known): whether every run gains a little or a few gain much is what decides the
         standard error.
+    runs
+        Where each of ``per_run`` lies among the diagnosed runs (empty when not known).
     """
 
     j_before: float
@@ -593,6 +595,7 @@ class Gain:
     n_runs: int
     decisive: bool
     per_run: tuple[float, ...] = ()
+    runs: tuple[int, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -606,6 +609,7 @@ class Gain:
             "held_out_runs": self.n_runs,
             "decisive": self.decisive,
             "delta_elpd_per_run": list(self.per_run),
+            "delta_elpd_runs": list(self.runs),
         }
 
     def describe(self) -> str:

@@ -499,7 +499,7 @@ def _cross_validate(
         np.concatenate([h.j for h in before]),
         np.concatenate([h.j for h in after]),
     )
-    return fits, gain
+    return fits, dataclasses.replace(gain, runs=tuple(int(r) for r in tests))
 
 
 def _signature_cause(score: CauseScore) -> Cause:

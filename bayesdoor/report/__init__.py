@@ -12,6 +12,7 @@ from ._diagnosis import diagnosis_page as diagnosis_page
 from ._diagnosis import diagnosis_section as diagnosis_section
 from ._diagnosis import excess_figure as excess_figure
 from ._diagnosis import gain_entries as gain_entries
+from ._diagnosis import gain_figure as gain_figure
 from ._diagnosis import parameter_text as parameter_text
 from ._diagnosis import residual_map_figure as residual_map_figure
 from ._diagnosis import rest_figure as rest_figure

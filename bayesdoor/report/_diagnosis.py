@@ -392,11 +392,39 @@ def _parameters_table(parameters: Mapping[str, Any]) -> str:
 def gain_entries(gain: Mapping[str, Any]) -> dict[str, Any]:
     """A gain's JSON for a table or a line: the per-run differences summed up as
     ``runs_gaining`` ("k of n") instead of listed."""
-    entries = {k: v for k, v in gain.items() if k != "delta_elpd_per_run"}
+    entries = {k: v for k, v in gain.items() if k not in ("delta_elpd_per_run", "delta_elpd_runs")}
     per_run = gain.get("delta_elpd_per_run")
     if per_run:
         entries["runs_gaining"] = f"{sum(1 for d in per_run if d > 0)} of {len(per_run)}"
     return entries
+
+
+def gain_figure(
+    causes: Sequence[Mapping[str, Any]], speeds: Float[np.ndarray, " run"] | Sequence[float]
+) -> bytes | None:
+    """Each refitted cause's held-out gain per run (log predictive density, extended minus
+    base) against the run's speed: whether every run gains a little or a few gain much,
+    which decides the gain's standard error. ``None`` when no cause has per-run gains."""
+    v = np.asarray(speeds, dtype=float)
+    series = []
+    for cause in causes:
+        gain = cause.get("gain")
+        if not isinstance(gain, Mapping):
+            continue
+        d, runs = gain.get("delta_elpd_per_run") or [], gain.get("delta_elpd_runs") or []
+        if d and len(runs) == len(d) and max(runs) < v.size:
+            series.append((str(cause.get("name")), v[np.asarray(runs)], np.asarray(d, float)))
+    if not series:
+        return None
+    fig = _figure(5.6, 3.8)
+    ax = fig.subplots()
+    for k, (name, x, d) in enumerate(series):
+        ax.plot(x, d, "os^vDP"[k % 6], label=f"{name}: {int(np.sum(d > 0))} of {d.size} gain")
+    ax.axhline(0.0, color="0.4", lw=0.8)
+    ax.set_xlabel("run speed v_max (m/s)")
+    ax.set_ylabel("held-out log predictive density, gain per run")
+    ax.legend(fontsize=8, frameon=False)
+    return H.png(fig, dpi=90)
 
 
 def gain_rows(causes: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[list[str]]]:
@@ -519,6 +547,8 @@ def diagnosis_page(
 
     gain_header, rows = gain_rows(causes)
     if rows:
+        speeds = None if features is None else features.residuals.speeds
+        figure = None if speeds is None else gain_figure(causes, speeds)
         parts.append(
             H.section(
                 "Gain of the extensions",
@@ -527,6 +557,9 @@ def diagnosis_page(
                     "cause (fitted on part of the healthy runs, judged on the others)."
                 ),
                 H.table(gain_header, rows),
+                ""
+                if figure is None
+                else H.img(figure, "gain per run", "held-out gain of each run against its speed"),
             )
         )
     if fit is not None:

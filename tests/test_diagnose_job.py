@@ -403,7 +403,7 @@ def test_a_runs_misfit_elsewhere_barely_moves_its_gain_with_the_line_bins_local(
 #: session 12 ran four more (two at a time, 11-18 min each, at fe7af9a):
 #: mains_hum-3, sensor_cross_axis-3 and none-3 passed, frame_mode-2 failed (below)
 #: session 13 ran eight on the lent machine's CPU (16 cores, JAX 0.11.2, eight cases at once
-#: with two cores each, 11-22 min; scripts/full_size_case.py at 16c5225): frame_mode-4,
+#: with two cores each, 11-22 min; scripts/full_size_case.py's lines at 16c5225): frame_mode-4,
 #: sensor_cross_axis-4, mains_hum-4, none-4 and none-5 passed, three failed (below)
 _FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
     ("frame_mode", 2): "verdict none at 12 runs (session 12; signature verdict rail_waviness; "

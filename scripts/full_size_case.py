@@ -59,6 +59,18 @@ def run_case(name: str, seed: int) -> dict[str, Any]:
     return result
 
 
+def provenance() -> str:
+    """Where a case ran: the commit, JAX's version and the CPUs this process may use."""
+    import os
+    import platform
+
+    import jax
+    from _cases import code_version
+
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return f"{code_version()}, JAX {jax.__version__}, {cpus} CPUs, {platform.node()}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("name", help="a catalogue effect, or none")
@@ -71,6 +83,7 @@ def main() -> None:
     jax.config.update("jax_enable_x64", True)
     jax.config.update("jax_numpy_dtype_promotion", "strict")  # as the tests run
     result = run_case(args.name, args.seed)
+    result["provenance"] = provenance()
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"{args.name}-{args.seed}.json"
     path.write_text(json.dumps(result, indent=1, default=str))

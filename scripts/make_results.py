@@ -60,6 +60,9 @@ STEPS: tuple[Step, ...] = (
     Step("diagnosis", "scripts/diagnosis.py"),
     Step("diagnosis_gain", "scripts/diagnosis_gain.py"),
     Step("diagnosis_strength", "scripts/diagnosis_strength.py"),
+    # the table of the saved full-size cases (each case: scripts/full_size_case.py, 10-20 min,
+    # not rerun here)
+    Step("diagnosis_full_size", "scripts/full_size_table.py", quick_args=()),
     *(
         Step(name, f"benchmarks/{name}.py", ("--json",), ("--quick",) if quick else (), name)
         for name, quick in (

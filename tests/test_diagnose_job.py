@@ -410,8 +410,9 @@ _FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
     "named at 8 runs, quick); session 13: the mode located at 42.5 Hz and refitted (bare "
     "38.6 Hz), its held-out gain +468 +- 181 nats, 2.6 SE, the per-run gains too uneven",
     ("frame_mode", 3): "verdict right (+1276 +- 159 nats), but the bare frequency 28.2 Hz "
-    "against the rig's 26.42 (installed 24.85 against 23.86, damping at its 0.1 bound; the "
-    "rig's door mode at 21.6 Hz is beside it); session 13",
+    "against the rig's 26.42: at the top of its search box (the signature's 24.21 Hz + 4), "
+    "the damping at its 0.1 bound (installed 24.85 against 23.86; the rig's door mode at "
+    "21.6 Hz beside it); session 13",
     ("rail_waviness", 3): "verdict none: the rail located at 9.81 mm (truth 9.74) but its "
     "held-out gain +464 +- 124 nats is 3.7 SE, under the rule's 4; session 13",
     ("rail_waviness", 4): "verdict none: a 70 mm rail, tones at 3.6-7.1 Hz at the band's "

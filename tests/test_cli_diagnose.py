@@ -453,5 +453,9 @@ def test_parameter_text_reads_every_summary_the_reports_meet():
         "q95": 1880.0,
     }
     assert parameter_text(row) == "1850 ± 20 [1820, 1880]"
+    # a diagnosis refit's parameter with each held-out fold's own value
+    refit = {"mean": 42.5, "sd": None, "folds": [42.1, 42.9]}
+    assert parameter_text(refit) == "42.5 (held-out folds: 42.1, 42.9)"
+    assert parameter_text(row) == "1850 ± 20 [1820, 1880]"
     assert parameter_text(3) == "3" and parameter_text("A1X") == "A1X"
     assert parameter_text(float("nan")) == "-" and parameter_text([1.0, 2.5]) == "1, 2.5"

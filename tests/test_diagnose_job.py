@@ -202,6 +202,11 @@ def test_hidden_effect_is_named(name, seed, base_fit):
     assert cause.confirmed and cause.gain.elpd_difference > DECISIVE_SE * cause.gain.elpd_se
     assert cause.gain.j_after < cause.gain.j_before
     check_parameters(name, cause, recording, rig)
+    # each refitted parameter keeps the value of each of the two held-out folds
+    by_fold = [
+        v["folds"] for v in cause.parameters.values() if isinstance(v, dict) and "folds" in v
+    ]
+    assert by_fold and all(len(folds) == 2 for folds in by_fold)
     payload = diagnosis.to_json()
     assert payload["verdict"] == name and payload["causes"][0]["name"] == name
     assert {"name", "evidence", "parameters", "gain"} <= set(payload["causes"][0])

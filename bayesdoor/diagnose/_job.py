@@ -692,9 +692,10 @@ def diagnose_campaign(
             continue
         _, proposal, fits, gain, bases = max(trials, key=lambda t: t[0])
         held = {n: {"mean": m, "sd": sd} for n, (m, sd) in proposal.held.items()}
+        # each fold's own value is kept: folds that disagree mark a refit to distrust
+        by_fold = {n: [float(np.mean(f.values[n])) for f in fits] for n in proposal.free}
         parameters: dict[str, Any] = {
-            n: {"mean": float(np.mean([f.values[n] for f in fits])), "sd": None}
-            for n in proposal.free
+            n: {"mean": float(np.mean(v)), "sd": None, "folds": v} for n, v in by_fold.items()
         }
         explained, symptom = recipes[score.name].explains(  # type: ignore[union-attr]
             score.parameters,
@@ -720,7 +721,10 @@ def diagnose_campaign(
                 bases=bases,
                 workers=settings.workers,
             )
-            parameters = {n: {"mean": final.values[n], "sd": final.sd[n]} for n in proposal.free}
+            parameters = {
+                n: {"mean": final.values[n], "sd": final.sd[n], "folds": by_fold[n]}
+                for n in proposal.free
+            }
             derived = recipes[score.name].derived(  # type: ignore[union-attr]
                 proposal,
                 system.with_extensions(proposal.extension),

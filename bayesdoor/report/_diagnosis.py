@@ -64,7 +64,8 @@ def _first(value: Mapping[str, Any], *keys: str) -> Any:
 def parameter_text(value: Any) -> str:
     """A parameter as text: a number, or ``mean ± sd [q5, q95]`` from a summary mapping.
 
-    A summary's centre is its ``mean``, else its ``point`` (a CMA-ES optimum), else ``value``.
+    A summary's centre is its ``mean``, else its ``point`` (a CMA-ES optimum), else ``value``;
+    a diagnosis refit's ``folds`` (each held-out fold's own fitted value) follow it.
     """
     if not isinstance(value, Mapping):
         return _number(value)
@@ -77,6 +78,8 @@ def parameter_text(value: Any) -> str:
     lo, hi = _first(value, "q5", "q05"), value.get("q95")
     if lo is not None and hi is not None:
         text += f" [{_number(lo)}, {_number(hi)}]"
+    if value.get("folds"):
+        text += f" (held-out folds: {_number(list(value['folds']))})"
     return text
 
 

@@ -424,6 +424,9 @@ _FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
     ("rail_waviness", 5): "verdict none: the rail located at 50.46 mm (truth 51.06), 11 of "
     "12 runs gain but one gains +164 nats, which widens the SE: +380 +- 154, 2.5 SE; "
     "session 13",
+    ("frame_mode", 5): "verdict right (+673 +- 113 nats), but the bare frequency 79.32 Hz "
+    "against the rig's 80.38 (1.06 Hz off; installed 80.47), the rail lift at its 0.3 bound; "
+    "session 13",
     ("rail_waviness", 4): "verdict none: a 70 mm rail, tones at 3.6-7.1 Hz at the band's "
     "low edge; no rail feature at all (as at 8 runs, docs/diagnosis.md); session 13",
 }

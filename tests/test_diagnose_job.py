@@ -409,7 +409,9 @@ def test_a_runs_misfit_elsewhere_barely_moves_its_gain_with_the_line_bins_local(
 #: mains_hum-3, sensor_cross_axis-3 and none-3 passed, frame_mode-2 failed (below)
 #: session 13 ran eight on the lent machine's CPU (16 cores, JAX 0.11.2, eight cases at once
 #: with two cores each, 11-22 min; scripts/full_size_case.py's lines at 16c5225): frame_mode-4,
-#: sensor_cross_axis-4, mains_hum-4, none-4 and none-5 passed, three failed (below)
+#: sensor_cross_axis-4, mains_hum-4, none-4 and none-5 passed, three failed (below); then five
+#: on this machine, one at a time: sensor_cross_axis-5, mains_hum-5, none-6 passed,
+#: rail_waviness-5 and frame_mode-5 failed (below)
 _FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
     ("frame_mode", 2): "verdict none at 12 runs (session 12; signature verdict rail_waviness; "
     "named at 8 runs, quick); session 13: the mode located at 42.5 Hz and refitted (bare "
@@ -455,8 +457,9 @@ def test_full_size(name, seed):
     in session 12): never run in full; session 9 ran four (``none-2``, ``mains_hum-2`` and
     ``sensor_cross_axis-2`` passed, ``rail_waviness-2`` failed, and passes since session 10),
     session 12 four more (``mains_hum-3``, ``sensor_cross_axis-3``, ``none-3`` passed,
-    ``frame_mode-2`` failed), session 13 eight more (five passed; ``frame_mode-3``,
-    ``rail_waviness-3`` and ``rail_waviness-4`` failed): 16 of 30 run, 12 pass."""
+    ``frame_mode-2`` failed), session 13 thirteen more (eight passed; ``frame_mode-3`` and
+    ``-5``, ``rail_waviness-3``, ``-4`` and ``-5`` failed): 21 of 30 run, 15 pass. The saved
+    cases: results/diagnosis_full_size.md."""
     recording, rig = record(name, seed, SPEEDS_SLOW)
     diagnosis = diagnose_campaign(
         DOOR, recording.campaign, seed=seed, progress=False, catalogue=DOOR_CATALOGUE

@@ -736,7 +736,10 @@ def diagnose_campaign(
             parameters.update({n: {"mean": v, "sd": derived_sd.get(n)} for n, v in derived.items()})
         parameters.update(held)
         for n, (value, sd) in proposal.measured.items():
-            parameters[n] = {"mean": value, "sd": sd, "refit": parameters[n]["mean"]}
+            refit = parameters[n]
+            parameters[n] = {"mean": value, "sd": sd, "refit": refit["mean"]}
+            if "folds" in refit:
+                parameters[n]["folds"] = refit["folds"]
         words = (
             f"refit of {score.name} ({proposal.label}) on half of the runs, tested on the other "
             f"half both ways: {gain.describe()}"

@@ -432,9 +432,11 @@ def gain_figure(
 
 def gain_rows(causes: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[list[str]]]:
     """The gain table: one row per cause that reports a gain, one column per gain entry."""
-    with_gain = [gain_entries(c["gain"]) for c in causes if isinstance(c.get("gain"), Mapping)]
-    names = [str(c["name"]) for c in causes if isinstance(c.get("gain"), Mapping)]
-    kept = [(n, g) for n, g in zip(names, with_gain, strict=True) if g]
+    kept = [
+        (str(c["name"]), gain_entries(c["gain"]))
+        for c in causes
+        if isinstance(c.get("gain"), Mapping) and c["gain"]
+    ]
     columns: list[str] = []
     for _, g in kept:
         columns += [k for k in g if k not in columns]

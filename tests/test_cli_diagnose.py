@@ -456,6 +456,12 @@ def test_parameter_text_reads_every_summary_the_reports_meet():
     # a diagnosis refit's parameter with each held-out fold's own value
     refit = {"mean": 42.5, "sd": None, "folds": [42.1, 42.9]}
     assert parameter_text(refit) == "42.5 (held-out folds: 42.1, 42.9)"
+    # ... and one whose fit stopped at an end of its search box says so
+    pushed = {"mean": 0.3, "sd": None, "search_box": [0.01, 0.3], "at_bound": "upper"}
+    assert parameter_text(pushed) == (
+        "0.3, at the upper end of its search box [0.01, 0.3]: not an estimate"
+    )
+    assert parameter_text({**pushed, "at_bound": None}) == "0.3"
     assert parameter_text(row) == "1850 ± 20 [1820, 1880]"
     assert parameter_text(3) == "3" and parameter_text("A1X") == "A1X"
     assert parameter_text(float("nan")) == "-" and parameter_text([1.0, 2.5]) == "1, 2.5"

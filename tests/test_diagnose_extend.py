@@ -12,8 +12,10 @@ from bayesdoor.diagnose import (
     ExtensionProposal,
     RefitSetup,
     Spectra,
+    box_ends,
     exact_spectra,
     held_out_folds,
+    refit_extension,
     verdict_extension,
 )
 from bayesdoor.systems import DoorParameters, ElevatorDoor
@@ -140,6 +142,34 @@ def test_folds_refitted_at_once_give_the_fits_of_one_at_a_time():
         DiagnosisSettings(workers=0)
     with pytest.raises(ValueError, match="folds"):
         DiagnosisSettings(folds=1)
+
+
+def test_a_refit_pushed_against_its_box_says_which_end():
+    # A2Z carries 8 % of A2X; a box that stops at 5 % leaves the fit at its upper end, a box
+    # that holds 8 % does not
+    speeds = np.array([0.3, 0.35, 0.45, 0.5])
+    setup = _door_setup(speeds, leak=0.08)
+    name = "sensor_cross_axis.fraction"
+
+    def refit(box: tuple[float, float]):
+        proposal = ExtensionProposal(
+            extension=SensorCrossAxis(sensor="A2", into="Z"),
+            start={name: 0.0},
+            free=(name,),
+            bounds={name: box},
+        )
+        return refit_extension(setup, proposal, np.arange(4), seed=1, max_evals=24)
+
+    narrow, wide = refit((-0.05, 0.05)), refit((-0.3, 0.3))
+    assert narrow.box == {name: (-0.05, 0.05)} and wide.box == {name: (-0.3, 0.3)}
+    assert narrow.at_bound() == {name: "upper"}
+    assert wide.at_bound() == {} and abs(wide.values[name] - 0.08) < 0.02
+    # the rule itself: within a thousandth of the box's width of an end, finite boxes only
+    box = {"a": (0.0, 1.0), "b": (0.0, 1.0), "c": (-np.inf, 1.0), "d": (0.0, 1.0)}
+    assert box_ends({"a": 0.0005, "b": 0.9995, "c": 1.0, "d": 0.5}, box) == {
+        "a": "lower",
+        "b": "upper",
+    }
 
 
 def test_the_rail_reports_each_wheels_amplitude_with_its_first_order_sd():

@@ -207,6 +207,11 @@ def test_hidden_effect_is_named(name, seed, base_fit):
         v["folds"] for v in cause.parameters.values() if isinstance(v, dict) and "folds" in v
     ]
     assert by_fold and all(len(folds) == 2 for folds in by_fold)
+    # ... and the search box they were fitted in, which holds them
+    for value in cause.parameters.values():
+        if isinstance(value, dict) and "folds" in value:
+            lo, hi = value["search_box"]
+            assert all(lo <= v <= hi for v in value["folds"]), value
     payload = diagnosis.to_json()
     assert payload["verdict"] == name and payload["causes"][0]["name"] == name
     assert {"name", "evidence", "parameters", "gain"} <= set(payload["causes"][0])

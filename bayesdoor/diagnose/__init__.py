@@ -49,6 +49,7 @@ from ._refit import ExtensionProposal as ExtensionProposal
 from ._refit import RefitResult as RefitResult
 from ._refit import RefitSetup as RefitSetup
 from ._refit import Spectra as Spectra
+from ._refit import box_ends as box_ends
 from ._refit import exact_spectra as exact_spectra
 from ._refit import held_out_spectra as held_out_spectra
 from ._refit import refit_extension as refit_extension

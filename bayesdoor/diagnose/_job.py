@@ -734,12 +734,24 @@ def diagnose_campaign(
                 proposal, final.values, final.sd
             )
             parameters.update({n: {"mean": v, "sd": derived_sd.get(n)} for n, v in derived.items()})
+        # a value at an end of its search box is not an estimate: the all-runs fit's when
+        # confirmed, else any fold's
+        box = fits[0].box
+        ends: dict[str, str] = {}
+        for f in [final] if confirmed_here else fits:
+            ends = {**f.at_bound(), **ends}
+        for n in proposal.free:
+            if n in box:
+                parameters[n]["search_box"] = list(box[n])
+            if n in ends:
+                parameters[n]["at_bound"] = ends[n]
         parameters.update(held)
         for n, (value, sd) in proposal.measured.items():
             refit = parameters[n]
             parameters[n] = {"mean": value, "sd": sd, "refit": refit["mean"]}
-            if "folds" in refit:
-                parameters[n]["folds"] = refit["folds"]
+            for key in ("folds", "search_box", "at_bound"):
+                if key in refit:
+                    parameters[n][key] = refit[key]
         words = (
             f"refit of {score.name} ({proposal.label}) on half of the runs, tested on the other "
             f"half both ways: {gain.describe()}"
@@ -769,6 +781,14 @@ def diagnose_campaign(
         key=lambda c: (c.score < MIN_VERDICT_SCORE, -c.gain.elpd_difference),  # type: ignore[union-attr]
     )
     verdict = confirmed[0].name if confirmed else NONE
+    if confirmed:
+        notes += [
+            f"{verdict}: {n} ended at the {value['at_bound']} end of its search box "
+            f"[{value['search_box'][0]:.4g}, {value['search_box'][1]:.4g}]: the data would move "
+            "it further, so it is not an estimate, nor are the parameters that trade off with it"
+            for n, value in confirmed[0].parameters.items()
+            if isinstance(value, dict) and value.get("at_bound")
+        ]
     if confirmed and confirmed[0].alternatives:
         notes += [
             f"the verdict {verdict} could also be {alternative}"

@@ -308,6 +308,9 @@ class RefitResult:
         Objective evaluations spent.
     solves
         Simulated runs spent on new solves (0 for extensions that act on the outputs).
+    box
+        The search box ``(lower, upper)`` of each free parameter (the proposal's bounds
+        within the extension's own).
     """
 
     proposal: ExtensionProposal
@@ -318,6 +321,37 @@ class RefitResult:
     train_lpd: float
     evaluations: int
     solves: int = 0
+    box: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+
+    def at_bound(self) -> dict[str, str]:
+        """The free parameters whose optimum lies at an end of their search box
+        (:func:`box_ends`): ``{name: "lower" | "upper"}``."""
+        return box_ends(self.values, self.box)
+
+
+#: a value lies at an end of its search box when it is within this fraction of the box's
+#: width from it (CMA-ES's boundary handling leaves an optimum pushed against a bound a tiny
+#: step inside it)
+BOX_END_FRACTION = 1e-3
+
+
+def box_ends(values: Mapping[str, float], box: Mapping[str, tuple[float, float]]) -> dict[str, str]:
+    """Which of ``values`` lie at an end of their search box, ``{name: "lower" | "upper"}``.
+
+    A fitted value at an end of its box is not an estimate: the data would move it further,
+    and the parameters that trade off with it are biased too. Names without a finite box,
+    or missing from ``values``, are left out.
+    """
+    ends: dict[str, str] = {}
+    for name, (lo, hi) in box.items():
+        if name not in values or not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+            continue
+        step = BOX_END_FRACTION * (hi - lo)
+        if values[name] <= lo + step:
+            ends[name] = "lower"
+        elif values[name] >= hi - step:
+            ends[name] = "upper"
+    return ends
 
 
 def _boxes(
@@ -582,9 +616,11 @@ def _result(
     train: np.ndarray,
     spectra: np.ndarray,
     evaluations: int,
+    lower: np.ndarray,
+    upper: np.ndarray,
 ) -> RefitResult:
-    """The refit's result at ``optimum`` (free parameters in ``model.free`` order), with the
-    training density of ``spectra`` (every run's)."""
+    """The refit's result at ``optimum`` (free parameters in ``model.free`` order, searched
+    within ``lower`` and ``upper``), with the training density of ``spectra`` (every run's)."""
     free = model.free
     return RefitResult(
         proposal=proposal,
@@ -595,6 +631,7 @@ def _result(
         train_lpd=float(_profile_lpd(setup.spectra, spectra[None, train], train)[0]),
         evaluations=evaluations,
         solves=model.solves,
+        box={n: (float(lo), float(hi)) for n, lo, hi in zip(free, lower, upper, strict=True)},
     )
 
 
@@ -805,7 +842,7 @@ def _refit_with_gains(
     spectra = setup.spectra.model(
         model.solve(model.values(optimum[None], len(every)), every)[0], every
     )
-    return _result(setup, proposal, model, optimum, sd, train, spectra, evaluations)
+    return _result(setup, proposal, model, optimum, sd, train, spectra, evaluations, lower, upper)
 
 
 def refit_extension(
@@ -937,7 +974,7 @@ def refit_extension(
         evaluations += _laplace_evaluations(len(search))
     every = np.arange(len(setup.operating))
     spectra = _batched(model, setup.spectra, optimum[None], every, exact=exact)[0]
-    return _result(setup, proposal, model, optimum, sd, train, spectra, evaluations)
+    return _result(setup, proposal, model, optimum, sd, train, spectra, evaluations, lower, upper)
 
 
 def exact_spectra(

@@ -65,7 +65,8 @@ def parameter_text(value: Any) -> str:
     """A parameter as text: a number, or ``mean ± sd [q5, q95]`` from a summary mapping.
 
     A summary's centre is its ``mean``, else its ``point`` (a CMA-ES optimum), else ``value``;
-    a diagnosis refit's ``folds`` (each held-out fold's own fitted value) follow it.
+    a diagnosis refit's ``folds`` (each held-out fold's own fitted value) follow it, and its
+    ``search_box`` when the fit stopped at one of its ends (``at_bound``).
     """
     if not isinstance(value, Mapping):
         return _number(value)
@@ -80,6 +81,12 @@ def parameter_text(value: Any) -> str:
         text += f" [{_number(lo)}, {_number(hi)}]"
     if value.get("folds"):
         text += f" (held-out folds: {_number(list(value['folds']))})"
+    if value.get("at_bound") and value.get("search_box"):
+        lo, hi = value["search_box"]
+        text += (
+            f", at the {value['at_bound']} end of its search box [{_number(lo)}, "
+            f"{_number(hi)}]: not an estimate"
+        )
     return text
 
 

@@ -61,7 +61,19 @@ def _z(cause: Mapping[str, Any]) -> float:
 
 
 def key_parameter(name: str, seed: int, cause: Mapping[str, Any] | None) -> str:
-    """The hidden effect's key parameter as the diagnosis estimated it, against the truth."""
+    """The hidden effect's key parameter as the diagnosis estimated it, against the truth;
+    marked when a refitted parameter of the cause stopped at an end of its search box."""
+    words = _key_parameter(name, seed, cause)
+    p: Mapping[str, Any] = {} if cause is None else cause.get("parameters") or {}
+    ends = sorted(
+        n.split(".")[-1] for n, v in p.items() if isinstance(v, Mapping) and v.get("at_bound")
+    )
+    if ends:
+        words += f"; *at its box's end*: {', '.join(ends)}"
+    return words
+
+
+def _key_parameter(name: str, seed: int, cause: Mapping[str, Any] | None) -> str:
     if name == NONE:
         return "-"
     truth = getattr(hidden_effect(name, seed), name)
@@ -103,6 +115,7 @@ def case_row(case: Mapping[str, Any], where: Mapping[str, str]) -> list[str]:
         str(case.get("verdict")),
         _gain_words(hidden) if name != NONE else "-",
         "-" if best is None else f"{best['name']}: {_gain_words(best)}",
+        _gain_words({"gain": case["ceiling_gain"]}) if case.get("ceiling_gain") else "-",
         key_parameter(name, seed, hidden),
         check,
         fmt(case.get("seconds"), ".0f"),
@@ -131,6 +144,19 @@ def summary(cases: Sequence[Mapping[str, Any]]) -> list[str]:
                 f"- {name}: named in {right} of {len(mine)} (seeds {seeds}); the test's checks "
                 f"(verdict and key parameter) passed in {passed}"
             )
+    ceilings = [
+        (case, _z({"gain": case["ceiling_gain"]}))
+        for case in cases
+        if case["name"] != NONE and case.get("ceiling_gain")
+    ]
+    if ceilings:
+        over = [f"{c['name']} {c['seed']}" for c, z in ceilings if z > 4]
+        under = [f"{c['name']} {c['seed']} ({z:.1f})" for c, z in ceilings if z <= 4]
+        lines.append(
+            f"- ceilings: {len(over)} of {len(ceilings)} cases with one pass the rule's 4 SE "
+            f"with the rig's own effect ({', '.join(over) or 'none'}); under it, SE: "
+            f"{', '.join(under) or 'none'}"
+        )
     wrong = [
         (
             _z(c),
@@ -161,6 +187,7 @@ def table(cases: Sequence[Mapping[str, Any]], command: str) -> str:
         "verdict",
         "gain of the hidden cause",
         "strongest other candidate",
+        "ceiling (the rig's own effect added)",
         "key parameter (estimate, truth)",
         "test",
         "wall (s)",
@@ -180,7 +207,10 @@ def table(cases: Sequence[Mapping[str, Any]], command: str) -> str:
         "over 0.25-0.50 m/s, the effect drawn by `from_seed(seed)`, `diagnose_campaign` with "
         "its default sizes). Gains are held-out log predictive densities, extended minus base; "
         "the verdict needs more than 4 SE and a lower J. The rig's truth is drawn again from "
-        "the seed.",
+        "the seed. The ceiling (cases run with `--ceiling`) is the gain of the base model plus "
+        "the rig's own effect (the same runs recorded without it), judged on the same folds: "
+        "what a perfect extension would gain. A key parameter marked *at its box's end* "
+        "stopped at an end of its search box (not an estimate).",
         "",
         "| " + " | ".join(header) + " |",
         "|" + "---|" * len(header),

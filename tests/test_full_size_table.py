@@ -33,13 +33,17 @@ RAIL = {
                 464.0,
                 124.0,
                 per_run=[50.0] * 11 + [-10.0],
-                **{"rail_waviness.wavelength_m": {"mean": 0.00981, "sd": 5e-5}},
+                **{
+                    "rail_waviness.wavelength_m": {"mean": 0.00981, "sd": 5e-5},
+                    "rail_waviness.sin_left_m": {"mean": 3e-5, "at_bound": "upper"},
+                },
             ),
             _cause("frame_mode", 63.0, 76.0),
             _cause("none"),
         ],
         "timings": {"fit": 533.0, "refits": 279.0},
     },
+    "ceiling_gain": {"delta_elpd": 300.0, "elpd_se": 100.0, "delta_elpd_per_run": [25.0] * 12},
 }
 NOTHING = {
     "name": "none",
@@ -57,7 +61,12 @@ def test_a_row_gives_the_gain_the_runs_that_gain_and_the_key_parameter_against_t
     # the rig's rail seed 3 is 9.74 mm (drawn again from the seed)
     assert "+464 +- 124 (3.7 SE), 11 of 12 runs gain" in row
     assert "frame_mode: +63 +- 76 (0.8 SE)" in row
-    assert "9.81 (rig 9.74) mm" in row and "**fail**" in row and "| 872 | 533 | 279 | A |" in row
+    assert "9.81 (rig 9.74) mm; *at its box's end*: sin_left_m" in row
+    assert "**fail**" in row and "| 872 | 533 | 279 | A |" in row
+    # the ceiling: the rig's own effect added to the base model, judged alike
+    assert "| +300 +- 100 (3.0 SE), 12 of 12 runs gain |" in row
+    assert "- ceilings: 0 of 1 cases with one pass the rule's 4 SE" in text
+    assert "under it, SE: rail_waviness 3 (3.0)" in text
     assert "- where A: here" in text
     assert "- rail_waviness: named in 0 of 1 (seeds 3)" in text
     assert "- nothing hidden: 1 of 1 answered `none` (seeds 4); false alarms: 0" in text

@@ -52,6 +52,8 @@ CALIBRATION_RUNS = (6, 8, 10, 12, 16, 24)
 BATCHES = 10
 #: caps per interval between consecutive sorted values of the grid reference
 GRID_CAPS = 21
+#: the calibration keeps this upper fraction of its draws, for the saved cases' tail probabilities
+TAIL = 0.01
 
 #: mean-zero noise of one held-out difference per run: name -> draw(rng, shape)
 NOISES: dict[str, Callable[[np.random.Generator, tuple[int, ...]], np.ndarray]] = {
@@ -167,13 +169,24 @@ def _generator(seed: int, *cell: int) -> np.random.Generator:
 
 @dataclass(frozen=True)
 class Threshold:
-    """``T_n``: ``P_normal(T > T_n) = P(t_{n-1} > 4)``, with a Monte Carlo standard error."""
+    """``T_n``: ``P_normal(T > T_n) = P(t_{n-1} > 4)``, with a Monte Carlo standard error.
+
+    ``tail`` holds the largest ``TAIL`` of the draws, sorted, for :meth:`tail_probability`.
+    """
 
     runs: int
     alarm: float
     value: float
     se: float
     draws: int
+    tail: np.ndarray
+
+    def tail_probability(self, statistic: float) -> float | None:
+        """The fraction of the draws whose T exceeds ``statistic``; ``None`` above ``TAIL``."""
+        if statistic < self.tail[0]:
+            return None
+        above = self.tail.size - np.searchsorted(self.tail, statistic, side="right")
+        return float(above / self.draws)
 
 
 def calibrate(runs: int, draws: int, seed: int) -> Threshold:
@@ -188,9 +201,11 @@ def calibrate(runs: int, draws: int, seed: int) -> Threshold:
         for i in range(BATCHES)
     ]
     per_batch = [np.quantile(t, 1.0 - alarm) for t in batches]
-    value = float(np.quantile(np.concatenate(batches), 1.0 - alarm))
+    pooled = np.sort(np.concatenate(batches))
+    value = float(np.quantile(pooled, 1.0 - alarm))
     se = float(np.std(per_batch, ddof=1) / np.sqrt(BATCHES))
-    return Threshold(runs, alarm, value, se, BATCHES * draws)
+    tail = pooled[-max(1, int(TAIL * pooled.size)) :]
+    return Threshold(runs, alarm, value, se, pooled.size, tail)
 
 
 @dataclass(frozen=True)
@@ -231,6 +246,7 @@ class Verdict:
     monotone: float
     grid: float
     threshold: float
+    tail: float | None
     saved: bool | None
 
     @property
@@ -244,6 +260,24 @@ class Verdict:
     @property
     def at_four(self) -> bool:
         return self.monotone > THRESHOLD
+
+
+def judge(row: dict[str, Any], threshold: Threshold) -> Verdict:
+    """The three rules on one row of :func:`saved_gains`."""
+    d = row["per_run"]
+    monotone = float(monotone_statistic(d))
+    return Verdict(
+        case=row["case"],
+        candidate=row["candidate"],
+        hidden=row["hidden"],
+        runs=d.size,
+        t=float(t_statistic(d)),
+        monotone=monotone,
+        grid=float(monotone_statistic_on_grid(d)),
+        threshold=threshold.value,
+        tail=threshold.tail_probability(monotone),
+        saved=row["saved"],
+    )
 
 
 def saved_gains(folder: Path) -> tuple[list[dict[str, Any]], int, int, int]:
@@ -282,6 +316,10 @@ def saved_gains(folder: Path) -> tuple[list[dict[str, Any]], int, int, int]:
                 }
             )
     return rows, len(files), not_refitted, no_per_run
+
+
+def _tail(probability: float | None) -> str:
+    return f"> {TAIL}" if probability is None else f"{probability:.5f}"
 
 
 def _yes(flag: bool | None) -> str:
@@ -350,8 +388,11 @@ def _findings(
         near = min(verdicts, key=lambda v: abs(v.monotone - v.threshold))
         lines.append(
             f"The candidate nearest the calibrated threshold is {near.case} {near.candidate}: "
-            f"T = {near.monotone:.2f} against T_{near.runs} = {near.threshold:.2f} "
-            f"(+- {thresholds[near.runs].se:.2f})."
+            f"T = {near.monotone:.3f} against T_{near.runs} = {near.threshold:.3f} +- "
+            f"{thresholds[near.runs].se:.3f}, "
+            f"{(near.monotone - near.threshold) / thresholds[near.runs].se:+.1f} standard errors; "
+            f"under normal noise T exceeds it with probability {_tail(near.tail)} against "
+            f"{thresholds[near.runs].alarm:.5f} for t > 4."
         )
         gap = max(v.monotone - v.grid for v in verdicts)
         lines.append(
@@ -421,16 +462,18 @@ def report(
         "## Saved full-size cases",
         "",
         "Decisive under t > 4 (current, ignoring J), T > T_n and T > 4; the last column is "
-        "the saved verdict, which also needs a lower J.",
+        "the saved verdict, which also needs a lower J. P_normal(T above it) is the fraction "
+        "of the calibration's normal draws whose T exceeds the case's.",
         "",
-        "| case | candidate | hidden effect | n | t | T | T_n | t > 4 | T > T_n | T > 4 | saved |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| case | candidate | hidden effect | n | t | T | T_n | P_normal(T above it) "
+        "| t > 4 | T > T_n | T > 4 | saved |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for v in verdicts:
         out.append(
             f"| {v.case} | {v.candidate} | {_yes(v.hidden)} | {v.runs} | {v.t:.2f} | "
-            f"{v.monotone:.2f} | {v.threshold:.2f} | {_yes(v.current)} | {_yes(v.calibrated)} | "
-            f"{_yes(v.at_four)} | {_yes(v.saved)} |"
+            f"{v.monotone:.2f} | {v.threshold:.2f} | {_tail(v.tail)} | {_yes(v.current)} | "
+            f"{_yes(v.calibrated)} | {_yes(v.at_four)} | {_yes(v.saved)} |"
         )
     out += [
         "",
@@ -460,20 +503,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         for noise in NOISES
         for n in NULL_RUNS
     ]
-    verdicts = [
-        Verdict(
-            case=r["case"],
-            candidate=r["candidate"],
-            hidden=r["hidden"],
-            runs=r["per_run"].size,
-            t=float(t_statistic(r["per_run"])),
-            monotone=float(monotone_statistic(r["per_run"])),
-            grid=float(monotone_statistic_on_grid(r["per_run"])),
-            threshold=thresholds[r["per_run"].size].value,
-            saved=r["saved"],
-        )
-        for r in rows
-    ]
+    verdicts = [judge(r, thresholds[r["per_run"].size]) for r in rows]
     text = report(
         command_line("decision_rule.py", argv),
         rates,

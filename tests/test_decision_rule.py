@@ -12,6 +12,7 @@ from scipy import stats
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))
 from decision_rule import (
+    Threshold,
     main,
     monotone_statistic,
     monotone_statistic_on_grid,
@@ -123,6 +124,15 @@ def test_t_false_alarms_under_normal_noise_match_the_t_distribution():
     # 4 binomial standard deviations: with about 21 alarms expected, about 4.6 each
     sd = np.sqrt(expected * (1 - expected / draws))
     assert abs(np.sum(t_statistic(d) > 4.0) - expected) < 4 * sd
+
+
+def test_tail_probability_counts_the_kept_draws_above():
+    # 1000 draws of which the largest 3 were kept
+    threshold = Threshold(12, 0.001, 2.0, 0.0, 1000, np.array([1.0, 2.0, 3.0]))
+    assert threshold.tail_probability(2.5) == 1 / 1000
+    assert threshold.tail_probability(3.0) == 0.0
+    assert threshold.tail_probability(1.0) == 2 / 1000
+    assert threshold.tail_probability(0.5) is None
 
 
 def test_too_few_runs_is_refused():

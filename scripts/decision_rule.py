@@ -386,13 +386,16 @@ def _findings(
         )
     if verdicts:
         near = min(verdicts, key=lambda v: abs(v.monotone - v.threshold))
+        calibration = thresholds[near.runs]
+        tail = _tail(near.tail)
+        if near.tail is not None:
+            tail += f" +- {np.sqrt(near.tail * (1 - near.tail) / calibration.draws):.5f}"
         lines.append(
             f"The candidate nearest the calibrated threshold is {near.case} {near.candidate}: "
             f"T = {near.monotone:.3f} against T_{near.runs} = {near.threshold:.3f} +- "
-            f"{thresholds[near.runs].se:.3f}, "
-            f"{(near.monotone - near.threshold) / thresholds[near.runs].se:+.1f} standard errors; "
-            f"under normal noise T exceeds it with probability {_tail(near.tail)} against "
-            f"{thresholds[near.runs].alarm:.5f} for t > 4."
+            f"{calibration.se:.3f}, {(near.monotone - near.threshold) / calibration.se:+.1f} "
+            f"standard errors; under normal noise T exceeds it with probability {tail} against "
+            f"{calibration.alarm:.5f} for t > 4."
         )
         gap = max(v.monotone - v.grid for v in verdicts)
         lines.append(

@@ -176,8 +176,9 @@ def main() -> None:
 
     jax.config.update("jax_enable_x64", True)
     jax.config.update("jax_numpy_dtype_promotion", "strict")  # as the tests run
+    where = provenance()  # before the run: the code it imports is the code of its start
     result = run_case(args.name, args.seed, ceiling=args.ceiling)
-    result["provenance"] = provenance()
+    result["provenance"] = where
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"{args.name}-{args.seed}.json"
     path.write_text(json.dumps(result, indent=1, default=str))

@@ -430,7 +430,13 @@ _FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
     "held-out gain +464 +- 124 nats is 3.7 SE, under the rule's 4; session 13",
     ("rail_waviness", 5): "verdict none: the rail located at 50.46 mm (truth 51.06), 11 of "
     "12 runs gain but one gains +164 nats, which widens the SE: +380 +- 154, 2.5 SE; "
-    "session 13",
+    "session 13 (again in session 14, the same figures; the rig's own effect added to the "
+    "base model gains 2.8 SE, its run 3 too gaining most)",
+    ("rail_waviness", 6): "verdict none: the rail located at 28.15 mm (truth 27.62, 1.9 %), "
+    "11 of 12 runs gain, one +80: +261 +- 77, 3.4 SE (the rig's own effect added: 4.7 SE); "
+    "session 14",
+    ("wheel_eccentricity", 2): "verdict none: no wheel feature; the rig's own wheel added to "
+    "the base model gains +7 +- 25 nats (0.3 SE); session 14",
     ("frame_mode", 5): "verdict right (+673 +- 113 nats), but the bare frequency 79.32 Hz "
     "against the rig's 80.38 (1.06 Hz off; installed 80.47), the rail lift at its 0.3 bound; "
     "session 13",

@@ -448,7 +448,8 @@ _FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
     "against the rig's 80.38 (1.06 Hz off; installed 80.47), the rail lift at its 0.3 bound; "
     "session 13",
     ("rail_waviness", 4): "verdict none: a 70 mm rail, tones at 3.6-7.1 Hz at the band's "
-    "low edge; no rail feature at all (as at 8 runs, docs/diagnosis.md); session 13",
+    "low edge; no rail feature at all (as at 8 runs, docs/diagnosis.md); session 13 (again in "
+    "session 14: the rig's own rail added to the base model gains 2.2 SE)",
 }
 
 

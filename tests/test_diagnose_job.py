@@ -432,7 +432,8 @@ _FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
     ("frame_mode", 3): "verdict right (+1276 +- 159 nats), but the bare frequency 28.2 Hz "
     "against the rig's 26.42: at the top of its search box (the signature's 24.21 Hz + 4), "
     "the damping at its 0.1 bound (installed 24.85 against 23.86; the rig's door mode at "
-    "21.6 Hz beside it); session 13",
+    "21.6 Hz beside it); session 13 (again in session 14, to the digit: the notes now say both "
+    "ended at their boxes' upper ends)",
     ("rail_waviness", 5): "verdict none: the rail located at 50.46 mm (truth 51.06), 11 of "
     "12 runs gain but one gains +164 nats, which widens the SE: +380 +- 154, 2.5 SE; "
     "session 13 (again in session 14, the same figures; the rig's own effect added to the "

@@ -46,32 +46,24 @@ def ceiling_gain(
 ) -> tuple[Any, list[int]]:
     """The held-out :class:`~bayesdoor.diagnose.Gain` of the base model plus the rig's own
     effect (``setup.spectra.measured`` less the log PSD of ``clean_signals``, the same runs
-    recorded without it), judged as the diagnosis judges a refit; and the held-out runs in
-    the gain's order."""
-    from bayesdoor.diagnose import changed_bins, compare_held_out, windowed_log_psd
-    from bayesdoor.diagnose._job import _held_out
+    recorded without it), judged as the diagnosis judges a refit
+    (:func:`~bayesdoor.diagnose.judge_folds`); and the held-out runs in the gain's order."""
+    from bayesdoor.diagnose import judge_folds, windowed_log_psd
 
     spectra = setup.spectra
     _, clean, _ = windowed_log_psd(
         clean_signals, spectra.fs, spectra.t_start, spectra.t_stop, nperseg=spectra.nperseg
     )
-    base = setup.base_spectra
-    model = base + (spectra.measured - clean[..., spectra.keep])
-    changed = changed_bins(base, model, spectra.log_variance)
-    speeds = np.asarray(setup.operating, dtype=float) if tracking else None
-    before = [_held_out(spectra, base, changed, tr, te, speeds) for tr, te in folds]
-    after = [_held_out(spectra, model, changed, tr, te, speeds) for tr, te in folds]
-    gain = compare_held_out(
-        np.concatenate([h.lpd for h in before]),
-        np.concatenate([h.lpd for h in after]),
-        np.concatenate([h.j for h in before]),
-        np.concatenate([h.j for h in after]),
-    )
-    return gain, [int(r) for _, te in folds for r in te]
+    model = setup.base_spectra + (spectra.measured - clean[..., spectra.keep])
+    gain = judge_folds(setup, [model] * len(folds), folds, tracking=tracking)
+    return gain, list(gain.runs)
 
 
-def _ceiling(cases: Any, name: str, seed: int, seen: dict[str, Any]) -> dict[str, Any]:
-    """The case's ceiling on the first setup and folds a refit was judged on."""
+def _ceiling(
+    cases: Any, name: str, seed: int, recording: Any, seen: dict[str, Any]
+) -> dict[str, Any]:
+    """The case's ceiling on the first setup and folds a refit was judged on; ``recording``
+    is the case's own, with the effect."""
     import bayesdoor.diagnose._job as job
     from bayesdoor.inference import calibration_runs
 
@@ -80,7 +72,6 @@ def _ceiling(cases: Any, name: str, seed: int, seen: dict[str, Any]) -> dict[str
     if "setup" not in seen:
         return {"ceiling_note": "no candidate was refitted: no setup to judge a ceiling on"}
     clean, _ = cases.record(cases.NONE, seed, cases.SPEEDS_SLOW)  # the same key
-    recording, _ = cases.record(name, seed, cases.SPEEDS_SLOW)
     if recording.truth["runs"] != clean.truth["runs"]:
         raise RuntimeError(
             f"{name} seed {seed}: the two recordings' run scatter or speeds differ, so their "
@@ -132,7 +123,7 @@ def run_case(name: str, seed: int, *, ceiling: bool = False) -> dict[str, Any]:
         if diagnosis.fit is not None:
             result["fit_point"] = {k: float(v) for k, v in diagnosis.fit.point.items()}
         if ceiling:
-            result.update(_ceiling(cases, name, seed, seen))
+            result.update(_ceiling(cases, name, seed, recording, seen))
         passed = diagnosis.verdict == name
         if passed and name != cases.NONE:
             try:

@@ -34,6 +34,7 @@ from ._job import DiagnosisSettings as DiagnosisSettings
 from ._job import diagnose_campaign as diagnose_campaign
 from ._job import extension_gain as extension_gain
 from ._job import held_out_folds as held_out_folds
+from ._job import judge_folds as judge_folds
 from ._job import tracks_speed as tracks_speed
 from ._order import OrderSpectra as OrderSpectra
 from ._order import order_log_psd as order_log_psd

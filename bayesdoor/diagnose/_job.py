@@ -457,7 +457,6 @@ def _cross_validate(
     changed bins is local in the order domain, else in frequency. ``workers`` threads refit
     folds at once; every fold has its own seed, so the fits do not depend on it.
     """
-    base = setup.base_spectra
 
     def refit(k: int) -> RefitResult:
         return refit_extension(
@@ -483,13 +482,35 @@ def _cross_validate(
         for n in proposal.free
     }
     held = exact_spectra(setup, proposal, values, tests)
-    speeds = np.asarray(setup.operating, dtype=float) if tracking else None
-    before, after = [], []
-    start = 0
-    for fit, (train, test) in zip(fits, folds, strict=True):
+    models, start = [], 0
+    for fit, (_, test) in zip(fits, folds, strict=True):
         model = fit.spectra.copy()
         model[test] = held[start : start + len(test)]
         start += len(test)
+        models.append(model)
+    return fits, judge_folds(setup, models, folds, tracking=tracking)
+
+
+def judge_folds(
+    setup: RefitSetup,
+    models: Sequence[np.ndarray],
+    folds: Sequence[tuple[np.ndarray, np.ndarray]],
+    *,
+    tracking: bool,
+) -> Gain:
+    """The held-out judgement of an extended model against the base model, fold by fold.
+
+    ``models[k]`` holds the extended model's spectra of every run for fold ``k`` (its
+    training runs as fitted, its held-out runs as predicted). Both models' scatter is split
+    by the bins where they differ (:func:`changed_bins`), local in the order domain when the
+    effect is ``tracking`` the speed, else in frequency; the folds' held-out runs together
+    go to :func:`compare_held_out`. Also the judge of a model that knows an effect exactly
+    (``scripts/full_size_case.py --ceiling``).
+    """
+    base = setup.base_spectra
+    speeds = np.asarray(setup.operating, dtype=float) if tracking else None
+    before, after = [], []
+    for model, (train, test) in zip(models, folds, strict=True):
         changed = changed_bins(base, model, setup.spectra.log_variance)
         before.append(_held_out(setup.spectra, base, changed, train, test, speeds))
         after.append(_held_out(setup.spectra, model, changed, train, test, speeds))
@@ -499,7 +520,8 @@ def _cross_validate(
         np.concatenate([h.j for h in before]),
         np.concatenate([h.j for h in after]),
     )
-    return fits, dataclasses.replace(gain, runs=tuple(int(r) for r in tests))
+    tests = np.concatenate([test for _, test in folds])
+    return dataclasses.replace(gain, runs=tuple(int(r) for r in tests))
 
 
 def _signature_cause(score: CauseScore) -> Cause:

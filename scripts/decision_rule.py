@@ -42,12 +42,16 @@ import numpy as np
 from _cases import ROOT, command_line, write_results
 from scipy import stats
 
+from bayesdoor.diagnose import capped_t, t_statistic
+
 #: the current rule's threshold on t (``bayesdoor.diagnose._gain.DECISIVE_SE``)
 THRESHOLD = 4.0
 #: held-out runs of the null false-alarm table
 NULL_RUNS = (6, 8, 12)
 #: held-out runs of the calibrated-threshold table
 CALIBRATION_RUNS = (6, 8, 10, 12, 16, 24)
+#: held-out runs of the library's threshold table (``--thresholds``)
+TABLE_RUNS = tuple(range(2, 41))
 #: the calibration's draws are this many batches of ``--draws`` each
 BATCHES = 10
 #: caps per interval between consecutive sorted values of the grid reference
@@ -72,75 +76,8 @@ def _runs(d: np.ndarray) -> int:
     return d.shape[-1]
 
 
-def t_statistic(d: np.ndarray) -> np.ndarray:
-    """The one-sample t statistic ``sum(d) / sqrt(n var(d, ddof=1))`` over the last axis.
-
-    The rule of ``compare_held_out``: decisive when it exceeds 4.
-
-    Parameters
-    ----------
-    d
-        Per-run differences on the last axis; any leading axes are independent samples.
-
-    Returns
-    -------
-    numpy.ndarray
-        One t per sample (``inf`` or ``nan`` for a sample with no spread).
-    """
-    d = np.asarray(d, dtype=float)
-    n = _runs(d)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return d.sum(axis=-1) / np.sqrt(n * d.var(axis=-1, ddof=1))
-
-
-def monotone_statistic(d: np.ndarray) -> np.ndarray:
-    """The closure ``T(d) = max over c >= median(d) of t(min(d, c))``, exactly.
-
-    With the sorted values ``x_1 <= ... <= x_n`` and a cap ``c`` between ``x_k`` and
-    ``x_{k+1}``, the ``k`` values below stay (sum ``A``, sum of squares ``B``) and ``m = n - k``
-    become ``c``. The derivative of ``t(c)`` then has the sign of ``B - A c``, so on each
-    interval the maximum lies at an end or at ``c = B / A``. The
-    statistic is the largest t over those points of every interval above the median and
-    the uncapped t (any cap ``c >= x_n``).
-
-    Parameters
-    ----------
-    d
-        Per-run differences on the last axis; any leading axes are independent samples.
-
-    Returns
-    -------
-    numpy.ndarray
-        One statistic per sample; at least :func:`t_statistic` of the sample.
-    """
-    d = np.asarray(d, dtype=float)
-    n = _runs(d)
-    x = np.sort(d, axis=-1)
-    median = np.median(x, axis=-1)
-    # sums of the uncapped values: A and B in the original scale locate the stationary cap;
-    # the spread is summed about the median, so that an offset does not cancel digits
-    a = np.cumsum(x, axis=-1)
-    b = np.cumsum(x * x, axis=-1)
-    z = x - median[..., None]
-    az = np.cumsum(z, axis=-1)
-    bz = np.cumsum(z * z, axis=-1)
-    best = t_statistic(d)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for k in range(1, n):
-            m = n - k
-            lo = np.maximum(x[..., k - 1], median)
-            hi = x[..., k]
-            inside = lo <= hi
-            stationary = np.clip(
-                np.where(a[..., k - 1] != 0, b[..., k - 1] / a[..., k - 1], lo), lo, hi
-            )
-            for cap in (lo, hi, stationary):
-                cz = cap - median
-                sz = az[..., k - 1] + m * cz
-                spread = np.maximum(bz[..., k - 1] + m * cz * cz - sz * sz / n, 0.0)
-                t = (sz + n * median) / np.sqrt(n / (n - 1) * spread)
-                best = np.where(inside, np.fmax(best, t), best)
-    return best
+#: the statistics, as the library computes them
+monotone_statistic = capped_t
 
 
 def monotone_statistic_on_grid(d: np.ndarray, caps: int = GRID_CAPS) -> np.ndarray:
@@ -494,7 +431,19 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cases", type=Path, default=ROOT / "results" / "full_size")
     parser.add_argument("--results", type=Path, default=ROOT / "results" / "decision_rule.md")
+    parser.add_argument(
+        "--thresholds",
+        action="store_true",
+        help="print T_n for n = 2..40 held-out runs as bayesdoor.diagnose's "
+        "CAPPED_THRESHOLDS table (nothing else is computed or written)",
+    )
     args = parser.parse_args(argv)
+    if args.thresholds:
+        rows = [calibrate(n, args.draws, args.seed) for n in TABLE_RUNS]
+        print(f"# {command_line('decision_rule.py', argv)}; Monte Carlo standard errors:")
+        print("# " + ", ".join(f"{t.runs}: {t.se:.3f}" for t in rows))
+        print("{" + ", ".join(f"{t.runs}: {t.value:.3f}" for t in rows) + "}")
+        return
     if args.draws < 100:
         parser.error(f"--draws {args.draws}: use at least 100 (a tail of 1e-3 needs many more)")
     start = time.perf_counter()

@@ -18,10 +18,12 @@ import numpy as np
 import pytest
 
 from bayesdoor.diagnose import (
+    CAPPED_THRESHOLDS,
     DECISIVE_SE,
     LOCAL_BINS,
     NONE,
     ExtensionProposal,
+    capped_threshold,
     compare_held_out,
     diagnose_campaign,
     estimate_discrepancy,
@@ -199,7 +201,7 @@ def test_hidden_effect_is_named(name, seed, base_fit):
     diagnosis = diagnose(recording.campaign, base_fit, seed)
     assert diagnosis.verdict == name, diagnosis.to_json()
     cause = diagnosis.cause(name)
-    assert cause.confirmed and cause.gain.elpd_difference > DECISIVE_SE * cause.gain.elpd_se
+    assert cause.confirmed and cause.gain.statistic > cause.gain.threshold
     assert cause.gain.j_after < cause.gain.j_before
     check_parameters(name, cause, recording, rig)
     # each refitted parameter keeps the value of each of the two held-out folds
@@ -278,7 +280,8 @@ def test_a_rail_named_at_a_wheel_harmonic_says_it_could_be_the_wheel(base_fit):
 
 
 def test_decision_rule():
-    """The rule on per-run values: decisive only beyond 4 standard errors with J lower."""
+    """The rule on per-run values: decisive only beyond the capped statistic's threshold
+    with J lower."""
     before = np.array([-100.0, -110.0, -105.0, -95.0])
     gain = compare_held_out(
         before, before + 10.0 + np.array([0.5, -0.5, 0.2, -0.2]), np.ones(4), np.full(4, 0.9)
@@ -296,6 +299,32 @@ def test_decision_rule():
     assert not worse_j.decisive
     with pytest.raises(ValueError, match="at least 2"):
         compare_held_out(before[:1], before[:1], np.ones(1), np.ones(1))
+
+
+def test_a_run_that_gains_more_cannot_weaken_the_verdict():
+    # the rail seed 6 at full size (session 14, rounded): 11 of 12 runs gain, one gains +80
+    # (its tone meets a door resonance; the rig's own effect added to the base model gains
+    # most in that run too); the plain t is 3.4, under the 4 of the rule before session 14
+    d = np.array([8.0, 36.0, 35.0, 1.0, 14.0, 17.0, -6.0, 80.0, 15.0, 19.0, 28.0, 14.0])
+    base = np.full(12, -100.0)
+    gain = compare_held_out(base, base + d, np.ones(12), np.full(12, 0.9))
+    assert gain.elpd_difference / gain.elpd_se == pytest.approx(3.41, abs=0.01)
+    assert gain.threshold == CAPPED_THRESHOLDS[12] and gain.decisive
+    assert "capped 5.68 against 4.96: decisive" in gain.describe() and gain.to_json()["statistic"] == gain.statistic
+    # ... and more gain in that run lowers t but leaves the verdict
+    for more in (120.0, 500.0):
+        raised = compare_held_out(
+            base, base + np.where(d == 80.0, more, d), np.ones(12), np.full(12, 0.9)
+        )
+        assert raised.elpd_difference / raised.elpd_se < 3.41
+        assert raised.decisive and raised.statistic >= gain.statistic
+    # while a run that loses much still counts against it (frame mode seed 2 at full size)
+    lost = np.array([29.0, -80.0, -47.0, 44.0, 75.0, 85.0, 53.0, 98.0, 35.0, 65.0, 57.0, 55.0])
+    assert not compare_held_out(base, base + lost, np.ones(12), np.full(12, 0.9)).decisive
+    # the thresholds keep t > 4's false alarms under normal noise: above 4, falling with n
+    values = [CAPPED_THRESHOLDS[n] for n in sorted(CAPPED_THRESHOLDS)]
+    assert all(v > DECISIVE_SE for v in values) and values == sorted(values, reverse=True)
+    assert capped_threshold(1000) == values[-1]
 
 
 def _map_with_regions(speeds):

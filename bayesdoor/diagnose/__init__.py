@@ -12,6 +12,7 @@ from ._comb import CombTest as CombTest
 from ._comb import harmonic_comb as harmonic_comb
 from ._features import Features as Features
 from ._features import find_features as find_features
+from ._gain import CAPPED_THRESHOLDS as CAPPED_THRESHOLDS
 from ._gain import CHANGE_FRACTION as CHANGE_FRACTION
 from ._gain import DECISIVE_SE as DECISIVE_SE
 from ._gain import LOCAL_BINS as LOCAL_BINS
@@ -21,6 +22,8 @@ from ._gain import ChangeDiscrepancy as ChangeDiscrepancy
 from ._gain import Discrepancy as Discrepancy
 from ._gain import Gain as Gain
 from ._gain import TrackingChangeDiscrepancy as TrackingChangeDiscrepancy
+from ._gain import capped_t as capped_t
+from ._gain import capped_threshold as capped_threshold
 from ._gain import changed_bins as changed_bins
 from ._gain import compare_held_out as compare_held_out
 from ._gain import estimate_change_discrepancy as estimate_change_discrepancy
@@ -28,6 +31,7 @@ from ._gain import estimate_discrepancy as estimate_discrepancy
 from ._gain import estimate_tracking_change_discrepancy as estimate_tracking_change_discrepancy
 from ._gain import feature_bins as feature_bins
 from ._gain import log_predictive as log_predictive
+from ._gain import t_statistic as t_statistic
 from ._job import Cause as Cause
 from ._job import Diagnosis as Diagnosis
 from ._job import DiagnosisSettings as DiagnosisSettings

@@ -25,8 +25,7 @@ from typing import Any
 import numpy as np
 from _cases import NONE, RIG_EFFECTS, ROOT, command_line, hidden_effect, write_results
 
-from bayesdoor.diagnose import DECISIVE_SE, capped_t, capped_threshold
-from bayesdoor.diagnose._rank import MIN_VERDICT_SCORE
+from bayesdoor.diagnose import DECISIVE_SE, capped_t, capped_threshold, verdict_order
 
 
 def fmt(value: Any, spec: str) -> str:
@@ -70,9 +69,9 @@ def _capped(gain: Mapping[str, Any]) -> tuple[float, float]:
 def current_verdict(case: Mapping[str, Any]) -> str | None:
     """The case's verdict under the rule of this code, from its saved gains (as
     ``diagnose_campaign`` decides: a refit is confirmed when it passes the rule, lowers J and
-    does not fail to explain its feature; a confirmed cause whose signature scored at least
-    ``MIN_VERDICT_SCORE`` first, then the largest gain); ``None`` when a refitted candidate
-    lacks its per-run gains (saved before session 13 kept them)."""
+    does not fail to explain its feature; the first confirmed cause in ``verdict_order``);
+    ``None`` when a refitted candidate lacks its per-run gains (saved before session 13 kept
+    them)."""
     causes = (case.get("diagnosis") or {}).get("causes", [])
     refitted = [c for c in causes if c.get("gain")]
     if any(not c["gain"].get("delta_elpd_per_run") for c in refitted):
@@ -86,7 +85,7 @@ def current_verdict(case: Mapping[str, Any]) -> str | None:
     ]
     if not confirmed:
         return NONE
-    first = min(confirmed, key=lambda c: (c["score"] < MIN_VERDICT_SCORE, -c["gain"]["delta_elpd"]))
+    first = min(confirmed, key=lambda c: verdict_order(c["score"], c["gain"]["delta_elpd"]))
     return str(first["name"])
 
 

@@ -310,7 +310,10 @@ def test_a_run_that_gains_more_cannot_weaken_the_verdict():
     gain = compare_held_out(base, base + d, np.ones(12), np.full(12, 0.9))
     assert gain.elpd_difference / gain.elpd_se == pytest.approx(3.41, abs=0.01)
     assert gain.threshold == CAPPED_THRESHOLDS[12] and gain.decisive
-    assert "capped 5.68 against 4.96: decisive" in gain.describe() and gain.to_json()["statistic"] == gain.statistic
+    assert (
+        "capped 5.68 against 4.96: decisive" in gain.describe()
+        and gain.to_json()["statistic"] == gain.statistic
+    )
     # ... and more gain in that run lowers t but leaves the verdict
     for more in (120.0, 500.0):
         raised = compare_held_out(

@@ -40,6 +40,7 @@ from ._job import extension_gain as extension_gain
 from ._job import held_out_folds as held_out_folds
 from ._job import judge_folds as judge_folds
 from ._job import tracks_speed as tracks_speed
+from ._job import verdict_order as verdict_order
 from ._order import OrderSpectra as OrderSpectra
 from ._order import order_log_psd as order_log_psd
 from ._order import order_peak as order_peak

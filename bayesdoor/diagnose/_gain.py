@@ -124,7 +124,8 @@ RULE = (
     f"gives at the rate of {DECISIVE_SE:g} standard errors under normal noise, with the gains "
     "of the runs above the median capped at the level most favourable to it (a run that gains "
     "more cannot weaken the verdict: 4.96 standard errors at 12 runs), and its J is lower; the "
-    "verdict is the confirmed extension with the largest gain, else none"
+    "verdict is the confirmed extension whose signature matched the residual features best "
+    "(then the one with the largest gain), else none"
 )
 
 

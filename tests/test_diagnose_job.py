@@ -12,6 +12,7 @@ campaign is larger and fitted on its own.
 from __future__ import annotations
 
 import dataclasses
+import types
 
 import jax
 import numpy as np
@@ -23,6 +24,7 @@ from bayesdoor.diagnose import (
     LOCAL_BINS,
     NONE,
     ExtensionProposal,
+    base_fit_notes,
     capped_threshold,
     compare_held_out,
     diagnose_campaign,
@@ -32,6 +34,7 @@ from bayesdoor.diagnose import (
     log_predictive,
     residual_map,
     smooth_discrepancy,
+    verdict_order,
 )
 from bayesdoor.inference import FitSettings, fit_campaign
 from bayesdoor.rig import (
@@ -328,6 +331,39 @@ def test_a_run_that_gains_more_cannot_weaken_the_verdict():
     values = [CAPPED_THRESHOLDS[n] for n in sorted(CAPPED_THRESHOLDS)]
     assert all(v > DECISIVE_SE for v in values) and values == sorted(values, reverse=True)
     assert capped_threshold(1000) == values[-1]
+
+
+def test_the_verdict_takes_the_best_signature_match_before_the_largest_gain():
+    # cross-axis seed 0 at 8 runs (session 14): a mode on A2Z (score 0.75) gained +120 nats,
+    # the hidden leak (score 1.0) +55; both confirmed: the leak is named
+    confirmed = [("frame_mode", 0.75, 120.0), ("sensor_cross_axis", 1.0, 55.0)]
+    first = min(confirmed, key=lambda c: verdict_order(c[1], c[2]))
+    assert first[0] == "sensor_cross_axis"
+    # among equal matches the larger gain goes first
+    tied = [("rail_waviness", 0.75, 40.0), ("frame_mode", 0.75, 90.0), ("mains_hum", 0.5, 900.0)]
+    assert [c[0] for c in sorted(tied, key=lambda c: verdict_order(c[1], c[2]))] == [
+        "frame_mode",
+        "rail_waviness",
+        "mains_hum",
+    ]
+
+
+def test_a_base_fit_at_its_bounds_is_noted_and_the_law_is_not():
+    names = ("K", "n", "mu_d", "I")
+    lower, upper = np.array([1300.0, 1.5, 0.6, 1.0]), np.array([2500.0, 2.2, 0.8, 9.0])
+    fit = types.SimpleNamespace(
+        names=names,
+        bounds=(lower, upper),
+        point={"K": 2500.0, "n": 1.5 + 1e-5, "mu_d": 0.7, "I": 9.0, "C": 0.01},
+    )
+    notes = base_fit_notes(DOOR, fit)
+    assert len(notes) == 2, notes
+    assert notes[0].startswith("the base fit's K = 2500 sits at the upper end of its bounds")
+    assert notes[1].startswith("the base fit's n = 1.5 sits at the lower end")
+    inside = types.SimpleNamespace(
+        names=names, bounds=(lower, upper), point={"K": 2000.0, "n": 1.8, "mu_d": 0.7, "I": 1.0}
+    )
+    assert base_fit_notes(DOOR, inside) == []
 
 
 def _map_with_regions(speeds):

@@ -43,7 +43,11 @@ RAIL = {
         ],
         "timings": {"fit": 533.0, "refits": 279.0},
     },
-    "ceiling_gain": {"delta_elpd": 300.0, "elpd_se": 100.0, "delta_elpd_per_run": [25.0] * 12},
+    "ceiling_gain": {
+        "delta_elpd": 300.0,
+        "elpd_se": 100.0,
+        "delta_elpd_per_run": [40.0] * 6 + [10.0] * 6,
+    },
 }
 NOTHING = {
     "name": "none",
@@ -64,9 +68,10 @@ def test_a_row_gives_the_gain_the_runs_that_gain_and_the_key_parameter_against_t
     assert "9.81 (rig 9.74) mm; *at its box's end*: sin_left_m" in row
     assert "**fail**" in row and "| 872 | 533 | 279 | A |" in row
     # the ceiling: the rig's own effect added to the base model, judged alike
-    assert "| +300 +- 100 (3.0 SE), 12 of 12 runs gain |" in row
-    assert "- ceilings: 0 of 1 cases with one pass the rule's 4 SE" in text
-    assert "under it, SE: rail_waviness 3 (3.0)" in text
+    # ... by the capped statistic of its per-run gains (3 SE, but no run above the median
+    # widens it: 7.74 against 4.96 at 12 runs)
+    assert "| +300 +- 100 (3.0 SE), 12 of 12 runs gain; capped 7.74 against 4.96 |" in row
+    assert "- ceilings: 1 of 1 cases with one pass the rule with the rig's own effect" in text
     assert "- where A: here" in text
     assert "- rail_waviness: named in 0 of 1 (seeds 3)" in text
     assert "- nothing hidden: 1 of 1 answered `none` (seeds 4); false alarms: 0" in text

@@ -35,6 +35,7 @@ from ._gain import t_statistic as t_statistic
 from ._job import Cause as Cause
 from ._job import Diagnosis as Diagnosis
 from ._job import DiagnosisSettings as DiagnosisSettings
+from ._job import base_fit_notes as base_fit_notes
 from ._job import diagnose_campaign as diagnose_campaign
 from ._job import extension_gain as extension_gain
 from ._job import held_out_folds as held_out_folds

@@ -39,6 +39,7 @@ from ._refit import (
     RefitResult,
     RefitSetup,
     Spectra,
+    box_ends,
     exact_spectra,
     held_out_spectra,
     refit_extension,
@@ -526,6 +527,33 @@ def judge_folds(
     return dataclasses.replace(gain, runs=tuple(int(r) for r in tests))
 
 
+def base_fit_notes(system: AbstractSystem, fit: FitResult) -> list[str]:
+    """A note for each continuous base parameter whose fitted value sits at an end of its
+    bounds (an integer one, the contact law, is a choice, not an estimate).
+
+    Such a value is not an estimate: the data would move it further. On the rig the base
+    CMA-ES fit often ends at some bounds of the door's parameters (full-size campaigns of
+    session 14: K at 2500, n at 1.5 or 2.2, c_r, mu_s or mu_d at an end, in 8 of 10 campaigns,
+    also with a mains hum or a wheel hidden), so it is a warning to read the base model with,
+    not evidence for any one cause: a missing effect the model bends itself to mimic, or
+    bounds too narrow for this door.
+    """
+    lower, upper = (np.asarray(b, dtype=float) for b in fit.bounds)
+    integer = {p.name for p in system.parameters if p.integer}
+    box = {
+        n: (float(lo), float(hi))
+        for n, lo, hi in zip(fit.names, lower, upper, strict=True)
+        if n not in integer
+    }
+    ends = box_ends({n: float(fit.point[n]) for n in fit.names if n in fit.point}, box)
+    return [
+        f"the base fit's {n} = {fit.point[n]:.4g} sits at the {end} end of its bounds "
+        f"[{box[n][0]:.4g}, {box[n][1]:.4g}]: not an estimate; the base model may be bending "
+        "to mimic a missing effect, or the bounds are too narrow for this system"
+        for n, end in ends.items()
+    ]
+
+
 def verdict_order(score: float, gain: float) -> tuple[float, float]:
     """The order of confirmed causes for the verdict (the first is named): the better
     signature match first, then the larger held-out gain.
@@ -645,6 +673,7 @@ def diagnose_campaign(
             system, campaign, method="cmaes", seed=seed, quick=quick, progress=progress
         )
         timings["fit"] = time.perf_counter() - t0
+    notes += base_fit_notes(system, fit)
 
     measured = _Measured.of(system, campaign, calibration_runs(campaign))
     runs, x, operating = measured.runs, measured.signals, measured.operating

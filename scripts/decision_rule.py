@@ -44,7 +44,7 @@ from scipy import stats
 
 from bayesdoor.diagnose import capped_t, t_statistic
 
-#: the current rule's threshold on t (``bayesdoor.diagnose._gain.DECISIVE_SE``)
+#: the threshold on t of the rule until session 15 (``bayesdoor.diagnose.DECISIVE_SE``)
 THRESHOLD = 4.0
 #: held-out runs of the null false-alarm table
 NULL_RUNS = (6, 8, 12)
@@ -363,9 +363,11 @@ def report(
         "",
         f"Made by `{command}` ({_stamp()}; {seconds:.0f} s).",
         "",
-        "The current rule calls an extension decisive when the per-run held-out log predictive "
-        "density differences d have t = sum(d) / sqrt(n var(d)) > 4 (and J falls, left out "
-        "here). The monotone version is T(d) = max over caps c >= median(d) of t(min(d, c)), "
+        "The rule until session 15 called an extension decisive when the per-run held-out log "
+        "predictive density differences d have t = sum(d) / sqrt(n var(d)) > 4 (and J falls, "
+        "left out here); since session 15 the library decides by T > T_n (the table of "
+        "`--thresholds`, bayesdoor.diagnose.CAPPED_THRESHOLDS). "
+        "The monotone version is T(d) = max over caps c >= median(d) of t(min(d, c)), "
         "computed exactly (the maximum over each interval between sorted values lies at an end "
         "or where sum of squares = c sum of the uncapped values). Null draws are n independent "
         "mean-zero noise values per sample; T_n is the threshold with "
@@ -401,9 +403,10 @@ def report(
         "",
         "## Saved full-size cases",
         "",
-        "Decisive under t > 4 (current, ignoring J), T > T_n and T > 4; the last column is "
-        "the saved verdict, which also needs a lower J. P_normal(T above it) is the fraction "
-        "of the calibration's normal draws whose T exceeds the case's.",
+        "Decisive under t > 4 (the rule until session 15, ignoring J), T > T_n and T > 4; "
+        "the last column is the saved verdict, which also needs a lower J. "
+        "P_normal(T above it) is the fraction of the calibration's normal draws whose T "
+        "exceeds the case's.",
         "",
         "| case | candidate | hidden effect | n | t | T | T_n | P_normal(T above it) "
         "| t > 4 | T > T_n | T > 4 | saved |",

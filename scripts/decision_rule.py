@@ -145,6 +145,33 @@ def calibrate(runs: int, draws: int, seed: int) -> Threshold:
     return Threshold(runs, alarm, value, se, pooled.size, tail)
 
 
+def union_scale(runs: int, draws: int, seed: int, capped: float) -> tuple[float, float]:
+    """``k_n`` with ``P_normal(t > 4 k_n or T > capped k_n) = P(t_{n-1} > 4)``, and its
+    Monte Carlo standard error (the spread of the batches' ``k`` over ``sqrt(BATCHES)``).
+
+    The union of the plain and the capped test, both thresholds scaled by one factor, at
+    the false-alarm rate of ``t > 4`` alone; ``capped`` is the library's ``T_n``. The draws
+    are those of :func:`calibrate` (the same generators).
+    """
+    alarm = float(stats.t.sf(THRESHOLD, runs - 1))
+    pairs = []
+    for i in range(BATCHES):
+        d = _generator(seed, 0, runs, i).standard_normal((draws, runs))
+        pairs.append((t_statistic(d), monotone_statistic(d)))
+
+    def solve(t: np.ndarray, big_t: np.ndarray) -> float:
+        lo, hi = 0.5, 3.0
+        for _ in range(50):
+            k = 0.5 * (lo + hi)
+            rate = np.mean((t > THRESHOLD * k) | (big_t > capped * k))
+            lo, hi = (k, hi) if rate > alarm else (lo, k)
+        return 0.5 * (lo + hi)
+
+    per_batch = [solve(t, big_t) for t, big_t in pairs]
+    pooled = solve(np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs]))
+    return pooled, float(np.std(per_batch, ddof=1) / np.sqrt(BATCHES))
+
+
 @dataclass(frozen=True)
 class NullRate:
     """False-alarm rates of the three rules under one noise and one number of runs."""
@@ -440,7 +467,21 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="print T_n for n = 2..40 held-out runs as bayesdoor.diagnose's "
         "CAPPED_THRESHOLDS table (nothing else is computed or written)",
     )
+    parser.add_argument(
+        "--union",
+        action="store_true",
+        help="print k_n for n = 2..40 held-out runs as bayesdoor.diagnose's UNION_SCALE table "
+        "(the union t > 4 k_n or T > T_n k_n at t > 4's rate; nothing else is written)",
+    )
     args = parser.parse_args(argv)
+    if args.union:
+        from bayesdoor.diagnose import capped_threshold
+
+        scales = {n: union_scale(n, args.draws, args.seed, capped_threshold(n)) for n in TABLE_RUNS}
+        print(f"# {command_line('decision_rule.py', argv)}; Monte Carlo standard errors:")
+        print("# " + ", ".join(f"{n}: {se:.4f}" for n, (_, se) in scales.items()))
+        print("{" + ", ".join(f"{n}: {k:.4f}" for n, (k, _) in scales.items()) + "}")
+        return
     if args.thresholds:
         rows = [calibrate(n, args.draws, args.seed) for n in TABLE_RUNS]
         print(f"# {command_line('decision_rule.py', argv)}; Monte Carlo standard errors:")

@@ -25,7 +25,14 @@ from typing import Any
 import numpy as np
 from _cases import NONE, RIG_EFFECTS, ROOT, command_line, hidden_effect, write_results
 
-from bayesdoor.diagnose import DECISIVE_SE, capped_t, capped_threshold, verdict_order
+from bayesdoor.diagnose import (
+    DECISIVE_SE,
+    capped_t,
+    rule_passes,
+    rule_thresholds,
+    t_statistic,
+    verdict_order,
+)
 
 
 def fmt(value: Any, spec: str) -> str:
@@ -54,16 +61,13 @@ def _gain_words(cause: Mapping[str, Any] | None) -> str:
     per_run = gain.get("delta_elpd_per_run") or []
     if per_run:
         words += f", {sum(1 for d in per_run if d > 0)} of {len(per_run)} runs gain"
-        statistic, threshold = _capped(gain)
-        words += f"; capped {statistic:.2f} against {threshold:.2f}"
+        d = np.asarray(per_run, dtype=float)
+        on_t, on_capped = rule_thresholds(d.size)
+        words += (
+            f"; t {float(t_statistic(d)):.2f} against {on_t:.2f}, capped "
+            f"{float(capped_t(d)):.2f} against {on_capped:.2f}"
+        )
     return words
-
-
-def _capped(gain: Mapping[str, Any]) -> tuple[float, float]:
-    """The rule's capped statistic of the per-run gains and its threshold (computed again,
-    so that cases saved before the rule changed are judged alike)."""
-    d = np.asarray(gain["delta_elpd_per_run"], dtype=float)
-    return float(capped_t(d)), capped_threshold(d.size)
 
 
 def current_verdict(case: Mapping[str, Any]) -> str | None:
@@ -95,14 +99,14 @@ def _z(cause: Mapping[str, Any]) -> float:
 
 
 def _passes(cause: Mapping[str, Any]) -> bool:
-    """Whether a refit's gain passes the rule's statistic: the capped one where the per-run
-    gains were kept, else the plain 4 SE of the rule before session 14."""
+    """Whether a refit's gain passes the rule's statistical part, computed again from the
+    per-run gains where they were kept (so that cases saved under an earlier rule are judged
+    alike), else the plain 4 SE of the rule before session 14."""
     gain = cause.get("gain")
     if not gain:
         return False
     if gain.get("delta_elpd_per_run"):
-        statistic, threshold = _capped(gain)
-        return statistic > threshold
+        return rule_passes(np.asarray(gain["delta_elpd_per_run"], dtype=float))
     return _z(cause) > DECISIVE_SE
 
 
@@ -227,8 +231,8 @@ def summary(cases: Sequence[Mapping[str, Any]]) -> list[str]:
         passing = [w for w in wrong if w[5]]
         lines.append(
             f"- the strongest wrong candidate: {cause} in the case {name} {seed}, {z:.1f} SE; "
-            f"{len(passing)} of {len(wrong)} wrong refits passed the rule (the capped "
-            "statistic where the per-run gains were kept, else 4 SE), "
+            f"{len(passing)} of {len(wrong)} wrong refits passed the rule (computed again "
+            "where the per-run gains were kept, else 4 SE), "
             f"{sum(1 for w in passing if w[4])} of them beside a hidden cause that the verdict "
             "named (ranked first)"
         )
@@ -259,14 +263,14 @@ def table(cases: Sequence[Mapping[str, Any]], command: str) -> str:
         f"Command: `{command}` (the table, from the saved cases); each case: "
         "`python scripts/full_size_case.py NAME SEED results/full_size` "
         "(tests/test_diagnose_job.py::test_full_size's campaign and checks: 12 healthy rig runs "
-        "over 0.25-0.50 m/s, the effect drawn by `from_seed(seed)`, `diagnose_campaign` with "
-        "its default sizes). Gains are held-out log predictive densities, extended minus base; "
-        "the verdict needs the capped statistic over its threshold (docs/diagnosis.md: the "
-        "rule since session 14; before, more than 4 SE) and a lower J; *verdict, this rule*: "
+        "over 0.25-0.50 m/s, the effect drawn by `from_seed(seed)`, `diagnose_campaign` with its "
+        "default sizes). Gains are held-out log predictive densities, extended minus base; the "
+        "verdict needs the plain or the capped statistic over its threshold (docs/diagnosis.md: "
+        "the rule since session 15; before, more than 4 SE) and a lower J; *verdict, this rule*: "
         "the saved gains judged by this code's rule. The rig's truth is drawn again from the "
         "seed. The ceiling (cases run with `--ceiling`) is the gain of the base model plus the "
-        "rig's own effect (the same runs recorded without it), judged on the same folds: what "
-        "a perfect extension would gain. A key parameter marked *at its box's end* "
+        "rig's own effect (the same runs recorded without it), judged on the same folds: what a "
+        "perfect extension would gain. A key parameter marked *at its box's end* "
         "stopped at an end of its search box (not an estimate).",
         "",
         "| " + " | ".join(header) + " |",

@@ -17,6 +17,7 @@ from decision_rule import (
     monotone_statistic,
     monotone_statistic_on_grid,
     t_statistic,
+    union_scale,
 )
 
 #: rail_waviness-5's per-run gains, rounded to whole nats
@@ -124,6 +125,15 @@ def test_t_false_alarms_under_normal_noise_match_the_t_distribution():
     # 4 binomial standard deviations: with about 21 alarms expected, about 4.6 each
     sd = np.sqrt(expected * (1 - expected / draws))
     assert abs(np.sum(t_statistic(d) > 4.0) - expected) < 4 * sd
+
+
+def test_the_librarys_union_scale_is_found_again_on_other_draws():
+    from bayesdoor.diagnose import UNION_SCALE, capped_threshold
+
+    # 10 x 20,000 draws of another seed than the table's 10 x 100,000
+    k, se = union_scale(8, 20_000, 3, capped_threshold(8))
+    assert se < 0.02
+    assert abs(k - UNION_SCALE[8]) < 4 * se + 0.005, (k, se, UNION_SCALE[8])
 
 
 def test_tail_probability_counts_the_kept_draws_above():

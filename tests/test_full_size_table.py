@@ -68,9 +68,12 @@ def test_a_row_gives_the_gain_the_runs_that_gain_and_the_key_parameter_against_t
     assert "9.81 (rig 9.74) mm; *at its box's end*: sin_left_m" in row
     assert "**fail**" in row and "| 872 | 533 | 279 | A |" in row
     # the ceiling: the rig's own effect added to the base model, judged alike
-    # ... by the capped statistic of its per-run gains (3 SE, but no run above the median
-    # widens it: 7.74 against 4.96 at 12 runs)
-    assert "| +300 +- 100 (3.0 SE), 12 of 12 runs gain; capped 7.74 against 4.96 |" in row
+    # ... by the plain and the capped statistic of its per-run gains (5.53 and 7.74 against the
+    # rule's 4.22 and 5.23 at 12 runs)
+    assert (
+        "| +300 +- 100 (3.0 SE), 12 of 12 runs gain; t 5.53 against 4.22, capped 7.74 against "
+        "5.23 |" in row
+    )
     assert "- ceilings: 1 of 1 cases with one pass the rule with the rig's own effect" in text
     assert "- where A: here" in text
     assert "- rail_waviness: named in 0 of 1 (seeds 3)" in text

@@ -18,6 +18,7 @@ from ._gain import DECISIVE_SE as DECISIVE_SE
 from ._gain import LOCAL_BINS as LOCAL_BINS
 from ._gain import RULE as RULE
 from ._gain import SIGMA_FLOOR as SIGMA_FLOOR
+from ._gain import UNION_SCALE as UNION_SCALE
 from ._gain import ChangeDiscrepancy as ChangeDiscrepancy
 from ._gain import Discrepancy as Discrepancy
 from ._gain import Gain as Gain
@@ -31,6 +32,8 @@ from ._gain import estimate_discrepancy as estimate_discrepancy
 from ._gain import estimate_tracking_change_discrepancy as estimate_tracking_change_discrepancy
 from ._gain import feature_bins as feature_bins
 from ._gain import log_predictive as log_predictive
+from ._gain import rule_passes as rule_passes
+from ._gain import rule_thresholds as rule_thresholds
 from ._gain import t_statistic as t_statistic
 from ._job import Cause as Cause
 from ._job import Diagnosis as Diagnosis

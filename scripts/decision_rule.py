@@ -42,7 +42,7 @@ import numpy as np
 from _cases import ROOT, command_line, write_results
 from scipy import stats
 
-from bayesdoor.diagnose import capped_t, t_statistic
+from bayesdoor.diagnose import capped_t, rule_passes, rule_thresholds, t_statistic
 
 #: the threshold on t of the rule until session 15 (``bayesdoor.diagnose.DECISIVE_SE``)
 THRESHOLD = 4.0
@@ -182,19 +182,23 @@ class NullRate:
     t_rate: float
     monotone_rate: float
     calibrated_rate: float
+    library_rate: float
 
 
 def null_rate(noise: str, runs: int, draws: int, seed: int, threshold: float) -> NullRate:
     """``P(t > 4)``, ``P(T > 4)`` and ``P(T > threshold)`` from ``draws`` noise samples."""
     d = NOISES[noise](_generator(seed, 1 + list(NOISES).index(noise), runs), (draws, runs))
     monotone = monotone_statistic(d)
+    t = t_statistic(d)
+    on_t, on_capped = rule_thresholds(runs)
     return NullRate(
         noise,
         runs,
         draws,
-        float(np.mean(t_statistic(d) > THRESHOLD)),
+        float(np.mean(t > THRESHOLD)),
         float(np.mean(monotone > THRESHOLD)),
         float(np.mean(monotone > threshold)),
+        float(np.mean((t > on_t) | (monotone > on_capped))),
     )
 
 
@@ -212,6 +216,7 @@ class Verdict:
     threshold: float
     tail: float | None
     saved: bool | None
+    library: bool
 
     @property
     def current(self) -> bool:
@@ -241,6 +246,7 @@ def judge(row: dict[str, Any], threshold: Threshold) -> Verdict:
         threshold=threshold.value,
         tail=threshold.tail_probability(monotone),
         saved=row["saved"],
+        library=rule_passes(d),
     )
 
 
@@ -327,14 +333,21 @@ def _findings(
             + ", ".join(f"{_factor(r.monotone_rate, r.t_rate)} (n = {r.runs})" for r in rows)
             + "; `T > T_n` has "
             + ", ".join(f"{_factor(r.calibrated_rate, r.t_rate)} (n = {r.runs})" for r in rows)
-            + " times the false alarms of `t > 4`."
+            + " times the false alarms of `t > 4`; the library's rule (`t > 4 k_n` or `T > T_n "
+            "k_n`) has "
+            + ", ".join(f"{_factor(r.library_rate, r.t_rate)} (n = {r.runs})" for r in rows)
+            + "."
         )
     lines.append(
         "The thresholds that give `T` the normal-noise false-alarm rate of `t > 4` are "
         + ", ".join(f"{th.value:.2f} (n = {n})" for n, th in sorted(thresholds.items()))
         + "."
     )
-    for label, rule in (("`T > T_n`", "calibrated"), ("`T > 4`", "at_four")):
+    for label, rule in (
+        ("`T > T_n`", "calibrated"),
+        ("`T > 4`", "at_four"),
+        ("the library's rule", "library"),
+    ):
         changed = [v for v in verdicts if getattr(v, rule) != v.current]
         if not changed:
             lines.append(f"{label} changes none of the {len(verdicts)} verdicts of `t > 4`.")
@@ -392,8 +405,9 @@ def report(
         "",
         "The rule until session 15 called an extension decisive when the per-run held-out log "
         "predictive density differences d have t = sum(d) / sqrt(n var(d)) > 4 (and J falls, "
-        "left out here); since session 15 the library decides by T > T_n (the table of "
-        "`--thresholds`, bayesdoor.diagnose.CAPPED_THRESHOLDS). "
+        "left out here). Since session 15 the library's rule is the union t > 4 k_n or "
+        "T > T_n k_n (T_n from `--thresholds`, bayesdoor.diagnose.CAPPED_THRESHOLDS; k_n from "
+        "`--union`, UNION_SCALE), at the false-alarm rate of t > 4 under normal noise. "
         "The monotone version is T(d) = max over caps c >= median(d) of t(min(d, c)), "
         "computed exactly (the maximum over each interval between sorted values lies at an end "
         "or where sum of squares = c sum of the uncapped values). Null draws are n independent "
@@ -404,13 +418,14 @@ def report(
         "",
         "Each rate is followed by its binomial standard error sqrt(p (1 - p) / draws).",
         "",
-        "| noise | n | P(t > 4) | P(T > 4) | P(T > T_n) | P(t_{n-1} > 4), scipy |",
-        "|---|---|---|---|---|---|",
+        "| noise | n | P(t > 4) | P(T > 4) | P(T > T_n) | P(library rule) "
+        "| P(t_{n-1} > 4), scipy |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in rates:
         cells = [
             f"{p:.5f} +- {np.sqrt(p * (1 - p) / r.draws):.5f}"
-            for p in (r.t_rate, r.monotone_rate, r.calibrated_rate)
+            for p in (r.t_rate, r.monotone_rate, r.calibrated_rate, r.library_rate)
         ]
         exact = stats.t.sf(THRESHOLD, r.runs - 1)
         out.append(f"| {r.noise} | {r.runs} | {' | '.join(cells)} | {exact:.5f} |")
@@ -436,14 +451,14 @@ def report(
         "exceeds the case's.",
         "",
         "| case | candidate | hidden effect | n | t | T | T_n | P_normal(T above it) "
-        "| t > 4 | T > T_n | T > 4 | saved |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| t > 4 | T > T_n | T > 4 | library rule | saved |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for v in verdicts:
         out.append(
             f"| {v.case} | {v.candidate} | {_yes(v.hidden)} | {v.runs} | {v.t:.2f} | "
             f"{v.monotone:.2f} | {v.threshold:.2f} | {_tail(v.tail)} | {_yes(v.current)} | "
-            f"{_yes(v.calibrated)} | {_yes(v.at_four)} | {_yes(v.saved)} |"
+            f"{_yes(v.calibrated)} | {_yes(v.at_four)} | {_yes(v.library)} | {_yes(v.saved)} |"
         )
     out += [
         "",

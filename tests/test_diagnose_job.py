@@ -528,8 +528,9 @@ def test_a_runs_misfit_elsewhere_barely_moves_its_gain_with_the_line_bins_local(
 #: 3ce0f67-17627f3): rail_waviness-3 passed here (+690 +- 124, 5.6 SE, at 9.81 mm; on the lent
 #: machine, JAX 0.11.2, its own base fit gave +464 +- 124, 3.7 SE: a full-size verdict near the
 #: rule depends on the platform's base fit); the others are below. Session 15 (the capped
-#: rule, 518b060): rail_waviness-6 passed (+261 +- 77 as before, capped 5.71 against 4.96, at
-#: 28.15 mm for 27.62)
+#: rule alone, 518b060): rail_waviness-6 passed (+261 +- 77 as before, capped 5.71 against
+#: 4.96, at 28.15 mm for 27.62); the rule since 78df74f decides it alike (5.71 against 5.23,
+#: judged again from its saved per-run gains)
 _FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
     ("frame_mode", 2): "verdict none at 12 runs (session 12; signature verdict rail_waviness; "
     "named at 8 runs, quick); session 13: the mode located at 42.5 Hz and refitted (bare "

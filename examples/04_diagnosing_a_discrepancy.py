@@ -207,15 +207,15 @@ for cause in reference.causes:
     print(f"{cause.name:>20}: signature {cause.score:.2f}, confirmed {cause.confirmed}; {gain}")
 
 # %% [markdown]
-# Read the two together. A residual feature that also shows without the effect is a
-# difference between the rig and the reduced model (the model is not the rig), not the hidden
-# cause: the signatures alone may name it, and only the held-out gain of a refit tells a cause
-# the data support from one they merely resemble. The rule is strict on purpose: with few runs
-# the standard error of the held-out gain is large, and a real cause can show a clear signature
-# and a positive gain yet fall short of the rule's threshold (6.6 standard errors at 6 runs,
-# with the gains above the median capped, 5.0 at 12: `bayesdoor.diagnose.CAPPED_THRESHOLDS`;
-# at the `quick` size, 6 runs, that is what happened when this was written, under the plain
-# 4 standard errors of the rule then); more runs narrow it. At the `tiny` size (a poor fit,
-# a short refit) neither verdict means much. How often the diagnosis names the right cause over
-# many hidden effects, and stays at `none` without one, is what its own tests and benchmarks
-# measure (`docs/diagnosis.md`, `results/diagnosis.md`).
+# Read the two together. A residual feature that also shows without the effect is a difference
+# between the rig and the reduced model (the model is not the rig), not the hidden cause: the
+# signatures alone may name it, and only the held-out gain of a refit tells a cause the data
+# support from one they merely resemble. The rule is strict on purpose: with few runs the standard
+# error of the held-out gain is large, and a real cause can show a clear signature and a positive
+# gain yet fall short of the rule's thresholds (at 6 runs 4.5 standard errors, or 7.4 with the
+# gains above the median capped; at 12 runs 4.2 or 5.2: `bayesdoor.diagnose.rule_thresholds`; at
+# the `quick` size, 6 runs, that is what happened when this was written, under the plain 4
+# standard errors of the rule then); more runs narrow it. At the `tiny` size (a poor fit, a short
+# refit) neither verdict means much. How often the diagnosis names the right cause over many
+# hidden effects, and stays at `none` without one, is what its own tests and benchmarks measure
+# (`docs/diagnosis.md`, `results/diagnosis.md`).

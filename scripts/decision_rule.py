@@ -43,6 +43,7 @@ from _cases import ROOT, command_line, write_results
 from scipy import stats
 
 from bayesdoor.diagnose import capped_t, rule_passes, rule_thresholds, t_statistic
+from bayesdoor.diagnose._gain import _runs
 
 #: the threshold on t of the rule until session 15 (``bayesdoor.diagnose.DECISIVE_SE``)
 THRESHOLD = 4.0
@@ -65,15 +66,6 @@ NOISES: dict[str, Callable[[np.random.Generator, tuple[int, ...]], np.ndarray]] 
     "Student t, 3 dof": lambda rng, shape: rng.standard_t(3, shape),
     "lognormal(0, 1) - exp(0.5)": lambda rng, shape: rng.lognormal(0.0, 1.0, shape) - np.exp(0.5),
 }
-
-
-def _runs(d: np.ndarray) -> int:
-    if d.ndim < 1 or d.shape[-1] < 2:
-        raise ValueError(
-            f"d has shape {d.shape}; the last axis must hold the per-run differences (at "
-            "least 2 runs)"
-        )
-    return d.shape[-1]
 
 
 #: the statistics, as the library computes them

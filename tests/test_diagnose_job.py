@@ -553,6 +553,16 @@ _FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
     "the base model gains +7 +- 25 nats (0.3 SE); session 14",
     ("wheel_eccentricity", 3): "verdict none: no wheel feature; the rig's own wheel added to "
     "the base model gains +2 +- 15 nats (0.1 SE); session 14",
+    ("wheel_eccentricity", 4): "verdict none: the signature names the wheel (harmonic comb at "
+    "k = 4 and 6, z 5.1 and 3.8; the rig's right wheel, first harmonic 12.5 um), but the refit "
+    "(on the left wheel, harmonics 4 and 6) gains +82 +- 33 nats, 11 of 12 runs: 2.5 SE, capped "
+    "3.54 against 5.23; the rig's own wheel added to the base model 1.4 SE; session 15",
+    ("wheel_eccentricity", 5): "verdict none: no wheel feature; the rig's own wheel added to "
+    "the base model gains +19 +- 25 nats (0.8 SE); session 15",
+    ("wheel_eccentricity", 6): "verdict none: the signature names the wheel (harmonic comb at "
+    "k = 4 and 6, z 4.1 and 4.6; the rig's left wheel, first harmonic 7.0 um), the refit (left "
+    "wheel, harmonics 4 and 6) gains +58 +- 24 nats, 11 of 12 runs: 2.4 SE, capped 2.43 "
+    "against 5.23; the rig's own wheel added to the base model 2.0 SE; session 15",
     ("frame_mode", 5): "verdict right (+673 +- 113 nats), but the bare frequency 79.32 Hz "
     "against the rig's 80.38 (1.06 Hz off; installed 80.47), the rail lift at its 0.3 bound; "
     "session 13",
@@ -566,12 +576,6 @@ def _full_size_case(name: str, seed: int) -> pytest.ParameterSet:
     if (name, seed) in _FULL_SIZE_FAILING:
         reason = _FULL_SIZE_FAILING[(name, seed)]
         return pytest.param(name, seed, marks=pytest.mark.xfail(strict=True, reason=reason))
-    # the wheel at its drawn sizes moves no bin of the 1 Hz spectra far enough to stand out
-    # (scripts/diagnosis_strength.py: largest |z| 2.0-4.8 for seeds 0-9 at 8 runs, and more
-    # runs do not raise a single bin's z); not run at this size, so not strict
-    if name == "wheel_eccentricity":
-        reason = "wheel tones under the Welch scatter at the drawn sizes (not run at 12 runs)"
-        return pytest.param(name, seed, marks=pytest.mark.xfail(strict=False, reason=reason))
     return pytest.param(name, seed)
 
 
@@ -581,12 +585,11 @@ def _full_size_case(name: str, seed: int) -> pytest.ParameterSet:
 )
 def test_full_size(name, seed):
     """Twelve runs over the whole speed range, the base model fitted on each campaign (the
-    command's default sizes). 30 cases of 7-10 minutes each here: never run in full. Run so
-    far (sessions 9-15): 27, of which 18 passed (mains 5, cross-axis 4, nothing hidden 5, rail
-    3, frame mode 1; five on the lent machine of session 13, the rest here); the wheel's seeds
-    4-6 not run. The failures are strict
-    expected failures with their figures (``_FULL_SIZE_FAILING``). The saved cases:
-    results/diagnosis_full_size.md."""
+    command's default sizes). 30 cases of 6-10 minutes each here, never run in one go; each
+    was run once or more in sessions 9-15, and 18 passed (mains 5, cross-axis 4, nothing
+    hidden 5, rail 3, frame mode 1, wheel 0; five on the lent machine of session 13, the rest
+    here). The failures are strict expected failures with their figures
+    (``_FULL_SIZE_FAILING``). The saved cases: results/diagnosis_full_size.md."""
     recording, rig = record(name, seed, SPEEDS_SLOW)
     diagnosis = diagnose_campaign(
         DOOR, recording.campaign, seed=seed, progress=False, catalogue=DOOR_CATALOGUE

@@ -372,6 +372,9 @@ def test_model_error_offsets_are_added(tmp_path, key):
     assert noisy.model_error.std(axis=-1).max() < 1e-15 and noisy.model_error.std() > 0.1
 
 
+# 16 s (a local Dask cluster starts): in the long tier, to keep the default suite within
+# its 10 minutes (session 16's durations)
+@pytest.mark.long
 def test_dask_local_cluster_equals_local(tmp_path, key, monkeypatch):
     # the worker processes inherit the environment: let them share the tests' JAX cache
     cache = jax.config.jax_compilation_cache_dir

@@ -777,13 +777,26 @@ def diagnose_campaign(
         parameters: dict[str, Any] = {
             n: {"mean": float(np.mean(v)), "sd": None, "folds": v} for n, v in by_fold.items()
         }
-        explained, symptom = recipes[score.name].explains(  # type: ignore[union-attr]
+        recipe = recipes[score.name]
+        extended_system = system.with_extensions(proposal.extension)
+        # each fold's refit as the recipe reads it (a rail-carrying mode's installed peak)
+        refitted = [
+            {
+                **f.values,
+                **recipe.derived(  # type: ignore[union-attr]
+                    proposal, extended_system, {**setup.point, **f.values}
+                ),
+            }
+            for f in fits
+        ]
+        explained, symptom = recipe.explains(  # type: ignore[union-attr]
             score.parameters,
             setup.spectra.freqs,
             setup.spectra.measured,
             setup.base_spectra,
             held_out_spectra(fits, folds),
             tuple(system.channels),
+            refitted=refitted,
         )
         confirmed_here = gain.decisive and explained
         if confirmed_here:

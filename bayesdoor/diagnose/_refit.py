@@ -120,6 +120,7 @@ class AbstractRefit(eqx.Module):
         base: Float[np.ndarray, "run channel freq"],
         extended: Float[np.ndarray, "run channel freq"],
         channels: tuple[str, ...],
+        refitted: Sequence[Mapping[str, float]] = (),
     ) -> tuple[bool, str]:
         """Whether the refitted extension explains the residual feature it was proposed for.
 
@@ -127,8 +128,9 @@ class AbstractRefit(eqx.Module):
         its own feature unexplained has absorbed some other misfit of the model (on the rig
         with nothing hidden, a rail-carrying mode at 90 Hz gained by softening the wheels'
         support, which moved the door's modes near 65 Hz). ``extended`` holds each run's
-        spectra from the fold that held it out. Returns the answer and its reason in words;
-        the default recipe has no symptom test (``True``).
+        spectra from the fold that held it out; ``refitted`` each fold's refitted values with
+        the recipe's :meth:`derived` quantities (empty when not known). Returns the answer and
+        its reason in words; the default recipe has no symptom test (``True``).
         """
         return True, ""
 

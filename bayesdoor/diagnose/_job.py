@@ -780,7 +780,7 @@ def diagnose_campaign(
         recipe = recipes[score.name]
         extended_system = system.with_extensions(proposal.extension)
         # each fold's refit as the recipe reads it (a rail-carrying mode's installed peak)
-        refitted = [
+        fold_values = [
             {
                 **f.values,
                 **recipe.derived(  # type: ignore[union-attr]
@@ -796,7 +796,7 @@ def diagnose_campaign(
             setup.base_spectra,
             held_out_spectra(fits, folds),
             tuple(system.channels),
-            refitted=refitted,
+            refitted=fold_values,
         )
         confirmed_here = gain.decisive and explained
         if confirmed_here:

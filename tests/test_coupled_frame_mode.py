@@ -164,6 +164,9 @@ def _participations_proposal():
     return parts, proposal
 
 
+# 22-33 s with an empty JAX cache (session 16): in the long tier, to keep the default suite
+# within its 10 minutes
+@pytest.mark.long
 def test_a_refits_solves_split_over_threads_are_those_of_one_batch(refit_case):
     """The final refit solves its population in two threads, each a block of rows (the last
     block padded): the signals and gain signals are those of one batch to the adaptive
@@ -190,6 +193,9 @@ def test_a_refits_solves_split_over_threads_are_those_of_one_batch(refit_case):
     assert np.abs(g1[0] - g1[2]).max() > 1e-3 * np.abs(g1).max()
 
 
+# 22-33 s with an empty JAX cache (session 16): in the long tier, to keep the default suite
+# within its 10 minutes
+@pytest.mark.long
 def test_the_refit_profiles_the_participations_exactly(refit_case):
     """Frequency searched (42-48 Hz), damping and lift held, the four participations
     profiled from the three Welch spectra: the made values come back to the search's

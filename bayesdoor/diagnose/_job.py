@@ -818,12 +818,10 @@ def diagnose_campaign(
                 n: {"mean": final.values[n], "sd": final.sd[n], "folds": by_fold[n]}
                 for n in proposal.free
             }
-            derived = recipes[score.name].derived(  # type: ignore[union-attr]
-                proposal,
-                system.with_extensions(proposal.extension),
-                {**setup.point, **final.values},
+            derived = recipe.derived(  # type: ignore[union-attr]
+                proposal, extended_system, {**setup.point, **final.values}
             )
-            derived_sd = recipes[score.name].derived_sd(  # type: ignore[union-attr]
+            derived_sd = recipe.derived_sd(  # type: ignore[union-attr]
                 proposal, final.values, final.sd
             )
             parameters.update({n: {"mean": v, "sd": derived_sd.get(n)} for n, v in derived.items()})
@@ -861,7 +859,7 @@ def diagnose_campaign(
             confirmed=confirmed_here,
             label=proposal.label,
             proposal=proposal,
-            alternatives=recipes[score.name].alternatives(merged),  # type: ignore[union-attr]
+            alternatives=recipe.alternatives(merged),  # type: ignore[union-attr]
         )
     timings["refits"] = time.perf_counter() - t0
 

@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.jobs < 1:
         parser.error(f"--jobs must be at least 1, got {args.jobs}")
 
-    from bayesdoor.cli._common import configure_jax
+    from bayesdoor import configure_jax
 
     configure_jax()
     from bayesdoor.pipeline import FitSummary
@@ -198,7 +198,7 @@ def _fit_settings(settings: dict):
 
 def run_one(settings: dict, seed: int, source: str) -> dict:
     """One job (in this process or a worker): run it, score it, apply its flag to the probes."""
-    from bayesdoor.cli._common import configure_jax
+    from bayesdoor import configure_jax
 
     configure_jax()
     import jax.numpy as jnp

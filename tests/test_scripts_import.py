@@ -9,8 +9,12 @@ file's ``from bayesdoor... import ...`` statements and resolves them, without ru
 
 from __future__ import annotations
 
+import argparse
 import ast
 import importlib
+import importlib.util
+import re
+import sys
 from pathlib import Path
 
 import pytest
@@ -76,3 +80,84 @@ def test_a_moved_name_is_reported(tmp_path):
     assert len(problems) == 2
     assert "has no 'configure_jax'" in problems[0]
     assert "no_such_module" in problems[1]
+
+
+_COMMAND = re.compile(r"python ((?:scripts|benchmarks)/\w+\.py)((?: +[^ `#|)\n]+)*)")
+
+
+def documented_commands(text: str) -> set[tuple[str, str]]:
+    """``(file, arguments)`` of every ``python scripts/X.py ...`` in markdown ``text``: in
+    fenced blocks line by line, in inline code spans (which may wrap) whole, and in what is
+    left (indented blocks) line by line."""
+    found: set[tuple[str, str]] = set()
+    fenced = re.compile(r"```.*?```", re.S)
+    for block in fenced.findall(text):
+        found.update(m.group(1, 2) for m in _COMMAND.finditer(block))
+    text = fenced.sub("", text)
+    inline = re.compile(r"(`+)(.+?)\1", re.S)  # a span closes at as many backticks
+    for _, span in inline.findall(text):
+        found.update(m.group(1, 2) for m in _COMMAND.finditer(" ".join(span.split())))
+    found.update(m.group(1, 2) for m in _COMMAND.finditer(inline.sub("", text)))
+    return found
+
+
+#: commands quoted in the README, results/ and docs/: each file's own argument parser must
+#: accept the arguments as written
+DOCUMENTED = sorted(
+    set().union(
+        *(
+            documented_commands(p.read_text())
+            for p in [
+                ROOT / "README.md",
+                *sorted((ROOT / "results").glob("*.md")),
+                *sorted((ROOT / "docs").glob("*.md")),
+            ]
+        )
+    )
+)
+
+
+class _Parsed(Exception):
+    pass
+
+
+def _parse_only(path: Path, args: list[str], monkeypatch) -> None:
+    """Run the file's ``main`` up to its ``parse_args`` and stop there."""
+    spec = importlib.util.spec_from_file_location(f"_documented_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, module)  # its dataclasses look it up
+    monkeypatch.syspath_prepend(str(path.parent))
+    spec.loader.exec_module(module)
+    original = argparse.ArgumentParser.parse_args
+
+    def parse_args(self, argv=None, namespace=None):
+        original(self, argv, namespace)
+        raise _Parsed
+
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", parse_args)
+    monkeypatch.setattr(sys, "argv", [str(path), *args])
+    with pytest.raises(_Parsed):
+        module.main()
+
+
+def test_documented_commands_are_found():
+    wrapped = "(``a``) see (`python scripts/full_size_case.py frame_mode 6\nOUT`, 628 s)"
+    assert documented_commands(wrapped) == {("scripts/full_size_case.py", " frame_mode 6 OUT")}
+    scripts = {script for script, _ in DOCUMENTED}
+    assert "scripts/classification.py" in scripts and "benchmarks/bench_simulate.py" in scripts
+    assert len(DOCUMENTED) >= 30
+    assert [s for s, _ in DOCUMENTED if not (ROOT / s).is_file()] == []
+
+
+@pytest.mark.parametrize(
+    ("script", "args"),
+    [c for c in DOCUMENTED if c[1].split() and not any(a.isupper() for a in c[1].split())],
+    ids=lambda v: v if "/" in str(v) else (str(v).strip() or "-"),
+)
+def test_a_documented_command_parses(script, args, monkeypatch, capsys):
+    path = ROOT / script
+    assert path.is_file(), script
+    try:
+        _parse_only(path, args.split(), monkeypatch)
+    except SystemExit as err:
+        pytest.fail(f"python {script}{args}: exit {err.code}: {capsys.readouterr().err}")

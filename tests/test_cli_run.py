@@ -157,3 +157,50 @@ def test_demo_quick_end_to_end_and_reuse(tmp_path):
     assert again["metrics"] == payload["metrics"]
     refused = invoke("demo", "--out", out)
     assert refused.exit_code == 2 and "--force" in refused.output
+
+
+def _payload(diagnostics):
+    row = {"point": 2499.0, "mean": 2353.0, "sd": 68.0, "q5": 2256.0, "q95": 2476.0}
+    return {
+        "fit": {
+            "method": "nuts",
+            "j": 0.7987,
+            "parameters": {"K": row},
+            "diagnostics": diagnostics,
+        },
+        "runs": [{}] * 3,
+        "metrics": None,
+        "n_ood": 0,
+        "n_failed": 0,
+        "diagnosis": None,
+        "report": "out/report/index.html",
+    }
+
+
+def test_the_summary_says_whether_the_posterior_passed_its_gates():
+    from rich.console import Console
+
+    from bayesdoor.cli._run import gates_line, print_summary
+
+    failed = {
+        "passed": False,
+        "messages": [
+            "R-hat 1.044 > 1.01 for z[6]: the chains disagree; run longer chains",
+            "bulk ESS 51 < 400 for z[1] (2 chains x 150 draws): draw more samples",
+        ],
+    }
+    console = Console(record=True, width=200)
+    print_summary(_payload(failed), console, quick=True)
+    text = console.export_text()
+    assert (
+        "sampling gates FAILED (R-hat 1.044 > 1.01 for z[6]; bulk ESS 51 < 400 for z[1] "
+        "(2 chains x 150 draws))" in text
+    )
+    assert "run without it" in text
+    assert "run without it" not in gates_line(failed, quick=False)
+    passed = {"passed": True, "rhat_max": 1.004, "ess_bulk_min": 612.3, "divergences": 0}
+    assert gates_line(passed) == "sampling gates passed (R-hat 1.004, bulk ESS 612, 0 divergences)"
+    assert gates_line(None) is None  # a CMA-ES point has no gates
+    console = Console(record=True, width=200)
+    print_summary(_payload(None), console)
+    assert "sampling gates" not in console.export_text()

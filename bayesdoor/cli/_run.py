@@ -57,7 +57,29 @@ def _fmt(value: Any, digits: int = 4) -> str:
     return f"{value:.{digits}g}" if isinstance(value, float) else str(value)
 
 
-def print_summary(result: dict[str, Any], console: Console) -> None:
+def gates_line(diagnostics: dict[str, Any] | None, *, quick: bool = False) -> str | None:
+    """One line on whether the posterior passed its sampling gates (``None`` for a point fit).
+
+    The summary table of a posterior that failed them reads like any other, so the line
+    says so under it, with what failed; with ``--quick`` it adds that short chains are
+    expected to fail and how to get a posterior to report.
+    """
+    if not diagnostics:
+        return None
+    if diagnostics.get("passed"):
+        return (
+            f"sampling gates passed (R-hat {_fmt(diagnostics.get('rhat_max'), 4)}, bulk ESS "
+            f"{_fmt(diagnostics.get('ess_bulk_min'), 3)}, {diagnostics.get('divergences', 0)} "
+            "divergences)"
+        )
+    failed = "; ".join(m.split(":")[0] for m in diagnostics.get("messages", ()))
+    text = f"sampling gates FAILED ({failed}): read the posterior as a first look"
+    if quick:
+        text += "; --quick samples short chains, run without it for a posterior to report"
+    return text
+
+
+def print_summary(result: dict[str, Any], console: Console, *, quick: bool = False) -> None:
     """The posterior summary, the accuracy and calibration, the diagnosis, the report's path."""
     fit = result.get("fit")
     if fit is not None:
@@ -68,6 +90,9 @@ def print_summary(result: dict[str, Any], console: Console) -> None:
             interval = "-" if row["q5"] is None else f"{row['q5']:.4g} .. {row['q95']:.4g}"
             table.add_row(name, _fmt(row["point"]), _fmt(row["mean"]), _fmt(row["sd"], 2), interval)
         console.print(table)
+        gates = gates_line(fit.get("diagnostics"), quick=quick)
+        if gates is not None:
+            console.print(gates, markup=False, highlight=False)
     metrics = result.get("metrics")
     table = Table(title=f"classification of {len(result['runs'])} runs")
     table.add_column("metric")
@@ -157,4 +182,4 @@ def run(
     if json:
         emit_json(payload)
     else:
-        print_summary(payload, Console())
+        print_summary(payload, Console(), quick=quick)

@@ -1,10 +1,13 @@
-"""Every name the scripts, benchmarks and notebooks import from bayesdoor exists.
+"""Every name the scripts, benchmarks and notebooks import from bayesdoor exists, and every
+documented ``python scripts/...`` command parses.
 
 They import inside functions (so ``--help`` stays fast), where neither ruff nor mypy (which
 checks the package only) sees a name that moved: ``scripts/classification.py`` imported
 ``configure_jax`` from ``bayesdoor.cli._common`` for sessions after it had moved to
 ``bayesdoor``, and failed at its first line of work (found in session 17). This reads each
-file's ``from bayesdoor... import ...`` statements and resolves them, without running them.
+file's ``from bayesdoor... import ...`` statements and resolves them, without running them;
+and it hands the arguments of every command quoted in the README, results/ and docs/ to that
+file's own argument parser, stopping its ``main`` right after parsing.
 """
 
 from __future__ import annotations
@@ -123,6 +126,8 @@ class _Parsed(Exception):
 
 def _parse_only(path: Path, args: list[str], monkeypatch) -> None:
     """Run the file's ``main`` up to its ``parse_args`` and stop there."""
+    # a file without a parser would run whole; documented arguments need one to read them
+    assert "parse_args(" in path.read_text(), f"{path.name} takes arguments but parses none"
     spec = importlib.util.spec_from_file_location(f"_documented_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
     monkeypatch.setitem(sys.modules, spec.name, module)  # its dataclasses look it up

@@ -140,11 +140,45 @@ def command_line(script: str, argv: Sequence[str] | None) -> str:
     return f"python scripts/{script} {' '.join(words)}".strip()
 
 
-def write_results(path: Path, text: str) -> None:
-    """Write the results table to ``path`` (making its folder) and print it."""
+#: the markers around what a script writes in its results file: the text outside them (notes
+#: written by hand after a run, earlier runs' sections) is kept when the script runs again
+BEGIN = "<!-- generated: begin (the script rewrites what lies between these markers) -->"
+END = "<!-- generated: end -->"
+#: the heading under which a file's old text is kept when it had no markers
+KEPT = "## Kept from this file before the run above (it had no generated-block markers)"
+
+
+def merge_results(old: str | None, text: str) -> str:
+    """The results file's new text: ``text`` between the markers, the rest of ``old`` kept.
+
+    ``old`` is the file's present text (``None``: no file). With the markers in it, only what
+    lies between them is replaced; without them nothing of it is dropped: it follows the new
+    block under :data:`KEPT`.
+    """
+    block = f"{BEGIN}\n{text.rstrip()}\n{END}\n"
+    if old is None or not old.strip():
+        return block
+    if old.count(BEGIN) == 1 and old.count(END) == 1 and old.index(BEGIN) < old.index(END):
+        before, _, rest = old.partition(BEGIN)
+        _, _, after = rest.partition(END)
+        return before + block + after.removeprefix("\n")
+    return f"{block}\n{KEPT}\n\n{old.rstrip()}\n"
+
+
+def write_results(path: Path, text: str, *, echo: bool = True) -> None:
+    """Write a script's results to ``path`` (making its folder), keeping the file's notes.
+
+    What lies between the file's generated-block markers is replaced by ``text``; everything
+    else in the file stays (:func:`merge_results`). The new text is printed unless ``echo`` is
+    false. The file is replaced in one step, so a killed run leaves the old one whole.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text)
-    print(text)
+    old = path.read_text() if path.is_file() else None
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_text(merge_results(old, text))
+    os.replace(partial, path)
+    if echo:
+        print(text)
 
 
 def code_version() -> str:

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
+from _cases import write_results
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_ACCURACY = 0.923
@@ -403,7 +404,7 @@ def write_markdown(
             "with a posterior draw of this scale, to the simulated features.",
         ]
     lines += ["", *_comparison(args.sources, rows), ""]
-    args.results.write_text("\n".join(lines))
+    write_results(args.results, "\n".join(lines), echo=False)
 
 
 def _ood_section(sources, rows) -> list[str]:

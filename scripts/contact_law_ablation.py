@@ -50,7 +50,6 @@ from scipy.optimize import brentq
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "results" / "contact_law_ablation.md"
-BEGIN, END = "<!-- table: begin -->", "<!-- table: end -->"
 LAWS = tuple(range(1, 10))
 
 #: the per-law warm start: a fifth of the shared search's budget at 0.4 of its step is enough
@@ -272,6 +271,8 @@ def main() -> int:
     ).strip()
     _configure_jax()
 
+    from _cases import write_results
+
     from bayesdoor.inference import FitResult
     from bayesdoor.report import ablation_table
     from bayesdoor.systems import ElevatorDoor
@@ -374,16 +375,8 @@ def main() -> int:
         + table
         + ("\nNotes raised by the fits:\n\n" + "\n".join(notes) + "\n" if notes else "")
     )
-    out = args.out
-    text = (
-        out.read_text()
-        if out.exists()
-        else "# Contact-law ablation\n\n" + BEGIN + "\n" + END + "\n"
-    )
-    before, _, rest = text.partition(BEGIN)
-    _, _, after = rest.partition(END)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(before + BEGIN + "\n" + block + END + after)
+    # the discussion after the block is kept
+    write_results(args.out, "# Contact-law ablation\n\n" + block, echo=False)
     for row in rows:
         r = results[row["law"]]
         row["start"] = starts[row["law"]]
@@ -406,7 +399,7 @@ def main() -> int:
         },
         "laws": rows,
     }
-    out.with_suffix(".json").write_text(json.dumps(record, indent=1) + "\n")
+    args.out.with_suffix(".json").write_text(json.dumps(record, indent=1) + "\n")
     print(block)
     return 0
 

@@ -1,11 +1,14 @@
 """Write results/contact_laws.md: the restitution each contact law delivers in one impact.
 
-Usage: python scripts/contact_laws.py
+Usage: python scripts/contact_laws.py [--out FILE]
 """
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
+
+from _cases import write_results
 
 from bayesdoor.contact import CONTACT_LAWS, LATCH_FLOOR, single_impact
 
@@ -27,6 +30,14 @@ def table(header, rows):
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path(__file__).resolve().parent.parent / "results" / "contact_laws.md",
+        help="the Markdown file to write (default results/contact_laws.md)",
+    )
+    args = parser.parse_args()
     columns = [f"c_r = {c}, n = {n}" for c in C_R for _, n in CONTACTS]
     textbook, slow = [], []
     max_n_effect = max_smoothing_effect = 0.0
@@ -89,9 +100,8 @@ def main() -> None:
         "  restitution is about 0.79.",
         "",
     ]
-    out = Path(__file__).resolve().parent.parent / "results" / "contact_laws.md"
-    out.write_text("\n".join(lines))
-    print(f"wrote {out}")
+    write_results(args.out, "\n".join(lines), echo=False)
+    print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":

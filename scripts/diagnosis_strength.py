@@ -488,7 +488,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--verdicts",
         type=Path,
-        default=ROOT / "out" / "diagnosis-s6b",
+        default=ROOT / "out" / "diagnosis",
         help="scripts/diagnosis.py's work folder of the table's (quick) cases",
     )
     parser.add_argument("--jobs", type=int, default=1, help="cases in parallel (processes)")

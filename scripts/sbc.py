@@ -50,6 +50,8 @@ import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
+from _cases import write_results
+
 ROOT = Path(__file__).resolve().parent.parent
 FREE = ("K", "C", "mu_d")
 LAW = 6
@@ -286,9 +288,10 @@ def main() -> int:
     print(test, file=sys.stderr)
     figure = args.report.with_name(args.report.stem + "_ranks.png")
     plot_sbc_ranks(result, figure, title=f"SBC, reduced door ({args.forward})")
-    args.report.parent.mkdir(parents=True, exist_ok=True)
-    args.report.write_text(
-        report(settings, result, elapsed, surrogate_rms).replace("sbc_ranks.png", figure.name)
+    write_results(
+        args.report,
+        report(settings, result, elapsed, surrogate_rms).replace("sbc_ranks.png", figure.name),
+        echo=False,
     )
     print(json.dumps({"passed": test.passed, "report": str(args.report)}))
     return 0

@@ -784,6 +784,33 @@ def test_demo_interrupted_while_recording_keeps_nothing_in_the_cache(tmp_path, m
     assert not out.exists()
 
 
+def test_demo_says_once_that_it_recorded_the_campaign_and_where(tmp_path, monkeypatch):
+    """The recording's bar is transient: after it, one line says how long the first use spent
+    recording and where the campaign is cached; a later run, reading the cache, says nothing."""
+    import bayesdoor.cli._run
+    from bayesdoor.datasets import demo_paths
+
+    monkeypatch.setenv("BAYESDOOR_DATA", str(tmp_path / "cache"))
+    made = campaign()
+
+    def record(**options):
+        demo_paths()[0].parent.mkdir(parents=True, exist_ok=True)
+        demo_paths()[0].write_bytes(b"recorded")
+        return made
+
+    jobs = []
+    monkeypatch.setattr(bayesdoor.datasets, "load_demo_campaign", record)
+    monkeypatch.setattr(bayesdoor.cli._run, "run", lambda data, out, **o: jobs.append(data))
+    first = invoke("demo", "--out", tmp_path / "demo", "--quick")
+    assert first.exit_code == 0, first.output
+    said = " ".join(first.output.split())
+    assert f"recorded the demo campaign ({made.sizes['run']} runs) in" in said
+    assert f"cached in {demo_paths()[0]}" in said
+    again = invoke("demo", "--out", tmp_path / "demo", "--quick")
+    assert again.exit_code == 0 and "recorded the demo campaign" not in again.output
+    assert jobs == [made, made]
+
+
 def test_a_warning_in_the_job_is_one_line_without_a_source_path(files, tmp_path):
     """A failed sampling gate, say: ``warning: <message>`` once, its lines joined, not Python's
     ``/path/to/_job.py:197: SamplingGateWarning: ...`` with the offending source line."""

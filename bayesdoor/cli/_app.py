@@ -177,6 +177,8 @@ def demo(
             f"{demo_paths()[0].parent}; run the same command again to record it (a few minutes)"
         )
 
+    recorded = not demo_paths()[0].is_file()
+    started = time.perf_counter()
     try:
         with interruptible(recording_stopped):
             campaign = load_demo_campaign(show_progress=not json)
@@ -185,6 +187,13 @@ def demo(
             f"the cached demo campaign cannot be read ({err}): delete {demo_paths()[0]} and run "
             "the demo again to record it anew"
         ) from None
+    if recorded and not json:  # the bar is gone: say where the minutes went (first use only)
+        _err.print(
+            f"recorded the demo campaign ({campaign.sizes['run']} runs) in "
+            f"{time.perf_counter() - started:.0f} s: cached in {demo_paths()[0]}",
+            soft_wrap=True,  # a path broken over lines cannot be copied
+            markup=False,
+        )
     _run.run(
         campaign,
         out,

@@ -175,8 +175,11 @@ def write_results(path: Path, text: str, *, echo: bool = True) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     old = path.read_text() if path.is_file() else None
     partial = path.with_name(f".{path.name}.partial")
-    partial.write_text(merge_results(old, text))
-    os.replace(partial, path)
+    try:
+        partial.write_text(merge_results(old, text))
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)  # a failed write leaves neither it nor a broken file
     if echo:
         print(text)
 

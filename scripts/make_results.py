@@ -137,10 +137,10 @@ STEPS: tuple[Step, ...] = (
 )
 
 
-def run_step(step: Step, quick: bool, results: Path) -> tuple[bool, float]:
-    """Run one step, its files going to the folder ``results``; return whether it succeeded
-    and its wall time."""
-    cmd = step.command(quick, None if results == RESULTS else results)
+def run_step(step: Step, quick: bool, redirect: Path | None) -> tuple[bool, float]:
+    """Run one step, its files going to the folder ``redirect`` (``None``: ``results/``);
+    return whether it succeeded and its wall time."""
+    cmd = step.command(quick, redirect)
     if not (ROOT / step.script).is_file():
         print(f"\n=== {step.name}: {step.script} does not exist", flush=True)
         return False, 0.0
@@ -153,7 +153,7 @@ def run_step(step: Step, quick: bool, results: Path) -> tuple[bool, float]:
         done = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.PIPE, text=True)
         ok = done.returncode == 0
         if ok:
-            folder = results / "benchmarks"
+            folder = (redirect or RESULTS) / "benchmarks"
             folder.mkdir(parents=True, exist_ok=True)
             target = folder / f"{step.json_to}{'-quick' if quick else ''}.json"
             target.write_text(done.stdout)
@@ -180,15 +180,16 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         parser.error(f"unknown step(s) {unknown}; the steps are: {', '.join(names)}")
     results = (args.results or (QUICK_RESULTS if args.quick else RESULTS)).resolve()
+    redirect = None if results == RESULTS else results  # results/: the steps' own defaults
     steps = [s for s in STEPS if args.only is None or s.name in args.only]
     if args.list:
         for s in steps:
-            cmd = s.command(args.quick, None if results == RESULTS else results)
+            cmd = s.command(args.quick, redirect)
             print(f"{s.name:22s} {shlex.join(['python', *cmd[1:]])}")
         return 0
     failed = []
     for step in steps:
-        ok, wall = run_step(step, args.quick, results)
+        ok, wall = run_step(step, args.quick, redirect)
         print(f"    {'ok' if ok else 'FAILED'} in {wall:.0f} s", flush=True)
         if not ok:
             failed.append(step.name)

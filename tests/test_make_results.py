@@ -10,7 +10,6 @@ rerun replaces only the generated block.
 
 from __future__ import annotations
 
-import importlib.util
 import re
 import shlex
 import sys
@@ -21,19 +20,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
 
+import make_results  # noqa: E402
 from _cases import BEGIN, END, KEPT, merge_results, write_results  # noqa: E402
 from test_scripts_import import _parse_only  # noqa: E402
 
-
-def _module():
-    spec = importlib.util.spec_from_file_location("make_results", ROOT / "scripts/make_results.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclass looks its module up
-    spec.loader.exec_module(module)
-    return module
-
-
-make_results = _module()
 STEPS = {s.name: s for s in make_results.STEPS}
 #: options that name where a run keeps its files or how many processes it uses: they do not
 #: change the figures, so the comparison with a file's header leaves them out

@@ -4,8 +4,8 @@ JAX does not write a program that holds a host callback to its persistent compil
 (its log: "Not writing persistent cache entry ... because it uses host callbacks"). Equinox's
 run-time checks (``eqx.error_if``, used by diffrax for ``SaveAt(ts=...)``: increasing, inside
 ``[t0, t1]``) raise through such a callback under the default ``EQX_ON_ERROR=raise``, so every
-process compiled the door's solves again (session 11: 33 compiles of the batched solve, 175 s,
-in one run of the test suite, none of them cached). Traced under :func:`errors_as_nan`, the
+process would compile the door's solves again (33 compiles of the batched solve, 175 s, in one
+run of the test suite, none of them cached). Traced under :func:`errors_as_nan`, the
 checks return NaN where they would have raised; a solve checks its own output for finite
 values and reports a failed status, so nothing is lost. Only the traces inside the context
 change: bayesdoor's own ``eqx.error_if`` checks of user input raise as before, and so does

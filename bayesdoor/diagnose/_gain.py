@@ -579,8 +579,8 @@ def estimate_tracking_change_discrepancy(
     tone, whatever the speeds. What it does not serve: the bins such an extension changes
     can also hold errors that stay at their frequency (a door mode the base model misplaces
     slightly, which the tone passes and excites); a window in wavenumber gathers those from
-    other frequencies (docs/diagnosis.md, session 7, measures both this and the larger of
-    the two windows).
+    other frequencies (docs/diagnosis.md measures both this and the larger of the two
+    windows).
 
     The window is ``LOCAL_BINS`` bins of each training run's own spectrum: the Hann main lobe
     is fixed in frequency, so its width in wavenumber scales with each run's speed. At equal
@@ -760,7 +760,8 @@ def _runs(d: np.ndarray) -> int:
 def t_statistic(d: np.ndarray) -> np.ndarray:
     """The one-sample t statistic ``sum(d) / sqrt(n var(d, ddof=1))`` over the last axis.
 
-    The rule before session 14: decisive when it exceeded 4.
+    Alone it is the plain rule, decisive above :data:`DECISIVE_SE`; :func:`rule_passes`
+    judges it together with :func:`capped_t`.
 
     Parameters
     ----------

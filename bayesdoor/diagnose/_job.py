@@ -212,8 +212,9 @@ class Diagnosis:
         raise KeyError(f"no cause {name!r}; the causes are {[c.name for c in self.causes]}")
 
     def to_json(self) -> dict[str, Any]:
-        """DESIGN.md section 5: ``verdict`` and ``causes`` (each ``name``, ``evidence``,
-        ``parameters``, ``gain``), plus the rule, the features in words, notes and timings."""
+        """The JSON of docs/cli.md (``bayesdoor diagnose``): ``verdict`` and ``causes`` (each
+        ``name``, ``evidence``, ``parameters``, ``gain``), plus the rule, the features in
+        words, notes and timings."""
         return {
             "verdict": self.verdict,
             "causes": [c.to_json() for c in self.causes],
@@ -532,11 +533,11 @@ def base_fit_notes(system: AbstractSystem, fit: FitResult) -> list[str]:
     bounds (an integer one, the contact law, is a choice, not an estimate).
 
     Such a value is not an estimate: the data would move it further. On the rig the base
-    CMA-ES fit often ends at some bounds of the door's parameters (full-size campaigns of
-    session 14: K at 2500, n at 1.5 or 2.2, c_r, mu_s or mu_d at an end, in 8 of 10 campaigns,
-    also with a mains hum or a wheel hidden), so it is a warning to read the base model with,
-    not evidence for any one cause: a missing effect the model bends itself to mimic, or
-    bounds too narrow for this door.
+    CMA-ES fit often ends at some bounds of the door's parameters (full-size campaigns,
+    results/diagnosis_full_size.md: K at 2500, n at 1.5 or 2.2, c_r, mu_s or mu_d at an end,
+    in 8 of 10 campaigns, also with a mains hum or a wheel hidden), so it is a warning to read
+    the base model with, not evidence for any one cause: a missing effect the model bends
+    itself to mimic, or bounds too narrow for this door.
     """
     lower, upper = (np.asarray(b, dtype=float) for b in fit.bounds)
     integer = {p.name for p in system.parameters if p.integer}
@@ -560,10 +561,10 @@ def verdict_order(score: float, gain: float) -> tuple[float, float]:
 
     The held-out gain confirms a cause; it does not rank them. An extension can absorb the
     symptoms of another cause and then gain more than it: on the rig a leak between the two
-    channels of a sensor that both feel a missing mode gained more than the mode (frame mode
-    seed 3 at 8 runs, session 7), and a mode on A2Z near the frequency where a leak puts
-    A2X's header mode gained more than the leak (cross-axis seed 0 at 8 runs, session 14).
-    In both the cause whose signature the residual features show best was the hidden one.
+    channels of a sensor that both feel a missing mode gains more than the mode (frame mode
+    seed 3 at 8 runs), and a mode on A2Z near the frequency where a leak puts A2X's header
+    mode gains more than the leak (cross-axis seed 0 at 8 runs; docs/diagnosis.md). In both
+    the cause whose signature the residual features show best is the hidden one.
 
     Parameters
     ----------
@@ -624,7 +625,8 @@ def diagnose_campaign(
     system
         The base system (the catalogue's extensions are switched on by the refits).
     campaign
-        The measurements (DESIGN.md section 5); the runs diagnosed are the healthy calibration
+        The measurements (the campaign format, docs/data.md); the runs diagnosed are the
+        healthy calibration
         runs (``bayesdoor.inference.calibration_runs``).
     fit
         The base model's fit on this campaign; ``None``: fitted here.

@@ -19,7 +19,7 @@ from numpyro.infer import init_to_sample
 
 from ..io import atomic_write
 
-#: groups every posterior written by bayesdoor holds (DESIGN.md section 5)
+#: groups every posterior written by bayesdoor holds (docs/inference.md, "Files")
 POSTERIOR_GROUPS = ("posterior", "sample_stats", "log_likelihood", "observed_data")
 
 #: arrays up to this size are recorded by value in the provenance attributes

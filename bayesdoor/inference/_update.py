@@ -246,7 +246,7 @@ def campaign_data(
     system
         The system the campaign measured.
     campaign
-        A campaign (DESIGN.md section 5); the per-run ``v_max`` is the operating point.
+        A campaign (docs/data.md); the per-run ``v_max`` is the operating point.
     runs
         The runs to use.
     spec
@@ -1095,7 +1095,7 @@ def fit_campaign(
     system
         The simulated system.
     campaign
-        The measurements (DESIGN.md section 5): runs with ``split == "calibration"`` when
+        The measurements (docs/data.md): runs with ``split == "calibration"`` when
         present, else every ``healthy`` run, are fitted.
     method
         ``cmaes`` (the optimum of J only), ``nuts`` or ``emcee`` (a posterior on a surrogate
@@ -1138,7 +1138,9 @@ def fit_campaign(
 
     References
     ----------
-    The paper's eq. (2) and Table 2 (``../shared/seed/paper.md``); ``docs/inference.md``.
+    The objective (eq. 2) and parameter bounds (Table 2) of "Real-time condition monitoring
+    of mechanical systems using CNNs trained by multibody simulations", X ECCOMAS Thematic
+    Conference on Smart Structures and Materials (SMART 2023), 2023; ``docs/inference.md``.
     """
     if method not in METHODS:
         raise ValueError(f"method={method!r}: use one of {', '.join(METHODS)}")

@@ -1,4 +1,4 @@
-"""The door's catalogue of discrepancy causes (DESIGN.md section 6), its numbers as data.
+"""The door's catalogue of discrepancy causes (docs/model.md), its numbers as data.
 
 Each candidate has a signature (how it shows in the residual features) and a refit recipe
 (which of the door's model extensions, ``_extensions.py``, to fit, started from the
@@ -277,25 +277,25 @@ class RailRefit(AbstractRefit):
     speeds, with its standard error): the spectra locate a tone to a fraction of a bin, while
     a refit of the wavelength would be pulled by the interference of the two wheels 0.7 m
     apart (20 periods of a 35 mm wavelength: 1 % changes their relative phase by a fifth of a
-    cycle) more than by the tone's frequency. Measured (session 8, 8 runs): a +-8 % grid of
-    wavelengths profiled per fold named rail seed 1 (26.00 mm for the rig's 26.00, +6.7 SE,
-    where the signature's 27.79 mm gives 3.8 SE) but lost seed 3 (the folds' wavelengths
-    averaging 9.79 mm for the rig's 9.74: 3.8 SE, against 5.7 SE in session 7 held at the
-    signature's 9.67 mm), so the wavelength stays held. With each wheel's phase free
-    (session 11, same cases): profiled per fold it lost seed 1 (2.3 SE); profiled on all
-    runs after the judgement it reported seeds 0, 1, 2, 3, 7, 8 at 0.4, 2.4, 0.4, 0.3, 2.3,
-    0.3 % off where the signature is 0.1, 6.9, 0.2, 0.7, 0.5, 0.1 % off (docs/diagnosis.md).
+    cycle) more than by the tone's frequency. Measured at 8 runs (docs/diagnosis.md): a +-8 %
+    grid of wavelengths profiled per fold names rail seed 1 (26.00 mm for the rig's 26.00,
+    +6.7 SE, where the signature's 27.79 mm gives 3.8 SE) but loses seed 3 (the folds'
+    wavelengths averaging 9.79 mm for the rig's 9.74: 3.8 SE, against 5.7 SE held at the
+    signature's 9.67 mm), so the wavelength stays held. With each wheel's phase free (same
+    cases): profiled per fold it loses seed 1 (2.3 SE); profiled on all runs after the
+    judgement it reports seeds 0, 1, 2, 3, 7, 8 at 0.4, 2.4, 0.4, 0.3, 2.3, 0.3 % off where
+    the signature is 0.1, 6.9, 0.2, 0.7, 0.5, 0.1 % off.
 
-    ``independent`` (the catalogue's choice since session 10): each wheel meets the
+    ``independent`` (the catalogue's choice): each wheel meets the
     irregularity at its own phase, four quadrature parts (``RailWaviness(independent=True)``),
     all linear (micrometres on a contact preloaded by a fraction of a millimetre): four
     solves per run. The two wheels' relative phase is then fitted instead of fixed by a
     wavelength known to a fraction of a percent. Measured on rail seeds 0-9 at 8 runs under
-    the tests' shared base fit (docs/diagnosis.md, session 10): 6 of 10 named (seeds 0, 1,
+    the tests' shared base fit (docs/diagnosis.md): 6 of 10 named (seeds 0, 1,
     2, 3, 7, 8; seed 1 at the signature's 7 % off wavelength) where one amplitude at phase 0
-    (``independent=False``: one solve per run) named 4 (2, 3, 7, 8); nothing hidden, seeds
+    (``independent=False``: one solve per run) names 4 (2, 3, 7, 8); nothing hidden, seeds
     0-5: `none` in every case either way. One phase common to both wheels, fitted as two
-    quadrature parts (session 9), had named 4 of 10 too.
+    quadrature parts, names 4 of 10 too.
     """
 
     independent: bool = eqx.field(static=True, default=False)
@@ -364,8 +364,8 @@ class RailRefit(AbstractRefit):
         """An out-of-round wheel, when the wavelength lies within the signatures' 4 % of a
         wheel harmonic's 2 pi R / k: that wheel, rolling without slip, meets its profile at
         the same period along the rail, and with each wheel's rail phase free the rail
-        extension holds a tone under one wheel alone (session 11: three times the rig's
-        wheel seed 1 was named a rail at 31.28 mm, 0.4 % from the sixth harmonic). The
+        extension holds a tone under one wheel alone (without this alternative the rig's
+        wheel seed 1 is named a rail at 31.28 mm, 0.4 % from the sixth harmonic). The
         fitted heights under the two wheels are given: a rail lies under both."""
         lam = _mean(parameters.get("rail_waviness.wavelength_m", parameters.get("wavelength_m")))
         if not np.isfinite(lam) or lam <= 0:

@@ -5,7 +5,7 @@ default posterior (R-hat <= 1.01 and bulk ESS >= 400 for every parameter) within
 All figures come from one process, so the ratio in 1 compares like with like under load:
 
 1. the cost of one CMA-ES population (12 candidates, law searched, at the campaign's three
-   speeds) evaluated as before session 4 (chunks of 10 candidates, so 12 padded to 20, full
+   speeds) evaluated the former way (chunks of 10 candidates, so 12 padded to 20, full
    3.64 s records, one thread) and as now (one chunk per worker, records up to
    ``simulation_horizon``, ``FitSettings.workers`` threads): wall and CPU seconds per
    candidate, each after a compiling call, median of three; ratio old/new. Both through the
@@ -57,7 +57,7 @@ configure_jax(os.environ.get("BAYESDOOR_JAX_CACHE", ROOT / ".jax_cache"))
 
 #: pycma's first population with the law searched (8 variables, one integer)
 POPULATION = 12
-#: the chunk every batch was padded to before session 4
+#: the chunk every batch was padded to in the former batching
 OLD_CHUNK = 10
 
 

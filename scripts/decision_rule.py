@@ -45,7 +45,7 @@ from scipy import stats
 from bayesdoor.diagnose import capped_t, rule_passes, rule_thresholds, t_statistic
 from bayesdoor.diagnose._gain import _runs
 
-#: the threshold on t of the rule until session 15 (``bayesdoor.diagnose.DECISIVE_SE``)
+#: the threshold on t of the plain rule (``bayesdoor.diagnose.DECISIVE_SE``)
 THRESHOLD = 4.0
 #: held-out runs of the null false-alarm table
 NULL_RUNS = (6, 8, 12)

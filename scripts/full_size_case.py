@@ -6,7 +6,7 @@ The same campaign (12 healthy rig runs over 0.25-0.50 m/s, the effect drawn by
 case's own runs, and the same checks of the verdict and of the key parameter as the test;
 what the test does not keep is saved: every candidate's gain, the stage times and, for a
 failed check, its message. Several cases run side by side as separate processes (each
-diagnosis uses two threads), as on the lent machine of session 13::
+diagnosis uses two threads), for example pinned to cores on a larger machine::
 
     python scripts/full_size_case.py frame_mode 3 out/full_size
     taskset -c 2,3 python scripts/full_size_case.py rail_waviness 3 out/full_size &
@@ -18,8 +18,8 @@ spectra, a model that knows the effect exactly, and that model is judged on the 
 own setup and folds by its own held-out rule (changed bins, local scatter, the tracking flag
 of the effect's candidate). A refit that gains less than its ceiling leaves something to
 find; a ceiling under the rule's 4 standard errors says the effect is too weak for the
-judgement at this size, whatever a refit does (session 7 measured ceilings at 8 runs,
-docs/diagnosis.md section 5).
+judgement at this size, whatever a refit does (docs/diagnosis.md has the ceilings at 8
+runs).
 
 Writes ``OUT/NAME-SEED.json`` (with the base fit's point, so that a case can be judged again
 without fitting) and prints ``NAME SEED VERDICT PASSED SECONDS`` (and the effect's refit and

@@ -74,8 +74,8 @@ def current_verdict(case: Mapping[str, Any]) -> str | None:
     """The case's verdict under the rule of this code, from its saved gains (as
     ``diagnose_campaign`` decides: a refit is confirmed when it passes the rule, lowers J and
     does not fail to explain its feature; the first confirmed cause in ``verdict_order``);
-    ``None`` when a refitted candidate lacks its per-run gains (saved before session 13 kept
-    them)."""
+    ``None`` when a refitted candidate lacks its per-run gains (cases saved by older code
+    may lack them)."""
     causes = (case.get("diagnosis") or {}).get("causes", [])
     refitted = [c for c in causes if c.get("gain")]
     if any(not c["gain"].get("delta_elpd_per_run") for c in refitted):
@@ -101,7 +101,7 @@ def _z(cause: Mapping[str, Any]) -> float:
 def _passes(cause: Mapping[str, Any]) -> bool:
     """Whether a refit's gain passes the rule's statistical part, computed again from the
     per-run gains where they were kept (so that cases saved under an earlier rule are judged
-    alike), else the plain 4 SE of the rule before session 14."""
+    alike), else the plain 4 SE (``DECISIVE_SE``) alone."""
     gain = cause.get("gain")
     if not gain:
         return False

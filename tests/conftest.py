@@ -5,7 +5,7 @@ from pathlib import Path
 
 #: XLA's backend optimisations off (JAX's flag for smoke tests): most of a cold run is
 #: compiling, and the tests' programs mostly run once. On an empty cache tests/test_door.py,
-#: test_coupled_frame_mode.py and test_cli_fit.py took 145 s instead of 189 s (session 12);
+#: test_coupled_frame_mode.py and test_cli_fit.py take 145 s instead of 189 s;
 #: every test passes either way. Set in the environment, before JAX is imported, so that the
 #: processes the tests start (dask workers, notebook kernels) compile alike: their results
 #: are compared bit for bit. ``BAYESDOOR_TEST_XLA_OPT=1`` (as ``make test-long`` sets) tests
@@ -71,8 +71,8 @@ def key():
     return jax.random.key(20231)
 
 
-#: tests that take a minute or more on the 2-core machine (session 10, first run on a fresh
-#: machine: the notebooks 02-04 219 s, the diagnosis cases 40-120 s each): started first, so
+#: tests that take a minute or more on a 2-core machine (on a fresh machine: the notebooks
+#: 02-04 219 s, the diagnosis cases 40-120 s each): started first, so
 #: that ``pytest -n 2`` does not end with one worker on a long test while the other idles
 #: (longest first is the classic rule for sharing jobs between machines)
 _LONG = (

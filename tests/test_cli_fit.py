@@ -22,7 +22,7 @@ def rig_file(tmp_path_factory):
     return path
 
 
-# 40 s with its rig file (session 16's durations): in the long tier, to keep the default
+# 40 s with its rig file: in the long tier, to keep the default
 # suite within its 10 minutes (the refusals below stay in it)
 @pytest.mark.long
 def test_fit_prints_json_writes_files_and_refuses_to_overwrite(rig_file, tmp_path):

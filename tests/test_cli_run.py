@@ -19,7 +19,7 @@ from bayesdoor.cli import app
 from bayesdoor.io import make_campaign, save_campaign
 
 runner = CliRunner()
-#: the catalogue names of DESIGN.md section 6
+#: the names of the door's catalogue of discrepancy causes (docs/model.md)
 DESIGN_CAUSES = (
     "frame_mode",
     "wheel_eccentricity",

@@ -164,7 +164,7 @@ def _participations_proposal():
     return parts, proposal
 
 
-# 22-33 s with an empty JAX cache (session 16): in the long tier, to keep the default suite
+# 22-33 s with an empty JAX cache: in the long tier, to keep the default suite
 # within its 10 minutes
 @pytest.mark.long
 def test_a_refits_solves_split_over_threads_are_those_of_one_batch(refit_case):
@@ -193,7 +193,7 @@ def test_a_refits_solves_split_over_threads_are_those_of_one_batch(refit_case):
     assert np.abs(g1[0] - g1[2]).max() > 1e-3 * np.abs(g1).max()
 
 
-# 22-33 s with an empty JAX cache (session 16): in the long tier, to keep the default suite
+# 22-33 s with an empty JAX cache: in the long tier, to keep the default suite
 # within its 10 minutes
 @pytest.mark.long
 def test_the_refit_profiles_the_participations_exactly(refit_case):

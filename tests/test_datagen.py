@@ -373,7 +373,7 @@ def test_model_error_offsets_are_added(tmp_path, key):
 
 
 # 16 s (a local Dask cluster starts): in the long tier, to keep the default suite within
-# its 10 minutes (session 16's durations)
+# its 10 minutes
 @pytest.mark.long
 def test_dask_local_cluster_equals_local(tmp_path, key, monkeypatch):
     # the worker processes inherit the environment: let them share the tests' JAX cache

@@ -3,11 +3,12 @@ campaign (the rig with nothing hidden), as a new user runs it.
 
 Long tier (CI runs it after the default suite): the campaign is recorded on first use (about
 2.5 minutes on this 2-core machine, cached under ``$BAYESDOOR_DATA`` or
-``~/.cache/bayesdoor``), and the job takes 1.5-4 minutes. Session 16 ran it on a fresh clone
-and found the diagnosis naming ``frame_mode`` on this campaign, where nothing is hidden: a
-rail-carrying mode that ended off its feature (docs/diagnosis.md, session 16). The verdict
-below is the regression check of that false alarm on this one campaign and seed; the
-nothing-hidden cases of ``test_diagnose_job`` are the check over seeds.
+``~/.cache/bayesdoor``), and the job takes 1.5-4 minutes. Without the check that a
+refitted frame mode peaks on its feature, the diagnosis names ``frame_mode`` on this
+campaign, where nothing is hidden: a rail-carrying mode that ends off its feature
+(docs/diagnosis.md). The verdict below is the regression check of that false alarm on this
+one campaign and seed; the nothing-hidden cases of ``test_diagnose_job`` are the check over
+seeds.
 """
 
 import json

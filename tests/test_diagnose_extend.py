@@ -206,7 +206,7 @@ def test_a_rail_at_a_wheel_harmonic_has_the_wheel_as_an_alternative():
     from bayesdoor.systems.door._catalogue import RailRefit
 
     recipe = RailRefit(independent=True)
-    # session 11: three times the rig's wheel seed 1 (left wheel) was named a rail at
+    # three times the rig's wheel seed 1 (left wheel) is named a rail at
     # 31.28 mm, 0.4 % from the sixth harmonic's 2 pi R / 6 = 31.42 mm
     parameters = {
         "wavelength_m": 0.03128,

@@ -108,7 +108,7 @@ def check_parameters(name: str, cause, recording, rig) -> None:
         if isinstance(cause.proposal.extension, CoupledFrameMode):
             # a mode that carries the rail is fitted by its bare frequency, as the rig's is
             # defined (modal mass 20 kg, lifting the rail under both wheels); the installed
-            # frequency it reports is compared with the rig's (session 8: 42.69 / 23.87 Hz
+            # frequency it reports is compared with the rig's (measured: 42.69 / 23.87 Hz
             # for seeds 2 / 3, the rig's 42.12 / 23.86)
             installed_fit = _mean(p, "frame_mode.installed_frequency_hz")
             assert abs(installed_fit - reference) < 1.0, (p, reference)
@@ -138,29 +138,22 @@ def check_parameters(name: str, cause, recording, rig) -> None:
         assert abs(_mean(p, "line_frequency_hz") - truth["frequency_hz"]) <= 1.0, p
 
 
-#: cases measured to fail at this size (tests/test_diagnose_job.py at 4644d4e, 8 runs; the
-#: frame modes failed until session 7's rail-carrying mode): the rig's wheel eccentricity
-#: leaves no
-#: residual feature in 1 Hz spectra. Gains "session 6" were measured with the variance local
-#: near the features (48316fc), "session 6b" with the held-out scatter split by the bins the
-#: extension changes (0a08187), "session 7" with a rail's or wheel's changed bins local in
-#: wavenumber (52bc653), under this file's shared base fit. All six failed again in session 8
-#: (6d5e362, with the symptom rule: 12 slow cases passed, these 6 xfailed)
+#: cases measured to fail at this size (8 runs, under this file's shared base fit): the rig's
+#: wheel eccentricity leaves no residual feature in 1 Hz spectra (docs/diagnosis.md)
 _MEASURED_FAILING = {
     ("wheel_eccentricity", 0): "wheel tones about 20 dB under the vibration: no feature",
-    # measured in the full default suite of session 3 (09:35 UTC, shared base fit, 8 runs):
     # verdict none, the refits' held-out gain not decisive at this size
-    ("wheel_eccentricity", 1): "verdict none at 8 runs (session 3 suite)",
-    ("rail_waviness", 1): "named at 8 runs with each wheel's phase free (+159 +- 22, 7.2 SE, "
-    "session 10) but at the signature's 27.79 mm, 6.9 % off the rig's 26.0 (the base model's "
+    ("wheel_eccentricity", 1): "verdict none at 8 runs",
+    ("rail_waviness", 1): "named at 8 runs with each wheel's phase free (+159 +- 22, 7.2 SE) "
+    "but at the signature's 27.79 mm, 6.9 % off the rig's 26.0 (the base model's "
     "own 25.17 mm line cuts into the excess: 1.27 cycles/m from the hidden 26.0 mm, the 0.8 m "
-    "stroke's resolution; session 11: refined on all runs 26.62 mm, 2.4 % off); session 7: "
-    "verdict none, +92 +- 25, 3.8 SE",
+    "stroke's resolution; refined on all runs 26.62 mm, 2.4 % off); with one amplitude for "
+    "both wheels (independent=False): verdict none, +92 +- 25, 3.8 SE",
     ("sensor_cross_axis", 1): "verdict none at 8 runs (no leak feature, only the rail "
-    "refitted: session 6b -0.4 SE, session 6 +0.4 SE)",
+    "refitted: -0.4 to +0.4 SE)",
 }
-#: seeds the detector was checked on after its changes of session 4 (order tracking, the
-#: leak fraction from the transfer function), beyond the two it was developed on; all under
+#: seeds the detector is checked on (order tracking, the leak fraction from the transfer
+#: function), beyond the two it was developed on; all under
 #: ``slow``, measured (8 runs, the shared base fit) with the outcome below where it fails
 VALIDATION_SEEDS = {
     "frame_mode": (2, 3),
@@ -176,17 +169,16 @@ _MEASURED_FAILING.update(
 
 
 # cases that pass but cost minutes: a frame mode that carries the rail is refitted with a
-# solve of every training run per candidate (session 7, 1.5-4 min per case on the shared
-# machine; frame seeds 0-3 named with the coupled mode, +6.5 to +9.4 SE). Mains seed 1
-# takes the same path as seed 0 (82 and 86 s, one process): it runs under slow to keep the
-# default suite within its 10 minutes. Rail seed 0 has passed since session 10 (each wheel's
-# phase free and the locator at the measured peak: +202 +- 39, 5.2 SE at 34.64 mm for the
-# rig's 34.68; 2.3 SE before), 2 min. Since session 12 they run in the long tier (CI)
+# solve of every training run per candidate (1.5-4 min per case on a 2-core machine; frame
+# seeds 0-3 named with the coupled mode, +6.5 to +9.4 SE). Mains seed 1 takes the same path
+# as seed 0 (82 and 86 s, one process): it runs under slow to keep the default suite within
+# its 10 minutes. Rail seed 0 (each wheel's phase free and the locator at the measured peak:
+# +202 +- 39, 5.2 SE at 34.64 mm for the rig's 34.68), 2 min. They run in the long tier (CI)
 
 
 def _case(name: str, seed: int, *, slow: bool):
     heavy = slow or (name, seed) in _MEASURED_FAILING
-    # a case that is not slow still costs 1-4 minutes (session 11, empty JAX cache: 65-170 s
+    # a case that is not slow still costs 1-4 minutes (empty JAX cache: 65-170 s
     # with its share of the base fit): it runs in the long tier, which CI runs after the suite
     marks = [pytest.mark.slow] if heavy else [pytest.mark.long]
     if (name, seed) in _MEASURED_FAILING:
@@ -226,8 +218,8 @@ def test_hidden_effect_is_named(name, seed, base_fit):
     assert {"name", "evidence", "parameters", "gain"} <= set(payload["causes"][0])
 
 
-#: seeds 0 and 1 run in the long tier (49 s with an empty JAX cache, session 11; seed 0 64 s
-#: with the rail-carrying mode's refit, session 7)
+#: seeds 0 and 1 run in the long tier (49 s with an empty JAX cache; seed 0 64 s with the
+#: rail-carrying mode's refit)
 @pytest.mark.parametrize(
     "seed",
     [
@@ -271,7 +263,7 @@ def test_wrong_extension_shows_no_gain(base_fit):
 @pytest.mark.slow
 def test_a_rail_named_at_a_wheel_harmonic_says_it_could_be_the_wheel(base_fit):
     """Three times the rig's wheel seed 1 (its left wheel, six harmonics): one tone at the
-    sixth harmonic, named a rail at 31.28 mm in session 11 (+240 +- 58, 4.1 SE). A rail of
+    sixth harmonic, named a rail at 31.28 mm (+240 +- 58, 4.1 SE). A rail of
     period 2 pi R / k under one wheel is the same excitation as that wheel's k-th harmonic,
     so the verdict must say that it could be the wheel."""
     wheel = WheelEccentricity.from_seed(1)
@@ -309,9 +301,9 @@ def test_decision_rule():
 
 
 def test_a_run_that_gains_more_does_not_sink_the_verdict():
-    # the rail seed 6 at full size (session 14, rounded): 11 of 12 runs gain, one gains +80
-    # (its tone meets a door resonance; the rig's own effect added to the base model gains
-    # most in that run too); the plain t is 3.4, under the 4 of the rule before session 14
+    # the rail seed 6 at full size (rounded): 11 of 12 runs gain, one gains +80 (its tone
+    # meets a door resonance; the rig's own effect added to the base model gains most in that
+    # run too); the plain t is 3.4, under the plain rule's 4
     d = np.array([8.0, 36.0, 35.0, 1.0, 14.0, 17.0, -6.0, 80.0, 15.0, 19.0, 28.0, 14.0])
     base = np.full(12, -100.0)
     gain = compare_held_out(base, base + d, np.ones(12), np.full(12, 0.9))
@@ -337,7 +329,7 @@ def test_a_run_that_gains_more_does_not_sink_the_verdict():
 
 
 def test_runs_that_gain_alike_pass_on_the_plain_statistic():
-    # frame mode seed 0, 6 runs, quick (session 15): five runs gain about +55, one +7; capping
+    # frame mode seed 0, 6 runs, quick: five runs gain about +55, one +7; capping
     # cannot help a low run (capped 5.56 against the capped-only 6.62 at 6 runs), the plain t
     # 5.33 passes; a leak beside it gained a steady +4 to +21 (t 3.93) and passes capped
     base = np.full(6, -300.0)
@@ -374,7 +366,7 @@ def test_the_rule_keeps_the_plain_tests_false_alarm_rate():
 
 
 def test_the_verdict_takes_the_best_signature_match_before_the_largest_gain():
-    # cross-axis seed 0 at 8 runs (session 14): a mode on A2Z (score 0.75) gained +120 nats,
+    # cross-axis seed 0 at 8 runs: a mode on A2Z (score 0.75) gained +120 nats,
     # the hidden leak (score 1.0) +55; both confirmed: the leak is named
     confirmed = [("frame_mode", 0.75, 120.0), ("sensor_cross_axis", 1.0, 55.0)]
     first = min(confirmed, key=lambda c: verdict_order(c[1], c[2]))
@@ -514,75 +506,57 @@ def test_a_runs_misfit_elsewhere_barely_moves_its_gain_with_the_line_bins_local(
         assert moved["local"] < 0.1 * moved["pooled"], moved
 
 
-#: full-size cases measured to fail (session 9, at 28208c9: ``none-2`` passed, 14 min for the
-#: two at once)
-#: rail seed 2 failed here in session 9 (verdict none) and passes since session 10 (each
-#: wheel's rail phase free; `pytest -m slow "...::test_full_size[rail_waviness-2]"`, 10 min 12 s)
-#: session 12 ran four more (two at a time, 11-18 min each, at fe7af9a):
-#: mains_hum-3, sensor_cross_axis-3 and none-3 passed, frame_mode-2 failed (below)
-#: session 13 ran eight on the lent machine's CPU (16 cores, JAX 0.11.2, eight cases at once
-#: with two cores each, 11-22 min; scripts/full_size_case.py's lines at 16c5225): frame_mode-4,
-#: sensor_cross_axis-4, mains_hum-4, none-4 and none-5 passed, three failed (below); then five
-#: on this machine, one at a time: sensor_cross_axis-5, mains_hum-5, none-6 passed,
-#: rail_waviness-5 and frame_mode-5 failed (below)
-#: session 14 ran nine on this machine, one at a time (scripts/full_size_case.py --ceiling at
-#: 3ce0f67-17627f3): rail_waviness-3 passed here (+690 +- 124, 5.6 SE, at 9.81 mm; on the lent
-#: machine, JAX 0.11.2, its own base fit gave +464 +- 124, 3.7 SE: a full-size verdict near the
-#: rule depends on the platform's base fit); the others are below. Session 15 (the capped
-#: rule alone, 518b060): rail_waviness-6 passed (+261 +- 77 as before, capped 5.71 against
-#: 4.96, at 28.15 mm for 27.62); the rule since 78df74f decides it alike (5.71 against 5.23,
-#: judged again from its saved per-run gains)
+#: full-size cases measured to fail; every case's figures, command and machine are in
+#: results/diagnosis_full_size.md (the saved cases: results/full_size). A full-size verdict
+#: near the rule depends on the platform's base fit: rail_waviness-3 passes on a 2-core x86
+#: machine (+690 +- 124, 5.6 SE, at 9.81 mm), while on a 16-core machine with JAX 0.11.2 its
+#: own base fit gave +464 +- 124, 3.7 SE. rail_waviness-6 passes on the capped statistic
+#: (+261 +- 77, capped 5.71 against 5.23, at 28.15 mm for 27.62)
 _FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
-    ("frame_mode", 2): "verdict none at 12 runs (session 12; signature verdict rail_waviness; "
-    "named at 8 runs, quick); session 13: the mode located at 42.5 Hz and refitted (bare "
+    ("frame_mode", 2): "verdict none at 12 runs (signature verdict rail_waviness; "
+    "named at 8 runs, quick): the mode located at 42.5 Hz and refitted (bare "
     "38.6 Hz), its held-out gain +468 +- 181 nats, 2.6 SE: 10 of 12 runs gain +29 to +98, two "
-    "lose 80 and 47 (0.295 and 0.341 m/s, both held out by the same fold); session 14: the "
-    "same figures; the rig's own mode added to the base model loses in the same two runs (-31, "
+    "lose 80 and 47 (0.295 and 0.341 m/s, both held out by the same fold); "
+    "the rig's own mode added to the base model loses in the same two runs (-31, "
     "-131; ceiling 2.0 SE), and the base fit sits at four bounds (K 2500, n 1.5, c_r 0.6, "
     "mu_s 0.85)",
     ("frame_mode", 3): "verdict right (+1276 +- 159 nats), but the bare frequency 28.2 Hz "
     "against the rig's 26.42: at the top of its search box (the signature's 24.21 Hz + 4), "
     "the damping at its 0.1 bound (installed 24.85 against 23.86; the rig's door mode at "
-    "21.6 Hz beside it); session 13 (again in session 14, to the digit: the notes now say both "
-    "ended at their boxes' upper ends)",
+    "21.6 Hz beside it); both end at their boxes' upper ends",
     ("rail_waviness", 5): "verdict none: the rail located at 50.46 mm (truth 51.06), 11 of "
-    "12 runs gain but one gains +164 nats, which widens the SE: +380 +- 154, 2.5 SE; "
-    "session 13 (again in session 14, the same figures; the rig's own effect added to the "
-    "base model gains 2.8 SE, its run 3 too gaining most)",
+    "12 runs gain but one gains +164 nats, which widens the SE: +380 +- 154, 2.5 SE "
+    "(the rig's own effect added to the base model gains 2.8 SE, its run 3 too gaining most)",
     ("wheel_eccentricity", 2): "verdict none: no wheel feature; the rig's own wheel added to "
-    "the base model gains +7 +- 25 nats (0.3 SE); session 14",
+    "the base model gains +7 +- 25 nats (0.3 SE)",
     ("wheel_eccentricity", 3): "verdict none: no wheel feature; the rig's own wheel added to "
-    "the base model gains +2 +- 15 nats (0.1 SE); session 14",
+    "the base model gains +2 +- 15 nats (0.1 SE)",
     ("wheel_eccentricity", 4): "verdict none: the signature names the wheel (harmonic comb at "
     "k = 4 and 6, z 5.1 and 3.8; the rig's right wheel, first harmonic 12.5 um), but the refit "
     "(on the left wheel, harmonics 4 and 6) gains +82 +- 33 nats, 11 of 12 runs: 2.5 SE, capped "
-    "3.54 against 5.23; the rig's own wheel added to the base model 1.4 SE; session 15",
+    "3.54 against 5.23; the rig's own wheel added to the base model 1.4 SE",
     ("wheel_eccentricity", 5): "verdict none: no wheel feature; the rig's own wheel added to "
-    "the base model gains +19 +- 25 nats (0.8 SE); session 15",
+    "the base model gains +19 +- 25 nats (0.8 SE)",
     ("wheel_eccentricity", 6): "verdict none: the signature names the wheel (harmonic comb at "
     "k = 4 and 6, z 4.1 and 4.6; the rig's left wheel, first harmonic 7.0 um), the refit (left "
     "wheel, harmonics 4 and 6) gains +58 +- 24 nats, 11 of 12 runs: 2.4 SE, capped 2.43 "
-    "against 5.23; the rig's own wheel added to the base model 2.0 SE; session 15",
+    "against 5.23; the rig's own wheel added to the base model 2.0 SE",
     ("frame_mode", 5): "verdict right (+673 +- 113 nats), but the bare frequency 79.32 Hz "
-    "against the rig's 80.38 (1.06 Hz off; installed 80.47), the rail lift at its 0.3 bound; "
-    "session 13",
+    "against the rig's 80.38 (1.06 Hz off; installed 80.47), the rail lift at its 0.3 bound",
     ("rail_waviness", 4): "verdict none: a 70 mm rail, tones at 3.6-7.1 Hz at the band's "
-    "low edge; no rail feature at all (as at 8 runs, docs/diagnosis.md); session 13 (again in "
-    "session 14: the rig's own rail added to the base model gains 2.2 SE)",
-    # these two were added in b129427 and lost when session 14 reverted that commit's rule
-    # (bed72e7); restored in session 16 from their saved cases (results/full_size)
+    "low edge; no rail feature at all (as at 8 runs, docs/diagnosis.md); the rig's own rail "
+    "added to the base model gains 2.2 SE",
     ("sensor_cross_axis", 6): "verdict none: the rig's A1 reads 8.2 % of X in Z; the pair's "
     "coherence shows it (max Z 6.8, 12 % of the bins) but its transfer is not flat (relative "
     "spread 1.36, the check's 0.5: score 0.5) and the leak's refit gains +7 +- 9 nats (7 of 12 "
     "runs): a leak of X into Z shows in the coherence, which the held-out spectra do not "
-    "contain (as cross-axis seed 1 at 8 runs); session 14",
+    "contain (as cross-axis seed 1 at 8 runs)",
     ("frame_mode", 6): "verdict right (+8.9 SE; the ceiling 7.3 SE), but the bare frequency "
     "58.60 Hz against the rig's 60.36 (installed 60.89 against the rig's 60.74; the rig's lift "
-    "0.105, the fit's 0.25, one fold at the 0.3 bound); session 14, again to the digit in "
-    "session 16, where refitting the contact's K and n with the mode moved the bare frequency "
-    "further off (57.69 Hz, the lift at 0.3, K and n staying at their upper bounds); and "
-    "again with the peak check of session 16 (the folds' modes installed at 61.46 and 59.87 Hz "
-    "for the feature's 61.21)",
+    "0.105, the fit's 0.25, one fold at the 0.3 bound); refitting the contact's K and n with "
+    "the mode moves the bare frequency further off (57.69 Hz, the lift at 0.3, K and n staying "
+    "at their upper bounds); with the peak check the folds' modes install at 61.46 and "
+    "59.87 Hz for the feature's 61.21",
 }
 
 
@@ -599,11 +573,10 @@ def _full_size_case(name: str, seed: int) -> pytest.ParameterSet:
 )
 def test_full_size(name, seed):
     """Twelve runs over the whole speed range, the base model fitted on each campaign (the
-    command's default sizes). 30 cases of 6-10 minutes each here, never run in one go; each
-    was run once or more in sessions 9-15, and 18 passed (mains 5, cross-axis 4, nothing
-    hidden 5, rail 3, frame mode 1, wheel 0; five on the lent machine of session 13, the rest
-    here). The failures are strict expected failures with their figures
-    (``_FULL_SIZE_FAILING``). The saved cases: results/diagnosis_full_size.md."""
+    command's default sizes). 30 cases of 6-10 minutes each on a 2-core machine, run one at
+    a time with ``scripts/full_size_case.py``; 18 pass (mains 5, cross-axis 4, nothing
+    hidden 5, rail 3, frame mode 1, wheel 0). The failures are strict expected failures with
+    their figures (``_FULL_SIZE_FAILING``). The saved cases: results/diagnosis_full_size.md."""
     recording, rig = record(name, seed, SPEEDS_SLOW)
     diagnosis = diagnose_campaign(
         DOOR, recording.campaign, seed=seed, progress=False, catalogue=DOOR_CATALOGUE

@@ -239,7 +239,7 @@ def test_model_error_refuses_inconsistent_correlation_settings():
 
 
 #: 32-35 s on an empty JAX cache, nearly all of it compiling NUTS through the correlated
-#: likelihood (session 12): in the long tier, which CI runs after the default suite
+#: likelihood: in the long tier, which CI runs after the default suite
 @pytest.mark.long
 def test_nuts_samples_the_length_and_replicates_are_finite(key):
     """The sampled site, a start value for it, and posterior-predictive replicates through

@@ -98,7 +98,7 @@ def test_linear_lateral_limit_matches_matrix_exponential():
     assert int(status) == 0
     ys = np.asarray(ys)
 
-    # hand-built from DESIGN.md section 2: coordinates (phi, q1)
+    # hand-built from the door model of docs/model.md: coordinates (phi, q1)
     m, h, H = 60.0, 2.1, 1.10
     m_f, w1 = 20.0, 2 * np.pi * 32.0
     M = np.array([[m * h**2 / 12 + m * H**2, m * H], [m * H, m_f + m]])
@@ -111,7 +111,7 @@ def test_linear_lateral_limit_matches_matrix_exponential():
     # tight solver: the difference is integration error, orders below 1e-6 of the amplitude
     np.testing.assert_allclose(sim[1], ref[1], atol=1e-6 * 1e-4)
     np.testing.assert_allclose(sim[0], ref[0], atol=1e-6 * np.abs(ref[0]).max())
-    # the hanging panel lowers the bare 32 Hz header mode to about 25 Hz (DESIGN.md section 2)
+    # the hanging panel lowers the bare 32 Hz header mode to about 25 Hz (docs/model.md)
     f_installed = np.sort(np.abs(np.linalg.eigvals(A).imag))[-1] / (2 * np.pi)
     assert 24.0 < f_installed < 26.0
 

@@ -74,7 +74,7 @@ def test_01_simulate_and_contact_laws(tiny):
     assert len(list((tiny / "01").glob("*.png"))) == 5
 
 
-#: 210-220 s with an empty JAX cache (session 11), most of it tracing and compiling: in the
+#: 210-220 s with an empty JAX cache, most of it tracing and compiling: in the
 #: long tier, which CI runs after the default suite
 @pytest.mark.long
 def test_02_03_04_update_train_report_diagnose(tiny):

@@ -1,4 +1,4 @@
-"""Every command's ``--json`` against DESIGN.md section 5 (issue 5): the keys users read.
+"""Every command's ``--json`` against docs/cli.md: the keys users read.
 
 ``SCHEMA`` writes the design's "JSON (at least)" column as the keys each payload must hold.
 The payloads come from the commands themselves through typer's runner, with the heavy work
@@ -68,7 +68,7 @@ CLASSIFY = {
     "metrics": keys("accuracy", "ece", "nll", "brier", "confusion"),
 }
 DIAGNOSE = {"verdict": ANY, "causes": Each(keys("name", "evidence", "parameters", "gain"))}
-#: DESIGN.md section 5, the "JSON (at least)" column; ``run`` holds the union of the fit, the
+#: the keys docs/cli.md documents for each command; ``run`` holds the union of the fit, the
 #: classification and the diagnosis: the classification's keys at the top, the fit's under
 #: ``fit`` and the diagnosis's under ``diagnosis``
 SCHEMA = {

@@ -1,11 +1,11 @@
 """``scripts/make_results.py``, the one command that regenerates ``results/``, and the
 generated-block markers that keep the notes written by hand in those files.
 
-Before session 18 the steps were not the commands that had made the files: the diagnosis
-step ran ten seeds at 8 runs where the README's table is two seeds at 6, and a rerun would
-have dropped every note written after a run. These tests tie each step to the command named
-at the top of its file, parse every step with its script's own parser, and check that a
-rerun replaces only the generated block.
+A step that is not the command that made its file (say ten seeds at 8 runs where the
+README's table is two seeds at 6) would replace the figures the README quotes, and a rerun
+that rewrote a whole file would drop every note written after a run. These tests tie each
+step to the command named at the top of its file, parse every step with its script's own
+parser, and check that a rerun replaces only the generated block.
 """
 
 from __future__ import annotations

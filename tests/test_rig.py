@@ -241,7 +241,7 @@ def test_analysis_band_matches_reduced_model(clean, reduced):
     assert np.any(mismatch(_welch(other)[1]) > tolerance)
 
 
-# --- damage signatures (DESIGN.md section 2) --------------------------------------------------
+# --- damage signatures (docs/rig.md) --------------------------------------------------------------
 
 
 @pytest.fixture(scope="module")
@@ -284,7 +284,7 @@ def test_d2_impacts_once_per_wheel_revolution(baseline, damaged):
     np.testing.assert_allclose(np.diff(pos[peaks]), TWO_PI_R, rtol=0.04)
 
 
-# --- catalogue effects (DESIGN.md section 6) --------------------------------------------------
+# --- catalogue effects (docs/rig.md) --------------------------------------------------------------
 
 
 def _order_spectrum(x, v, t, step=0.5e-3):

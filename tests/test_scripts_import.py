@@ -2,9 +2,9 @@
 documented ``python scripts/...`` command parses.
 
 They import inside functions (so ``--help`` stays fast), where neither ruff nor mypy (which
-checks the package only) sees a name that moved: ``scripts/classification.py`` imported
-``configure_jax`` from ``bayesdoor.cli._common`` for sessions after it had moved to
-``bayesdoor``, and failed at its first line of work (found in session 17). This reads each
+checks the package only) sees a name that moved: a script that imports ``configure_jax``
+from ``bayesdoor.cli._common`` after it moved to ``bayesdoor`` fails at its first line of
+work, perhaps hours into a run of ``make_results``. This reads each
 file's ``from bayesdoor... import ...`` statements and resolves them, without running them;
 and it hands the arguments of every command quoted in the README, results/ and docs/ to that
 file's own argument parser, stopping its ``main`` right after parsing.

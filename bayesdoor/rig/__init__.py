@@ -8,6 +8,9 @@ from ._effects import MainsHum as MainsHum
 from ._effects import RailWaviness as RailWaviness
 from ._effects import SensorCrossAxis as SensorCrossAxis
 from ._effects import WheelEccentricity as WheelEccentricity
+from ._family import OtherDoor as OtherDoor
+from ._family import coloured_noise as coloured_noise
+from ._family import family_plan as family_plan
 from ._rig import Recording as Recording
 from ._rig import RestState as RestState
 from ._rig import RigConfig as RigConfig

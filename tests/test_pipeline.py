@@ -226,14 +226,20 @@ def test_second_run_recomputes_nothing(finished, tmp_path):
     assert [s.name for s in again.stages] == [
         "fit",
         "generate",
+        "adequacy",
         "train",
         "classify",
+        "trust",
         "diagnose",
         "report",
     ]
-    assert [s.reused for s in again.stages] == [True] * 6
+    assert [s.reused for s in again.stages] == [True] * 8
     assert StandInFit.calls == 1 and StandInDiagnosis.calls == 1
-    assert len(lines) == 6 and all("reused" in line for line in lines)
+    # one line per stage, plus the verdicts of the adequacy and trust checks
+    verdicts = [line for line in lines if line.startswith(("adequacy: the", "trust: trusted", "trust: not"))]
+    assert len(verdicts) == 2
+    stage_lines = [line for line in lines if line not in verdicts]
+    assert len(stage_lines) == 8 and all("reused" in line for line in stage_lines)
     assert again.classification == result.classification
     assert again.diagnosis["causes"] == result.diagnosis["causes"]
 
@@ -253,8 +259,10 @@ def test_changed_test_runs_recompute_only_the_stages_they_reach(finished, tmp_pa
     assert reused == {
         "fit": True,
         "generate": True,
+        "adequacy": True,
         "train": True,
         "classify": False,
+        "trust": False,
         "diagnose": True,
         "report": False,
     }
@@ -304,7 +312,14 @@ def test_the_diagnosis_is_in_the_job_json_and_linked_from_the_report(finished):
 def test_a_job_without_html_skips_the_diagnosis(tmp_path):
     calls = StandInDiagnosis.calls
     result = job(tmp_path / "batch", html=False)
-    assert [s.name for s in result.stages] == ["fit", "generate", "train", "classify"]
+    assert [s.name for s in result.stages] == [
+        "fit",
+        "generate",
+        "adequacy",
+        "train",
+        "classify",
+        "trust",
+    ]
     assert result.diagnosis is None and result.to_json()["diagnosis"] is None
     assert StandInDiagnosis.calls == calls
     assert not (tmp_path / "batch" / "diagnose").exists()

@@ -433,20 +433,27 @@ def test_a_killed_run_leaves_no_half_written_result_and_the_rerun_completes(stor
     stopped(
         interrupted,
         f"the job in {out} was stopped in its classify stage",
-        "its finished stages (fit, generate, train) are kept",
+        "its finished stages (fit, generate, adequacy, train) are kept",
         "run the same command again to resume",
     )
     # the finished stages are kept whole (each with its record), nothing else; the temporary
     # folder of the killed run is gone
     names = visible(after_interrupt)
-    assert {Path(f).parts[0] for f in names} == {"fit", "generate", "train"}
-    assert {"fit/stage.json", "generate/stage.json", "train/stage.json"} <= set(names)
+    assert {Path(f).parts[0] for f in names} == {"fit", "generate", "adequacy", "train"}
+    assert {
+        "fit/stage.json",
+        "generate/stage.json",
+        "adequacy/stage.json",
+        "train/stage.json",
+    } <= set(names)
     assert names == sorted(after_interrupt)
 
     finished, after = seen["finished"]
     assert finished.exit_code == 0, finished.output
     stages = {s["name"]: s["reused"] for s in json.loads(finished.stdout)["stages"]}
-    assert stages == {name: name in ("fit", "generate", "train") for name in STAGES}
+    assert stages == {
+        name: name in ("fit", "generate", "adequacy", "train") for name in STAGES
+    }
     assert visible(after) == sorted(after) and "job.json" in after
 
 

@@ -124,9 +124,12 @@ def run(
     quick: Annotated[bool, typer.Option(help="small sizes: a first look in minutes")] = False,
     seed: Annotated[int, typer.Option(help="seed of the fit, the simulations and training")] = 0,
     source: Annotated[
-        str,
-        typer.Option(help="training parameters: posterior, posterior+model_error or gaussian"),
-    ] = "posterior",
+        str | None,
+        typer.Option(
+            help="training parameters: posterior+model_error (the default with nuts or emcee), "
+            "posterior or gaussian (the default with cmaes)"
+        ),
+    ] = None,
     method: Annotated[str, typer.Option(help="fit method: nuts, emcee or cmaes")] = "nuts",
     force: Annotated[bool, typer.Option(help="replace a finished job of other settings")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
@@ -199,7 +202,7 @@ def demo(
         out,
         quick=quick,
         seed=seed,
-        source="posterior",
+        source=None,
         method="nuts",
         force=force,
         json=json,

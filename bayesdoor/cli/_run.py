@@ -9,6 +9,7 @@ from typing import Any, cast
 
 import xarray as xr
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from ._common import (
@@ -107,6 +108,19 @@ def print_summary(result: dict[str, Any], console: Console, *, quick: bool = Fal
     if result["n_failed"]:
         table.add_row("not classified (bad records)", str(result["n_failed"]))
     console.print(table)
+    adequacy = (fit or {}).get("adequacy") or {}
+    if adequacy.get("summary"):
+        console.print(f"fit adequacy: {adequacy['summary']}", markup=False, highlight=False)
+    trust = result.get("trust")
+    if trust is not None:
+        if trust["verdict"] == "not trusted":
+            console.print(
+                "[bold red]the classification cannot be trusted:[/] "
+                + escape("; ".join(trust["reasons"])),
+                highlight=False,
+            )
+        else:
+            console.print("trust: the checks passed (fit adequacy, known runs, OOD rate)")
     diagnosis = result.get("diagnosis")
     if diagnosis is not None:
         verdict = diagnosis["verdict"]
@@ -124,15 +138,24 @@ def run(
     *,
     quick: bool,
     seed: int,
-    source: str,
+    source: str | None,
     method: str,
     force: bool,
     json: bool,
 ) -> None:
-    """Run the job, print its summary (or its JSON)."""
-    from ..pipeline import SOURCES, Source, calibration_runs, default_diagnose, run_job
+    """Run the job, print its summary (or its JSON); ``source`` ``None``: the method's default."""
+    from ..pipeline import (
+        SOURCES,
+        Source,
+        calibration_runs,
+        default_diagnose,
+        default_source,
+        run_job,
+    )
     from ._diagnose import catalogue_for
 
+    if method in ("nuts", "emcee", "cmaes") and source is None:
+        source = default_source(method)
     if source not in SOURCES:
         raise fail(f"--source {source!r}: use one of {', '.join(SOURCES)}")
     if method not in ("nuts", "emcee", "cmaes"):

@@ -1,5 +1,8 @@
 """Simulated training data for the classifier: parameter sources, features, chunked generation."""
 
+from ._adequacy import Adequacy as Adequacy
+from ._adequacy import fit_adequacy as fit_adequacy
+from ._adequacy import healthy_outliers as healthy_outliers
 from ._config import GenerationConfig as GenerationConfig
 from ._features import campaign_features as campaign_features
 from ._features import featurize as featurize

@@ -311,11 +311,14 @@ def report_stage(
     fit: FitSummary | None = None,
     title: str = "Damage report",
     diagnosis: dict[str, Any] | None = None,
+    adequacy: dict[str, Any] | None = None,
+    trust: dict[str, Any] | None = None,
 ) -> None:
     """Write the HTML damage reports from a classification and its model folder.
 
     With the ``diagnosis`` JSON of the job (its ``report`` the HTML's path), the campaign page
-    shows its verdict and links it.
+    shows its verdict and links it. With the job's ``adequacy`` and ``trust`` JSON, the page
+    opens with them (and says so plainly when the classification cannot be trusted).
     """
     classification = json.loads((classified / "classification.json").read_text())
     with np.load(classified / "features.npz", allow_pickle=False) as f:
@@ -341,6 +344,8 @@ def report_stage(
         training=training,
         fit=None if fit is None else {"method": fit.method, "j": fit.j, "table": fit.table()},
         title=title,
+        adequacy=adequacy,
+        trust=trust,
         sections=() if diagnosis is None else (diagnosis_section(diagnosis, _sibling(diagnosis)),),
     )
 

@@ -5,9 +5,11 @@ Folder of a job::
     OUT/fit/        the model updating on the calibration runs (summary.json, draws.npz,
                     result/ with the full fit)
     OUT/generate/   the simulated training data (bayesdoor.datagen's layout)
+    OUT/adequacy/   adequacy.json: do the simulations reproduce the measured healthy runs?
     OUT/train/      the calibrated ensemble (ensemble.eqx), training.json, bands.npz
-    OUT/classify/   classification.json (DESIGN.md section 5) and features.npz
-    OUT/diagnose/   diagnosis.json (DESIGN.md section 5) and diagnosis.html
+    OUT/classify/   classification.json (docs/data.md) and features.npz
+    OUT/trust/      trust.json: whether the classification can be trusted, and why not
+    OUT/diagnose/   diagnosis.json (docs/data.md) and diagnosis.html
     OUT/report/     index.html (the campaign, linking the diagnosis) and runs/run-NNNN.html
     OUT/job.json    the job's settings, the stages' hashes and the headline numbers
 """
@@ -45,11 +47,30 @@ from ._classify import classify_stage, ood_model_error, report_stage, train_stag
 from ._diagnose import DIAGNOSIS_HTML, DIAGNOSIS_JSON, default_diagnose, diagnosis_stage
 from ._fit import FitSummary
 from ._stages import StageRecord, configuration_hash, run_stage
+from ._trust import ADEQUACY_JSON, TRUST_JSON, adequacy_stage, trust_stage
 
 Source = Literal["posterior", "posterior+model_error", "gaussian"]
 SOURCES: tuple[str, ...] = ("posterior", "posterior+model_error", "gaussian")
+#: the training source of a job on a sampled fit: the posterior's draws with the model error
+#: the fit measured (results/transfer.md: the source that transfers to doors the model lacks)
+DEFAULT_SOURCE: Source = "posterior+model_error"
 #: the stages of a job, in order (each one a folder of the job)
-STAGES: tuple[str, ...] = ("fit", "generate", "train", "classify", "diagnose", "report")
+STAGES: tuple[str, ...] = (
+    "fit",
+    "generate",
+    "adequacy",
+    "train",
+    "classify",
+    "trust",
+    "diagnose",
+    "report",
+)
+
+
+def default_source(method: str) -> Source:
+    """The training source a job uses when none is given: :data:`DEFAULT_SOURCE` for a
+    sampled fit, the paper's Gaussian scatter for a CMA-ES point (it has no posterior)."""
+    return "gaussian" if method == "cmaes" else DEFAULT_SOURCE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,12 +123,18 @@ class JobResult:
     fit
         The fit's point, draws and model error.
     classification
-        The JSON of DESIGN.md section 5 (``classes``, ``runs``, ``metrics``).
+        The JSON of docs/data.md (``classes``, ``runs``, ``metrics``).
     report
         The campaign's HTML report (``None`` when the job was run without it).
     diagnosis
-        The diagnosis JSON (DESIGN.md section 5: ``verdict``, ``causes``) with ``report`` the
-        path of its HTML (``None`` when the job was run without it).
+        The diagnosis JSON (``verdict``, ``causes``) with ``report`` the path of its HTML
+        (``None`` when the job was run without it).
+    adequacy
+        The fit-adequacy JSON (:func:`bayesdoor.datagen.fit_adequacy`: ``verdict``,
+        ``summary``, the channel-bands that do not reproduce).
+    trust
+        The trust JSON (``verdict`` ``"trusted"`` or ``"not trusted"``, ``reasons``,
+        ``flagged_runs``; :mod:`bayesdoor.pipeline._trust`).
     """
 
     out: Path
@@ -116,13 +143,16 @@ class JobResult:
     classification: dict[str, Any]
     report: Path | None
     diagnosis: dict[str, Any] | None = None
+    adequacy: dict[str, Any] | None = None
+    trust: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The job's JSON: the fit's summary, the classification, the diagnosis, the stages."""
         return {
             "out": str(self.out),
             "report": None if self.report is None else str(self.report),
-            "fit": self.fit.to_json(),
+            "fit": {**self.fit.to_json(), "adequacy": self.adequacy},
+            "trust": self.trust,
             **self.classification,
             "diagnosis": self.diagnosis,
             "stages": [
@@ -282,7 +312,7 @@ def run_job(
     *,
     quick: bool = False,
     seed: int = 0,
-    source: Source = "posterior",
+    source: Source | None = None,
     method: str = "nuts",
     fit_seed: int | None = None,
     sizes: Sizes | None = None,
@@ -307,7 +337,7 @@ def run_job(
     system
         The simulated system (its parameters, states and simulator).
     campaign
-        A measurement campaign (DESIGN.md section 5). Fit on the runs of
+        A measurement campaign (docs/data.md). Fit on the runs of
         :func:`bayesdoor.inference.calibration_runs` (the healthy ones among
         ``split == "calibration"``, else among all runs); classify ``split == "test"`` (else
         all runs).
@@ -318,9 +348,10 @@ def run_job(
     seed
         Seed of the generation and the training (and of the fit unless ``fit_seed``).
     source
-        Training-data parameters: ``"posterior"`` draws, ``"posterior+model_error"`` (plus
-        model-error offsets on the features) or the paper's ``"gaussian"`` scatter around the
-        fit's point.
+        Training-data parameters: ``"posterior+model_error"`` (posterior draws plus the
+        fit's model-error offsets on the features), ``"posterior"`` draws alone, or the
+        paper's ``"gaussian"`` scatter around the fit's point; ``None``:
+        :func:`default_source` (the first for a sampled fit, the last for CMA-ES).
     method
         The fit's method (``"nuts"``, ``"emcee"``; ``"cmaes"`` for a point only).
     fit_seed
@@ -373,6 +404,7 @@ def run_job(
         When ``out`` holds a finished job of other settings (and ``overwrite`` is false), or
         files that are not a job's; nothing is written then.
     """
+    source = default_source(method) if source is None else source
     if source not in SOURCES:
         raise ValueError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
     out = Path(out)
@@ -457,6 +489,17 @@ def run_job(
         report=report,
     )
     records.append(gen_record)
+    adequacy_record = run_stage(
+        out,
+        "adequacy",
+        {"data": gen_record.config_hash, "runs": digest_runs(calibration), "seed": seed},
+        lambda folder: adequacy_stage(gen_record.path / "data", calibration, folder, seed=seed),
+        report=report,
+    )
+    records.append(adequacy_record)
+    adequacy = json.loads((adequacy_record.path / ADEQUACY_JSON).read_text())
+    if adequacy.get("summary"):
+        report(f"adequacy: {adequacy['summary']}")
 
     def compute_train(folder: Path) -> None:
         data = load_training_data(gen_record.path / "data")
@@ -495,6 +538,33 @@ def run_job(
         report=report,
     )
     records.append(classify_record)
+    trust_record = run_stage(
+        out,
+        "trust",
+        {
+            "model": train_record.config_hash,
+            "classification": classify_record.config_hash,
+            "adequacy": adequacy_record.config_hash,
+            "runs": digest_runs(calibration),
+            "seed": seed,
+        },
+        lambda folder: trust_stage(
+            train_record.path,
+            classify_record.path,
+            gen_record.path / "data",
+            adequacy_record.path,
+            calibration,
+            folder,
+            seed=seed,
+        ),
+        report=report,
+    )
+    records.append(trust_record)
+    trust = json.loads((trust_record.path / TRUST_JSON).read_text())
+    report(
+        f"trust: {trust['verdict']}"
+        + (": " + "; ".join(trust["reasons"]) if trust["reasons"] else "")
+    )
     diagnosis_json: dict[str, Any] | None = None
     diagnosis_hash = None
     if html if diagnosis is None else diagnosis:
@@ -542,6 +612,7 @@ def run_job(
                 "classification": classify_record.config_hash,
                 "fit": fit_record.config_hash,
                 "diagnosis": diagnosis_hash,
+                "trust": trust_record.config_hash,
                 "versions": versions,
             },
             lambda folder: report_stage(
@@ -551,6 +622,8 @@ def run_job(
                 fit=summary,
                 title=f"{system.name}: damage report",
                 diagnosis=diagnosis_json,
+                adequacy=adequacy,
+                trust=trust,
             ),
             report=report,
         )
@@ -564,6 +637,8 @@ def run_job(
         classification=classification,
         report=report_path,
         diagnosis=diagnosis_json,
+        adequacy=adequacy,
+        trust=trust,
     )
     job = {
         "job_hash": job_hash,
@@ -571,6 +646,9 @@ def run_job(
         **{k: v for k, v in settings.items() if k != "system"},
         "stages": {s.name: s.config_hash for s in records},
         "metrics": classification.get("metrics"),
+        "adequacy": adequacy.get("verdict"),
+        "trust": trust["verdict"],
+        "trust_reasons": trust["reasons"],
         "verdict": None if diagnosis_json is None else diagnosis_json.get("verdict"),
         "report": None if report_path is None else str(report_path),
     }

@@ -339,6 +339,8 @@ def write_damage_report(
     fit: Mapping[str, Any] | None = None,
     title: str = "Damage report",
     sections: Sequence[str] = (),
+    adequacy: Mapping[str, Any] | None = None,
+    trust: Mapping[str, Any] | None = None,
 ) -> Path:
     """Write ``index.html`` (the campaign) and ``runs/run-NNNN.html`` (each run) into ``folder``.
 
@@ -365,6 +367,12 @@ def write_damage_report(
     sections
         Further HTML sections of the campaign page (for example the discrepancy diagnosis's
         verdict and link), placed after the model updating.
+    adequacy
+        The fit-adequacy JSON (:func:`bayesdoor.datagen.fit_adequacy`), shown first.
+    trust
+        The trust JSON of the job (``verdict``, ``reasons``, ``flagged_runs``): when it is
+        ``"not trusted"`` the page opens with a warning and its reasons, and the
+        classification below is marked as not to be relied on.
 
     Returns
     -------
@@ -380,6 +388,8 @@ def write_damage_report(
     colors = _colors(classes)
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     parts: list[str] = []
+    if adequacy is not None or trust is not None:
+        parts.append(trust_section(adequacy, trust))
 
     valid = [r for r in runs if r["probabilities"] is not None]
     headline = [("runs classified", f"{len(valid)} / {len(runs)}", "")]
@@ -653,3 +663,57 @@ def _run_file(run: int) -> str:
 
 def _write_text(path: Path, text: str) -> None:
     atomic_write(path, lambda tmp: tmp.write_text(text), overwrite=True)
+
+
+def trust_section(adequacy: Mapping[str, Any] | None, trust: Mapping[str, Any] | None) -> str:
+    """The report's opening section: can the classification below be trusted, and why not."""
+    parts: list[str] = []
+    if trust is not None and trust.get("verdict") == "not trusted":
+        parts.append(
+            H.warning(
+                "The classification below cannot be trusted: "
+                + "; ".join(str(r) for r in trust.get("reasons", []))
+                + ". Its probabilities are calibrated on simulations that do not describe "
+                "these measurements; read them as the simulations' view, not as the door's "
+                "state. Diagnose the discrepancy, or train on the source that carries the "
+                "model error (posterior+model_error)."
+            )
+        )
+    elif trust is not None:
+        parts.append(
+            H.note(
+                "Trusted: the training simulations reproduce the measured healthy runs, the "
+                "ensemble recognises them, and the share of runs flagged out-of-distribution "
+                f"is what its threshold admits (each check at a false-alarm rate of "
+                f"{100 * float(trust.get('alpha', 0.01)):.0f} %)."
+            )
+        )
+    if adequacy is not None and adequacy.get("verdict") is not None:
+        rows = [
+            [
+                c["channel"],
+                f"{c['band_hz'][0]:.0f}-{c['band_hz'][1]:.0f}",
+                f"{c['offset_db']:+.1f}",
+                f"{c['offset_sd']:+.1f}",
+                f"{c['statistic']:+.1f}",
+            ]
+            for c in adequacy.get("failing", [])
+        ]
+        parts.append(H.note(f"Fit adequacy: {adequacy.get('summary', adequacy['verdict'])}."))
+        if rows:
+            parts.append(
+                H.table(
+                    ["channel", "band (Hz)", "offset (dB)", "offset (SD)", "S"],
+                    rows,
+                )
+            )
+    if trust is not None and trust.get("flagged_runs"):
+        flagged = ", ".join(str(r) for r in trust["flagged_runs"][:40])
+        more = len(trust["flagged_runs"]) - 40
+        parts.append(
+            H.note(
+                f"Flagged runs (out-of-distribution, or called healthy but unlike the simulated "
+                f"healthy runs): {flagged}{f' and {more} more' if more > 0 else ''}."
+            )
+        )
+    return H.section("Can these results be trusted?", *parts)

@@ -1,0 +1,244 @@
+"""Whether a job's classification can be trusted: fit adequacy, known runs, OOD rate.
+
+A classifier trained on simulations is only as good as the simulations' likeness to the
+measurements. Three checks hold the job's own evidence against that, each a test at a stated
+false-alarm rate (:data:`TRUST_ALPHA` per check unless said otherwise):
+
+1. **Fit adequacy** (:func:`bayesdoor.datagen.fit_adequacy`): do the simulated healthy runs
+   (the training data of the job's source, plus the Welch scatter of a measured record)
+   reproduce the measured healthy calibration runs, per channel and band?
+2. **Known runs**: the ensemble classifies the healthy calibration runs (it never saw them:
+   they informed the fit only). Fewer called healthy than the simulated validation's healthy
+   recall makes plausible (binomial, one-sided) means the classifier does not recognise the
+   measured healthy state.
+3. **Out-of-distribution rate**: the detector's threshold flags a share ``1 - quantile`` of
+   the reference runs; many more flagged test runs than that (binomial, one-sided) means the
+   measurements lie outside what the classifier was trained on. Runs called healthy are also
+   held against the simulated healthy runs at their speed
+   (:func:`bayesdoor.datagen.healthy_outliers`, 1 % per run), and counted alike.
+
+Any failed check makes the verdict ``"not trusted"``, with its reasons; the report then
+leads with them instead of a confident table.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+from scipy import stats
+
+from ..datagen import (
+    campaign_features,
+    fit_adequacy,
+    healthy_outliers,
+    load_training_data,
+    measurement_variance,
+)
+from ..io import atomic_write
+
+ADEQUACY_JSON = "adequacy.json"
+TRUST_JSON = "trust.json"
+#: false-alarm rate of each trust check
+TRUST_ALPHA = 0.01
+#: the state the calibration runs are measured in
+KNOWN_STATE = "healthy"
+
+
+def _write_json(path: Path, payload: Any) -> None:
+    text = json.dumps(payload, indent=1, default=float, allow_nan=False) + "\n"
+    atomic_write(path, lambda tmp: tmp.write_text(text), overwrite=True)
+
+
+def _known_runs(calibration: xr.Dataset) -> xr.Dataset:
+    states = np.asarray(calibration["state"].values).astype(str)
+    return calibration.isel(run=np.flatnonzero(states == KNOWN_STATE))
+
+
+def adequacy_stage(data_folder: Path, calibration: xr.Dataset, folder: Path, *, seed: int) -> None:
+    """Write ``adequacy.json``: :func:`bayesdoor.datagen.fit_adequacy` of the calibration runs.
+
+    Without healthy calibration runs, or training data without a healthy state, the file
+    holds ``verdict: null`` and the reason.
+    """
+    data = load_training_data(data_folder)
+    known = _known_runs(calibration)
+    if KNOWN_STATE not in data.states or known.sizes["run"] == 0:
+        _write_json(
+            folder / ADEQUACY_JSON,
+            {"verdict": None, "reason": f"no measured {KNOWN_STATE} runs to check the fit on"},
+        )
+        return
+    adequacy = fit_adequacy(
+        data,
+        campaign_features(known),
+        np.asarray(known["v_max"].values, dtype=float),
+        measurement_variance(data),
+        state=KNOWN_STATE,
+        seed=seed,
+        alpha=TRUST_ALPHA,
+    )
+    _write_json(folder / ADEQUACY_JSON, adequacy.to_json())
+
+
+def _binomial_low(k: int, n: int, p: float) -> float:
+    """P(X <= k) for X ~ Binomial(n, p)."""
+    return float(stats.binom.cdf(k, n, p))
+
+
+def _binomial_high(k: int, n: int, p: float) -> float:
+    """P(X >= k) for X ~ Binomial(n, p)."""
+    return float(stats.binom.sf(k - 1, n, p))
+
+
+def judge_trust(
+    adequacy: dict[str, Any],
+    known: dict[str, Any] | None,
+    classification: dict[str, Any],
+    training: dict[str, Any],
+    unlike_healthy: list[int],
+    *,
+    alpha: float = TRUST_ALPHA,
+) -> dict[str, Any]:
+    """The trust verdict from the checks' evidence (see the module docstring).
+
+    Parameters
+    ----------
+    adequacy
+        ``adequacy.json``.
+    known
+        The classification JSON of the healthy calibration runs (``None``: there are none).
+    classification
+        The classification JSON of the test runs.
+    training
+        ``training.json`` of the ensemble (its simulated validation and OOD quantile).
+    unlike_healthy
+        Test runs (their ``run`` numbers) called healthy but unlike the simulated healthy runs.
+    """
+    reasons: list[str] = []
+    checks: dict[str, Any] = {}
+    if adequacy.get("verdict") == "does not reproduce":
+        reasons.append(f"fit inadequate: {adequacy['summary']}")
+    checks["adequacy"] = adequacy.get("verdict")
+
+    if known is not None and known["runs"]:
+        classes = list(training["states"])
+        validation = training["validation"]
+        labels = np.asarray(validation["labels"])
+        probs = np.asarray(validation["probabilities"])
+        h = classes.index(KNOWN_STATE)
+        own = labels == h
+        hits = int(np.sum(np.argmax(probs[own], axis=1) == h))
+        # the simulated recall, shrunk away from 1 (Jeffreys' centre): a perfect validation
+        # of a few dozen runs does not make one miss impossible
+        recall = (hits + 0.5) / (int(own.sum()) + 1.0)
+        called = [r["predicted"] for r in known["runs"] if r["predicted"] is not None]
+        k = sum(p == KNOWN_STATE for p in called)
+        p_value = _binomial_low(k, len(called), recall)
+        checks["known_runs"] = {
+            "state": KNOWN_STATE,
+            "runs": len(called),
+            "called_right": k,
+            "simulated_recall": recall,
+            "p_value": p_value,
+        }
+        if called and p_value < alpha:
+            others = sorted({p for p in called if p != KNOWN_STATE})
+            reasons.append(
+                f"{k} of {len(called)} measured {KNOWN_STATE} calibration runs were called "
+                f"{KNOWN_STATE} (the others: {', '.join(others)}); the simulated validation's "
+                f"recall {recall:.3f} makes that improbable (p = {p_value:.1e})"
+            )
+
+    runs = [r for r in classification["runs"] if r["predicted"] is not None]
+    ood = {r["run"] for r in runs if r.get("ood")}
+    flagged = ood | set(unlike_healthy)
+    nominal = 1.0 - float(training.get("ood_quantile", 0.99))
+    n = len(runs)
+    p_ood = _binomial_high(len(ood), n, nominal) if n else 1.0
+    checks["ood"] = {
+        "runs": n,
+        "flagged_ood": len(ood),
+        "unlike_healthy": len(unlike_healthy),
+        "nominal_rate": nominal,
+        "p_value": p_ood,
+    }
+    if n and len(ood) and p_ood < alpha:
+        reasons.append(
+            f"{len(ood)} of {n} runs lie outside every simulated state (OOD), against "
+            f"{100 * nominal:.0f} % expected (p = {p_ood:.1e})"
+        )
+    called_healthy = sum(r["predicted"] == KNOWN_STATE for r in runs)
+    p_h = _binomial_high(len(unlike_healthy), called_healthy, alpha) if called_healthy else 1.0
+    checks["unlike_healthy"] = {"called_healthy": called_healthy, "p_value": p_h}
+    if unlike_healthy and p_h < alpha:
+        reasons.append(
+            f"{len(unlike_healthy)} of {called_healthy} runs called {KNOWN_STATE} are unlike "
+            f"the simulated {KNOWN_STATE} runs at their speed (p = {p_h:.1e})"
+        )
+    if n and len(flagged) > n / 2:
+        reasons.append(f"most runs are flagged ({len(flagged)} of {n})")
+    return {
+        "verdict": "not trusted" if reasons else "trusted",
+        "alpha": alpha,
+        "reasons": reasons,
+        "checks": checks,
+        "flagged_runs": sorted(flagged),
+        "unlike_healthy_runs": sorted(unlike_healthy),
+    }
+
+
+def trust_stage(
+    model: Path,
+    classified: Path,
+    data_folder: Path,
+    adequacy_folder: Path,
+    calibration: xr.Dataset,
+    folder: Path,
+    *,
+    seed: int,
+) -> None:
+    """Write ``trust.json`` and ``known/classification.json`` (the calibration runs' classes)."""
+    from ._classify import classify_stage
+
+    known_runs = _known_runs(calibration)
+    known = None
+    if known_runs.sizes["run"]:
+        (folder / "known").mkdir(parents=True, exist_ok=True)
+        classify_stage(model, known_runs, folder / "known")
+        known = json.loads((folder / "known" / "classification.json").read_text())
+        known["runs"] = [r for r in known["runs"] if r["predicted"] is not None]
+    classification = json.loads((classified / "classification.json").read_text())
+    training = json.loads((model / "training.json").read_text())
+    adequacy = json.loads((adequacy_folder / ADEQUACY_JSON).read_text())
+    data = load_training_data(data_folder)
+    unlike: list[int] = []
+    picks = [
+        (i, r)
+        for i, r in enumerate(classification["runs"])
+        if r["predicted"] == KNOWN_STATE and r["v_max"] is not None
+    ]
+    if picks and KNOWN_STATE in data.states:
+        with np.load(classified / "features.npz", allow_pickle=False) as f:
+            features = f["features"][[i for i, _ in picks]]
+        simulated = set(np.round(data.speeds, 9).tolist())
+        at = [j for j, (_, r) in enumerate(picks) if round(r["v_max"], 9) in simulated]
+        if at:
+            scores, bounds = healthy_outliers(
+                data,
+                features[at],
+                [picks[j][1]["v_max"] for j in at],
+                measurement_variance(data),
+                seed=seed,
+                alpha=TRUST_ALPHA,
+            )
+            unlike = [
+                int(picks[j][1]["run"]) for j, s, b in zip(at, scores, bounds, strict=True) if s > b
+            ]
+    _write_json(
+        folder / TRUST_JSON,
+        judge_trust(adequacy, known, classification, training, unlike),
+    )

@@ -102,7 +102,9 @@ class ConvNet(eqx.Module):
 
     References
     ----------
-    The paper's CM-CNN, Table 3 (``../shared/seed/paper.md``).
+    The CM-CNN of Table 3 of "Real-time condition monitoring of mechanical systems using CNNs
+    trained by multibody simulations", X ECCOMAS Thematic Conference on Smart Structures and
+    Materials (SMART 2023), 2023; ``docs/classification.md``.
     """
 
     config: NetworkConfig = eqx.field(static=True)

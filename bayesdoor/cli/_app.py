@@ -1,4 +1,4 @@
-"""The ``bayesdoor`` command line (one entry point; DESIGN.md section 5)."""
+"""The ``bayesdoor`` command line (one entry point; ``docs/cli.md``)."""
 
 from __future__ import annotations
 

@@ -131,7 +131,7 @@ def measured_features(
 def campaign_features(
     campaign, *, spec: CNNInputSpec | None = None, **detect
 ) -> Float[np.ndarray, "run channel freq"]:
-    """:func:`measured_features` of every run of a campaign dataset (DESIGN.md section 5).
+    """:func:`measured_features` of every run of a campaign dataset (``docs/data.md``).
 
     Uses the ``acceleration`` variable, the ``time`` coordinate, the ``sampling_rate_hz``
     attribute and, where present, the per-run ``t_start`` / ``t_stop`` coordinates (NaN for

@@ -219,8 +219,10 @@ class GaussianScatter(AbstractParameterSource):
 
     References
     ----------
-    The paper (``../shared/seed/paper.md``), section 4: "a variation of 1-10 % was added to
-    the optimal parameter values, creating the Gaussian sampling pool".
+    "Real-time condition monitoring of mechanical systems using CNNs trained by multibody
+    simulations", X ECCOMAS Thematic Conference on Smart Structures and Materials (SMART 2023),
+    2023, section 4: "a variation of 1-10 % was added to the optimal parameter values, creating
+    the Gaussian sampling pool"; ``docs/datagen.md``.
     """
 
     center: tuple[tuple[str, float], ...] = eqx.field(static=True)

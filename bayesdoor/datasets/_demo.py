@@ -146,7 +146,7 @@ def load_demo_campaign(
     Returns
     -------
     campaign
-        The campaign (DESIGN.md section 5) with ``split``, ``t_start`` and ``t_stop``.
+        The campaign (``docs/data.md``) with ``split``, ``t_start`` and ``t_stop``.
         The rig's true parameters are not in it: see :func:`load_demo_truth`.
 
     Raises

@@ -161,8 +161,10 @@ def cnn_input(
 
     References
     ----------
-    The paper's CNN input (``../shared/seed/paper.md``): PSDs of the four acceleration
-    channels below 100 Hz.
+    The CNN input of "Real-time condition monitoring of mechanical systems using CNNs trained
+    by multibody simulations", X ECCOMAS Thematic Conference on Smart Structures and Materials
+    (SMART 2023), 2023: PSDs of the four acceleration channels below 100 Hz;
+    ``docs/features.md``.
     """
     spec = CNNInputSpec() if spec is None else spec
     n_bins = spec.frequencies(fs).size
@@ -201,7 +203,9 @@ def objective_j(
 
     References
     ----------
-    The paper's eq. (2) (``../shared/seed/paper.md``).
+    Eq. (2) of "Real-time condition monitoring of mechanical systems using CNNs trained by
+    multibody simulations", X ECCOMAS Thematic Conference on Smart Structures and Materials
+    (SMART 2023), 2023; ``docs/features.md``.
     """
     psd_sim, psd_meas = jnp.asarray(psd_sim), jnp.asarray(psd_meas)
     if psd_sim.ndim < 2 or psd_sim.shape[-2:] != psd_meas.shape[-2:]:

@@ -1,4 +1,4 @@
-"""The measurement-campaign format (DESIGN.md section 5): build, save atomically, load."""
+"""The measurement-campaign format (``docs/data.md``): build, save atomically, load."""
 
 from __future__ import annotations
 

@@ -7,9 +7,9 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 
-#: the per-run ``state`` labels of DESIGN.md section 5
+#: the per-run ``state`` labels of the campaign format (docs/data.md)
 STATE_LABELS = ("healthy", "D1", "D2", "unknown")
-#: the per-run ``split`` labels of DESIGN.md section 5
+#: the per-run ``split`` labels of the campaign format (docs/data.md)
 SPLIT_LABELS = ("calibration", "test")
 #: spellings of m/s^2 accepted in the ``units`` attributes
 ACCELERATION_UNITS = ("m/s^2", "m s-2", "m/s**2")

@@ -1,4 +1,4 @@
-"""Checks of a campaign dataset against the format of DESIGN.md section 5, one message each."""
+"""Checks of a campaign dataset against the format of ``docs/data.md``, one message each."""
 
 from __future__ import annotations
 
@@ -374,7 +374,7 @@ def validate_campaign(
     clip_run: int = 5,
     clip_fraction: float = 0.02,
 ) -> list[Problem]:
-    """Every way ``ds`` breaks the campaign format (DESIGN.md section 5); empty when valid.
+    """Every way ``ds`` breaks the campaign format (``docs/data.md``); empty when valid.
 
     Each problem names the run index and channel it concerns and the value found. Codes:
 

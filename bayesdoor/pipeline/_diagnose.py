@@ -4,9 +4,9 @@ Shared by ``bayesdoor diagnose`` (one folder of its own) and the ``diagnose`` st
 job (``OUT/diagnose/``), so both write the same two files:
 
 ``diagnosis.json``
-    DESIGN.md section 5: ``verdict`` (a catalogue name, ``"none"``, or ``null`` when nothing
-    is decisive) and ``causes`` ranked, each with ``name``, ``evidence``, ``parameters`` and
-    ``gain``; plus ``report``, the HTML's file name (next to the JSON).
+    As ``docs/cli.md`` specifies it: ``verdict`` (a catalogue name, ``"none"``, or ``null``
+    when nothing is decisive) and ``causes`` ranked, each with ``name``, ``evidence``,
+    ``parameters`` and ``gain``; plus ``report``, the HTML's file name (next to the JSON).
 ``diagnosis.html``
     :func:`bayesdoor.report.write_diagnosis_report`.
 """

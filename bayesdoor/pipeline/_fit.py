@@ -139,7 +139,7 @@ class FitSummary:
         return rows
 
     def to_json(self) -> dict[str, Any]:
-        """The fit's JSON of DESIGN.md section 5, keyed as ``bayesdoor fit --json`` keys it.
+        """The ``fit`` of ``bayesdoor run --json`` (``docs/cli.md``), keyed as ``fit --json`` does.
 
         Per parameter the CMA-ES optimum (``point``) and, when it was sampled, the posterior
         ``mean``, ``sd`` and 90 % interval (``q5``, ``q95``; ``None`` otherwise); the sampling

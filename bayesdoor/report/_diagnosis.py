@@ -464,7 +464,7 @@ def diagnosis_page(
     Parameters
     ----------
     diagnosis
-        The diagnosis JSON (DESIGN.md section 5): ``verdict`` and ``causes``, each cause with
+        The diagnosis JSON (``docs/cli.md``): ``verdict`` and ``causes``, each cause with
         ``name``, ``evidence``, ``parameters`` (numbers or summaries with ``mean``, ``sd``,
         ``q5``, ``q95``) and ``gain``; optional per cause: ``description``, ``score``,
         ``feature``, ``confirmed``, ``configuration``, ``alternatives`` (other causes of the

@@ -14,7 +14,7 @@ import xarray as xr
 from ..features import log_psd, motion_window, segment_weights, welch_psd
 from ..io import atomic_write
 
-#: line colours of the states of DESIGN.md section 5; other labels cycle through greys
+#: line colours of the campaign states (docs/data.md); other labels cycle through greys
 STATE_COLORS = {"healthy": "tab:green", "D1": "tab:red", "D2": "tab:blue", "unknown": "0.45"}
 _OTHER_COLORS = ("tab:purple", "tab:orange", "tab:brown", "tab:olive", "tab:cyan")
 
@@ -90,7 +90,7 @@ def motion_windows(ds: xr.Dataset, *, nperseg: int = 512) -> tuple[np.ndarray, n
     Parameters
     ----------
     ds
-        A campaign (DESIGN.md section 5) with a usable ``sampling_rate_hz`` and ``time``.
+        A campaign (``docs/data.md``) with a usable ``sampling_rate_hz`` and ``time``.
     nperseg
         The Welch segment length the window must hold.
 

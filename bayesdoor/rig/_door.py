@@ -1,6 +1,6 @@
 """The rig's door: its own constants, its true parameters and its equations of motion.
 
-This is deliberately a second implementation of the door of DESIGN.md section 2, not the reduced
+This is deliberately a second implementation of the door of ``docs/model.md``, not the reduced
 model's code path: the equations come from a Lagrangian written as positions of points
 (exact rotations, every convective term kept) differentiated by JAX; contact is the textbook
 law without smoothing; the panel has a bending mode the reduced model lacks. Only the contact
@@ -25,7 +25,7 @@ from .._types import Array, Float
 from ..contact import get_law
 from ..systems import door
 
-# --- the door's geometry and fixed properties (DESIGN.md section 2), SI units -----------------
+# --- the door's geometry and fixed properties (docs/model.md), SI units ----------------------
 GRAVITY = 9.81
 PANEL_MASS = 60.0
 PANEL_WIDTH = 0.9
@@ -59,7 +59,7 @@ A2_Z = 0.45
 LATCH_FLOOR = 0.05
 REST_S = 0.25
 
-# The rig's rail: the waviness law of DESIGN.md section 2 with the rig's own phases (a real
+# The rig's rail: the waviness law of docs/model.md with the rig's own phases (a real
 # rail's phases are unknown to the model; the PSD does not depend on them).
 WAVINESS_WAVELENGTH = 4e-3 * 25.0 ** (np.arange(8) / 7.0)
 WAVINESS_AMPLITUDE = 2e-6 * 10.0 ** (np.arange(8) / 7.0)

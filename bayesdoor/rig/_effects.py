@@ -1,4 +1,8 @@
-"""Catalogue effects the rig can inject into its data (DESIGN.md section 6; names are API).
+"""Catalogue effects the rig can inject into its data (names are API).
+
+The names are those of the door's catalogue of discrepancy causes (``docs/model.md``, "Model
+extensions"); each effect's physics and ``from_seed`` ranges are in ``docs/rig.md``, "Catalogue
+effects".
 
 Each effect is a frozen module with physical parameters and a ``from_seed`` class method that
 draws them over a documented range, so a test can hide an effect "drawn from a seed, not chosen

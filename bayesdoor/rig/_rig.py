@@ -219,7 +219,7 @@ class VirtualRig(eqx.Module):
         duration: float | None = None,
         progress: Callable[[int], None] | None = None,
     ) -> xr.Dataset:
-        """Record a campaign (DESIGN.md section 5); the truth is in :meth:`run`'s result.
+        """Record a campaign (``docs/data.md``); the truth is in :meth:`run`'s result.
 
         See :meth:`run` for the parameters.
         """

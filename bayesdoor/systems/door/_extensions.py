@@ -1,4 +1,4 @@
-"""Model extensions of the reduced door: the discrepancy catalogue (DESIGN.md section 6) as code.
+"""Model extensions of the reduced door: the discrepancy catalogue as code (``docs/model.md``).
 
 Each extension is a frozen module whose fields are static configuration (which sensor, which
 wheel, 50 or 60 Hz); its fitted quantities are :class:`~bayesdoor.systems.ParameterSpec` s

@@ -1,4 +1,4 @@
-"""Fixed geometry and constants of the reference door (DESIGN.md section 2), SI units."""
+"""Fixed geometry and constants of the reference door (``docs/model.md``), SI units."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ WAVINESS_WAVELENGTH = 4e-3 * 25.0 ** (np.arange(8) / 7.0)
 WAVINESS_AMPLITUDE = 2e-6 * 10.0 ** (np.arange(8) / 7.0)
 WAVINESS_PHASE = np.random.default_rng(20230607).uniform(0.0, 2.0 * np.pi, 8)
 
-# S-curve of the drive (DESIGN.md section 2)
+# S-curve of the drive (docs/model.md, "Drive profile")
 JERK = 8.0
 ACCELERATION = 0.8
 STROKE = 0.8

@@ -1,4 +1,4 @@
-"""Equations of motion of the reduced-order door (DESIGN.md section 2; derivation in docs/model.md).
+"""Equations of motion of the reduced-order door (constants and derivation in ``docs/model.md``).
 
 Generalised coordinates q = (s, y, theta, phi, q1, q2, q3):
 s slide of the panel centre along Z, y its vertical position (0 = wheels touching the undeformed
@@ -35,7 +35,7 @@ S, Y, TH, PHI, Q1, Q2, Q3 = range(N_DOF)
 
 
 class DoorConstants(eqx.Module):
-    """Secondary constants of the reference door that are not updated (DESIGN.md section 2).
+    """Secondary constants of the reference door that are not updated (``docs/model.md``).
 
     They are leaves, not Python constants, so a study can vary them (for example switch the
     frame cross-couplings off to obtain a linear limit) without recompiling.

@@ -1,4 +1,4 @@
-"""Parameters and damage modes of the reference door (the paper's Table 2; DESIGN.md section 2)."""
+"""Parameters and damage modes of the reference door (the paper's Table 2; ``docs/model.md``)."""
 
 from __future__ import annotations
 

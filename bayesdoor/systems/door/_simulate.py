@@ -44,7 +44,7 @@ class SolverConfig(eqx.Module):
     """How the equations are integrated.
 
     Adaptive Tsit5 (rtol 1e-5; atol 1e-8 in float64, 1e-7 in float32) by default: the model is
-    not stiff, and the implicit solvers are over 30x slower (DESIGN.md section 4). In float32
+    not stiff, and the implicit solvers are over 30x slower (``docs/model.md``). In float32
     an atol of 1e-8 sits below the round-off of the small states (frame displacements of a few
     micrometres) and the step controller rejects steps forever (57 000 steps instead of 2 000
     for a 3.5 s run); 1e-7 keeps the 4-96 Hz log-PSD of a healthy run within 1.5 % of

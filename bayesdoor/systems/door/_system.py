@@ -55,7 +55,7 @@ def _apply_outputs(extensions, signals, time, values):
 
 
 class ElevatorDoor(AbstractSystem):
-    """The reduced-order elevator landing door of the paper (DESIGN.md section 2).
+    """The reduced-order elevator landing door of the paper (``docs/model.md``).
 
     Parameters
     ----------
@@ -99,7 +99,7 @@ class ElevatorDoor(AbstractSystem):
 
     @property
     def catalogue(self):
-        """The door's catalogue of discrepancy causes (DESIGN.md section 6), for diagnosis."""
+        """The door's catalogue of discrepancy causes (``docs/model.md``), for diagnosis."""
         from ._catalogue import DOOR_CATALOGUE
 
         return DOOR_CATALOGUE

@@ -395,9 +395,9 @@ def report(
         "",
         f"Made by `{command}` ({_stamp()}; {seconds:.0f} s).",
         "",
-        "The rule until session 15 called an extension decisive when the per-run held-out log "
+        "The plain rule calls an extension decisive when the per-run held-out log "
         "predictive density differences d have t = sum(d) / sqrt(n var(d)) > 4 (and J falls, "
-        "left out here). Since session 15 the library's rule is the union t > 4 k_n or "
+        "left out here). The library's rule is the union t > 4 k_n or "
         "T > T_n k_n (T_n from `--thresholds`, bayesdoor.diagnose.CAPPED_THRESHOLDS; k_n from "
         "`--union`, UNION_SCALE), at the false-alarm rate of t > 4 under normal noise. "
         "The monotone version is T(d) = max over caps c >= median(d) of t(min(d, c)), "
@@ -437,7 +437,7 @@ def report(
         "",
         "## Saved full-size cases",
         "",
-        "Decisive under t > 4 (the rule until session 15, ignoring J), T > T_n and T > 4; "
+        "Decisive under t > 4 (the plain rule, ignoring J), T > T_n and T > 4; "
         "the last column is the saved verdict, which also needs a lower J. "
         "P_normal(T above it) is the fraction of the calibration's normal draws whose T "
         "exceeds the case's.",

@@ -264,7 +264,7 @@ def _refits_text(refits: Sequence[Mapping[str, Any]] | None) -> str:
 def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, wall: float) -> str:
     """The markdown of ``results/diagnosis.md``."""
     total = sum(c.get("diagnose_seconds", 0.0) for c in cases)
-    codes = sorted({str(c.get("code", "code not recorded (before session 4)")) for c in cases})
+    codes = sorted({str(c.get("code", "code not recorded")) for c in cases})
     lines = [
         "# Discrepancy diagnosis on hidden rig effects",
         "",

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
-from _cases import write_results
+from _cases import code_version, write_results
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_ACCURACY = 0.923
@@ -321,13 +321,14 @@ def write_markdown(
     if seconds is None:
         made = (
             f"Tables rewritten from `{args.out}/rows.json` by `{command.strip()}` ({stamp}; "
-            f"{len(rows)} job(s) recorded of {len(args.seeds) * len(args.sources)})."
+            f"{len(rows)} job(s) recorded of {len(args.seeds) * len(args.sources)}; written by "
+            f"{code_version()})."
         )
     else:
         made = (
             f"Made by `{command.strip()}` ({stamp}, {seconds / 60:.0f} min on a shared "
             f"{platform.machine()} machine; {len(rows)} job(s) done of "
-            f"{len(args.seeds) * len(args.sources)})."
+            f"{len(args.seeds) * len(args.sources)}; {code_version()})."
         )
     lines = [
         "# Classification of the demo campaign's test runs",

@@ -271,7 +271,7 @@ def main() -> int:
     ).strip()
     _configure_jax()
 
-    from _cases import write_results
+    from _cases import code_version, write_results
 
     from bayesdoor.inference import FitResult
     from bayesdoor.report import ablation_table
@@ -356,7 +356,8 @@ def main() -> int:
         f"Command: `.venv/bin/python {command}` ({elapsed / 60:.1f} min, {workers} worker "
         f"processes on {os.cpu_count()} CPU cores, fits reused from --work not timed; "
         f"{'quick sizes, NOT converged' if args.quick else 'full sizes'}; "
-        f"{len(reference.runs)} calibration runs of {source})"
+        f"{len(reference.runs)} calibration runs of {source}; "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {code_version()})"
         + (f"\n\n**PARTIAL: laws {partial} not fitted.**" if partial else "")
         + "\n\n"
         f"How each law's optimum was found: one shared CMA-ES search with the law searched "

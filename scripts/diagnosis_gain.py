@@ -44,6 +44,7 @@ import numpy as np
 from _cases import (
     ROOT,
     attempt,
+    code_version,
     command_line,
     digest,
     fmt,
@@ -267,7 +268,9 @@ def table(cases: Sequence[Mapping[str, Any]], command: str, settings: Settings, 
     lines = [
         "# Downstream gain of a diagnosed extension",
         "",
-        f"Command: `{command}`",
+        f"Command: `{command}`  ",
+        f"Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}  ",
+        f"Code: {code_version()}",
         "",
         f"Machine: {platform.machine()}, {os.cpu_count()} CPUs; wall time of the command "
         f"{wall:.0f} s (cases in parallel; finished cases are read, not rerun). Settings: "

@@ -50,7 +50,7 @@ import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-from _cases import write_results
+from _cases import code_version, write_results
 
 ROOT = Path(__file__).resolve().parent.parent
 FREE = ("K", "C", "mu_d")
@@ -159,7 +159,9 @@ def report(settings: dict, result, elapsed: float, surrogate_rms: float | None) 
     lines = [
         "# Simulation-based calibration of the door posterior",
         "",
-        "Command: `.venv/bin/python scripts/sbc.py " + settings["argv"] + "`",
+        "Command: `.venv/bin/python scripts/sbc.py " + settings["argv"] + "`  ",
+        f"Date: {time.strftime('%Y-%m-%d')}  ",
+        f"Code: {code_version()}",
         "",
         f"- forward model: **{settings['forward']}**"
         + (

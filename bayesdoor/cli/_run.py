@@ -111,6 +111,9 @@ def print_summary(result: dict[str, Any], console: Console, *, quick: bool = Fal
     adequacy = (fit or {}).get("adequacy") or {}
     if adequacy.get("summary"):
         console.print(f"fit adequacy: {adequacy['summary']}", markup=False, highlight=False)
+    model = adequacy.get("model") or {}
+    if model.get("summary") and model.get("summary") != adequacy.get("summary"):
+        console.print(f"the model alone: {model['summary']}", markup=False, highlight=False)
     trust = result.get("trust")
     if trust is not None:
         if trust["verdict"] == "not trusted":

@@ -16,6 +16,7 @@ from ._generate import load_training_data as load_training_data
 from ._model_error import calibration_residuals as calibration_residuals
 from ._model_error import measurement_variance as measurement_variance
 from ._model_error import model_error_draws as model_error_draws
+from ._model_error import with_measured_discrepancy as with_measured_discrepancy
 from ._sources import AbstractParameterSource as AbstractParameterSource
 from ._sources import GaussianScatter as GaussianScatter
 from ._sources import ModelErrorDraws as ModelErrorDraws

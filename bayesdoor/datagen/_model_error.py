@@ -11,6 +11,7 @@ of a finite record and the fitted model-error scale).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import jax
@@ -188,3 +189,77 @@ def model_error_draws(
     if v is not None:
         draws += np.sqrt(v) * np.asarray(jax.random.normal(k_z, (n, *shape)))
     return draws
+
+
+def with_measured_discrepancy(
+    data: TrainingData,
+    features: Float[np.ndarray, "run channel freq"],
+    speeds: Float[np.ndarray, " run"] | Sequence[float],
+    *,
+    seed: int = 0,
+    state: str = "healthy",
+) -> TrainingData:
+    """Training data whose every simulated run carries the measured discrepancy of one known run.
+
+    The discrepancy of measured run ``i`` (of the known ``state``, at speed ``v_i``) is its
+    features minus the mean features of all simulated ``state`` runs at ``v_i``: what the
+    model leaves out there (a mode it lacks, a sensor's gain, the noise floor), in log10
+    PSD. Each simulated run, of every state, gets the discrepancy of one measured run at its
+    speed, drawn at random (of any measured run when none is at its speed): the simulations
+    then carry the error the model makes on this machine, as measured, not only its scale.
+    It is a log-PSD offset, so it assumes the discrepancy multiplies each state's spectrum
+    alike; ``results/transfer.md`` measures what it gains on doors the model lacks.
+
+    Parameters
+    ----------
+    data
+        The simulated training data (train and validation runs both get offsets).
+    features
+        Classifier features of the measured runs of ``state`` (the calibration runs).
+    speeds
+        Their speeds.
+    seed
+        Seed of the draws of which run's discrepancy each simulated run gets.
+    state
+        The measured runs' state.
+
+    Returns
+    -------
+    TrainingData
+        With ``features`` and ``model_error`` shifted by the drawn discrepancies.
+
+    Raises
+    ------
+    ValueError
+        For an unknown state, features of another shape, no measured run, or a measured
+        speed without simulated runs of ``state``.
+    """
+    if state not in data.states:
+        raise ValueError(f"state={state!r} is not one of the training data's {data.states}")
+    x = np.asarray(features, dtype=float)
+    v = np.asarray(speeds, dtype=float).reshape(-1)
+    if x.ndim != 3 or x.shape[1:] != data.features.shape[1:] or len(v) != len(x) or not len(x):
+        raise ValueError(
+            f"features must be (run, {', '.join(map(str, data.features.shape[1:]))}) with one "
+            f"speed per run and at least one run; got {x.shape} and {v.shape}"
+        )
+    own = data.labels == data.states.index(state)
+    residuals = np.empty_like(x)
+    for i, speed in enumerate(v):
+        at = own & np.isclose(data.speeds, speed, rtol=1e-9, atol=0.0)
+        if not at.any():
+            raise ValueError(
+                f"measured run {i} has speed {speed} but no simulated {state} run is at that "
+                f"speed (simulated: {sorted(set(np.asarray(data.speeds).tolist()))})"
+            )
+        residuals[i] = x[i] - data.features[at].mean(axis=0)
+    rng = np.random.default_rng(seed)
+    offsets = np.empty_like(data.features)
+    for speed in np.unique(data.speeds):
+        runs = np.flatnonzero(np.isclose(data.speeds, speed, rtol=1e-9, atol=0.0))
+        pool = np.flatnonzero(np.isclose(v, speed, rtol=1e-9, atol=0.0))
+        pool = pool if pool.size else np.arange(len(v))
+        offsets[runs] = residuals[rng.choice(pool, size=runs.size)]
+    return dataclasses.replace(
+        data, features=data.features + offsets, model_error=data.model_error + offsets
+    )

@@ -38,7 +38,6 @@ from ..datagen import (
     PosteriorDraws,
     describe_system,
     generate,
-    load_training_data,
 )
 from ..inference import calibration_runs
 from ..io import atomic_write
@@ -47,7 +46,7 @@ from ._classify import classify_stage, ood_model_error, report_stage, train_stag
 from ._diagnose import DIAGNOSIS_HTML, DIAGNOSIS_JSON, default_diagnose, diagnosis_stage
 from ._fit import FitSummary
 from ._stages import StageRecord, configuration_hash, run_stage
-from ._trust import ADEQUACY_JSON, TRUST_JSON, adequacy_stage, trust_stage
+from ._trust import ADEQUACY_JSON, TRUST_JSON, adequacy_stage, training_data, trust_stage
 
 Source = Literal["posterior", "posterior+model_error", "gaussian"]
 SOURCES: tuple[str, ...] = ("posterior", "posterior+model_error", "gaussian")
@@ -489,11 +488,21 @@ def run_job(
         report=report,
     )
     records.append(gen_record)
+    # the default source carries the model error as measured: the calibration runs'
+    # discrepancy from the simulated healthy runs, added to every training run
+    discrepancy = source == "posterior+model_error"
     adequacy_record = run_stage(
         out,
         "adequacy",
-        {"data": gen_record.config_hash, "runs": digest_runs(calibration), "seed": seed},
-        lambda folder: adequacy_stage(gen_record.path / "data", calibration, folder, seed=seed),
+        {
+            "data": gen_record.config_hash,
+            "runs": digest_runs(calibration),
+            "seed": seed,
+            "discrepancy": discrepancy,
+        },
+        lambda folder: adequacy_stage(
+            gen_record.path / "data", calibration, folder, seed=seed, discrepancy=discrepancy
+        ),
         report=report,
     )
     records.append(adequacy_record)
@@ -502,7 +511,9 @@ def run_job(
         report(f"adequacy: {adequacy['summary']}")
 
     def compute_train(folder: Path) -> None:
-        data = load_training_data(gen_record.path / "data")
+        data = training_data(
+            gen_record.path / "data", calibration, discrepancy=discrepancy, seed=seed
+        )
         train_stage(
             data,
             folder,
@@ -523,6 +534,7 @@ def run_job(
             "sizes": sizes.to_json(),
             "seed": seed,
             "ood": "model-error draws",
+            "discrepancy": discrepancy,
         },
         compute_train,
         report=report,
@@ -547,6 +559,7 @@ def run_job(
             "adequacy": adequacy_record.config_hash,
             "runs": digest_runs(calibration),
             "seed": seed,
+            "discrepancy": discrepancy,
         },
         lambda folder: trust_stage(
             train_record.path,
@@ -556,6 +569,7 @@ def run_job(
             calibration,
             folder,
             seed=seed,
+            discrepancy=discrepancy,
         ),
         report=report,
     )

@@ -7,8 +7,9 @@ false-alarm rate (:data:`TRUST_ALPHA` per check unless said otherwise):
 1. **Fit adequacy** (:func:`bayesdoor.datagen.fit_adequacy`): do the simulated healthy runs
    (the training data of the job's source, plus the Welch scatter of a measured record)
    reproduce the measured healthy calibration runs, per channel and band?
-2. **Known runs**: the ensemble classifies the healthy calibration runs (it never saw them:
-   they informed the fit only). Fewer called healthy than the simulated validation's healthy
+2. **Known runs**: the ensemble classifies the healthy calibration runs (they informed the
+   fit and, with the default source, the discrepancy the training runs carry, but the
+   ensemble never trained on them). Fewer called healthy than the simulated validation's healthy
    recall makes plausible (binomial, one-sided) means the classifier does not recognise the
    measured healthy state.
 3. **Out-of-distribution rate**: the detector's threshold flags a share ``1 - quantile`` of
@@ -32,11 +33,13 @@ import xarray as xr
 from scipy import stats
 
 from ..datagen import (
+    TrainingData,
     campaign_features,
     fit_adequacy,
     healthy_outliers,
     load_training_data,
     measurement_variance,
+    with_measured_discrepancy,
 )
 from ..io import atomic_write
 
@@ -58,11 +61,39 @@ def _known_runs(calibration: xr.Dataset) -> xr.Dataset:
     return calibration.isel(run=np.flatnonzero(states == KNOWN_STATE))
 
 
-def adequacy_stage(data_folder: Path, calibration: xr.Dataset, folder: Path, *, seed: int) -> None:
+def training_data(
+    data_folder: Path, calibration: xr.Dataset, *, discrepancy: bool, seed: int
+) -> TrainingData:
+    """The job's training data: the generated runs, with the measured discrepancy of the
+    healthy calibration runs added when the source carries it
+    (:func:`bayesdoor.datagen.with_measured_discrepancy`)."""
+    data = load_training_data(data_folder)
+    known = _known_runs(calibration)
+    if not discrepancy or KNOWN_STATE not in data.states or known.sizes["run"] == 0:
+        return data
+    return with_measured_discrepancy(
+        data,
+        campaign_features(known),
+        np.asarray(known["v_max"].values, dtype=float),
+        seed=seed,
+        state=KNOWN_STATE,
+    )
+
+
+def adequacy_stage(
+    data_folder: Path,
+    calibration: xr.Dataset,
+    folder: Path,
+    *,
+    seed: int,
+    discrepancy: bool = False,
+) -> None:
     """Write ``adequacy.json``: :func:`bayesdoor.datagen.fit_adequacy` of the calibration runs.
 
-    Without healthy calibration runs, or training data without a healthy state, the file
-    holds ``verdict: null`` and the reason.
+    With ``discrepancy`` (the source adds the calibration runs' measured discrepancy to the
+    simulations) the check leaves each run's own discrepancy out. Without healthy
+    calibration runs, or training data without a healthy state, the file holds
+    ``verdict: null`` and the reason.
     """
     data = load_training_data(data_folder)
     known = _known_runs(calibration)
@@ -72,16 +103,30 @@ def adequacy_stage(data_folder: Path, calibration: xr.Dataset, folder: Path, *, 
             {"verdict": None, "reason": f"no measured {KNOWN_STATE} runs to check the fit on"},
         )
         return
-    adequacy = fit_adequacy(
-        data,
-        campaign_features(known),
-        np.asarray(known["v_max"].values, dtype=float),
-        measurement_variance(data),
-        state=KNOWN_STATE,
-        seed=seed,
-        alpha=TRUST_ALPHA,
+    features = campaign_features(known)
+    speeds = np.asarray(known["v_max"].values, dtype=float)
+    variance = measurement_variance(data)
+    model = fit_adequacy(
+        data, features, speeds, variance, state=KNOWN_STATE, seed=seed, alpha=TRUST_ALPHA
     )
-    _write_json(folder / ADEQUACY_JSON, adequacy.to_json())
+    payload = model.to_json()
+    if discrepancy and known.sizes["run"] >= 2:
+        payload = fit_adequacy(
+            data,
+            features,
+            speeds,
+            variance,
+            state=KNOWN_STATE,
+            seed=seed,
+            alpha=TRUST_ALPHA,
+            discrepancy=True,
+        ).to_json()
+        payload["summary"] = (
+            "with the measured discrepancy (each run left out of its own), " + payload["summary"]
+        )
+    # the fitted model alone, without the measured discrepancy: what the physics misses
+    payload["model"] = model.to_json()
+    _write_json(folder / ADEQUACY_JSON, payload)
 
 
 def _binomial_low(k: int, n: int, p: float) -> float:
@@ -200,8 +245,13 @@ def trust_stage(
     folder: Path,
     *,
     seed: int,
+    discrepancy: bool = False,
 ) -> None:
-    """Write ``trust.json`` and ``known/classification.json`` (the calibration runs' classes)."""
+    """Write ``trust.json`` and ``known/classification.json`` (the calibration runs' classes).
+
+    ``discrepancy``: the training data carry the calibration runs' measured discrepancy
+    (:func:`training_data`); the runs called healthy are then held against those.
+    """
     from ._classify import classify_stage
 
     known_runs = _known_runs(calibration)
@@ -214,7 +264,7 @@ def trust_stage(
     classification = json.loads((classified / "classification.json").read_text())
     training = json.loads((model / "training.json").read_text())
     adequacy = json.loads((adequacy_folder / ADEQUACY_JSON).read_text())
-    data = load_training_data(data_folder)
+    data = training_data(data_folder, calibration, discrepancy=discrepancy, seed=seed)
     unlike: list[int] = []
     picks = [
         (i, r)

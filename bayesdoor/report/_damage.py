@@ -700,6 +700,15 @@ def trust_section(adequacy: Mapping[str, Any] | None, trust: Mapping[str, Any] |
             for c in adequacy.get("failing", [])
         ]
         parts.append(H.note(f"Fit adequacy: {adequacy.get('summary', adequacy['verdict'])}."))
+        model = adequacy.get("model")
+        if model is not None and model is not adequacy and model.get("summary"):
+            parts.append(
+                H.note(
+                    f"The fitted model alone (without the measured discrepancy): "
+                    f"{model['summary']}. Its parameters are effective values of the reduced "
+                    "model on this machine, not the machine's physical values."
+                )
+            )
         if rows:
             parts.append(
                 H.table(

@@ -182,6 +182,23 @@ class OtherDoor:
             split=split,
             duration=duration,
         )
+        # a run whose integration diverged (a stiff draw of the scatter) is recorded again with
+        # a fresh key, as a test engineer repeats a failed run; the truth keeps the redraws
+        redrawn: list[int] = []
+        for attempt in range(1, 4):
+            acc = recording.campaign["acceleration"].values
+            bad = np.flatnonzero(~np.all(np.isfinite(acc), axis=(1, 2)))
+            if bad.size == 0:
+                break
+            redrawn.extend(int(i) for i in bad)
+            again = rig.run(
+                [states[i] for i in bad],
+                commanded[bad] * (1.0 + self.speed_bias),
+                key=jax.random.fold_in(k_rig, attempt),
+                split=None if split is None else [split[i] for i in bad],
+                duration=duration,
+            )
+            recording = _replace_runs(recording, bad, again)
         campaign = recording.campaign.copy(deep=True)
         acc = campaign["acceleration"].transpose("run", "channel", "time").values
         fs = float(campaign.attrs["sampling_rate_hz"])
@@ -191,7 +208,7 @@ class OtherDoor:
         campaign["acceleration"] = (("run", "channel", "time"), out, attrs)
         campaign = campaign.assign_coords(v_max=("run", commanded))
         campaign.attrs["source"] = "bayesdoor virtual rig, other-door family"
-        truth = {**recording.truth, "other_door": self.describe()}
+        truth = {**recording.truth, "other_door": self.describe(), "redrawn_runs": redrawn}
         return Recording(campaign=campaign, truth=truth)
 
     def measure(self, acc: np.ndarray, fs: float, *, seed: int) -> np.ndarray:
@@ -209,6 +226,20 @@ class OtherDoor:
         return out + coloured_noise(
             rng, out.shape, fs, np.asarray(self.noise_rms)[None, :, None], self.noise_alpha
         )
+
+
+def _replace_runs(recording: Recording, runs: np.ndarray, again: Recording) -> Recording:
+    """``recording`` with the runs ``runs`` taken from ``again`` (same channels and length)."""
+    campaign = recording.campaign.copy(deep=True)
+    campaign["acceleration"].values[runs] = again.campaign["acceleration"].values
+    for name in ("t_start", "t_stop"):
+        values = campaign[name].values.copy()
+        values[runs] = again.campaign[name].values
+        campaign = campaign.assign_coords({name: ("run", values)})
+    per_run = list(recording.truth["runs"])
+    for j, i in enumerate(runs):
+        per_run[int(i)] = again.truth["runs"][j]
+    return Recording(campaign=campaign, truth={**recording.truth, "runs": per_run})
 
 
 def coloured_noise(

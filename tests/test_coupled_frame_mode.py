@@ -339,3 +339,19 @@ def test_a_refitted_mode_must_peak_on_its_feature():
     # without the folds' values only the excess is judged, as before
     assert recipe.explains(*args)[0]
     assert not recipe.explains(parameters, freqs, measured, base, measured * 2.0, args[-1])[0]
+
+
+def test_the_frequency_box_reaches_the_whole_residual_feature():
+    # a broad residual feature (significant from 18 to 34 Hz, peak picked at 22 Hz): both
+    # forms of the refit may place the mode anywhere in it, not only within +-3-4 Hz of 22
+    from bayesdoor.systems.door._catalogue import FRAME_MODE_BAND, FrameModeRefit
+
+    parameters = {"frequency_hz": 22.0, "channels": ("A2Z",), "band_hz": (18.0, 34.0)}
+    for proposal in FrameModeRefit().propose(parameters, band=(4.0, 96.0)):
+        lo, hi = proposal.bounds["frame_mode.frequency_hz"]
+        assert lo <= 18.0 and hi >= 34.0
+    # a narrow feature keeps the box around its peak, and no box leaves the catalogue's band
+    narrow = {"frequency_hz": 11.0, "channels": ("A1X",), "band_hz": (10.5, 11.5)}
+    for proposal in FrameModeRefit().propose(narrow, band=(4.0, 96.0)):
+        lo, hi = proposal.bounds["frame_mode.frequency_hz"]
+        assert lo == FRAME_MODE_BAND[0] and 14.0 <= hi <= 15.0

@@ -15,12 +15,14 @@ from ._diagnose import features_of as features_of
 from ._diagnose import json_safe as json_safe
 from ._diagnose import save_diagnosis as save_diagnosis
 from ._fit import FitSummary as FitSummary
+from ._job import DEFAULT_SOURCE as DEFAULT_SOURCE
 from ._job import SOURCES as SOURCES
 from ._job import STAGES as STAGES
 from ._job import Generation as Generation
 from ._job import JobResult as JobResult
 from ._job import Sizes as Sizes
 from ._job import Source as Source
+from ._job import default_source as default_source
 from ._job import digest_runs as digest_runs
 from ._job import generation_settings as generation_settings
 from ._job import parameter_source as parameter_source

@@ -103,6 +103,16 @@ def adequacy_stage(
             {"verdict": None, "reason": f"no measured {KNOWN_STATE} runs to check the fit on"},
         )
         return
+    try:
+        payload = _adequacy(data, known, seed=seed, discrepancy=discrepancy)
+    except ValueError as err:  # too few simulated runs at a speed, for example
+        payload = {"verdict": None, "reason": " ".join(str(err).split())}
+    _write_json(folder / ADEQUACY_JSON, payload)
+
+
+def _adequacy(
+    data: TrainingData, known: xr.Dataset, *, seed: int, discrepancy: bool
+) -> dict[str, Any]:
     features = campaign_features(known)
     speeds = np.asarray(known["v_max"].values, dtype=float)
     variance = measurement_variance(data)
@@ -126,7 +136,7 @@ def adequacy_stage(
         )
     # the fitted model alone, without the measured discrepancy: what the physics misses
     payload["model"] = model.to_json()
-    _write_json(folder / ADEQUACY_JSON, payload)
+    return payload
 
 
 def _binomial_low(k: int, n: int, p: float) -> float:
@@ -276,7 +286,7 @@ def trust_stage(
             features = f["features"][[i for i, _ in picks]]
         simulated = set(np.round(data.speeds, 9).tolist())
         at = [j for j, (_, r) in enumerate(picks) if round(r["v_max"], 9) in simulated]
-        if at:
+        try:
             scores, bounds = healthy_outliers(
                 data,
                 features[at],
@@ -285,9 +295,11 @@ def trust_stage(
                 seed=seed,
                 alpha=TRUST_ALPHA,
             )
-            unlike = [
-                int(picks[j][1]["run"]) for j, s, b in zip(at, scores, bounds, strict=True) if s > b
-            ]
+        except ValueError:  # too few simulated healthy runs at a speed: no per-run check
+            at, scores, bounds = [], np.zeros(0), np.zeros(0)
+        unlike = [
+            int(picks[j][1]["run"]) for j, s, b in zip(at, scores, bounds, strict=True) if s > b
+        ]
     _write_json(
         folder / TRUST_JSON,
         judge_trust(adequacy, known, classification, training, unlike),

@@ -74,6 +74,17 @@ _SYMPTOM_SHARE = 1.0
 _SYMPTOM_HALF_WIDTH_HZ = 1.5
 
 
+def _frequency_box(parameters: Mapping[str, Any], f: float, half: float) -> tuple[float, float]:
+    """The refit's frequency search box: ``f +- half`` widened to the residual feature's own
+    band (the signature's ``band_hz``, its lowest and highest significant bins), so a mode
+    anywhere in the feature can be reached; inside :data:`FRAME_MODE_BAND`."""
+    lo, hi = f - half, f + half
+    band = parameters.get("band_hz")
+    if band is not None and len(band) == 2 and np.all(np.isfinite(band)):
+        lo, hi = min(lo, float(band[0])), max(hi, float(band[1]))
+    return max(lo, FRAME_MODE_BAND[0]), min(hi, FRAME_MODE_BAND[1])
+
+
 class FrameModeRefit(AbstractRefit):
     """An extra mode at the residual's frequency, seen on every channel, in two forms.
 
@@ -110,7 +121,7 @@ class FrameModeRefit(AbstractRefit):
             f"frame_mode.participation_{c}": (-_PARTICIPATION_BOX, _PARTICIPATION_BOX)
             for c in g.CHANNELS
         }
-        box["frame_mode.frequency_hz"] = (f - _FREQUENCY_BOX_HZ, f + _FREQUENCY_BOX_HZ)
+        box["frame_mode.frequency_hz"] = _frequency_box(parameters, f, _FREQUENCY_BOX_HZ)
         parts = {f"frame_mode.participation_{c}": c for c in g.CHANNELS}
         coupled_start = {
             "frame_mode.frequency_hz": f,
@@ -119,7 +130,7 @@ class FrameModeRefit(AbstractRefit):
             **dict.fromkeys(parts, 0.0),
         }
         coupled_box = {
-            "frame_mode.frequency_hz": (f - _COUPLED_BOX_HZ, f + _COUPLED_BOX_HZ),
+            "frame_mode.frequency_hz": _frequency_box(parameters, f, _COUPLED_BOX_HZ),
             "frame_mode.rail_lift": _RAIL_LIFT_BOX,
         }
         key = ("frame_mode.frequency_hz", "frame_mode.damping_ratio")

@@ -13,6 +13,7 @@ from ._generate import TrainingData as TrainingData
 from ._generate import describe_system as describe_system
 from ._generate import generate as generate
 from ._generate import load_training_data as load_training_data
+from ._model_error import DISCREPANCY_FORM as DISCREPANCY_FORM
 from ._model_error import calibration_residuals as calibration_residuals
 from ._model_error import measurement_variance as measurement_variance
 from ._model_error import model_error_draws as model_error_draws

@@ -207,8 +207,12 @@ def with_measured_discrepancy(
     PSD. Each simulated run, of every state, gets the discrepancy of one measured run at its
     speed, drawn at random (of any measured run when none is at its speed): the simulations
     then carry the error the model makes on this machine, as measured, not only its scale.
-    It is a log-PSD offset, so it assumes the discrepancy multiplies each state's spectrum
-    alike; ``results/transfer.md`` measures what it gains on doors the model lacks.
+    Where the measurement holds more power than the model (noise, a mode the model lacks,
+    a line), the excess is *added* to each simulated run's power spectrum, as such sources
+    add to a signal: a fault's signature then stands out of the measured floor as little as
+    it would on the machine. Where it holds less (a lower sensor gain, more damping), the
+    deficit scales the spectrum (a log10 offset). ``results/transfer.md`` measures what it
+    gains on doors the model lacks.
 
     Parameters
     ----------
@@ -254,12 +258,30 @@ def with_measured_discrepancy(
             )
         residuals[i] = x[i] - data.features[at].mean(axis=0)
     rng = np.random.default_rng(seed)
-    offsets = np.empty_like(data.features)
+    shifted = np.empty_like(data.features)
     for speed in np.unique(data.speeds):
         runs = np.flatnonzero(np.isclose(data.speeds, speed, rtol=1e-9, atol=0.0))
         pool = np.flatnonzero(np.isclose(v, speed, rtol=1e-9, atol=0.0))
         pool = pool if pool.size else np.arange(len(v))
-        offsets[runs] = residuals[rng.choice(pool, size=runs.size)]
-    return dataclasses.replace(
-        data, features=data.features + offsets, model_error=data.model_error + offsets
-    )
+        at = own & np.isclose(data.speeds, speed, rtol=1e-9, atol=0.0)
+        # the simulated healthy mean at this speed (speeds without one take the residual
+        # as a plain offset)
+        base = data.features[at].mean(axis=0) if at.any() else None
+        drawn = residuals[rng.choice(pool, size=runs.size)]
+        shifted[runs] = _add_discrepancy(data.features[runs], drawn, base)
+    offsets = shifted - data.features
+    return dataclasses.replace(data, features=shifted, model_error=data.model_error + offsets)
+
+
+#: the discrepancy's form (the generation stage's configuration names it)
+DISCREPANCY_FORM = "excess power added, deficit scaled"
+
+
+def _add_discrepancy(features: np.ndarray, residuals: np.ndarray, base: np.ndarray | None):
+    """log10 PSD features plus measured residuals about the simulated mean ``base``: the
+    excess power ``10^(base + r) - 10^base`` where ``r > 0``, a factor ``10^r`` where not."""
+    if base is None:
+        return features + residuals
+    excess = np.clip(10.0 ** (base + residuals) - 10.0**base, 0.0, None)
+    deficit = np.minimum(residuals, 0.0)
+    return np.log10(10.0**features + excess) + deficit

@@ -31,6 +31,7 @@ import xarray as xr
 
 from ..classify import TrainConfig
 from ..datagen import (
+    DISCREPANCY_FORM,
     AbstractParameterSource,
     GaussianScatter,
     GenerationConfig,
@@ -498,7 +499,7 @@ def run_job(
             "data": gen_record.config_hash,
             "runs": digest_runs(calibration),
             "seed": seed,
-            "discrepancy": discrepancy,
+            "discrepancy": DISCREPANCY_FORM if discrepancy else None,
         },
         lambda folder: adequacy_stage(
             gen_record.path / "data", calibration, folder, seed=seed, discrepancy=discrepancy
@@ -534,7 +535,7 @@ def run_job(
             "sizes": sizes.to_json(),
             "seed": seed,
             "ood": "model-error draws",
-            "discrepancy": discrepancy,
+            "discrepancy": DISCREPANCY_FORM if discrepancy else None,
         },
         compute_train,
         report=report,
@@ -559,7 +560,7 @@ def run_job(
             "adequacy": adequacy_record.config_hash,
             "runs": digest_runs(calibration),
             "seed": seed,
-            "discrepancy": discrepancy,
+            "discrepancy": DISCREPANCY_FORM if discrepancy else None,
         },
         lambda folder: trust_stage(
             train_record.path,

@@ -146,6 +146,18 @@ def test_trust_fails_when_the_measured_healthy_runs_are_not_recognised():
     assert ok["verdict"] == "trusted" and ok["reasons"] == []
 
 
+def test_a_low_expected_accuracy_limits_the_verdict():
+    adequacy = {"verdict": "reproduces", "summary": "fine"}
+    training = {**_training(), "validation": {**_training()["validation"]}}
+    training["validation"]["calibrated"] = {"accuracy": 0.82}
+    verdict = judge_trust(adequacy, _runs(["healthy"] * 10), _runs(["D1"] * 30), training, [])
+    assert verdict["verdict"] == "limited" and verdict["reasons"] == []
+    assert "about 82 %" in verdict["warnings"][0]
+    training["validation"]["calibrated"] = {"accuracy": 0.95}
+    ok = judge_trust(adequacy, _runs(["healthy"] * 10), _runs(["D1"] * 30), training, [])
+    assert ok["verdict"] == "trusted" and ok["warnings"] == []
+
+
 def test_trust_fails_on_an_inadequate_fit_and_on_many_ood_runs():
     bad = {"verdict": "does not reproduce", "summary": "A 0-16 Hz off by +3.0 dB"}
     verdict = judge_trust(bad, None, _runs(["D1"] * 30), _training(), [])

@@ -122,6 +122,12 @@ def print_summary(result: dict[str, Any], console: Console, *, quick: bool = Fal
                 + escape("; ".join(trust["reasons"])),
                 highlight=False,
             )
+        elif trust["verdict"] == "limited":
+            console.print(
+                "[bold yellow]the classification is limited:[/] "
+                + escape("; ".join(trust.get("warnings", []))),
+                highlight=False,
+            )
         else:
             console.print("trust: the checks passed (fit adequacy, known runs, OOD rate)")
     diagnosis = result.get("diagnosis")

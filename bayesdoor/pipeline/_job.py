@@ -47,7 +47,14 @@ from ._classify import classify_stage, ood_model_error, report_stage, train_stag
 from ._diagnose import DIAGNOSIS_HTML, DIAGNOSIS_JSON, default_diagnose, diagnosis_stage
 from ._fit import FitSummary
 from ._stages import StageRecord, configuration_hash, run_stage
-from ._trust import ADEQUACY_JSON, TRUST_JSON, adequacy_stage, training_data, trust_stage
+from ._trust import (
+    ADEQUACY_JSON,
+    TRUST_CHECKS,
+    TRUST_JSON,
+    adequacy_stage,
+    training_data,
+    trust_stage,
+)
 
 Source = Literal["posterior", "posterior+model_error", "gaussian"]
 SOURCES: tuple[str, ...] = ("posterior", "posterior+model_error", "gaussian")
@@ -558,6 +565,7 @@ def run_job(
             "model": train_record.config_hash,
             "classification": classify_record.config_hash,
             "adequacy": adequacy_record.config_hash,
+            "checks": TRUST_CHECKS,
             "runs": digest_runs(calibration),
             "seed": seed,
             "discrepancy": DISCREPANCY_FORM if discrepancy else None,
@@ -576,10 +584,8 @@ def run_job(
     )
     records.append(trust_record)
     trust = json.loads((trust_record.path / TRUST_JSON).read_text())
-    report(
-        f"trust: {trust['verdict']}"
-        + (": " + "; ".join(trust["reasons"]) if trust["reasons"] else "")
-    )
+    said = trust["reasons"] + trust.get("warnings", [])
+    report(f"trust: {trust['verdict']}" + (": " + "; ".join(said) if said else ""))
     diagnosis_json: dict[str, Any] | None = None
     diagnosis_hash = None
     if html if diagnosis is None else diagnosis:

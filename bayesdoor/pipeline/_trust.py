@@ -20,6 +20,12 @@ false-alarm rate (:data:`TRUST_ALPHA` per check unless said otherwise):
 
 Any failed check makes the verdict ``"not trusted"``, with its reasons; the report then
 leads with them instead of a confident table.
+
+4. **Expected accuracy**: with the passing checks, the simulated validation runs (which carry
+   the measured discrepancy with the default source) estimate the accuracy to expect on the
+   measurements. Below the required accuracy (:data:`REQUIRED_ACCURACY`, a requirement, not
+   a fitted threshold) the verdict is ``"limited"``: the states overlap at this machine's
+   measured floor, and faults of the smaller severities are expected to be missed.
 """
 
 from __future__ import annotations
@@ -47,6 +53,14 @@ ADEQUACY_JSON = "adequacy.json"
 TRUST_JSON = "trust.json"
 #: false-alarm rate of each trust check
 TRUST_ALPHA = 0.01
+#: the accuracy a classification must be expected to reach to be reported without a warning
+REQUIRED_ACCURACY = 0.9
+#: what the trust stage checks, at which rates (its configuration: a change reruns it)
+TRUST_CHECKS = {
+    "checks": ("adequacy", "known runs", "ood rate", "unlike healthy", "expected accuracy"),
+    "alpha": TRUST_ALPHA,
+    "required_accuracy": REQUIRED_ACCURACY,
+}
 #: the state the calibration runs are measured in
 KNOWN_STATE = "healthy"
 
@@ -157,6 +171,7 @@ def judge_trust(
     unlike_healthy: list[int],
     *,
     alpha: float = TRUST_ALPHA,
+    required: float = REQUIRED_ACCURACY,
 ) -> dict[str, Any]:
     """The trust verdict from the checks' evidence (see the module docstring).
 
@@ -236,10 +251,22 @@ def judge_trust(
         )
     if n and len(flagged) > n / 2:
         reasons.append(f"most runs are flagged ({len(flagged)} of {n})")
+    warnings: list[str] = []
+    expected = (training.get("validation", {}).get("calibrated") or {}).get("accuracy")
+    checks["expected_accuracy"] = {"simulated_validation": expected, "required": required}
+    if expected is not None and expected < required:
+        warnings.append(
+            f"the accuracy to expect is about {100 * expected:.0f} % (simulated validation runs "
+            f"that carry the measured discrepancy), below the required {100 * required:.0f} %: "
+            "the states overlap at this machine's measured floor, so faults of the smaller "
+            "severities will be missed"
+        )
+    verdict = "not trusted" if reasons else ("limited" if warnings else "trusted")
     return {
-        "verdict": "not trusted" if reasons else "trusted",
+        "verdict": verdict,
         "alpha": alpha,
         "reasons": reasons,
+        "warnings": warnings,
         "checks": checks,
         "flagged_runs": sorted(flagged),
         "unlike_healthy_runs": sorted(unlike_healthy),

@@ -679,6 +679,15 @@ def trust_section(adequacy: Mapping[str, Any] | None, trust: Mapping[str, Any] |
                 "model error (posterior+model_error)."
             )
         )
+    elif trust is not None and trust.get("verdict") == "limited":
+        parts.append(
+            H.warning(
+                "The classification below is limited: "
+                + "; ".join(str(w) for w in trust.get("warnings", []))
+                + ". The checks of the fit, the known runs and the out-of-distribution rate "
+                "passed."
+            )
+        )
     elif trust is not None:
         parts.append(
             H.note(

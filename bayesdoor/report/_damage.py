@@ -554,7 +554,10 @@ def write_damage_report(
                 "Model updating on the calibration runs",
                 H.note(
                     f"Method: {fit['method']}; objective J at the point: {_fmt(fit['j'], 4)}. "
-                    "The training runs were simulated from these parameters."
+                    "The training runs were simulated from these parameters. They are effective "
+                    "values: the reduced model's best description of this machine, which it "
+                    "does not describe exactly (see the fit adequacy above), not the machine's "
+                    "physical values."
                 ),
                 H.table(["parameter", "point", "posterior mean", "sd", "90 % interval"], rows),
             )

@@ -118,6 +118,13 @@ STEPS: tuple[Step, ...] = (
         out=("--results", "diagnosis_full_size.md"),
     ),
     Step(
+        "transfer",
+        "scripts/transfer.py",
+        args=("--doors", "20", "--held-out-from", "12", "--demo-seeds", "0", "1", "2"),
+        quick_args=("--doors", "2", "--demo-seeds", "0"),
+        out=("--results", "transfer.md"),
+    ),
+    Step(
         "decision_rule",
         "scripts/decision_rule.py",
         quick_args=("--draws", "20000"),

@@ -51,9 +51,19 @@ from bayesdoor.classify import (
     reliability_bins,
     save_ensemble,
 )
-from bayesdoor.datagen import GenerationConfig, PosteriorDraws, campaign_features, generate
+from bayesdoor.datagen import (
+    GenerationConfig,
+    ModelErrorDraws,
+    PosteriorDraws,
+    campaign_features,
+    fit_adequacy,
+    generate,
+    load_training_data,
+    measurement_variance,
+    with_measured_discrepancy,
+)
 from bayesdoor.datasets import load_demo_campaign
-from bayesdoor.inference import FitResult
+from bayesdoor.inference import FitResult, calibration_runs
 from bayesdoor.pipeline import PredictiveBands, classify_stage, report_stage
 from bayesdoor.systems.door import ElevatorDoor
 
@@ -97,14 +107,19 @@ states, counts = np.unique(test.state.values, return_counts=True)
 print(f"{test.sizes['run']} test runs:", dict(zip(states.tolist(), counts.tolist(), strict=True)))
 
 # %% [markdown]
-# ## Training data from the posterior
+# ## Training data from the posterior, carrying the model's error
 #
 # Each simulated run takes one posterior sample for all continuous parameters together (so
 # their correlations survive), the contact law the posterior was conditioned on, a damage
-# severity drawn from its state's range and a speed from the campaign's. Its features are the
-# classifier's input: log10 Welch PSD in 4 Hz bins from 0 to 96 Hz, per channel, over the
-# motion window (4 x 25 numbers). The generation is chunked and resumable: running this cell
-# again loads the finished chunks instead of simulating them.
+# severity drawn from its state's range and a speed from the campaign's, and a level offset
+# per channel from the posterior of the model-error scale. Its features are the classifier's
+# input: log10 Welch PSD in 4 Hz bins from 0 to 96 Hz, per channel, over the motion window
+# (4 x 25 numbers). The generation is chunked and resumable: running this cell again loads
+# the finished chunks instead of simulating them.
+#
+# Then every simulated run gets the discrepancy one healthy calibration run measures at its
+# speed (`with_measured_discrepancy`): what the model misses on this machine, as measured.
+# This is the main job's default source (`posterior+model_error`, docs/transfer.md).
 
 # %%
 fixed = {name: value for name, value in fit.point.items() if name not in fit.names}
@@ -114,9 +129,30 @@ config = GenerationConfig(
     runs_per_state=size["runs_per_state"],
     chunk_size=min(100, size["runs_per_state"]),
 )
-data = generate(door, source, config, OUT / "training", key=jax.random.key(0))
+sigma = np.asarray(fit.model_error_draws())  # (sample, channel) in log10 decades
+model_error = ModelErrorDraws(jnp.asarray(sigma.reshape(sigma.shape[0], -1)))
+data = generate(
+    door, source, config, OUT / "training", key=jax.random.key(0), model_error=model_error
+)
+calibration = campaign.isel(run=calibration_runs(campaign))
+cal_features = campaign_features(calibration)
+cal_speeds = calibration.v_max.values
+data = with_measured_discrepancy(data, cal_features, cal_speeds, seed=0)
 train, validation = data.subset("train"), data.subset("validation")
 print(f"{len(train.labels)} training and {len(validation.labels)} validation runs of {data.states}")
+
+# %% [markdown]
+# Do these simulations reproduce the measured healthy runs? The adequacy check holds each
+# calibration run against the simulations with the *other* runs' discrepancy (leave one run
+# out), per channel and band; the model alone is checked too.
+
+# %%
+raw = load_training_data(OUT / "training")
+variance = measurement_variance(raw)
+alone = fit_adequacy(raw, cal_features, cal_speeds, variance)
+held_out = fit_adequacy(raw, cal_features, cal_speeds, variance, discrepancy=True)
+print("the model alone:", alone.summary())
+print("with the measured discrepancy:", held_out.summary())
 
 # %%
 fig, axes = plt.subplots(1, len(data.channels), figsize=(12, 3.2), sharey=True)

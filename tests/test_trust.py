@@ -267,3 +267,27 @@ def test_coloured_noise_falls_with_frequency():
     high = spectrum[:, (f > 400) & (f < 800)].mean()
     # 1/f: a hundred times less power a hundred times higher
     assert 30 < low / high < 300
+
+
+def test_the_measured_discrepancy_adds_excess_power_and_scales_a_deficit():
+    from bayesdoor.datagen import with_measured_discrepancy
+
+    rng = np.random.default_rng(5)
+    data = synthetic_data(rng, speeds=(0.3,))
+    healthy_mean = data.features.mean(axis=0)
+    # one measured run: channel A 10x the power of the simulated mean, channel B half of it
+    measured = healthy_mean.copy()[None]
+    measured[0, 0] += 1.0
+    measured[0, 1] -= np.log10(2.0)
+    shifted = with_measured_discrepancy(data, measured, [0.3], seed=0)
+    # the excess (9x the mean's power) is added to each run's power on A ...
+    expected_a = np.log10(10.0 ** data.features[:, 0] + 9.0 * 10.0 ** healthy_mean[0])
+    np.testing.assert_allclose(shifted.features[:, 0], expected_a, atol=1e-9)
+    # ... and B is scaled by the measured deficit
+    np.testing.assert_allclose(shifted.features[:, 1], data.features[:, 1] - np.log10(2.0))
+    np.testing.assert_allclose(shifted.model_error, shifted.features - data.features)
+    # a run far above the mean on A gains little: the excess is power, not a factor
+    loud = data.features.argmax(axis=0)[0, 0]
+    assert shifted.features[loud, 0, 0] - data.features[loud, 0, 0] < 1.0
+    with pytest.raises(ValueError, match="no simulated healthy run"):
+        with_measured_discrepancy(data, measured, [0.5])

@@ -168,8 +168,12 @@ def test_trust_fails_on_an_inadequate_fit_and_on_many_ood_runs():
     one = judge_trust(adequacy, None, _runs(["D1"] * 30, ood={0}), _training(), [])
     assert one["verdict"] == "trusted"
     six = judge_trust(adequacy, None, _runs(["D1"] * 30, ood=set(range(6))), _training(), [])
-    assert six["verdict"] == "not trusted" and "6 of 30 runs lie outside" in six["reasons"][0]
+    # an excess of flagged runs is a warning with the runs listed; a majority fails the check
+    assert six["verdict"] == "limited" and "6 of 30 runs lie outside" in six["warnings"][0]
     assert six["flagged_runs"] == list(range(6))
+    most = judge_trust(adequacy, None, _runs(["D1"] * 30, ood=set(range(16))), _training(), [])
+    assert most["verdict"] == "not trusted"
+    assert most["reasons"] == ["most runs are flagged (16 of 30)"]
 
 
 def _gain(campaign, db, runs=None):

@@ -13,13 +13,15 @@ false-alarm rate (:data:`TRUST_ALPHA` per check unless said otherwise):
    recall makes plausible (binomial, one-sided) means the classifier does not recognise the
    measured healthy state.
 3. **Out-of-distribution rate**: the detector's threshold flags a share ``1 - quantile`` of
-   the reference runs; many more flagged test runs than that (binomial, one-sided) means the
-   measurements lie outside what the classifier was trained on. Runs called healthy are also
-   held against the simulated healthy runs at their speed
-   (:func:`bayesdoor.datagen.healthy_outliers`, 1 % per run), and counted alike.
+   the reference runs; many more flagged test runs than that (binomial, one-sided) means
+   some measurements lie outside what the classifier was trained on: their probabilities
+   extrapolate. Runs called healthy are also held against the simulated healthy runs at their
+   speed (:func:`bayesdoor.datagen.healthy_outliers`, 1 % per run), and counted alike. An
+   excess of either is a warning (``"limited"``, the runs listed); more than half of the
+   runs flagged fails the check.
 
-Any failed check makes the verdict ``"not trusted"``, with its reasons; the report then
-leads with them instead of a confident table.
+A failed fit adequacy, known-runs or majority check makes the verdict ``"not trusted"``, with
+its reasons; the report then leads with them instead of a confident table.
 
 4. **Expected accuracy**: with the passing checks, the simulated validation runs (which carry
    the measured discrepancy with the default source) estimate the accuracy to expect on the
@@ -57,7 +59,8 @@ TRUST_ALPHA = 0.01
 REQUIRED_ACCURACY = 0.9
 #: what the trust stage checks, at which rates (its configuration: a change reruns it)
 TRUST_CHECKS = {
-    "checks": ("adequacy", "known runs", "ood rate", "unlike healthy", "expected accuracy"),
+    "checks": ("adequacy", "known runs", "most flagged", "expected accuracy"),
+    "warnings": ("ood rate", "unlike healthy", "expected accuracy"),
     "alpha": TRUST_ALPHA,
     "required_accuracy": REQUIRED_ACCURACY,
 }
@@ -236,22 +239,22 @@ def judge_trust(
         "nominal_rate": nominal,
         "p_value": p_ood,
     }
+    warnings: list[str] = []
     if n and len(ood) and p_ood < alpha:
-        reasons.append(
+        warnings.append(
             f"{len(ood)} of {n} runs lie outside every simulated state (OOD), against "
-            f"{100 * nominal:.0f} % expected (p = {p_ood:.1e})"
+            f"{100 * nominal:.0f} % expected (p = {p_ood:.1e}): their probabilities extrapolate"
         )
     called_healthy = sum(r["predicted"] == KNOWN_STATE for r in runs)
     p_h = _binomial_high(len(unlike_healthy), called_healthy, alpha) if called_healthy else 1.0
     checks["unlike_healthy"] = {"called_healthy": called_healthy, "p_value": p_h}
     if unlike_healthy and p_h < alpha:
-        reasons.append(
+        warnings.append(
             f"{len(unlike_healthy)} of {called_healthy} runs called {KNOWN_STATE} are unlike "
             f"the simulated {KNOWN_STATE} runs at their speed (p = {p_h:.1e})"
         )
     if n and len(flagged) > n / 2:
         reasons.append(f"most runs are flagged ({len(flagged)} of {n})")
-    warnings: list[str] = []
     expected = (training.get("validation", {}).get("calibrated") or {}).get("accuracy")
     checks["expected_accuracy"] = {"simulated_validation": expected, "required": required}
     if expected is not None and expected < required:

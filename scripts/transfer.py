@@ -123,6 +123,7 @@ def _job_row(result, source: str, seconds: float) -> dict[str, Any]:
             "simulated_validation"
         ),
         "seconds": seconds,
+        "stage_seconds": {st["name"]: st["seconds"] for st in payload["stages"]},
     }
 
 
@@ -301,6 +302,22 @@ def markdown(args, rows: list[dict[str, Any]], argv) -> str:
                 f"| `{source}` | {' '.join(str(r['seed']) for r in sel)} | {accuracy} | {ece} | "
                 f"{', '.join(sorted({str(r['trust']) for r in sel}))} |"
             )
+    shares = [
+        (r["stage_seconds"].get("adequacy", 0.0) + r["stage_seconds"].get("trust", 0.0))
+        / sum(r["stage_seconds"].values())
+        for r in [*rows, *demo]
+        if r.get("stage_seconds") and r["source"] == DEFAULT_SOURCE
+    ]
+    if shares:
+        lines += [
+            "",
+            "## What the checks cost",
+            "",
+            "The adequacy and trust stages' share of the job's time (every stage's own compute "
+            "time, the shared fit included; the job without the diagnosis and the HTML report), "
+            f"default source, {len(shares)} jobs: median {100 * statistics.median(shares):.1f} %, "
+            f"largest {100 * max(shares):.1f} %.",
+        ]
     lines += [
         "",
         "## Door by door",

@@ -1,0 +1,74 @@
+"""Every fenced ```python block of README.md and docs/*.md runs as written.
+
+The blocks of one page run in order in one namespace, as a reader types them, in a fresh
+working folder (examples that write files write there), with matplotlib's Agg backend and
+``BAYESDOOR_DATA`` pointing at the demo campaign's cache (``$BAYESDOOR_DATA`` or
+``~/.cache/bayesdoor``, so that the campaign is recorded once). Blocks written as doctests
+(``>>>`` prompts: docs/features.md, docs/data.md) are run, and their printed output compared, by
+tests/test_inspect.py; they are left out here. Pages whose examples fit, generate training data,
+diagnose or record the demo campaign are in the long tier (``make test-long``).
+"""
+
+import os
+import re
+from pathlib import Path
+
+import matplotlib
+import pytest
+
+from bayesdoor.datasets import cache_dir
+
+ROOT = Path(__file__).resolve().parent.parent
+PAGES = ["README.md", *sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "docs").glob("*.md"))]
+
+#: the pages whose examples take more than a few seconds on a 2-core machine, and why
+LONG = {
+    "README.md": "a quick NUTS fit of the demo campaign",
+    "docs/datagen.md": "a quick NUTS fit and 180 simulated training runs",
+    "docs/diagnosis.md": "a quick diagnosis (CMA-ES fit, refits) and a quick job",
+    "docs/classification.md": "trains the ten-member ensemble for 80 epochs",
+}
+
+
+def blocks(page: str) -> list[tuple[int, str]]:
+    """The page's ```python blocks that are not doctests, each with its first line's number."""
+    text = (ROOT / page).read_text(encoding="utf-8")
+    found = []
+    for match in re.finditer(r"^```python\n(.*?)^```", text, flags=re.S | re.M):
+        code = match.group(1)
+        if not re.search(r"^\s*>>>", code, flags=re.M):
+            found.append((text.count("\n", 0, match.start()) + 2, code))
+    return found
+
+
+RUNNABLE = [page for page in PAGES if blocks(page)]
+
+
+def test_every_example_is_collected():
+    # the README's example and the guides' examples; a page listed as long still has examples
+    assert "README.md" in RUNNABLE and len(RUNNABLE) >= 6, RUNNABLE
+    assert set(LONG) <= set(RUNNABLE), sorted(set(LONG) - set(RUNNABLE))
+
+
+@pytest.mark.parametrize(
+    "page",
+    [pytest.param(page, marks=pytest.mark.long) if page in LONG else page for page in RUNNABLE],
+)
+def test_page_examples_run(page, tmp_path, monkeypatch):
+    data = Path(os.environ.get("BAYESDOOR_DATA") or cache_dir()).resolve()
+    monkeypatch.setenv("BAYESDOOR_DATA", str(data))
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    matplotlib.use("Agg")
+    monkeypatch.chdir(tmp_path)
+    import matplotlib.pyplot as plt
+
+    namespace: dict = {"__name__": "__main__"}
+    try:
+        for line, code in blocks(page):
+            try:
+                # padded so that a traceback names the page's own line numbers
+                exec(compile("\n" * (line - 1) + code, str(ROOT / page), "exec"), namespace)
+            except Exception as error:
+                raise AssertionError(f"the block at {page}:{line} fails: {error!r}") from error
+    finally:
+        plt.close("all")

@@ -563,8 +563,9 @@ def verdict_order(score: float, gain: float) -> tuple[float, float]:
     symptoms of another cause and then gain more than it: on the rig a leak between the two
     channels of a sensor that both feel a missing mode gains more than the mode (frame mode
     seed 3 at 8 runs), and a mode on A2Z near the frequency where a leak puts A2X's header
-    mode gains more than the leak (cross-axis seed 0 at 8 runs; docs/diagnosis.md). In both
-    the cause whose signature the residual features show best is the hidden one.
+    mode gains more than the leak (cross-axis seed 0 at 8 runs;
+    results/diagnosis_judgement.md). In both the cause whose signature the residual features
+    show best is the hidden one.
 
     Parameters
     ----------

@@ -5,8 +5,9 @@ working folder (examples that write files write there), with matplotlib's Agg ba
 ``BAYESDOOR_DATA`` pointing at the demo campaign's cache (``$BAYESDOOR_DATA`` or
 ``~/.cache/bayesdoor``, so that the campaign is recorded once). Blocks written as doctests
 (``>>>`` prompts: docs/features.md, docs/data.md) are run, and their printed output compared, by
-tests/test_inspect.py; they are left out here. Pages whose examples fit, generate training data,
-diagnose or record the demo campaign are in the long tier (``make test-long``).
+tests/test_inspect.py; they are left out here. Pages whose examples take more than a few seconds
+(a fit, training data, the ensemble, rig runs, a diagnosis) are in the long tier (``make
+test-long``), with the reason in ``LONG``.
 """
 
 import os
@@ -27,6 +28,7 @@ LONG = {
     "docs/datagen.md": "a quick NUTS fit and 180 simulated training runs",
     "docs/diagnosis.md": "a quick diagnosis (CMA-ES fit, refits) and a quick job",
     "docs/classification.md": "trains the ten-member ensemble for 80 epochs",
+    "docs/rig.md": "records three rig runs (about 25 s, most of it compiling the rig's solver)",
 }
 
 

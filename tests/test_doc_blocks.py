@@ -7,7 +7,8 @@ working folder (examples that write files write there), with matplotlib's Agg ba
 (``>>>`` prompts: docs/features.md, docs/data.md) are run, and their printed output compared, by
 tests/test_inspect.py; they are left out here. Pages whose examples take more than a few seconds
 (a fit, training data, the ensemble, rig runs, a diagnosis) are in the long tier (``make
-test-long``), with the reason in ``LONG``.
+test-long``), with the reason in ``LONG``; those that take longer (a diagnosis and a job) are
+``slow``, in ``SLOW``.
 """
 
 import os
@@ -25,11 +26,22 @@ PAGES = ["README.md", *sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "d
 #: the pages whose examples take more than a few seconds on a 2-core machine, and why
 LONG = {
     "README.md": "a quick NUTS fit of the demo campaign",
-    "docs/datagen.md": "a quick NUTS fit and 180 simulated training runs",
-    "docs/diagnosis.md": "a quick diagnosis (CMA-ES fit, refits) and a quick job",
     "docs/classification.md": "trains the ten-member ensemble for 80 epochs",
     "docs/rig.md": "records three rig runs (about 25 s, most of it compiling the rig's solver)",
 }
+
+
+#: the pages whose examples take longer than the long tier's few minutes (``pytest -m slow``)
+SLOW = {
+    "docs/datagen.md": "a quick NUTS fit and 180 simulated training runs",
+    "docs/diagnosis.md": "a quick diagnosis (CMA-ES fit, refits) and a quick job",
+}
+
+
+def _marks(page: str):
+    if page in SLOW:
+        return [pytest.mark.slow]
+    return [pytest.mark.long] if page in LONG else []
 
 
 def blocks(page: str) -> list[tuple[int, str]]:
@@ -49,12 +61,12 @@ RUNNABLE = [page for page in PAGES if blocks(page)]
 def test_every_example_is_collected():
     # the README's example and the guides' examples; a page listed as long still has examples
     assert "README.md" in RUNNABLE and len(RUNNABLE) >= 6, RUNNABLE
-    assert set(LONG) <= set(RUNNABLE), sorted(set(LONG) - set(RUNNABLE))
+    assert set(LONG) | set(SLOW) <= set(RUNNABLE), sorted(set(LONG) | set(SLOW) - set(RUNNABLE))
 
 
 @pytest.mark.parametrize(
     "page",
-    [pytest.param(page, marks=pytest.mark.long) if page in LONG else page for page in RUNNABLE],
+    [pytest.param(page, marks=_marks(page)) for page in RUNNABLE],
 )
 def test_page_examples_run(page, tmp_path, monkeypatch):
     data = Path(os.environ.get("BAYESDOOR_DATA") or cache_dir()).resolve()

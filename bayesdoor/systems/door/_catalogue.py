@@ -288,7 +288,7 @@ class RailRefit(AbstractRefit):
     speeds, with its standard error): the spectra locate a tone to a fraction of a bin, while
     a refit of the wavelength would be pulled by the interference of the two wheels 0.7 m
     apart (20 periods of a 35 mm wavelength: 1 % changes their relative phase by a fifth of a
-    cycle) more than by the tone's frequency. Measured at 8 runs (docs/diagnosis.md): a +-8 %
+    cycle) more than by the tone's frequency. Measured at 8 runs (results/diagnosis_rail_wheel.md): a +-8 %
     grid of wavelengths profiled per fold names rail seed 1 (26.00 mm for the rig's 26.00,
     +6.7 SE, where the signature's 27.79 mm gives 3.8 SE) but loses seed 3 (the folds'
     wavelengths averaging 9.79 mm for the rig's 9.74: 3.8 SE, against 5.7 SE held at the
@@ -302,7 +302,7 @@ class RailRefit(AbstractRefit):
     all linear (micrometres on a contact preloaded by a fraction of a millimetre): four
     solves per run. The two wheels' relative phase is then fitted instead of fixed by a
     wavelength known to a fraction of a percent. Measured on rail seeds 0-9 at 8 runs under
-    the tests' shared base fit (docs/diagnosis.md): 6 of 10 named (seeds 0, 1,
+    the tests' shared base fit (results/diagnosis_rail_wheel.md): 6 of 10 named (seeds 0, 1,
     2, 3, 7, 8; seed 1 at the signature's 7 % off wavelength) where one amplitude at phase 0
     (``independent=False``: one solve per run) names 4 (2, 3, 7, 8); nothing hidden, seeds
     0-5: `none` in every case either way. One phase common to both wheels, fitted as two

@@ -289,7 +289,8 @@ class RailRefit(AbstractRefit):
     a refit of the wavelength would be pulled by the interference of the two wheels 0.7 m
     apart (20 periods of a 35 mm wavelength: 1 % changes their relative phase by a fifth of a
     cycle) more than by the tone's frequency. Measured at 8 runs
-    (results/diagnosis_rail_wheel.md): a +-8 % grid of wavelengths profiled per fold names rail seed 1 (26.00 mm for the rig's 26.00,
+    (results/diagnosis_rail_wheel.md): a +-8 % grid of wavelengths profiled per fold names
+    rail seed 1 (26.00 mm for the rig's 26.00,
     +6.7 SE, where the signature's 27.79 mm gives 3.8 SE) but loses seed 3 (the folds'
     wavelengths averaging 9.79 mm for the rig's 9.74: 3.8 SE, against 5.7 SE held at the
     signature's 9.67 mm), so the wavelength stays held. With each wheel's phase free (same

@@ -192,10 +192,10 @@ class OtherDoor:
                 break
             redrawn.extend(int(i) for i in bad)
             again = rig.run(
-                [states[i] for i in bad],
+                [states[int(i)] for i in bad],
                 commanded[bad] * (1.0 + self.speed_bias),
                 key=jax.random.fold_in(k_rig, attempt),
-                split=None if split is None else [split[i] for i in bad],
+                split=None if split is None else [split[int(i)] for i in bad],
                 duration=duration,
             )
             recording = _replace_runs(recording, bad, again)

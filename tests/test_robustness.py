@@ -451,9 +451,7 @@ def test_a_killed_run_leaves_no_half_written_result_and_the_rerun_completes(stor
     finished, after = seen["finished"]
     assert finished.exit_code == 0, finished.output
     stages = {s["name"]: s["reused"] for s in json.loads(finished.stdout)["stages"]}
-    assert stages == {
-        name: name in ("fit", "generate", "adequacy", "train") for name in STAGES
-    }
+    assert stages == {name: name in ("fit", "generate", "adequacy", "train") for name in STAGES}
     assert visible(after) == sorted(after) and "job.json" in after
 
 

@@ -94,7 +94,7 @@ class Adequacy:
         return self.verdict == "reproduces"
 
     def failing(self) -> list[dict[str, Any]]:
-        """The cells that do not reproduce, worst first."""
+        """The cells that do not reproduce, worst first (by ``|S|``, then by the offset)."""
         cells = []
         for c, channel in enumerate(self.channels):
             for b, band in enumerate(self.bands_hz):
@@ -109,7 +109,11 @@ class Adequacy:
                             "offset_sd": float(self.offset_sd[c, b]),
                         }
                     )
-        return sorted(cells, key=lambda cell: -abs(cell["statistic"]))
+        # |S| has a ceiling (the p-values' resolution, see above): among cells at it, the
+        # larger offset in predictive standard deviations comes first
+        return sorted(
+            cells, key=lambda cell: (-round(abs(cell["statistic"]), 1), -abs(cell["offset_sd"]))
+        )
 
     def summary(self) -> str:
         """One line: the verdict, and where and by how much the worst cell is off."""

@@ -48,6 +48,7 @@ from ._diagnose import DIAGNOSIS_HTML, DIAGNOSIS_JSON, default_diagnose, diagnos
 from ._fit import FitSummary
 from ._stages import StageRecord, configuration_hash, run_stage
 from ._trust import (
+    ADEQUACY_CHECK,
     ADEQUACY_JSON,
     TRUST_CHECKS,
     TRUST_JSON,
@@ -507,6 +508,7 @@ def run_job(
             "runs": digest_runs(calibration),
             "seed": seed,
             "discrepancy": DISCREPANCY_FORM if discrepancy else None,
+            "check": ADEQUACY_CHECK,
         },
         lambda folder: adequacy_stage(
             gen_record.path / "data", calibration, folder, seed=seed, discrepancy=discrepancy

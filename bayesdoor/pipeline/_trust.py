@@ -52,6 +52,8 @@ from ..datagen import (
 from ..io import atomic_write
 
 ADEQUACY_JSON = "adequacy.json"
+#: what the adequacy stage computes (its configuration: a change reruns it)
+ADEQUACY_CHECK = {"alpha": 0.01, "bands": 6, "order": "|S|, then the offset in SD"}
 TRUST_JSON = "trust.json"
 #: false-alarm rate of each trust check
 TRUST_ALPHA = 0.01

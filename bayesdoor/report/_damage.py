@@ -687,8 +687,8 @@ def trust_section(adequacy: Mapping[str, Any] | None, trust: Mapping[str, Any] |
             H.warning(
                 "The classification below is limited: "
                 + "; ".join(str(w) for w in trust.get("warnings", []))
-                + ". The checks of the fit, the known runs and the out-of-distribution rate "
-                "passed."
+                + ". The fit's adequacy and the recognition of the measured healthy runs "
+                "passed, and fewer than half of the runs are flagged."
             )
         )
     elif trust is not None:

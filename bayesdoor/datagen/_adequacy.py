@@ -167,7 +167,6 @@ def fit_adequacy(
     seed: int = 0,
     alpha: float = ALPHA,
     bands: int = BANDS,
-    replicates: int = 20,
     discrepancy: bool = False,
 ) -> Adequacy:
     """Hold measured runs of a known state against the simulated runs of that state.
@@ -191,8 +190,6 @@ def fit_adequacy(
         Family-wise false-alarm rate of the verdict.
     bands
         Number of frequency bands.
-    replicates
-        Scatter draws per simulated run (for the null of :func:`healthy_outliers`).
     discrepancy
         The training data carry the measured discrepancy of these runs
         (:func:`with_measured_discrepancy` is applied here, to ``data`` without it): each
@@ -209,23 +206,9 @@ def fit_adequacy(
         For an unknown state, mismatched shapes, no measured run, or a speed at which fewer
         than 5 simulated runs of the state exist.
     """
-    if state not in data.states:
-        raise ValueError(f"state={state!r} is not one of the training data's {data.states}")
-    if not 0.0 < alpha < 1.0:
-        raise ValueError(f"alpha={alpha!r} must be in (0, 1)")
-    x = np.asarray(features, dtype=float)
-    v = np.asarray(speeds, dtype=float).reshape(-1)
-    shape = data.features.shape[1:]
-    if x.ndim != 3 or x.shape[1:] != shape or len(v) != len(x) or len(x) == 0:
-        raise ValueError(
-            f"features must be (run, {', '.join(map(str, shape))}) with one speed per run and "
-            f"at least one run; got features {x.shape}, speeds {v.shape}"
-        )
-    var = np.broadcast_to(np.asarray(variance, dtype=float), shape)
-    groups = band_edges(shape[1], bands)
-    rng = np.random.default_rng(seed)
+    x, v, var, groups = _inputs(data, features, speeds, variance, state, alpha, bands)
     if not discrepancy:
-        scores = _scores(data, x, v, var, state, groups, rng, replicates)
+        scores = _scores(data, x, v, var, state, groups)
     else:
         if len(x) < 2:
             raise ValueError("a leave-one-run-out check of the discrepancy needs two runs or more")
@@ -235,7 +218,7 @@ def fit_adequacy(
             shifted = with_measured_discrepancy(
                 data, x[others], v[others], seed=seed + 1 + i, state=state
             )
-            parts.append(_scores(shifted, x[i : i + 1], v[i : i + 1], var, state, groups, rng, 1))
+            parts.append(_scores(shifted, x[i : i + 1], v[i : i + 1], var, state, groups))
         scores = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     gauss, diff, ratio = scores["gauss"], scores["diff"], scores["ratio"]
     # the runs share their predictive sample: the p-values of two runs at one speed correlate
@@ -289,20 +272,41 @@ def healthy_outliers(
     -------
     scores, thresholds
         One of each per run.
+
+    Raises
+    ------
+    ValueError
+        As :func:`fit_adequacy`.
     """
-    x = np.asarray(features, dtype=float)
-    v = np.asarray(speeds, dtype=float).reshape(-1)
-    shape = data.features.shape[1:]
-    var = np.broadcast_to(np.asarray(variance, dtype=float), shape)
-    groups = band_edges(shape[1], bands)
-    rng = np.random.default_rng(seed)
-    out = _scores(data, x, v, var, state, groups, rng, replicates, alpha=alpha)
+    x, v, var, groups = _inputs(data, features, speeds, variance, state, alpha, bands)
+    null = (np.random.default_rng(seed), replicates, alpha)
+    out = _scores(data, x, v, var, state, groups, null=null)
     return (out["gauss"] ** 2).sum(axis=(1, 2)), out["threshold"]
 
 
-def _scores(data, x, v, var, state, groups, rng, replicates, alpha=ALPHA):
-    """Per measured run: Phi^-1 of its predictive p-values per cell, its offsets, and the
-    ``1 - alpha`` quantile of the summed squared scores of the predictive draws.
+def _inputs(data, features, speeds, variance, state, alpha, bands):
+    """The checked inputs of :func:`fit_adequacy` and :func:`healthy_outliers`: the features
+    and speeds as arrays, the variance broadcast to a feature's shape, the bands' bins."""
+    if state not in data.states:
+        raise ValueError(f"state={state!r} is not one of the training data's {data.states}")
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha={alpha!r} must be in (0, 1)")
+    x = np.asarray(features, dtype=float)
+    v = np.asarray(speeds, dtype=float).reshape(-1)
+    shape = data.features.shape[1:]
+    if x.ndim != 3 or x.shape[1:] != shape or len(v) != len(x) or len(x) == 0:
+        raise ValueError(
+            f"features must be (run, {', '.join(map(str, shape))}) with one speed per run and "
+            f"at least one run; got features {x.shape}, speeds {v.shape}"
+        )
+    var = np.broadcast_to(np.asarray(variance, dtype=float), shape)
+    return x, v, var, band_edges(shape[1], bands)
+
+
+def _scores(data, x, v, var, state, groups, null=None):
+    """Per measured run: Phi^-1 of its predictive p-values per cell and its offsets; with
+    ``null = (rng, replicates, alpha)`` also the ``1 - alpha`` quantile of the summed squared
+    scores of ``replicates`` predictive draws per simulated run (``threshold``, NaN without).
 
     The predictive distribution of a band score is the mixture, over the ``m`` simulated
     runs at the run's speed, of Gaussians of the band-averaged measurement scatter about
@@ -335,16 +339,7 @@ def _scores(data, x, v, var, state, groups, rng, replicates, alpha=ALPHA):
                 np.stack([(var / sd**2)[..., g].sum(-1) / len(g) ** 2 for g in groups], -1)
             )
             spread = np.maximum(spread, 1e-6)
-            # the null of the summed squared scores: each simulated run plus scatter, held
-            # against the others (leave one out)
-            m = len(sims)
-            t_null = []
-            for j in range(m):
-                others = np.delete(centres, j, axis=0)
-                noise = spread * rng.standard_normal((replicates, *spread.shape))
-                u = _mixture_cdf(centres[j] + noise, others, spread)
-                t_null.append((stats.norm.ppf(u) ** 2).sum(axis=(1, 2)))
-            bound = float(np.quantile(np.concatenate(t_null), 1.0 - alpha))
+            bound = np.nan if null is None else _null_bound(centres, spread, *null)
             cache[key] = (mean, sd, centres, spread, bound)
         mean, sd, centres, spread, bound = cache[key]
         score = _band_scores(((x[i] - mean) / sd)[None], groups)[0]
@@ -360,6 +355,18 @@ def _scores(data, x, v, var, state, groups, rng, replicates, alpha=ALPHA):
         "threshold": threshold,
         "simulations": sims_at,
     }
+
+
+def _null_bound(centres, spread, rng, replicates: int, alpha: float) -> float:
+    """The ``1 - alpha`` quantile of the summed squared scores of the predictive draws: each
+    simulated run plus ``replicates`` scatter draws, held against the others (leave one out)."""
+    t_null = []
+    for j in range(len(centres)):
+        others = np.delete(centres, j, axis=0)
+        noise = spread * rng.standard_normal((replicates, *spread.shape))
+        u = _mixture_cdf(centres[j] + noise, others, spread)
+        t_null.append((stats.norm.ppf(u) ** 2).sum(axis=(1, 2)))
+    return float(np.quantile(np.concatenate(t_null), 1.0 - alpha))
 
 
 def _mixture_cdf(z: np.ndarray, centres: np.ndarray, spread: np.ndarray) -> np.ndarray:

@@ -122,6 +122,12 @@ def train_stage(
     )
 
 
+def runs_in_state(campaign: xr.Dataset, state: str) -> xr.Dataset:
+    """The runs of ``campaign`` whose ``state`` is ``state``."""
+    states = np.asarray(campaign["state"].values).astype(str)
+    return campaign.isel(run=np.flatnonzero(states == state))
+
+
 def ood_model_error(
     data: TrainingData,
     calibration: xr.Dataset,
@@ -139,9 +145,7 @@ def ood_model_error(
     error, :func:`bayesdoor.datagen.measurement_variance`). Without healthy calibration runs
     at the simulated speeds only the scatter is drawn.
     """
-    healthy = calibration.isel(
-        run=np.flatnonzero(np.asarray(calibration["state"].values).astype(str) == "healthy")
-    )
+    healthy = runs_in_state(calibration, "healthy")
     speeds = np.asarray(healthy["v_max"].values, dtype=float)
     simulated = set(np.asarray(data.subset("train").speeds).tolist())
     residuals = None

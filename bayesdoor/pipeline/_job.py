@@ -500,6 +500,7 @@ def run_job(
     # the default source carries the model error as measured: the calibration runs'
     # discrepancy from the simulated healthy runs, added to every training run
     discrepancy = source == "posterior+model_error"
+    discrepancy_form = DISCREPANCY_FORM if discrepancy else None
     adequacy_record = run_stage(
         out,
         "adequacy",
@@ -507,7 +508,7 @@ def run_job(
             "data": gen_record.config_hash,
             "runs": digest_runs(calibration),
             "seed": seed,
-            "discrepancy": DISCREPANCY_FORM if discrepancy else None,
+            "discrepancy": discrepancy_form,
             "check": ADEQUACY_CHECK,
         },
         lambda folder: adequacy_stage(
@@ -544,7 +545,7 @@ def run_job(
             "sizes": sizes.to_json(),
             "seed": seed,
             "ood": "model-error draws",
-            "discrepancy": DISCREPANCY_FORM if discrepancy else None,
+            "discrepancy": discrepancy_form,
         },
         compute_train,
         report=report,
@@ -570,7 +571,7 @@ def run_job(
             "checks": TRUST_CHECKS,
             "runs": digest_runs(calibration),
             "seed": seed,
-            "discrepancy": DISCREPANCY_FORM if discrepancy else None,
+            "discrepancy": discrepancy_form,
         },
         lambda folder: trust_stage(
             train_record.path,

@@ -49,14 +49,14 @@ from ..datagen import (
     measurement_variance,
     with_measured_discrepancy,
 )
-from ..io import atomic_write
+from ._classify import _write_json, classify_stage, runs_in_state
 
 ADEQUACY_JSON = "adequacy.json"
-#: what the adequacy stage computes (its configuration: a change reruns it)
-ADEQUACY_CHECK = {"alpha": 0.01, "bands": 6, "order": "|S|, then the offset in SD"}
 TRUST_JSON = "trust.json"
 #: false-alarm rate of each trust check
 TRUST_ALPHA = 0.01
+#: what the adequacy stage computes (its configuration: a change reruns it)
+ADEQUACY_CHECK = {"alpha": TRUST_ALPHA, "bands": 6, "order": "|S|, then the offset in SD"}
 #: the accuracy a classification must be expected to reach to be reported without a warning
 REQUIRED_ACCURACY = 0.9
 #: what the trust stage checks, at which rates (its configuration: a change reruns it)
@@ -70,16 +70,6 @@ TRUST_CHECKS = {
 KNOWN_STATE = "healthy"
 
 
-def _write_json(path: Path, payload: Any) -> None:
-    text = json.dumps(payload, indent=1, default=float, allow_nan=False) + "\n"
-    atomic_write(path, lambda tmp: tmp.write_text(text), overwrite=True)
-
-
-def _known_runs(calibration: xr.Dataset) -> xr.Dataset:
-    states = np.asarray(calibration["state"].values).astype(str)
-    return calibration.isel(run=np.flatnonzero(states == KNOWN_STATE))
-
-
 def training_data(
     data_folder: Path, calibration: xr.Dataset, *, discrepancy: bool, seed: int
 ) -> TrainingData:
@@ -87,7 +77,7 @@ def training_data(
     healthy calibration runs added when the source carries it
     (:func:`bayesdoor.datagen.with_measured_discrepancy`)."""
     data = load_training_data(data_folder)
-    known = _known_runs(calibration)
+    known = runs_in_state(calibration, KNOWN_STATE)
     if not discrepancy or KNOWN_STATE not in data.states or known.sizes["run"] == 0:
         return data
     return with_measured_discrepancy(
@@ -115,7 +105,7 @@ def adequacy_stage(
     ``verdict: null`` and the reason.
     """
     data = load_training_data(data_folder)
-    known = _known_runs(calibration)
+    known = runs_in_state(calibration, KNOWN_STATE)
     if KNOWN_STATE not in data.states or known.sizes["run"] == 0:
         _write_json(
             folder / ADEQUACY_JSON,
@@ -294,9 +284,7 @@ def trust_stage(
     ``discrepancy``: the training data carry the calibration runs' measured discrepancy
     (:func:`training_data`); the runs called healthy are then held against those.
     """
-    from ._classify import classify_stage
-
-    known_runs = _known_runs(calibration)
+    known_runs = runs_in_state(calibration, KNOWN_STATE)
     known = None
     if known_runs.sizes["run"]:
         (folder / "known").mkdir(parents=True, exist_ok=True)

@@ -75,12 +75,7 @@ def main(argv: list[str] | None = None) -> None:
         demo_rows = json.loads(demo_rows_file.read_text()) if demo_rows_file.is_file() else []
         for seed in args.demo_seeds:
             for row in run_demo(args, seed):
-                demo_rows = [
-                    r for r in demo_rows if (r["seed"], r["source"]) != (seed, row["source"])
-                ]
-                demo_rows.append(row)
-                demo_rows.sort(key=lambda r: (r["seed"], SOURCES.index(r["source"])))
-                demo_rows_file.write_text(json.dumps(demo_rows, indent=1))
+                demo_rows = _keep(demo_rows_file, demo_rows, row)
                 print(
                     f"[{time.perf_counter() - start:7.1f} s] demo seed {seed} {row['source']}: "
                     f"accuracy {row['accuracy']:.3f}, ECE {row['ece']:.3f}, trust {row['trust']}",
@@ -90,10 +85,7 @@ def main(argv: list[str] | None = None) -> None:
         seeds = range(args.doors) if args.only is None else args.only
         for seed in seeds:
             for row in run_door(args, seed):
-                rows = [r for r in rows if (r["seed"], r["source"]) != (row["seed"], row["source"])]
-                rows.append(row)
-                rows.sort(key=lambda r: (r["seed"], SOURCES.index(r["source"])))
-                rows_file.write_text(json.dumps(rows, indent=1))
+                rows = _keep(rows_file, rows, row)
                 print(
                     f"[{time.perf_counter() - start:7.1f} s] door {seed} {row['source']}: "
                     f"accuracy {row['accuracy']:.3f}, ECE {row['ece']:.3f}, OOD "
@@ -101,6 +93,48 @@ def main(argv: list[str] | None = None) -> None:
                     flush=True,
                 )
     write_results(args.results, markdown(args, rows, argv), echo=False)
+
+
+def _keep(path: Path, rows: list[dict[str, Any]], row: dict[str, Any]) -> list[dict[str, Any]]:
+    """``rows`` with ``row`` in place of any of its seed and source, sorted, saved to ``path``
+    (after every job, so that an interrupted study keeps what it finished)."""
+    rows = [r for r in rows if (r["seed"], r["source"]) != (row["seed"], row["source"])]
+    rows.append(row)
+    rows.sort(key=lambda r: (r["seed"], SOURCES.index(r["source"])))
+    path.write_text(json.dumps(rows, indent=1))
+    return rows
+
+
+def _jobs(args, campaign, folder: Path, seed: int, label: str):
+    """The job with each source on ``campaign`` in ``folder/SOURCE``, one fit serving all
+    (the first job's fit stage is copied into the others, whose configuration hash reuses it);
+    yields the source, the job's result and its seconds."""
+    from bayesdoor.pipeline import run_job
+    from bayesdoor.systems import ElevatorDoor
+
+    shared_fit = folder / "fit"
+    for source in args.sources:
+        job = folder / source
+        if shared_fit.is_dir() and not (job / "fit").exists():
+            job.mkdir(parents=True, exist_ok=True)
+            shutil.copytree(shared_fit, job / "fit")
+        t0 = time.perf_counter()
+        result = run_job(
+            ElevatorDoor(),
+            campaign,
+            job,
+            quick=not args.full,
+            seed=seed,
+            source=source,
+            progress=False,
+            report=lambda line, s=source: print(f"  {label} {s}: {line}", flush=True),
+            html=False,
+            diagnosis=False,
+            overwrite=True,
+        )
+        if not shared_fit.is_dir():
+            shutil.copytree(job / "fit", shared_fit)
+        yield source, result, time.perf_counter() - t0
 
 
 def _job_row(result, source: str, seconds: float) -> dict[str, Any]:
@@ -130,36 +164,13 @@ def _job_row(result, source: str, seconds: float) -> dict[str, Any]:
 def run_demo(args, seed: int) -> list[dict[str, Any]]:
     """The demo campaign (the project's own rig): one fit per seed, every source."""
     from bayesdoor.datasets import load_demo_campaign
-    from bayesdoor.pipeline import run_job
-    from bayesdoor.systems import ElevatorDoor
 
     campaign = load_demo_campaign()
     folder = args.out / f"demo-seed{seed}"
-    shared_fit = folder / "fit"
-    rows = []
-    for source in args.sources:
-        job = folder / source
-        if shared_fit.is_dir() and not (job / "fit").exists():
-            job.mkdir(parents=True, exist_ok=True)
-            shutil.copytree(shared_fit, job / "fit")
-        t0 = time.perf_counter()
-        result = run_job(
-            ElevatorDoor(),
-            campaign,
-            job,
-            quick=not args.full,
-            seed=seed,
-            source=source,
-            progress=False,
-            report=lambda line, s=source: print(f"  demo {seed} {s}: {line}", flush=True),
-            html=False,
-            diagnosis=False,
-            overwrite=True,
-        )
-        if not shared_fit.is_dir():
-            shutil.copytree(job / "fit", shared_fit)
-        rows.append({"seed": seed, **_job_row(result, source, time.perf_counter() - t0)})
-    return rows
+    return [
+        {"seed": seed, **_job_row(result, source, seconds)}
+        for source, result, seconds in _jobs(args, campaign, folder, seed, f"demo {seed}")
+    ]
 
 
 def run_door(args, seed: int) -> list[dict[str, Any]]:
@@ -167,9 +178,7 @@ def run_door(args, seed: int) -> list[dict[str, Any]]:
     import jax
 
     from bayesdoor.io import load_campaign, save_campaign
-    from bayesdoor.pipeline import run_job
     from bayesdoor.rig import OtherDoor, family_plan
-    from bayesdoor.systems import ElevatorDoor
 
     folder = args.out / f"door-{seed:02d}"
     campaign_file = folder / "campaign.nc"
@@ -185,53 +194,23 @@ def run_door(args, seed: int) -> list[dict[str, Any]]:
         print(f"door {seed}: recorded in {time.perf_counter() - t0:.0f} s", flush=True)
     campaign = load_campaign(campaign_file)
     description = json.loads((folder / "truth.json").read_text())["other_door"]
-    rows = []
-    shared_fit = folder / "fit"
-    for source in args.sources:
-        job = folder / source
-        if shared_fit.is_dir() and not (job / "fit").exists():
-            job.mkdir(parents=True, exist_ok=True)
-            shutil.copytree(shared_fit, job / "fit")
-        t0 = time.perf_counter()
-        result = run_job(
-            ElevatorDoor(),
-            campaign,
-            job,
-            quick=not args.full,
-            seed=0,
-            source=source,
-            progress=False,
-            report=lambda line, s=source: print(f"  door {seed} {s}: {line}", flush=True),
-            html=False,
-            diagnosis=False,
-            overwrite=True,
-        )
-        if not shared_fit.is_dir():
-            shutil.copytree(job / "fit", shared_fit)
-        rows.append(
-            {
-                "seed": seed,
-                "held_out": seed >= args.held_out_from,
-                **_job_row(result, source, time.perf_counter() - t0),
-                "door": {
-                    "frame_mode_hz": description["frame_mode"]["frequency_hz"],
-                    "law": description["parameters"]["I"],
-                    "speed_bias": description["speed_bias"],
-                    "gains_db": description["gains_db"],
-                },
-            }
-        )
-    return rows
+    door = {
+        "frame_mode_hz": description["frame_mode"]["frequency_hz"],
+        "law": description["parameters"]["I"],
+        "speed_bias": description["speed_bias"],
+        "gains_db": description["gains_db"],
+    }
+    # every door is fitted and trained with seed 0: the doors differ, not the seeds
+    return [
+        {"seed": seed, **_job_row(result, source, seconds), "door": door}
+        for source, result, seconds in _jobs(args, campaign, folder, 0, f"door {seed}")
+    ]
 
 
 def _summary(values: list[float]) -> str:
     if not values:
         return "-"
-    return (
-        f"{statistics.median(values):.3f} (worst {min(values):.3f}, best {max(values):.3f})"
-        if values
-        else "-"
-    )
+    return f"{statistics.median(values):.3f} (worst {min(values):.3f}, best {max(values):.3f})"
 
 
 def markdown(args, rows: list[dict[str, Any]], argv) -> str:

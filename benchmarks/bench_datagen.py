@@ -52,7 +52,7 @@ from bayesdoor.datagen import (
     featurize,
     generate,
 )
-from bayesdoor.systems import DoorParameters, ElevatorDoor, SolverConfig
+from bayesdoor.door import DoorParameters, ElevatorDoor, SolverConfig
 
 # float64 comes with importing bayesdoor; no persistent compilation cache (configure_jax):
 # the compile overheads and the training with compiling are cold compiles on every run

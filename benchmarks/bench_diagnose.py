@@ -33,7 +33,7 @@ TARGET_S = 600.0
 
 
 def record(runs: int, seed: int):
-    from bayesdoor.rig import Effects, FrameMode, VirtualRig
+    from bayesdoor.door.rig import Effects, FrameMode, VirtualRig
 
     speeds = np.linspace(0.25, 0.5, runs)
     rig = VirtualRig(effects=Effects(frame_mode=FrameMode.from_seed(seed)))

@@ -39,7 +39,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesdoor import configure_jax
-from bayesdoor.datasets import demo_paths, load_demo_campaign
+from bayesdoor.door import ElevatorDoor
+from bayesdoor.door.datasets import demo_paths, load_demo_campaign
 from bayesdoor.features import objective_j
 from bayesdoor.inference import (
     FeatureSpec,
@@ -50,7 +51,6 @@ from bayesdoor.inference import (
     run_features,
     simulation_horizon,
 )
-from bayesdoor.systems import ElevatorDoor
 
 ROOT = Path(__file__).resolve().parent.parent
 configure_jax(os.environ.get("BAYESDOOR_JAX_CACHE", ROOT / ".jax_cache"))

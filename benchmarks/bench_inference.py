@@ -13,7 +13,7 @@ departures, so that the figures come in minutes and not after a CMA-ES run:
   sampler start and the Laplace whitening are built there exactly as ``fit_campaign`` builds
   them at its optimum (first box only: the box-moving loop is left out);
 * the quadratic surrogate, the expensive part (``train_per_term`` x 36 + ``n_test`` exact
-  simulations), is cached in ``bayesdoor.datasets.cache_dir() / "bench"`` under a hash of
+  simulations), is cached in ``bayesdoor.door.datasets.cache_dir() / "bench"`` under a hash of
   the settings, the surrogate's source and the simulated features at the 14 points of the
   fit's sensitivity test (so a change to the simulator refits it); the fit time of a cached
   surrogate is the one measured when it was fitted (``--refit-surrogate`` refits).
@@ -68,7 +68,8 @@ from numpyro.infer import init_to_value
 from numpyro.infer.util import initialize_model
 
 from bayesdoor import configure_jax
-from bayesdoor.datasets import cache_dir, demo_paths, load_demo_campaign, load_demo_truth
+from bayesdoor.door import ElevatorDoor
+from bayesdoor.door.datasets import cache_dir, demo_paths, load_demo_campaign, load_demo_truth
 from bayesdoor.inference import (
     CalibrationData,
     FitSettings,
@@ -88,7 +89,6 @@ from bayesdoor.inference import (
     simulate_design,
 )
 from bayesdoor.io import atomic_write
-from bayesdoor.systems import ElevatorDoor
 
 ROOT = Path(__file__).resolve().parent.parent
 configure_jax(os.environ.get("BAYESDOOR_JAX_CACHE", ROOT / ".jax_cache"))

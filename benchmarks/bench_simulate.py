@@ -18,9 +18,17 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from bayesdoor.systems import DoorDamage, DoorParameters, SolverConfig
-from bayesdoor.systems.door import initial_state, make_args, rhs, sample_times, solve
-from bayesdoor.systems.door._simulate import solve_batch
+from bayesdoor.door import (
+    DoorDamage,
+    DoorParameters,
+    SolverConfig,
+    initial_state,
+    make_args,
+    rhs,
+    sample_times,
+    solve,
+)
+from bayesdoor.door._simulate import solve_batch
 
 # float64 comes with importing bayesdoor; no persistent compilation cache (configure_jax):
 # compile_s is a cold compile on every run

@@ -39,10 +39,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 from scipy.optimize import brentq
 
-from bayesdoor.contact import LAW_NAMES, hysteresis_factor, single_impact
 from bayesdoor.diagnose import log10_psd_variance, welch_dof
+from bayesdoor.door import CHANNELS, DoorDamage, DoorParameters, ElevatorDoor
+from bayesdoor.door.contact import LAW_NAMES, hysteresis_factor, single_impact
 from bayesdoor.features import log_psd, segment_weights, welch_psd
-from bayesdoor.systems.door import CHANNELS, DoorDamage, DoorParameters, ElevatorDoor
 
 SIZE = os.environ.get("BAYESDOOR_EXAMPLE_SIZE", "quick")
 SIZES = {

@@ -43,8 +43,9 @@ import jax
 import matplotlib.pyplot as plt
 import numpy as np
 
-from bayesdoor.contact import hysteresis_factor
-from bayesdoor.datasets import load_demo_campaign, load_demo_truth
+from bayesdoor.door import ElevatorDoor
+from bayesdoor.door.contact import hysteresis_factor
+from bayesdoor.door.datasets import load_demo_campaign, load_demo_truth
 from bayesdoor.inference import (
     FitSettings,
     calibration_runs,
@@ -52,7 +53,6 @@ from bayesdoor.inference import (
     posterior_predictive,
     summary_table,
 )
-from bayesdoor.systems.door import ElevatorDoor
 
 SIZE = os.environ.get("BAYESDOOR_EXAMPLE_SIZE", "quick")
 SIZES = {

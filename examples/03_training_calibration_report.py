@@ -62,10 +62,10 @@ from bayesdoor.datagen import (
     measurement_variance,
     with_measured_discrepancy,
 )
-from bayesdoor.datasets import load_demo_campaign
+from bayesdoor.door import ElevatorDoor
+from bayesdoor.door.datasets import load_demo_campaign
 from bayesdoor.inference import FitResult, calibration_runs
 from bayesdoor.pipeline import PredictiveBands, classify_stage, report_stage
-from bayesdoor.systems.door import ElevatorDoor
 
 SIZE = os.environ.get("BAYESDOOR_EXAMPLE_SIZE", "quick")
 SIZES = {

@@ -41,11 +41,11 @@ import jax
 import matplotlib.pyplot as plt
 import numpy as np
 
-from bayesdoor.datasets import load_demo_campaign
 from bayesdoor.diagnose import DiagnosisSettings, diagnose_campaign
+from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
+from bayesdoor.door.datasets import load_demo_campaign
+from bayesdoor.door.rig import Effects, FrameMode, VirtualRig
 from bayesdoor.inference import FitResult
-from bayesdoor.rig import Effects, FrameMode, VirtualRig
-from bayesdoor.systems.door import DOOR_CATALOGUE, ElevatorDoor
 
 SIZE = os.environ.get("BAYESDOOR_EXAMPLE_SIZE", "quick")
 SIZES = {

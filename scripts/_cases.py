@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 ROOT = Path(__file__).resolve().parent.parent
-#: the rig's catalogue effects, in the order of ``bayesdoor.rig.Effects``
+#: the rig's catalogue effects, in the order of ``bayesdoor.door.rig.Effects``
 RIG_EFFECTS = (
     "frame_mode",
     "wheel_eccentricity",

@@ -161,7 +161,7 @@ _JOB_SETTINGS = ("out", "runs_per_state", "method", "fit_evals", "fit_motion", "
 
 def rewrite_tables(args) -> None:
     """The results file of the jobs recorded in ``OUT/rows.json`` (``--tables-only``)."""
-    from bayesdoor.datasets import demo_paths
+    from bayesdoor.door.datasets import demo_paths
     from bayesdoor.pipeline import FitSummary
 
     rows_file = args.out / "rows.json"
@@ -182,7 +182,7 @@ def rewrite_tables(args) -> None:
 
 
 def _campaign(path: Path | None):
-    from bayesdoor.datasets import demo_paths, load_demo_campaign
+    from bayesdoor.door.datasets import demo_paths, load_demo_campaign
     from bayesdoor.io import load_campaign
 
     if path is None:
@@ -205,8 +205,8 @@ def run_one(settings: dict, seed: int, source: str) -> dict:
     import jax.numpy as jnp
 
     from bayesdoor.classify import load_ensemble, predict
+    from bayesdoor.door import ElevatorDoor
     from bayesdoor.pipeline import Sizes, Source, run_job
-    from bayesdoor.systems import ElevatorDoor
 
     out = settings["out"]
     campaign, _ = _campaign(settings["campaign"])
@@ -264,8 +264,8 @@ def ood_probes(campaign, rig_runs: int, seed: int = 0) -> dict[str, Any]:
     import jax
 
     from bayesdoor.datagen import campaign_features
+    from bayesdoor.door.rig import Effects, FrameMode, VirtualRig
     from bayesdoor.pipeline import runs_to_classify
-    from bayesdoor.rig import Effects, FrameMode, VirtualRig
 
     test = runs_to_classify(campaign)
     acc = test["acceleration"].transpose("run", "channel", "time")

@@ -93,7 +93,7 @@ def matched_c_r(law: int, xi: float, lower: float, upper: float) -> float:
     ValueError
         If ``lower >= upper``.
     """
-    from bayesdoor.contact import get_law
+    from bayesdoor.door.contact import get_law
 
     if not lower < upper:
         raise ValueError(f"lower={lower} must lie below upper={upper}")
@@ -110,7 +110,7 @@ def matched_c_r(law: int, xi: float, lower: float, upper: float) -> float:
 
 def warm_start(reference: dict[str, float], reference_law: int, law: int, bounds) -> dict:
     """The reference optimum with c_r moved to deliver the reference law's xi under ``law``."""
-    from bayesdoor.contact import get_law
+    from bayesdoor.door.contact import get_law
 
     xi = float(get_law(reference_law).hysteresis_factor(jnp.asarray(reference["c_r"])))
     start = {k: v for k, v in reference.items() if k != "I"}
@@ -124,7 +124,7 @@ def damping_table(results) -> str:
     In persistent rolling contact the latched approach velocity sits at its floor, so the
     damping is xi(c_r) K d^n / floor: what the data can fix is xi, not which law produced it.
     """
-    from bayesdoor.contact import LAW_NAMES, get_law
+    from bayesdoor.door.contact import LAW_NAMES, get_law
 
     lines = [
         "",
@@ -169,7 +169,7 @@ def _configure_jax() -> None:
 
 
 def _load(campaign_file: Path | None):
-    from bayesdoor.datasets import load_demo_campaign
+    from bayesdoor.door.datasets import load_demo_campaign
     from bayesdoor.io import load_campaign
 
     if campaign_file is None:
@@ -191,8 +191,8 @@ def fit_one(
     started at ``x0``.
     """
     _configure_jax()
+    from bayesdoor.door import ElevatorDoor
     from bayesdoor.inference import fit_campaign
-    from bayesdoor.systems import ElevatorDoor
 
     t0 = time.perf_counter()
     with warnings.catch_warnings():
@@ -273,9 +273,9 @@ def main() -> int:
 
     from _cases import code_version, write_results
 
+    from bayesdoor.door import ElevatorDoor
     from bayesdoor.inference import FitResult
     from bayesdoor.report import ablation_table
-    from bayesdoor.systems import ElevatorDoor
 
     door = ElevatorDoor()
     c_r_bounds = next((p.lower, p.upper) for p in door.parameters if p.name == "c_r")
@@ -407,7 +407,7 @@ def main() -> int:
 
 def door_xi(fit) -> float:
     """The hysteresis factor of a fit's law at its c_r."""
-    from bayesdoor.contact import get_law
+    from bayesdoor.door.contact import get_law
 
     return float(get_law(fit.law).hysteresis_factor(jnp.asarray(fit.point["c_r"])))
 

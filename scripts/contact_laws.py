@@ -10,7 +10,7 @@ from pathlib import Path
 
 from _cases import write_results
 
-from bayesdoor.contact import CONTACT_LAWS, LATCH_FLOOR, single_impact
+from bayesdoor.door.contact import CONTACT_LAWS, LATCH_FLOOR, single_impact
 
 C_R = (0.5, 0.7, 0.9)
 # the door's wheel on the rail: the paper's nominal and optimal (K in N/mm^n, n); half the panel
@@ -60,7 +60,7 @@ def main() -> None:
         "Command: `python scripts/contact_laws.py` (a few seconds).",
         "",
         "One impact of a point mass (30 kg, half the panel) on a rigid flat through the law, with",
-        "`bayesdoor.contact.single_impact` (scipy DOP853, rtol 1e-12, terminal event at",
+        "`bayesdoor.door.contact.single_impact` (scipy DOP853, rtol 1e-12, terminal event at",
         "separation); each cell is the delivered restitution v_out / v_in for the nominal c_r and",
         "exponent n of its column, at the door's stiffness for that exponent (K = 1475 N/mm^1.5,",
         "the paper's nominal; K = 1863 N/mm^1.93, its optimum).",

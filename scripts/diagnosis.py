@@ -1,6 +1,6 @@
 """Hidden-effect cases on the virtual rig, diagnosed end to end -> results/diagnosis.md.
 
-Every case records healthy runs of the virtual rig (``bayesdoor.rig.VirtualRig``) at speeds
+Every case records healthy runs of the virtual rig (``bayesdoor.door.rig.VirtualRig``) at speeds
 spread over the door's range, with one catalogue effect drawn by ``from_seed(seed)`` (its
 parameters are the seed's, not chosen to suit the detector) or with nothing hidden, and runs
 ``bayesdoor.diagnose.diagnose_campaign`` on it as ``bayesdoor diagnose`` does: the base model
@@ -124,7 +124,7 @@ def parameter_error(effect: str, truth: Mapping[str, Any], cause: Mapping[str, A
         rel = est / lam - 1.0
         return {"estimate": est, "truth": lam, "error": rel, "within": abs(rel) <= 0.04}
     if effect == "wheel_eccentricity":
-        from bayesdoor.systems.door import WHEEL_CIRCUMFERENCE
+        from bayesdoor.door import WHEEL_CIRCUMFERENCE
 
         wavelength = _number(_parameter(params, "wavelength_m"))
         k = _number(_parameter(params, "label")) or _number(_parameter(params, "harmonic"))
@@ -171,10 +171,9 @@ def run_case(effect: str, seed: int, settings: Settings) -> dict[str, Any]:
     setup_jax()
 
     from bayesdoor.diagnose import diagnose_campaign
+    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
+    from bayesdoor.door.rig import VirtualRig
     from bayesdoor.pipeline import json_safe
-    from bayesdoor.rig import VirtualRig
-    from bayesdoor.systems import ElevatorDoor
-    from bayesdoor.systems.door import DOOR_CATALOGUE
 
     effects = hidden_effect(effect, seed)
     rng = np.random.default_rng(1000 + seed)

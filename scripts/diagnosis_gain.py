@@ -99,8 +99,8 @@ def record(effect: str, seed: int, settings: Settings, path: Path):
     """The case's campaign (recorded by the rig once, then read) and the rig's truth."""
     import jax
 
+    from bayesdoor.door.rig import VirtualRig
     from bayesdoor.io import load_campaign, save_campaign
-    from bayesdoor.rig import VirtualRig
 
     effects = hidden_effect(effect, seed)
     if not path.is_file():
@@ -157,9 +157,8 @@ def job(system, campaign, out: Path, settings: Settings, seed: int, label: str):
 def diagnose(campaign, fit_folder: Path, path: Path, settings: Settings, seed: int):
     """The diagnosis under the base job's fit (made once, then read) and its wall time."""
     from bayesdoor.diagnose import diagnose_campaign
+    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
     from bayesdoor.inference import FitResult
-    from bayesdoor.systems import ElevatorDoor
-    from bayesdoor.systems.door import DOOR_CATALOGUE
 
     if path.is_file():
         with open(path, "rb") as f:
@@ -187,8 +186,8 @@ def run_case(effect: str, seed: int, settings: Settings, folder: Path) -> dict[s
     setup_jax()
 
     from bayesdoor.diagnose import extend_system, verdict_extension
+    from bayesdoor.door import ElevatorDoor
     from bayesdoor.pipeline import json_safe
-    from bayesdoor.systems import ElevatorDoor
 
     folder.mkdir(parents=True, exist_ok=True)
     name = f"{effect}-{seed}"

@@ -187,7 +187,7 @@ def _record_pair(effect: str, seed: int, settings: Settings):
     """The case's recordings with and without the effect, the same key and speeds."""
     import jax
 
-    from bayesdoor.rig import VirtualRig
+    from bayesdoor.door.rig import VirtualRig
 
     if settings.kind == TESTS:
         tests = _load_tests()

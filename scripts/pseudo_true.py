@@ -20,10 +20,10 @@ import jax
 import numpy as np
 
 import bayesdoor
-from bayesdoor.datasets import load_demo_campaign, load_demo_truth
+from bayesdoor.door import ElevatorDoor
+from bayesdoor.door.datasets import load_demo_campaign, load_demo_truth
 from bayesdoor.features import objective_j
 from bayesdoor.inference import FitSettings, campaign_data, fit_campaign, run_features
-from bayesdoor.systems import ElevatorDoor
 
 ROOT = Path(__file__).resolve().parent.parent
 

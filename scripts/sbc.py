@@ -75,13 +75,13 @@ def build_problem(settings: dict):
     import jax
     import numpy as np
 
+    from bayesdoor.door import DoorParameters, ElevatorDoor
     from bayesdoor.inference import (
         CalibrationData,
         SamplingTransform,
         SimulatorForward,
         fit_surrogate,
     )
-    from bayesdoor.systems import DoorParameters, ElevatorDoor
 
     door = ElevatorDoor()
     values = {k: float(v) for k, v in DoorParameters.paper_optimum().to_dict().items()}

@@ -1,6 +1,6 @@
 """Transfer to doors bayesdoor did not simulate: the main job on a family of other doors.
 
-Each door (``bayesdoor.rig.OtherDoor.from_seed(seed)``) differs from the reduced model in ways
+Each door (``bayesdoor.door.rig.OtherDoor.from_seed(seed)``) differs from the reduced model in ways
 it lacks: an extra structural mode at 8-40 Hz, a drive speed bias, wider friction scatter,
 per-channel sensor gains, sensor mounting, coloured noise (``docs/transfer.md``). Each records
 a campaign of healthy calibration runs and test runs of the three states at 0.3, 0.4 and
@@ -109,8 +109,8 @@ def _jobs(args, campaign, folder: Path, seed: int, label: str):
     """The job with each source on ``campaign`` in ``folder/SOURCE``, one fit serving all
     (the first job's fit stage is copied into the others, whose configuration hash reuses it);
     yields the source, the job's result and its seconds."""
+    from bayesdoor.door import ElevatorDoor
     from bayesdoor.pipeline import run_job
-    from bayesdoor.systems import ElevatorDoor
 
     shared_fit = folder / "fit"
     for source in args.sources:
@@ -163,7 +163,7 @@ def _job_row(result, source: str, seconds: float) -> dict[str, Any]:
 
 def run_demo(args, seed: int) -> list[dict[str, Any]]:
     """The demo campaign (the project's own rig): one fit per seed, every source."""
-    from bayesdoor.datasets import load_demo_campaign
+    from bayesdoor.door.datasets import load_demo_campaign
 
     campaign = load_demo_campaign()
     folder = args.out / f"demo-seed{seed}"
@@ -177,8 +177,8 @@ def run_door(args, seed: int) -> list[dict[str, Any]]:
     """Record door ``seed`` (cached) and run the job with each source; one row per source."""
     import jax
 
+    from bayesdoor.door.rig import OtherDoor, family_plan
     from bayesdoor.io import load_campaign, save_campaign
-    from bayesdoor.rig import OtherDoor, family_plan
 
     folder = args.out / f"door-{seed:02d}"
     campaign_file = folder / "campaign.nc"

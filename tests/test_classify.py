@@ -407,8 +407,8 @@ def test_ood_on_the_demo_campaign(tmp_path):
         generate,
         measurement_variance,
     )
-    from bayesdoor.datasets import load_demo_campaign, load_demo_truth
-    from bayesdoor.systems import ElevatorDoor
+    from bayesdoor.door import ElevatorDoor
+    from bayesdoor.door.datasets import load_demo_campaign, load_demo_truth
 
     campaign = load_demo_campaign()
     truth = load_demo_truth()["parameters"]

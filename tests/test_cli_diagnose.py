@@ -22,11 +22,10 @@ from typer.testing import CliRunner
 
 from bayesdoor.cli import app
 from bayesdoor.diagnose import Cause, Diagnosis, Gain
+from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
 from bayesdoor.inference import FitResult
 from bayesdoor.io import make_campaign, save_campaign
 from bayesdoor.report import diagnosis_page, gain_figure
-from bayesdoor.systems import ElevatorDoor
-from bayesdoor.systems.door import DOOR_CATALOGUE
 
 runner = CliRunner()
 #: the diagnosis the command calls (replaced by a stand-in)
@@ -391,7 +390,7 @@ def rig_file(tmp_path_factory):
     """Six healthy rig runs at spread speeds with a hidden mains hum (seed 0)."""
     import jax
 
-    from bayesdoor.rig import Effects, MainsHum, VirtualRig
+    from bayesdoor.door.rig import Effects, MainsHum, VirtualRig
 
     rig = VirtualRig(effects=Effects(mains_hum=MainsHum.from_seed(0)))
     campaign = rig.record(["healthy"] * 6, np.linspace(0.25, 0.5, 6), key=jax.random.key(0))

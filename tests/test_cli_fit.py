@@ -8,8 +8,8 @@ import pytest
 from typer.testing import CliRunner
 
 from bayesdoor.cli import app
+from bayesdoor.door.rig import VirtualRig
 from bayesdoor.io import make_campaign, save_campaign
-from bayesdoor.rig import VirtualRig
 
 runner = CliRunner()
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from bayesdoor.contact import (
+from bayesdoor.door.contact import (
     CONTACT_LAWS,
     LATCH_FLOOR,
     LAW_NAMES,

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayesdoor.contact import get_law
+from bayesdoor.door.contact import get_law
 
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = ROOT / "scripts" / "contact_law_ablation.py"

@@ -8,11 +8,14 @@ import numpy as np
 import pytest
 
 from bayesdoor.diagnose import ExtensionProposal, RefitSetup, Spectra, refit_extension
-from bayesdoor.systems import DoorDamage, DoorParameters, ElevatorDoor, SolverConfig
-from bayesdoor.systems.door import (
+from bayesdoor.door import (
     CHANNELS,
     STATE_SIZE,
     CoupledFrameMode,
+    DoorDamage,
+    DoorParameters,
+    ElevatorDoor,
+    SolverConfig,
     contact_kinematics,
     initial_state,
     make_args,
@@ -247,9 +250,9 @@ def test_one_solve_gives_each_gains_signal_as_two_solves_do():
 
 
 def test_the_installed_frequency_is_the_extended_doors_mode_at_rest_nearest_the_bare_one():
-    from bayesdoor.rig import Effects, VirtualRig
-    from bayesdoor.rig import FrameMode as RigFrameMode
-    from bayesdoor.systems.door._catalogue import FrameModeRefit
+    from bayesdoor.door._catalogue import FrameModeRefit
+    from bayesdoor.door.rig import Effects, VirtualRig
+    from bayesdoor.door.rig import FrameMode as RigFrameMode
 
     recipe = FrameModeRefit()
     coupled, output = recipe.propose({"frequency_hz": 60.0, "channels": ("A1X",)}, band=(4, 96))
@@ -282,7 +285,7 @@ def test_the_installed_frequency_is_the_extended_doors_mode_at_rest_nearest_the_
 def test_no_mode_is_proposed_for_a_line_present_at_rest():
     # a resonance decays at rest: a feature with a line at its frequency before the motion
     # (mains hum) gets no frame-mode refit, a feature without one gets both forms
-    from bayesdoor.systems.door._catalogue import FrameModeRefit
+    from bayesdoor.door._catalogue import FrameModeRefit
 
     parameters = {"frequency_hz": 59.8, "channels": ("A2X",), "line_at_rest": True}
     assert FrameModeRefit().propose(parameters, band=(4.0, 96.0)) == ()
@@ -294,7 +297,7 @@ def test_a_refitted_mode_must_peak_on_its_feature():
     # a one-bin feature at 74 Hz (1 Hz bins: inside means 72-76 Hz, the Hann main lobe's two
     # bins either side); the refit removes its excess in every case below, so only where the
     # mode peaks decides
-    from bayesdoor.systems.door._catalogue import FrameModeRefit
+    from bayesdoor.door._catalogue import FrameModeRefit
 
     freqs = np.arange(0.0, 101.0)
     parameters = {
@@ -344,7 +347,7 @@ def test_a_refitted_mode_must_peak_on_its_feature():
 def test_the_frequency_box_reaches_the_whole_residual_feature():
     # a broad residual feature (significant from 18 to 34 Hz, peak picked at 22 Hz): both
     # forms of the refit may place the mode anywhere in it, not only within +-3-4 Hz of 22
-    from bayesdoor.systems.door._catalogue import FRAME_MODE_BAND, FrameModeRefit
+    from bayesdoor.door._catalogue import FRAME_MODE_BAND, FrameModeRefit
 
     parameters = {"frequency_hz": 22.0, "channels": ("A2Z",), "band_hz": (18.0, 34.0)}
     for proposal in FrameModeRefit().propose(parameters, band=(4.0, 96.0)):

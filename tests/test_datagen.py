@@ -34,10 +34,10 @@ from bayesdoor.datagen import (
     measurement_variance,
     model_error_draws,
 )
+from bayesdoor.door import ElevatorDoor
 from bayesdoor.features import segment_weights
 from bayesdoor.inference import FeatureSpec, welch_log10_variance
 from bayesdoor.io import make_campaign
-from bayesdoor.systems import ElevatorDoor
 
 TOY = ToySystem()
 

@@ -5,9 +5,9 @@ import re
 import numpy as np
 import pytest
 
-from bayesdoor.datasets import cache_dir, demo_paths, load_demo_campaign, load_demo_truth
+from bayesdoor.door import STATES
+from bayesdoor.door.datasets import cache_dir, demo_paths, load_demo_campaign, load_demo_truth
 from bayesdoor.io import check_campaign
-from bayesdoor.systems.door import STATES
 
 SMALL = {"calibration_runs": 1, "test_runs_per_state": 1, "show_progress": False}
 

@@ -28,7 +28,7 @@ from bayesdoor.diagnose import (
     welch_dof,
     within_run_speed,
 )
-from bayesdoor.systems.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE
+from bayesdoor.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE
 
 FS = 2048.0
 CHANNELS = ("A1X", "A1Z", "A2X", "A2Z")

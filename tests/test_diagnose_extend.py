@@ -18,8 +18,7 @@ from bayesdoor.diagnose import (
     refit_extension,
     verdict_extension,
 )
-from bayesdoor.systems import DoorParameters, ElevatorDoor
-from bayesdoor.systems.door import SensorCrossAxis
+from bayesdoor.door import DoorParameters, ElevatorDoor, SensorCrossAxis
 
 
 def test_a_cause_carries_the_proposal_its_refit_chose():
@@ -173,7 +172,7 @@ def test_a_refit_pushed_against_its_box_says_which_end():
 
 
 def test_the_rail_reports_each_wheels_amplitude_with_its_first_order_sd():
-    from bayesdoor.systems.door._catalogue import RailRefit
+    from bayesdoor.door._catalogue import RailRefit
 
     recipe = RailRefit(independent=True)
     (proposal,) = recipe.propose({"wavelength_m": 0.03}, band=(4.0, 200.0))
@@ -203,7 +202,7 @@ def test_the_rail_reports_each_wheels_amplitude_with_its_first_order_sd():
 
 
 def test_a_rail_at_a_wheel_harmonic_has_the_wheel_as_an_alternative():
-    from bayesdoor.systems.door._catalogue import RailRefit
+    from bayesdoor.door._catalogue import RailRefit
 
     recipe = RailRefit(independent=True)
     # three times the rig's wheel seed 1 (left wheel) is named a rail at
@@ -232,7 +231,7 @@ def test_a_rail_at_a_wheel_harmonic_has_the_wheel_as_an_alternative():
 
 
 def test_a_wheel_of_one_tone_has_the_rail_as_an_alternative_and_a_comb_has_none():
-    from bayesdoor.systems.door._catalogue import WheelRefit
+    from bayesdoor.door._catalogue import WheelRefit
 
     recipe = WheelRefit()
     (words,) = recipe.alternatives({"label": 6, "labels_found": (6,)})

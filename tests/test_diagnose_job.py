@@ -1,6 +1,6 @@
 """Tests of the diagnosis job on virtual-rig data with one catalogue effect hidden in it.
 
-The rig (``bayesdoor.rig.VirtualRig``) is a separate, higher-fidelity simulator of the door; each
+The rig (``bayesdoor.door.rig.VirtualRig``) is a separate, higher-fidelity simulator of the door; each
 test records a few healthy runs at several speeds with one effect drawn by its ``from_seed``
 (parameters drawn from a seed, not chosen to suit the detector) or with none, and asks
 :func:`diagnose_campaign` for the cause. The base model is fitted once, by CMA-ES, on a
@@ -40,8 +40,9 @@ from bayesdoor.diagnose import (
     smooth_discrepancy,
     verdict_order,
 )
-from bayesdoor.inference import FitSettings, fit_campaign
-from bayesdoor.rig import (
+from bayesdoor.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE, CoupledFrameMode, ElevatorDoor
+from bayesdoor.door import FrameMode as FrameModeExtension
+from bayesdoor.door.rig import (
     Effects,
     FrameMode,
     MainsHum,
@@ -50,9 +51,7 @@ from bayesdoor.rig import (
     VirtualRig,
     WheelEccentricity,
 )
-from bayesdoor.systems import ElevatorDoor
-from bayesdoor.systems.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE, CoupledFrameMode
-from bayesdoor.systems.door import FrameMode as FrameModeExtension
+from bayesdoor.inference import FitSettings, fit_campaign
 
 DOOR = ElevatorDoor()
 EFFECTS = {

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bayesdoor.diagnose import harmonic_comb, order_log_psd, order_peak
-from bayesdoor.systems.door import DOOR_CATALOGUE
+from bayesdoor.door import DOOR_CATALOGUE
 
 FS = 2048.0
 SPEEDS = np.array([0.3, 0.4, 0.5])

@@ -26,7 +26,7 @@ from bayesdoor.diagnose import (
     smooth_discrepancy,
     tracks_speed,
 )
-from bayesdoor.systems.door import DOOR_CATALOGUE
+from bayesdoor.door import DOOR_CATALOGUE
 
 FREQS = 4.0 + np.arange(40.0)
 

@@ -26,8 +26,7 @@ from bayesdoor.diagnose import (
     extend_system,
     verdict_extension,
 )
-from bayesdoor.systems import DoorParameters, ElevatorDoor
-from bayesdoor.systems.door import DOOR_CATALOGUE, FrameMode, SensorCrossAxis
+from bayesdoor.door import DOOR_CATALOGUE, DoorParameters, ElevatorDoor, FrameMode, SensorCrossAxis
 
 ROOT = Path(__file__).resolve().parent.parent
 GAIN = Gain(0.4, 0.3, -120.0, -80.0, 40.0, 5.0, 6, True)

@@ -14,6 +14,8 @@ from _helpers import TableForward
 from numpyro.infer.util import log_density
 from numpyro.infer.util import log_likelihood as numpyro_log_likelihood
 
+from bayesdoor.door import ElevatorDoor
+from bayesdoor.door.rig import VirtualRig
 from bayesdoor.inference import (
     CalibrationData,
     DiscrepancyNormal,
@@ -23,8 +25,6 @@ from bayesdoor.inference import (
     make_model,
     posterior_predictive,
 )
-from bayesdoor.rig import VirtualRig
-from bayesdoor.systems import ElevatorDoor
 
 
 def _problem(seed, n_channel=2, n_band=3):

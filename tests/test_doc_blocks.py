@@ -18,7 +18,7 @@ from pathlib import Path
 import matplotlib
 import pytest
 
-from bayesdoor.datasets import cache_dir
+from bayesdoor.door.datasets import cache_dir
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = ["README.md", *sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "docs").glob("*.md"))]

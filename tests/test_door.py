@@ -8,10 +8,12 @@ import scipy.linalg
 import scipy.signal
 from scipy.integrate import solve_ivp
 
-from bayesdoor.contact import get_law
-from bayesdoor.systems import DoorDamage, DoorParameters, ElevatorDoor, SolverConfig
-from bayesdoor.systems.door import (
+from bayesdoor.door import (
     DoorConstants,
+    DoorDamage,
+    DoorParameters,
+    ElevatorDoor,
+    SolverConfig,
     commanded_motion,
     contact_kinematics,
     initial_state,
@@ -21,6 +23,7 @@ from bayesdoor.systems.door import (
     solve,
     static_equilibrium,
 )
+from bayesdoor.door.contact import get_law
 
 OPT = DoorParameters.paper_optimum()
 # the flat meets the rail 60 mm into the stroke, so a short record contains a passage

@@ -16,7 +16,7 @@ import matplotlib
 import numpy as np
 import pytest
 
-from bayesdoor.systems.door import DOOR_CATALOGUE
+from bayesdoor.door import DOOR_CATALOGUE
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 

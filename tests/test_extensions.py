@@ -10,20 +10,23 @@ import pytest
 import scipy.signal
 
 from bayesdoor.datagen import GaussianScatter, GenerationConfig, describe_system, generate
-from bayesdoor.inference import FitSettings, fit_campaign
-from bayesdoor.io import make_campaign
-from bayesdoor.systems import DoorDamage, DoorParameters, ElevatorDoor, SolverConfig
-from bayesdoor.systems.door import (
+from bayesdoor.door import (
     EXTENSIONS,
     WHEEL_CIRCUMFERENCE,
+    DoorDamage,
+    DoorParameters,
+    ElevatorDoor,
     FrameMode,
     MainsHum,
     RailWaviness,
     SensorCrossAxis,
+    SolverConfig,
     WheelEccentricity,
     extension,
     motion_duration,
 )
+from bayesdoor.inference import FitSettings, fit_campaign
+from bayesdoor.io import make_campaign
 
 FS = 2048.0
 SPEEDS = (0.3, 0.5)

@@ -20,10 +20,11 @@ import pytest
 from test_diagnose import diagnose_case, make_case
 from test_robustness import CHANNELS, campaign, door_fit, fast, invoke
 
-import bayesdoor.datasets
 import bayesdoor.diagnose
+import bayesdoor.door.datasets
 import bayesdoor.inference
 from bayesdoor.diagnose import RULE, Cause, Diagnosis, Gain
+from bayesdoor.door import DOOR_CATALOGUE, DoorParameters, ElevatorDoor
 from bayesdoor.inference import (
     CMAESHistory,
     CMAESResult,
@@ -34,8 +35,6 @@ from bayesdoor.inference import (
     diagnose_sampling,
 )
 from bayesdoor.io import load_campaign, save_campaign
-from bayesdoor.systems import DoorParameters, ElevatorDoor
-from bayesdoor.systems.door import DOOR_CATALOGUE
 
 ANY = None
 
@@ -249,7 +248,7 @@ def payloads(campaign_file, diagnosis, tmp_path_factory):
         mp.setattr(bayesdoor.inference, "posterior_predictive", made_up_predictive)
         mp.setattr(bayesdoor.diagnose, "diagnose_campaign", diagnose)
         mp.setattr(
-            bayesdoor.datasets, "load_demo_campaign", lambda **kw: load_campaign(campaign_file)
+            bayesdoor.door.datasets, "load_demo_campaign", lambda **kw: load_campaign(campaign_file)
         )
         fast(mp, fit=fit_with_diagnostics, diagnose=diagnose)
         job = folder / "job"

@@ -14,6 +14,7 @@ from _helpers import TableForward
 from numpyro.infer.util import log_density
 from numpyro.infer.util import log_likelihood as numpyro_log_likelihood
 
+from bayesdoor.door import ElevatorDoor
 from bayesdoor.inference import (
     CalibrationData,
     DiscrepancyNormal,
@@ -26,7 +27,6 @@ from bayesdoor.inference import (
     welch_degrees_of_freedom,
     welch_log10_variance,
 )
-from bayesdoor.systems import ElevatorDoor
 
 FS = 2048.0
 

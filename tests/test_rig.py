@@ -14,8 +14,19 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from bayesdoor.io import check_campaign
-from bayesdoor.rig import (
+from bayesdoor.door import (
+    DoorDamage,
+    DoorParameters,
+    ElevatorDoor,
+    commanded_motion,
+    contact_kinematics,
+    initial_state,
+    make_args,
+    motion_duration,
+    rhs,
+    static_equilibrium,
+)
+from bayesdoor.door.rig import (
     Effects,
     FrameMode,
     MainsHum,
@@ -26,16 +37,7 @@ from bayesdoor.rig import (
     VirtualRig,
     WheelEccentricity,
 )
-from bayesdoor.systems import DoorDamage, DoorParameters, ElevatorDoor
-from bayesdoor.systems.door import (
-    commanded_motion,
-    contact_kinematics,
-    initial_state,
-    make_args,
-    motion_duration,
-    rhs,
-    static_equilibrium,
-)
+from bayesdoor.io import check_campaign
 
 FS = 2048.0
 SPEEDS = (0.35, 0.5)

@@ -32,7 +32,7 @@ from test_pipeline import SIZES, stand_in_diagnose, stand_in_fit
 from test_pipeline import SYSTEM as TONES
 from typer.testing import CliRunner
 
-import bayesdoor.datasets
+import bayesdoor.door.datasets
 import bayesdoor.pipeline
 from bayesdoor.cli import app
 from bayesdoor.io import make_campaign, save_campaign, to_csv
@@ -461,7 +461,7 @@ def demo_is(files, monkeypatch):
     from bayesdoor.io import load_campaign
 
     monkeypatch.setattr(
-        bayesdoor.datasets, "load_demo_campaign", lambda **kw: load_campaign(files["good"])
+        bayesdoor.door.datasets, "load_demo_campaign", lambda **kw: load_campaign(files["good"])
     )
 
 
@@ -685,7 +685,7 @@ def test_a_forced_point_fit_removes_the_posterior_it_replaces(files, tmp_path, m
 
 def test_demo_with_a_damaged_cache_says_how_to_record_it_again(tmp_path, monkeypatch):
     """A demo campaign cut short in the cache (a full disk, a copy gone wrong)."""
-    from bayesdoor.datasets import demo_paths
+    from bayesdoor.door.datasets import demo_paths
 
     monkeypatch.setenv("BAYESDOOR_DATA", str(tmp_path / "cache"))
     nc, truth = demo_paths()
@@ -772,14 +772,14 @@ def test_inspect_interrupted_while_plotting_leaves_nothing(files, tmp_path, monk
 
 
 def test_demo_interrupted_while_recording_keeps_nothing_in_the_cache(tmp_path, monkeypatch):
-    import bayesdoor.rig
-    from bayesdoor.datasets import demo_paths
+    import bayesdoor.door.rig
+    from bayesdoor.door.datasets import demo_paths
 
     def interrupted(self, *args, **options):
         raise KeyboardInterrupt
 
     monkeypatch.setenv("BAYESDOOR_DATA", str(tmp_path / "cache"))
-    monkeypatch.setattr(bayesdoor.rig.VirtualRig, "run", interrupted)
+    monkeypatch.setattr(bayesdoor.door.rig.VirtualRig, "run", interrupted)
     out = tmp_path / "demo"
     line = stopped(invoke("demo", "--out", out, "--quick"))
     assert "the recording of the demo campaign was stopped" in line
@@ -793,7 +793,7 @@ def test_demo_says_once_that_it_recorded_the_campaign_and_where(tmp_path, monkey
     """The recording's bar is transient: after it, one line says how long the first use spent
     recording and where the campaign is cached; a later run, reading the cache, says nothing."""
     import bayesdoor.cli._run
-    from bayesdoor.datasets import demo_paths
+    from bayesdoor.door.datasets import demo_paths
 
     monkeypatch.setenv("BAYESDOOR_DATA", str(tmp_path / "cache"))
     made = campaign()
@@ -804,7 +804,7 @@ def test_demo_says_once_that_it_recorded_the_campaign_and_where(tmp_path, monkey
         return made
 
     jobs = []
-    monkeypatch.setattr(bayesdoor.datasets, "load_demo_campaign", record)
+    monkeypatch.setattr(bayesdoor.door.datasets, "load_demo_campaign", record)
     monkeypatch.setattr(bayesdoor.cli._run, "run", lambda data, out, **o: jobs.append(data))
     first = invoke("demo", "--out", tmp_path / "demo", "--quick")
     assert first.exit_code == 0, first.output

@@ -10,6 +10,7 @@ import pytest
 from numpyro.infer import MCMC, NUTS
 from numpyro.infer.util import log_density
 
+from bayesdoor.door import ElevatorDoor, SolverConfig
 from bayesdoor.inference import (
     AbstractForward,
     CalibrationData,
@@ -23,7 +24,6 @@ from bayesdoor.inference import (
     make_model,
     simulate_design,
 )
-from bayesdoor.systems import ElevatorDoor, SolverConfig
 
 #: the door case's two runs are the reduced model itself plus 1e-3 m/s^2 noise: replicas whose
 #: features differ by far less than a Welch sd, so the shared model error would fit a run

@@ -17,8 +17,8 @@ import pytest
 from test_pipeline import SIZES, SYSTEM, job, tone_campaign
 
 from bayesdoor.datagen import TrainingData, fit_adequacy, healthy_outliers
+from bayesdoor.door.rig import OtherDoor, coloured_noise
 from bayesdoor.pipeline._trust import judge_trust
-from bayesdoor.rig import OtherDoor, coloured_noise
 
 CHANNELS = ("A", "B")
 N_FREQ = 12

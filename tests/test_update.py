@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 from _toy_system import DURATION, FS, REST, ToySystem
 
-from bayesdoor.datasets import load_demo_campaign, load_demo_truth
+from bayesdoor.door import ElevatorDoor
+from bayesdoor.door.datasets import load_demo_campaign, load_demo_truth
+from bayesdoor.door.rig import VirtualRig
 from bayesdoor.features import objective_j
 from bayesdoor.inference import (
     CalibrationData,
@@ -25,8 +27,6 @@ from bayesdoor.inference import (
     welch_j_standard_error,
 )
 from bayesdoor.io import make_campaign
-from bayesdoor.rig import VirtualRig
-from bayesdoor.systems import ElevatorDoor
 
 CHANNELS = ("A1X", "A1Z", "A2X", "A2Z")
 

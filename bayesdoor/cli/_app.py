@@ -68,8 +68,8 @@ def simulate(
 ) -> None:
     """Simulate runs of the reduced door model (paper's optimum unless --param) to a campaign."""
     configure_jax()
+    from ..door import STATES, check_speed
     from ..io import save_campaign
-    from ..systems.door import STATES, check_speed
     from ._simulate import simulate_campaign
 
     for s in state:
@@ -169,7 +169,7 @@ def demo(
 ) -> None:
     """`run` on the embedded demo campaign (recorded by the virtual rig on first use)."""
     configure_jax()
-    from ..datasets import demo_paths, load_demo_campaign
+    from ..door.datasets import demo_paths, load_demo_campaign
     from . import _run
 
     def recording_stopped() -> str:

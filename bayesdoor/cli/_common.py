@@ -177,7 +177,7 @@ def writing(path: Path, option: str = "--out") -> Iterator[None]:
 
 def system_named(campaign: xr.Dataset) -> AbstractSystem:
     """The simulated system the campaign names in its ``system`` attribute (default: the door)."""
-    from ..systems import ElevatorDoor
+    from ..door import ElevatorDoor
 
     systems = {"elevator_door": ElevatorDoor}
     name = str(campaign.attrs.get("system", "elevator_door"))

@@ -58,7 +58,7 @@ def load_fit(folder: Path, system) -> Any:
 
 def catalogue_for(system):
     """The system's catalogue of discrepancy causes: its own, else the one of its name."""
-    from ..systems.door import DOOR_CATALOGUE
+    from ..door import DOOR_CATALOGUE
 
     own = getattr(system, "catalogue", None)
     return own if own is not None else {"elevator_door": DOOR_CATALOGUE}.get(system.name)

@@ -74,7 +74,7 @@ def load(
 
 def expectations(ds: xr.Dataset) -> tuple[dict, list[str]]:
     """Validation options from the campaign's ``system`` (its channels and sampling rate)."""
-    from ..systems import ElevatorDoor
+    from ..door import ElevatorDoor
 
     systems = {"elevator_door": ElevatorDoor()}
     name = str(ds.attrs.get("system", ""))
@@ -90,7 +90,7 @@ def expectations(ds: xr.Dataset) -> tuple[dict, list[str]]:
 
 def speed_notes(ds: xr.Dataset) -> list[str]:
     """Runs whose v_max the door model cannot simulate (fitting and training skip them)."""
-    from ..systems.door import check_speed
+    from ..door import check_speed
 
     if str(ds.attrs.get("system", "")) != "elevator_door" or "v_max" not in ds:
         return []

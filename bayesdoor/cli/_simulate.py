@@ -28,9 +28,15 @@ def simulate_campaign(states, v_max, *, seed: int, params: dict[str, float], dty
     """
     import jax.numpy as jnp
 
+    from ..door import (
+        STATES,
+        DoorDamage,
+        DoorParameters,
+        ElevatorDoor,
+        SolverConfig,
+        motion_duration,
+    )
     from ..io import make_campaign
-    from ..systems import DoorDamage, DoorParameters, ElevatorDoor, SolverConfig
-    from ..systems.door import STATES, motion_duration
 
     door = ElevatorDoor(SolverConfig(dtype=dtype))
     optimum = {k: float(v) for k, v in DoorParameters.paper_optimum().to_dict().items()}

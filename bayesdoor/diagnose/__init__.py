@@ -10,6 +10,10 @@ from ._coherence import PairCoherence as PairCoherence
 from ._coherence import coherence_map as coherence_map
 from ._comb import CombTest as CombTest
 from ._comb import harmonic_comb as harmonic_comb
+from ._extend import HeldExtension as HeldExtension
+from ._extend import VerdictExtension as VerdictExtension
+from ._extend import extend_system as extend_system
+from ._extend import verdict_extension as verdict_extension
 from ._features import Features as Features
 from ._features import find_features as find_features
 from ._gain import CAPPED_THRESHOLDS as CAPPED_THRESHOLDS
@@ -91,11 +95,3 @@ from ._welch_stats import welch_dof as welch_dof
 from ._welch_stats import windowed_log_psd as windowed_log_psd
 from ._within import WithinRunFit as WithinRunFit
 from ._within import within_run_speed as within_run_speed
-
-# isort: split
-# last: the extended systems subclass bayesdoor.systems.AbstractSystem, and importing
-# bayesdoor.systems imports the door catalogue, which needs the names above
-from ._extend import HeldExtension as HeldExtension
-from ._extend import VerdictExtension as VerdictExtension
-from ._extend import extend_system as extend_system
-from ._extend import verdict_extension as verdict_extension

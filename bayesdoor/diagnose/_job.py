@@ -20,6 +20,7 @@ import xarray as xr
 
 from .._types import Float, Int
 from ..features import motion_window as detect_motion_window
+from ..inference import FitResult, calibration_runs, fit_campaign
 from ._features import Features, find_features
 from ._gain import (
     RULE,
@@ -47,7 +48,6 @@ from ._refit import (
 from ._signatures import AbstractSignature, FirstOf, HarmonicComb, SpeedTracking
 
 if TYPE_CHECKING:
-    from ..inference import FitResult
     from ..systems import AbstractSystem
 
 #: a candidate is refitted when its signature passes at least this share of its checks
@@ -652,15 +652,13 @@ def diagnose_campaign(
         For a system without a catalogue, a campaign without healthy calibration runs, or a
         sampling rate that is not the system's.
     """
-    from ..inference import calibration_runs, fit_campaign
-
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed={seed!r} must be an integer >= 0")
     catalogue = getattr(system, "catalogue", None) if catalogue is None else catalogue
     if not isinstance(catalogue, Catalogue):
         raise ValueError(
             f"{system.name} has no catalogue of discrepancy causes (system.catalogue is "
-            f"{catalogue!r}): pass catalogue= (for the door, bayesdoor.systems.door."
+            f"{catalogue!r}): pass catalogue= (for the door, bayesdoor.door."
             "DOOR_CATALOGUE)"
         )
     settings = (
@@ -954,8 +952,6 @@ def extension_gain(
     ValueError
         For fewer than 4 healthy calibration runs.
     """
-    from ..inference import calibration_runs
-
     settings = DiagnosisSettings.quick() if quick else DiagnosisSettings()
     measured = _Measured.of(system, campaign, calibration_runs(campaign))
     folds = held_out_folds(measured.operating, settings.folds)

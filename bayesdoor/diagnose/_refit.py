@@ -27,6 +27,8 @@ import numpy as np
 import scipy.optimize
 
 from .._types import Array, Bool, Float, Int
+from ..inference import minimize_cmaes
+from ..inference._surrogate import map_padded_chunks
 from ._gain import estimate_discrepancy, log_predictive
 from ._welch_stats import windowed_log_psd
 
@@ -431,7 +433,6 @@ class _Model:
         threads (``map_padded_chunks``, the last block padded): XLA runs one vmapped solve
         on one core and releases the interpreter meanwhile. A block size not solved before
         runs its first block alone, so that the threads do not each compile it."""
-        from ..inference._surrogate import map_padded_chunks
 
         pop, n_runs = next(iter(vals.values())).shape
         self.solves += pop * n_runs
@@ -669,8 +670,6 @@ def _search(
 ) -> tuple[float, np.ndarray, int]:
     """Minimise over a box: :func:`_minimize_scalar` for one parameter, else CMA-ES (the
     population of ``POPULATION`` evaluated in one call). Returns (value, point, evaluations)."""
-    from ..inference import minimize_cmaes
-
     if len(start) == 1:
         return _minimize_scalar(objective, float(lower[0]), float(upper[0]), max_evals)
     result = minimize_cmaes(

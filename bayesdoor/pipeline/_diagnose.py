@@ -22,7 +22,8 @@ from typing import Any, Protocol
 import numpy as np
 import xarray as xr
 
-from ..diagnose import Catalogue, Features
+from ..diagnose import Catalogue, Features, diagnose_campaign
+from ..inference import FitResult
 from ..io import atomic_write
 from ..report import write_diagnosis_report
 from ..systems import AbstractSystem
@@ -154,9 +155,6 @@ def default_diagnose(
 
     ``catalogue``: the system's causes (``None``: ``system.catalogue``).
     """
-    from ..diagnose import diagnose_campaign
-    from ..inference import FitResult
-
     fit = FitResult.load(fit_folder)
     return diagnose_campaign(
         system,

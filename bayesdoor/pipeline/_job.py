@@ -40,7 +40,7 @@ from ..datagen import (
     describe_system,
     generate,
 )
-from ..inference import calibration_runs
+from ..inference import calibration_runs, fit_campaign
 from ..io import atomic_write
 from ..systems import AbstractSystem
 from ._classify import classify_stage, ood_model_error, report_stage, train_stage
@@ -201,8 +201,6 @@ def _versions() -> dict[str, str]:
 
 
 def _default_fit(system, campaign, **options):
-    from ..inference import fit_campaign
-
     return fit_campaign(system, campaign, **options)
 
 

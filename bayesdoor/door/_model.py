@@ -21,12 +21,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..._types import Array, Float
-from ...contact import hysteresis_factor, latch_rate, smooth_contact_force, stribeck_friction
+from .._types import Array, Float
 from . import _geometry as g
 from ._extensions import AbstractDoorExtension
 from ._params import DoorDamage, DoorParameters
 from ._profile import commanded_motion
+from .contact import hysteresis_factor, latch_rate, smooth_contact_force, stribeck_friction
 
 N_DOF = 7
 N_LATCH = 4

@@ -13,10 +13,10 @@ import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
-from .._types import Array
+from ... import door
+from ..._types import Array
+from ...io import make_campaign
 from ..contact import get_law
-from ..io import make_campaign
-from ..systems import door
 from . import _door as d
 from ._daq import anti_alias_decimate, apply_cross_axis, mains_signal, quantise
 from ._effects import CHANNELS, MAX_HARMONICS, WHEELS, Effects

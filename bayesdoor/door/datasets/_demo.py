@@ -19,7 +19,7 @@ import jax
 import numpy as np
 import xarray as xr
 
-from ..io import load_campaign, save_campaign
+from ...io import load_campaign, save_campaign
 from ..rig import RigConfig, VirtualRig
 
 #: bump when the campaign's plan changes in a way the source hash would not show

@@ -18,7 +18,7 @@ Two kinds:
   mode that carries the rail) add equations of motion coupled to the door's through the
   wheel contact: they need a new solve.
 
-The rig's effects (``bayesdoor.rig``) are the separate higher-fidelity counterparts used to
+The rig's effects (``bayesdoor.door.rig``) are the separate higher-fidelity counterparts used to
 make test data; these are the reduced model's own, simpler and differentiable, versions.
 """
 
@@ -34,8 +34,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..._types import Array, Float
-from .._base import ParameterSpec
+from .._types import Array, Float
+from ..systems import ParameterSpec
 from . import _geometry as g
 
 #: the door's two accelerometers and wheels (static choices of the extensions)

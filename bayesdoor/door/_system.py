@@ -10,9 +10,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..._types import Array, Float
-from .._base import AbstractSystem, DamageSpec, ParameterSpec, SimulationResult
+from .._types import Array, Float
+from ..systems import AbstractSystem, DamageSpec, ParameterSpec, SimulationResult
 from . import _geometry as g
+from ._catalogue import DOOR_CATALOGUE
 from ._extensions import AbstractDoorExtension, extension
 from ._model import make_args
 from ._params import PARAMETERS, STATES, DoorDamage, DoorParameters, check_parameter_values
@@ -86,7 +87,7 @@ class ElevatorDoor(AbstractSystem):
             if not isinstance(e, AbstractDoorExtension):
                 raise ValueError(
                     f"ElevatorDoor.extensions holds {e!r}, not a door model extension: build "
-                    "one with bayesdoor.systems.door.extension(name) or pass catalogue names "
+                    "one with bayesdoor.door.extension(name) or pass catalogue names "
                     "to ElevatorDoor().with_extensions(...)"
                 )
         names = [e.name for e in self.extensions]
@@ -100,8 +101,6 @@ class ElevatorDoor(AbstractSystem):
     @property
     def catalogue(self):
         """The door's catalogue of discrepancy causes (``docs/model.md``), for diagnosis."""
-        from ._catalogue import DOOR_CATALOGUE
-
         return DOOR_CATALOGUE
 
     @property
@@ -343,7 +342,7 @@ class ElevatorDoor(AbstractSystem):
 
         For gains of extensions solved with the door (a rail-carrying mode's
         participations), the solve also returns the sensors' derivative along the gains
-        (:func:`~bayesdoor.systems.door.solve`); others take the generic two simulations.
+        (:func:`~bayesdoor.door.solve`); others take the generic two simulations.
         """
         gains = tuple(gains)
         solved = {p.name for e in self.extensions if e.needs_resolve for p in e.parameters}
@@ -407,8 +406,8 @@ class ElevatorDoor(AbstractSystem):
 
         Examples
         --------
-        >>> from bayesdoor.systems import DoorParameters, ElevatorDoor
-        >>> from bayesdoor.systems.door import CoupledFrameMode
+        >>> from bayesdoor.door import DoorParameters, ElevatorDoor
+        >>> from bayesdoor.door import CoupledFrameMode
         >>> door = ElevatorDoor().with_extensions(CoupledFrameMode())
         >>> values = {p.name: p.nominal for p in door.parameters}
         >>> values.update(DoorParameters.paper_optimum().to_dict())

@@ -31,8 +31,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from .._types import Array
-from ..systems import door
+from ... import door
+from ..._types import Array
 from ._door import RigTruth
 from ._effects import CHANNELS, SENSORS, Effects, FrameMode
 from ._rig import SCATTERED, Recording, RigConfig, VirtualRig

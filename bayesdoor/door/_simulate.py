@@ -8,8 +8,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..._cacheable import errors_as_nan
-from ..._types import Array, Float, Int
+from .._cacheable import errors_as_nan
+from .._types import Array, Float, Int
 from . import _geometry as g
 from ._model import (
     N_DOF,

@@ -5,8 +5,8 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from ..._types import Array, Float, Int
-from .._base import DamageSpec, ParameterSpec
+from .._types import Array, Float, Int
+from ..systems import DamageSpec, ParameterSpec
 
 PARAMETERS: tuple[ParameterSpec, ...] = (
     ParameterSpec(

@@ -21,9 +21,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._types import Array, Float
+from ... import door
+from ..._types import Array, Float
 from ..contact import get_law
-from ..systems import door
 
 # --- the door's geometry and fixed properties (docs/model.md), SI units ----------------------
 GRAVITY = 9.81

@@ -1,6 +1,6 @@
 """Record (or find) the demo campaign and report how long it took.
 
-``python -m bayesdoor.datasets [--calibration-runs N] [--test-runs-per-state N]`` prints JSON:
+``python -m bayesdoor.door.datasets [--calibration-runs N] [--test-runs-per-state N]`` prints JSON:
 the cache file, the number of runs, whether it was generated now and the seconds taken. With
 ``BAYESDOOR_DATA`` set to an empty folder it times a fresh generation.
 """
@@ -15,7 +15,7 @@ from ._demo import demo_paths, load_demo_campaign
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(prog="python -m bayesdoor.datasets", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m bayesdoor.door.datasets", description=__doc__)
     parser.add_argument("--calibration-runs", type=int, default=10)
     parser.add_argument("--test-runs-per-state", type=int, default=100)
     opts = parser.parse_args()

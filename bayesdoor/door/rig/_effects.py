@@ -216,7 +216,7 @@ class MainsHum(eqx.Module):
 
 
 class Effects(eqx.Module):
-    """The catalogue effects injected by a :class:`~bayesdoor.rig.VirtualRig` (None: absent).
+    """The catalogue effects injected by a :class:`~bayesdoor.door.rig.VirtualRig` (None: absent).
 
     Examples
     --------

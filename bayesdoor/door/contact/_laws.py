@@ -14,7 +14,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._types import Array, Float, Int
+from ..._types import Array, Float, Int
 
 
 class AbstractContactLaw(eqx.Module):

@@ -13,7 +13,7 @@ from typing import Any
 import equinox as eqx
 import numpy as np
 
-from ...diagnose import (
+from ..diagnose import (
     LOCAL_BINS,
     AbstractRefit,
     Candidate,

@@ -13,7 +13,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from .._types import Array, Float
+from ..._types import Array, Float
 from ._door import (
     _GAPS,
     LATCH_FLOOR,

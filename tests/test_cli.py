@@ -17,7 +17,8 @@ runner = CliRunner()
 @pytest.fixture(scope="module")
 def simulated(tmp_path_factory):
     out = tmp_path_factory.mktemp("sim") / "runs.nc"
-    args = ["simulate", "--state", "healthy", "--state", "D2", "--v-max", "0.5", "--seed", "3"]
+    args = ["simulate", "--system", "elevator_door", "--state", "healthy", "--state", "D2"]
+    args += ["--condition", "v_max=0.5", "--seed", "3"]
     result = runner.invoke(app, [*args, "--out", str(out), "--json"])
     return out, result, args
 
@@ -60,8 +61,8 @@ def test_existing_output_is_not_overwritten(simulated):
 #: the speed check's message names the value as a plain number and the allowed range
 def _speed_message(value: str) -> str:
     return (
-        rf"--v-max: v_max={re.escape(value)} m/s is outside the allowed "
-        r"range \[0\.1, 0\.761\] m/s"
+        rf"--condition v_max={re.escape(value)} m/s is outside the range the model simulates, "
+        r"\[0\.1, 0\.761\] m/s"
     )
 
 
@@ -69,18 +70,22 @@ def _speed_message(value: str) -> str:
     ("extra", "pattern"),
     [
         (["--state", "D3"], re.escape("unknown state 'D3'")),
-        (["--v-max", "0"], _speed_message("0.0")),
-        (["--v-max", "-0.2"], _speed_message("-0.2")),
-        (["--v-max", "0.9"], _speed_message("0.9")),
-        (["--v-max", "nan"], _speed_message("nan")),
+        (["--condition", "v_max=0"], _speed_message("0.0")),
+        (["--condition", "v_max=-0.2"], _speed_message("-0.2")),
+        (["--condition", "v_max=0.9"], _speed_message("0.9")),
+        (["--condition", "v_max=nan"], _speed_message("nan")),
+        (["--condition", "speed=0.3"], re.escape("elevator_door has the conditions v_max")),
         (["--param", "K=9000"], re.escape("K=9000.0")),
         (["--param", "K"], re.escape("NAME=VALUE")),
-        (["--dtype", "float16"], re.escape("float64 or float32")),
+        (["--system", "lift"], re.escape("no system called 'lift'")),
     ],
 )
 def test_bad_input_exits_non_zero_with_a_reason(tmp_path, extra, pattern):
     out = tmp_path / "x.nc"
-    result = runner.invoke(app, ["simulate", "--out", str(out), *extra])
+    base = ["simulate", "--out", str(out), "--system", "elevator_door"]
+    if "--condition" not in extra:
+        base += ["--condition", "v_max=0.4"]
+    result = runner.invoke(app, [*base, *extra])
     assert result.exit_code != 0
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and re.search(pattern, lines[0]), result.stderr

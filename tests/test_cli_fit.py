@@ -55,6 +55,7 @@ def test_fit_refuses_a_campaign_of_faulty_runs_with_one_line(tmp_path):
         channels=("A1X", "A1Z", "A2X", "A2Z"),
         fs=2048.0,
         state=["D1", "D2"],
+        system="elevator_door",
         v_max=[0.4, 0.4],
     )
     path = tmp_path / "faulty.nc"

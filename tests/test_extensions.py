@@ -461,7 +461,12 @@ def test_fit_campaign_updates_the_extension_parameters_with_table_2(base_runs):
     hum = {f"mains_hum.amplitude_{c}": 0.03 for c in door.channels}
     signals = door.apply_output_extensions(base_runs.signals, base_runs.time, _values(door, **hum))
     campaign = make_campaign(
-        np.asarray(signals), channels=door.channels, fs=FS, state=["healthy"] * 2, v_max=SPEEDS
+        np.asarray(signals),
+        channels=door.channels,
+        fs=FS,
+        state=["healthy"] * 2,
+        system="elevator_door",
+        v_max=SPEEDS,
     )
     settings = FitSettings(max_motion_s=0.5, cmaes_max_evals=8, cmaes_restarts=0, cmaes_popsize=4)
     fit = fit_campaign(door, campaign, law=6, settings=settings, progress=False)

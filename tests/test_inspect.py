@@ -42,6 +42,7 @@ def synthetic(states=STATES, v_max=SPEEDS, *, channels=CHANNELS, fs=FS, window=T
         channels=channels,
         fs=fs,
         state=states,
+        system="elevator_door",
         v_max=v_max,
         split=["calibration"] + ["test"] * (runs - 1),
         **(windows if window else {}),
@@ -73,7 +74,9 @@ def test_valid_campaign_json_summary(valid):
     assert payload["states"] == {"healthy": 3, "D1": 2, "D2": 2}
     assert payload["splits"] == {"calibration": 1, "test": 6}
     assert payload["runs_by_state_and_split"]["healthy"] == {"calibration": 1, "test": 2}
-    assert payload["v_max"] == {"0.3": 2, "0.4": 4, "0.5": 1}
+    assert payload["conditions"] == {
+        "v_max": {"unit": "m/s", "runs": {"0.3": 2, "0.4": 4, "0.5": 1}}
+    }
     assert payload["record_samples"] == 5120 and payload["record_duration_s"] == 2.5
     assert payload["system"] == "elevator_door"
     assert payload["motion_window"] == "t_start/t_stop"
@@ -197,9 +200,11 @@ def test_speed_outside_the_model_range_is_a_warning_not_a_failure(tmp_path):
     result = invoke(path, "--json")
     assert result.exit_code == 0, result.output
     warnings = json.loads(result.stdout)["warnings"]
-    assert len(warnings) == 1 and "cannot simulate runs at 0.05 m/s" in warnings[0]
-    # the value as check_speed prints it: a plain number, as simulate --v-max shows it
-    assert "v_max=0.05 m/s is outside the allowed range [0.1, 0.761] m/s" in warnings[0]
+    assert len(warnings) == 1 and "elevator_door model cannot simulate runs at" in warnings[0]
+    # the value as the condition's check prints it: a plain number, as simulate shows it
+    assert (
+        "v_max=0.05 m/s is outside the range the model simulates, [0.1, 0.761] m/s" in (warnings[0])
+    )
 
 
 def test_csv_folder(tmp_path):
@@ -217,26 +222,32 @@ def _states(states):
     return [a for s in states for a in ("--state", s)]
 
 
-def test_csv_folder_without_sidecar_takes_v_max_and_state(tmp_path):
-    """Plain CSV files carry no speeds or labels: --v-max and --state give them."""
+def test_csv_folder_without_sidecar_takes_system_conditions_and_state(tmp_path):
+    """Plain CSV files carry no system, speeds or labels: --system, --condition and --state
+    give them."""
     folder = tmp_path / "csv"
     to_csv(synthetic(), folder)
     (folder / "campaign.json").unlink()
     before = {p.name: p.read_bytes() for p in folder.iterdir()}
     bare = invoke(folder, "--json")
     assert bare.exit_code == 1
-    assert json.loads(bare.stdout)["problem_codes"] == ["missing_v_max"]
+    assert json.loads(bare.stdout)["problem_codes"] == ["missing_system"]
+    door = ["--system", "elevator_door"]
+    unlabelled = invoke(folder, "--json", *door)
+    assert unlabelled.exit_code == 1
+    assert json.loads(unlabelled.stdout)["problem_codes"] == ["missing_v_max"]
 
-    one = invoke(folder, "--json", "--v-max", "0.4")
+    one = invoke(folder, "--json", *door, "--condition", "v_max=0.4")
     assert one.exit_code == 0, one.output
     payload = json.loads(one.stdout)
-    assert payload["v_max"] == {"0.4": 7} and payload["states"] == {"unknown": 7}
+    assert payload["conditions"]["v_max"]["runs"] == {"0.4": 7}
+    assert payload["states"] == {"unknown": 7}
 
-    per_run = [a for v in SPEEDS for a in ("--v-max", str(v))]
-    each = invoke(folder, "--json", *per_run, *_states(STATES))
+    per_run = ["--condition", "v_max=" + ",".join(map(str, SPEEDS))]
+    each = invoke(folder, "--json", *door, *per_run, *_states(STATES))
     assert each.exit_code == 0, each.output
     payload = json.loads(each.stdout)
-    assert payload["v_max"] == {"0.3": 2, "0.4": 4, "0.5": 1}
+    assert payload["conditions"]["v_max"]["runs"] == {"0.3": 2, "0.4": 4, "0.5": 1}
     assert payload["states"] == {"healthy": 3, "D1": 2, "D2": 2}
     # the runs are the files in name order: run_0000.csv is the first healthy run
     assert payload["runs_by_state_and_split"]["healthy"] == {"(none)": 3}
@@ -247,9 +258,12 @@ def test_csv_folder_without_sidecar_takes_v_max_and_state(tmp_path):
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--v-max", "0.4", "--v-max", "0.5"], "--v-max takes one value for all 7 runs of "),
+        (["--condition", "v_max=0.4,0.5"], "--condition v_max takes one value for all 7 runs"),
         (_states(["healthy", "D1"]), "--state takes one value for all 7 runs of "),
-        (["--v-max", "0.4", "--state", "D3"], "unknown state labels ['D3']"),
+        (
+            ["--system", "elevator_door", "--condition", "v_max=0.4", "--state", "D3"],
+            "unknown state labels ['D3']",
+        ),
     ],
 )
 def test_csv_labels_that_do_not_fit_the_runs(tmp_path, extra, message):
@@ -266,11 +280,11 @@ def test_v_max_and_state_are_refused_where_the_metadata_is_stored(valid, tmp_pat
     folder = tmp_path / "csv"
     to_csv(synthetic(), folder)
     for path, where in ((valid, "the file"), (folder, "its campaign.json")):
-        result = invoke(path, "--v-max", "0.4")
+        result = invoke(path, "--condition", "v_max=0.4")
         assert result.exit_code == 2
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1, result.stderr
-        assert "--v-max label the runs of a folder of CSV files without campaign.json" in lines[0]
+        assert "--condition v_max label the runs of a folder of CSV files without" in lines[0]
         assert f"holds its own metadata in {where}" in lines[0]
 
 

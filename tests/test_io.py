@@ -30,6 +30,7 @@ def _campaign(n_time=2048, fs=FS, window=True, seed=0):
         channels=DOOR,
         fs=fs,
         state=["healthy", "D1", "D2"],
+        system="elevator_door",
         v_max=[0.3, 0.4, 0.5],
         split=["calibration", "test", "test"],
         t_start=[0.25, 0.25, 0.3] if window else None,
@@ -298,7 +299,12 @@ def _quantised_sine(f, bits):
 def test_normal_signals_are_not_clipped(make_signal):
     x = make_signal(np.random.default_rng(1))
     ds = make_campaign(
-        np.broadcast_to(x, (1, 4, x.size)), channels=DOOR, fs=FS, state=["healthy"], v_max=[0.3]
+        np.broadcast_to(x, (1, 4, x.size)),
+        channels=DOOR,
+        fs=FS,
+        state=["healthy"],
+        system="elevator_door",
+        v_max=[0.3],
     )
     assert validate_campaign(ds) == []
 
@@ -308,7 +314,9 @@ def test_short_clipping_bursts_are_caught_by_their_number():
     x = 0.1 * np.random.default_rng(2).standard_normal(2048)
     for start in range(10, 2048 - 3, 34):
         x[start : start + 3] = 1.0
-    ds = make_campaign(x[None, None], channels=["A1X"], fs=FS, state=["D1"], v_max=[0.3])
+    ds = make_campaign(
+        x[None, None], channels=["A1X"], fs=FS, state=["D1"], system="elevator_door", v_max=[0.3]
+    )
     (problem,) = validate_campaign(ds)
     assert problem.code == "clipped"
     assert "longest stretch 3 samples" in problem.message
@@ -352,7 +360,9 @@ def test_csv_without_sidecar_uses_arguments_and_pads(tmp_path):
     lines = short.read_text().splitlines()
     short.write_text("\n".join(lines[:1001]) + "\n")
     files = [tmp_path / f"run_{i:04d}.csv" for i in range(3)]
-    back = from_csv(files, state=["healthy", "D1", "D2"], v_max=[0.3, 0.4, 0.5])
+    back = from_csv(
+        files, system="elevator_door", state=["healthy", "D1", "D2"], v_max=[0.3, 0.4, 0.5]
+    )
     assert back.attrs["sampling_rate_hz"] == FS
     np.testing.assert_array_equal(back.time.values, ds.time.values)
     np.testing.assert_array_equal(back.acceleration.values[:2], ds.acceleration.values[:2])
@@ -372,7 +382,7 @@ def test_csv_with_rounded_time_stamps(tmp_path):
         lines = path.read_text().splitlines()
         rows = [ln.split(",", 1) for ln in lines[1:]]
         path.write_text("\n".join([lines[0], *(f"{float(t):.6f},{r}" for t, r in rows)]) + "\n")
-    back = from_csv(files, v_max=[0.3, 0.4, 0.5])
+    back = from_csv(files, system="elevator_door", v_max=[0.3, 0.4, 0.5])
     check_campaign(back, sampling_rate_hz=FS)
     # (n - 1) / (last - first time): the last stamp is off by at most 0.5 us in 1 s
     assert abs(back.attrs["sampling_rate_hz"] / FS - 1.0) < 1e-6
@@ -385,7 +395,7 @@ def test_csv_without_v_max_is_reported(tmp_path):
     with pytest.raises(
         CampaignError, match=r"v_max is missing \(not finite\) for runs \[0, 1, 2\]"
     ):
-        from_csv(files)
+        from_csv(files, system="elevator_door")
     ds = from_csv(files, check=False)
     assert list(ds.state.values) == ["unknown"] * 3
 
@@ -393,7 +403,7 @@ def test_csv_without_v_max_is_reported(tmp_path):
 def test_csv_with_channels_reorders_and_refuses_missing(tmp_path):
     to_csv(_campaign(), tmp_path)
     files = sorted(tmp_path.glob("*.csv"))
-    ds = from_csv(files, channels=["A2Z", "A1X"], v_max=[0.3, 0.4, 0.5])
+    ds = from_csv(files, channels=["A2Z", "A1X"], system="elevator_door", v_max=[0.3, 0.4, 0.5])
     np.testing.assert_array_equal(
         ds.acceleration.values, _campaign().acceleration.values[:, [3, 0]]
     )
@@ -428,8 +438,8 @@ def test_bad_csv_is_refused_and_untouched(tmp_path, edit, phrase):
 
 def test_sidecar_and_arguments_together_are_refused(tmp_path):
     to_csv(_campaign(), tmp_path)
-    with pytest.raises(ValueError, match=r"defines the metadata; got \['v_max'\]"):
-        from_csv(tmp_path, v_max=[0.1, 0.2, 0.3])
+    with pytest.raises(ValueError, match=r"defines the metadata; got \['system', 'v_max'\]"):
+        from_csv(tmp_path, system="elevator_door", v_max=[0.1, 0.2, 0.3])
 
 
 def test_save_refuses_to_overwrite(tmp_path):
@@ -481,7 +491,9 @@ def test_unreadable_file_is_refused_and_untouched(tmp_path):
 
 def test_make_campaign_refuses_bad_input():
     acc = np.zeros((2, 4, 600))
-    kwargs = dict(channels=DOOR, fs=FS, state=["healthy", "D1"], v_max=[0.3, 0.4])
+    kwargs = dict(
+        channels=DOOR, fs=FS, state=["healthy", "D1"], system="elevator_door", v_max=[0.3, 0.4]
+    )
     with pytest.raises(ValueError, match=r"4 channels \(shape \(2, 4, 600\)\) but 3 names"):
         make_campaign(acc, **{**kwargs, "channels": DOOR[:3]})
     with pytest.raises(ValueError, match=r"v_max needs one entry per run \(2\)"):

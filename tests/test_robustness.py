@@ -84,6 +84,7 @@ def campaign(states=None, *, split=True, channels=CHANNELS, seed=0) -> xr.Datase
         channels=list(channels),
         fs=FS,
         state=states,
+        system="elevator_door",
         v_max=speeds,
         t_start=np.full(len(states), REST),
         # the last sample lies at DURATION - 1/FS: the window must end inside the record

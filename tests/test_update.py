@@ -34,7 +34,13 @@ CHANNELS = ("A1X", "A1Z", "A2X", "A2Z")
 def _campaign(states, split=None):
     signals = np.random.default_rng(0).standard_normal((len(states), 4, 4096))
     return make_campaign(
-        signals, channels=CHANNELS, fs=2048.0, state=states, v_max=[0.4] * len(states), split=split
+        signals,
+        channels=CHANNELS,
+        fs=2048.0,
+        state=states,
+        system="elevator_door",
+        v_max=[0.4] * len(states),
+        split=split,
     )
 
 

@@ -52,50 +52,52 @@ def _progress(quiet: bool):
 )
 def simulate(
     out: Annotated[Path, typer.Option("--out", help="campaign file to write (.nc)")],
+    system: Annotated[str, typer.Option("--system", help="the system's registered name")],
     state: Annotated[
-        list[str], typer.Option("--state", help="healthy, D1 or D2; repeat for several runs")
+        list[str], typer.Option("--state", help="a state of the system; repeat for several runs")
     ] = ["healthy"],  # noqa: B006
-    v_max: Annotated[
-        list[float], typer.Option("--v-max", help="peak door speed (m/s); one or one per state")
-    ] = [0.4],  # noqa: B006
+    condition: Annotated[
+        list[str],
+        typer.Option(
+            "--condition",
+            help="an operating condition, NAME=VALUE (all runs) or NAME=V1,V2,... (one per "
+            "--state); repeat for each of the system's conditions",
+        ),
+    ] = [],  # noqa: B006
     seed: Annotated[int, typer.Option(help="seed of the damage severity draws")] = 0,
     param: Annotated[
-        list[str], typer.Option("--param", help="override a Table 2 parameter, NAME=VALUE")
+        list[str],
+        typer.Option("--param", help="override a parameter's reference value, NAME=VALUE"),
     ] = [],  # noqa: B006
-    dtype: Annotated[str, typer.Option(help="float64 or float32")] = "float64",
     force: Annotated[bool, typer.Option(help="overwrite an existing file")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
-    """Simulate runs of the reduced door model (paper's optimum unless --param) to a campaign."""
+    """Simulate runs of a system's model (its reference parameters unless --param) to a
+    campaign file."""
     configure_jax()
-    from ..door import STATES, check_speed
     from ..io import save_campaign
-    from ._simulate import simulate_campaign
+    from ..systems import get_system
+    from ._inspect import parse_conditions
+    from ._simulate import _parse_overrides, operating_points, simulate_campaign
 
-    for s in state:
-        if s not in STATES:
-            raise fail(f"unknown state {s!r}: allowed {', '.join(STATES)}")
-    if len(v_max) not in (1, len(state)):
-        raise fail(f"give one --v-max or one per --state ({len(state)}), got {len(v_max)}")
-    speeds = v_max * len(state) if len(v_max) == 1 else v_max
     try:
-        check_speed(speeds)
-    except ValueError as err:
-        raise fail(f"--v-max: {err}") from None
-    if dtype not in ("float64", "float32"):
-        raise fail(f"--dtype must be float64 or float32, got {dtype!r}")
+        model = get_system(system)
+    except LookupError as err:
+        raise fail(str(err)) from None
+    for s in state:
+        if s not in model.states:
+            raise fail(f"unknown state {s!r}: allowed {', '.join(model.states)}")
+    operating = operating_points(model, parse_conditions(condition), len(state))
     if out.suffix != ".nc":
         raise fail(f"--out must be a NetCDF file ending in .nc, got {out}")
     check_output_path(out, force)
     check_writable(out)
-    from ._simulate import _parse_overrides
-
     ds = simulate_campaign(
+        model,
         state,
-        speeds,
+        operating,
         seed=seed,
         params=_parse_overrides(param),
-        dtype=dtype,
         progress=_progress(json),
     )
     with writing(out):
@@ -165,12 +167,27 @@ def demo(
     quick: Annotated[bool, typer.Option(help="small sizes: a first look in minutes")] = False,
     seed: Annotated[int, typer.Option(help="seed of the fit, the simulations and training")] = 0,
     force: Annotated[bool, typer.Option(help="replace a finished job of other settings")] = False,
+    system: Annotated[
+        str | None,
+        typer.Option(help="the system whose demo campaign to use (default: the first shipped)"),
+    ] = None,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
-    """`run` on the embedded demo campaign (recorded by the virtual rig on first use)."""
+    """`run` on a system's demo campaign (recorded by its virtual rig on first use)."""
     configure_jax()
-    from ..door.datasets import demo_paths, load_demo_campaign
+    from ..systems import get_demo
     from . import _run
+
+    try:
+        shipped = get_demo(system)
+    except LookupError as err:
+        raise fail(str(err)) from None
+
+    def demo_paths():
+        return (shipped.cached_path(),)
+
+    def load_demo_campaign(show_progress: bool):
+        return shipped.load(show_progress=show_progress)
 
     def recording_stopped() -> str:
         if demo_paths()[0].is_file():  # stopped while reading the cached campaign
@@ -242,18 +259,26 @@ def inspect(
     ] = None,
     force: Annotated[bool, typer.Option(help="overwrite previous plots in --out")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
-    v_max: Annotated[
-        list[float],
+    system: Annotated[
+        str | None,
         typer.Option(
-            "--v-max",
-            help="CSV folder without campaign.json: peak door speed (m/s), one or one per run",
+            "--system", help="CSV folder without campaign.json: the system's registered name"
+        ),
+    ] = None,
+    condition: Annotated[
+        list[str],
+        typer.Option(
+            "--condition",
+            help="CSV folder without campaign.json: an operating condition, NAME=VALUE (one "
+            "for all runs) or NAME=V1,V2,... (one per run); repeat for each condition",
         ),
     ] = [],  # noqa: B006
     state: Annotated[
         list[str],
         typer.Option(
             "--state",
-            help="CSV folder without campaign.json: healthy, D1, D2 or unknown, one or one per run",
+            help="CSV folder without campaign.json: a state of the system or unknown, one or "
+            "one per run",
         ),
     ] = [],  # noqa: B006
 ) -> None:
@@ -266,12 +291,14 @@ def inspect(
     from ..io import atomic_write, validate_campaign
     from . import _inspect
 
-    ds, problems = _inspect.load(path, v_max=v_max, state=state)
+    ds, problems = _inspect.load(
+        path, system=system, conditions=_inspect.parse_conditions(condition), state=state
+    )
     warnings: list[str] = []
     if ds is not None:
         options, warnings = _inspect.expectations(ds)
         problems = validate_campaign(ds, **options)
-        warnings += _inspect.speed_notes(ds)
+        warnings += _inspect.condition_notes(ds)
     info = _inspect.summary(ds)
     written: list[Path] = []
     if out is not None and out.exists() and not out.is_dir():

@@ -175,18 +175,22 @@ def writing(path: Path, option: str = "--out") -> Iterator[None]:
         ) from None
 
 
-def system_named(campaign: xr.Dataset) -> AbstractSystem:
-    """The simulated system the campaign names in its ``system`` attribute (default: the door)."""
-    from ..door import ElevatorDoor
+def system_named(campaign: xr.Dataset, name: str | None = None) -> AbstractSystem:
+    """The system ``name`` (``--system``), else the one the campaign names in its ``system``
+    attribute, found through the registry (:func:`bayesdoor.systems.get_system`)."""
+    from ..systems import available_systems, get_system
 
-    systems = {"elevator_door": ElevatorDoor}
-    name = str(campaign.attrs.get("system", "elevator_door"))
-    if name not in systems:
-        raise fail(
-            f"the campaign's system attribute is {name!r}; bayesdoor simulates "
-            f"{', '.join(systems)}: set attrs['system'] to one of them"
-        )
-    return systems[name]()
+    if name is None:
+        name = str(campaign.attrs.get("system", "")).strip()
+        if not name:
+            raise fail(
+                "the campaign names no system (attrs['system'] is missing): pass --system "
+                f"NAME, one of {', '.join(available_systems())}"
+            )
+    try:
+        return get_system(name)
+    except LookupError as err:
+        raise fail(str(err)) from None
 
 
 def check_for_job(

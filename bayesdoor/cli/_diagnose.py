@@ -57,11 +57,8 @@ def load_fit(folder: Path, system) -> Any:
 
 
 def catalogue_for(system):
-    """The system's catalogue of discrepancy causes: its own, else the one of its name."""
-    from ..door import DOOR_CATALOGUE
-
-    own = getattr(system, "catalogue", None)
-    return own if own is not None else {"elevator_door": DOOR_CATALOGUE}.get(system.name)
+    """The system's catalogue of discrepancy causes (``None``: it has none)."""
+    return system.catalogue
 
 
 def compute(system, campaign: xr.Dataset, fit, *, seed: int, quick: bool, progress: bool):

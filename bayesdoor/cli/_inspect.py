@@ -27,20 +27,44 @@ _BAD_RUN = {"non_finite", "flat", "clipped", "bad_motion_window", "window_too_sh
 _LOW_BAND_HZ = 100.0
 
 
+def parse_conditions(items: Sequence[str]) -> dict[str, list[float]]:
+    """``--condition NAME=VALUE[,VALUE...]`` options as {name: values}."""
+    out: dict[str, list[float]] = {}
+    for item in items:
+        name, sep, values = item.partition("=")
+        if not sep or not name.strip():
+            raise fail(f"--condition takes NAME=VALUE[,VALUE...] (e.g. v_max=0.3), got {item!r}")
+        try:
+            out[name.strip()] = [float(v) for v in values.split(",")]
+        except ValueError:
+            raise fail(f"--condition {name}: {values!r} is not a list of numbers") from None
+    return out
+
+
 def load(
-    path: Path, *, v_max: Sequence[float] = (), state: Sequence[str] = ()
+    path: Path,
+    *,
+    system: str | None = None,
+    conditions: dict[str, list[float]] | None = None,
+    state: Sequence[str] = (),
 ) -> tuple[xr.Dataset | None, list]:
     """The campaign at ``path`` (NetCDF file or CSV folder), unchecked, or the problems that
     stop it from being read as one.
 
-    ``v_max`` and ``state`` (one value for every run, or one per run in file-name order) label
-    the runs of a CSV folder without the ``campaign.json`` sidecar, which carries no metadata.
+    ``system``, ``conditions`` (per operating condition, one value for every run or one per
+    run in file-name order) and ``state`` (likewise) label the runs of a CSV folder without
+    the ``campaign.json`` sidecar, which carries no metadata.
     """
     from ..io import SIDECAR, CampaignError, from_csv, load_campaign
 
+    conditions = conditions or {}
     if not path.exists():
         raise fail(f"no campaign at {path}: give a NetCDF file or a folder of CSV files")
-    given = {"--v-max": len(v_max), "--state": len(state)}
+    given = {
+        "--system": int(system is not None),
+        **{f"--condition {k}": len(v) for k, v in conditions.items()},
+        "--state": len(state),
+    }
     options = " and ".join(name for name, n in given.items() if n)
     bare_csv = path.is_dir() and not (path / SIDECAR).is_file()
     if options and not bare_csv:
@@ -51,7 +75,7 @@ def load(
         )
     runs = len(list(path.glob("*.csv"))) if bare_csv else 0
     for name, n in given.items():
-        if n not in (0, 1, runs):
+        if name != "--system" and n not in (0, 1, runs):
             raise fail(
                 f"{name} takes one value for all {runs} runs of {path} or one per run (in "
                 f"file-name order), got {n}"
@@ -61,8 +85,9 @@ def load(
             campaign = from_csv(
                 path,
                 check=False,
-                v_max=list(v_max) * (runs // len(v_max)) if v_max else None,
+                system=system,
                 state=list(state) * (runs // len(state)) if state else None,
+                **{k: list(v) * (runs // len(v)) for k, v in conditions.items()},
             )
             return campaign, []
         return load_campaign(path, check=False), []
@@ -74,36 +99,42 @@ def load(
 
 def expectations(ds: xr.Dataset) -> tuple[dict, list[str]]:
     """Validation options from the campaign's ``system`` (its channels and sampling rate)."""
-    from ..door import ElevatorDoor
+    from ..io import system_of
+    from ..systems import available_systems
 
-    systems = {"elevator_door": ElevatorDoor()}
     name = str(ds.attrs.get("system", ""))
-    system = systems.get(name)
+    system = system_of(ds)
     if system is None:
         note = (
-            f"system {name!r} is not one bayesdoor simulates ({', '.join(systems)}): its channels "
-            "and sampling rate were checked for consistency only"
+            f"system {name!r} is not one bayesdoor knows ({', '.join(available_systems())}): "
+            "its channels and sampling rate were checked for consistency only"
         )
         return {}, [note] if name else []
     return {"channels": list(system.channels), "sampling_rate_hz": system.sampling_rate_hz}, []
 
 
-def speed_notes(ds: xr.Dataset) -> list[str]:
-    """Runs whose v_max the door model cannot simulate (fitting and training skip them)."""
-    from ..door import check_speed
+def condition_notes(ds: xr.Dataset) -> list[str]:
+    """Operating points the campaign's system cannot simulate (fitting and training skip
+    those runs)."""
+    from ..io import system_of
 
-    if str(ds.attrs.get("system", "")) != "elevator_door" or "v_max" not in ds:
+    system = system_of(ds)
+    if system is None:
         return []
     notes = []
-    for v in sorted({float(v) for v in np.atleast_1d(ds["v_max"].values) if np.isfinite(v)}):
-        try:
-            check_speed(v)
-        except ValueError as err:
-            notes.append(f"the door model cannot simulate runs at {v:g} m/s: {err}")
+    for spec in system.conditions:
+        if spec.name not in ds:
+            continue
+        values = np.atleast_1d(np.asarray(ds[spec.name].values, dtype=float))
+        for v in sorted({float(v) for v in values if np.isfinite(v)}):
+            try:
+                spec.check(v)
+            except ValueError as err:
+                notes.append(f"the {system.name} model cannot simulate runs at {err}")
     return notes
 
 
-def _speed_order(item: tuple[str, int]) -> tuple[bool, float]:
+def _value_order(item: tuple[str, int]) -> tuple[bool, float]:
     return item[0] == "unknown", 0.0 if item[0] == "unknown" else float(item[0])
 
 
@@ -127,10 +158,21 @@ def summary(ds: xr.Dataset | None) -> dict[str, Any]:
     for state, split in zip(states, splits, strict=True):
         table.setdefault(state, {}).setdefault(split, 0)
         table[state][split] += 1
-    speeds = Counter(
-        f"{float(v):g}" if np.isfinite(v) else "unknown"
-        for v in np.ravel(np.asarray(ds["v_max"].values, dtype=float) if "v_max" in ds else [])
-    )
+    from ..io import system_of
+
+    system = system_of(ds) if ds.attrs else None
+    conditions = {}
+    for spec in () if system is None else system.conditions:
+        counts = Counter(
+            f"{float(v):g}" if np.isfinite(v) else "unknown"
+            for v in np.ravel(
+                np.asarray(ds[spec.name].values, dtype=float) if spec.name in ds else []
+            )
+        )
+        conditions[spec.name] = {
+            "unit": spec.unit,
+            "runs": dict(sorted(counts.items(), key=_value_order)),
+        }
     fs = ds.attrs.get("sampling_rate_hz")
     fs = float(fs) if isinstance(fs, int | float | np.number) else None
     n_time = int(ds.sizes.get("time", 0))
@@ -145,7 +187,7 @@ def summary(ds: xr.Dataset | None) -> dict[str, Any]:
         "states": dict(Counter(states)),
         "splits": dict(Counter(splits)) if "split" in ds else {},
         "runs_by_state_and_split": table,
-        "v_max": dict(sorted(speeds.items(), key=_speed_order)),
+        "conditions": conditions,
         "motion_window": windows if runs else None,
     }
 
@@ -205,8 +247,10 @@ def render(result: dict) -> str:
         lines.append(
             f"records   {result['record_samples']} samples ({result['record_duration_s']:.3f} s)"
         )
-    speeds = ", ".join(f"{v} m/s x {n}" for v, n in result["v_max"].items())
-    lines.append(f"v_max     {speeds or '(none)'}")
+    for name, c in result["conditions"].items():
+        unit = f" {c['unit']}" if c["unit"] and c["unit"] != "-" else ""
+        values = ", ".join(f"{v}{unit} x {n}" for v, n in c["runs"].items())
+        lines.append(f"{name.ljust(9)} {values or '(none)'}")
     lines.append(f"motion    {result['motion_window']}")
     splits = sorted({s for row in result["runs_by_state_and_split"].values() for s in row})
     width = max([len(s) for s in splits] + [5])

@@ -161,7 +161,6 @@ def run(
         default_source,
         run_job,
     )
-    from ._diagnose import catalogue_for
 
     if method in ("nuts", "emcee", "cmaes") and source is None:
         source = default_source(method)
@@ -204,7 +203,7 @@ def run(
                 progress=not json,
                 report=stages,
                 overwrite=force,
-                diagnose=functools.partial(default_diagnose, catalogue=catalogue_for(system)),
+                diagnose=functools.partial(default_diagnose, catalogue=system.catalogue),
             )
     except FileExistsError as err:
         raise fail(str(err)) from None

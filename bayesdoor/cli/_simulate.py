@@ -1,4 +1,4 @@
-"""``bayesdoor simulate`` and the interim ``bayesdoor demo``: runs of the reduced door model."""
+"""``bayesdoor simulate``: runs of a registered system's model, written as a campaign."""
 
 from __future__ import annotations
 
@@ -20,55 +20,97 @@ def _parse_overrides(items: list[str]) -> dict[str, float]:
     return out
 
 
-def simulate_campaign(states, v_max, *, seed: int, params: dict[str, float], dtype: str, progress):
-    """Simulate one run per (state, speed) entry with the reduced door model.
+def reference_values(system) -> dict[str, float]:
+    """Each parameter's reference value (a published optimum, say), else its nominal one."""
+    return {
+        p.name: float(p.nominal if p.reference_value is None else p.reference_value)
+        for p in system.parameters
+    }
 
-    Severities of D1/D2 are drawn from their documented uniform priors with ``seed``.
-    Returns the campaign dataset (``bayesdoor.io.make_campaign``).
+
+def operating_points(system, conditions: dict[str, list[float]], runs: int) -> np.ndarray:
+    """The runs' operating conditions from ``--condition`` values (one, or one per run)."""
+    names = system.condition_names()
+    unknown = sorted(set(conditions) - set(names))
+    if unknown:
+        raise fail(
+            f"--condition {', '.join(unknown)}: {system.name} has the conditions {', '.join(names)}"
+        )
+    missing = [n for n in names if n not in conditions]
+    if missing:
+        raise fail(f"give --condition {missing[0]}=VALUE ({system.name} needs {', '.join(names)})")
+    columns = []
+    for spec in system.conditions:
+        values = conditions[spec.name]
+        if len(values) not in (1, runs):
+            raise fail(
+                f"--condition {spec.name} takes one value or one per --state ({runs}), got "
+                f"{len(values)}"
+            )
+        try:
+            spec.check(values)
+        except ValueError as err:
+            raise fail(f"--condition {err}") from None
+        columns.append(np.broadcast_to(np.asarray(values, dtype=float), (runs,)))
+    return columns[0] if len(columns) == 1 else np.stack(columns, axis=-1)
+
+
+def simulate_campaign(system, states, operating, *, seed: int, params, progress):
+    """Simulate one run per (state, operating point) with ``system``'s model.
+
+    Severities are drawn from each state's uniform priors with ``seed``; a run's severities
+    of other states are 0. Returns the campaign dataset (``bayesdoor.io.make_campaign``).
     """
-    import jax.numpy as jnp
-
-    from ..door import (
-        STATES,
-        DoorDamage,
-        DoorParameters,
-        ElevatorDoor,
-        SolverConfig,
-        motion_duration,
-    )
     from ..io import make_campaign
 
-    door = ElevatorDoor(SolverConfig(dtype=dtype))
-    optimum = {k: float(v) for k, v in DoorParameters.paper_optimum().to_dict().items()}
+    for s in states:
+        if s not in system.states:
+            raise fail(f"unknown state {s!r}: allowed {', '.join(system.states)}")
+    values = {**reference_values(system), **params}
     try:
-        theta = DoorParameters.from_dict({**optimum, **params})
+        system.check_parameters(values)
     except ValueError as err:
         raise fail(str(err)) from None
     rng = np.random.default_rng(seed)
-    severities: dict[str, list[float]] = {"d1_height": [], "d2_depth": [], "d2_angle": []}
-    for state in states:
-        spec = STATES[state]
-        for name in severities:
-            lo, hi = spec.severity.get(name, (0.0, 0.0))
-            severities[name].append(rng.uniform(lo, hi) if hi > lo else 0.0)
-    damage = DoorDamage(**{k: jnp.asarray(v) for k, v in severities.items()})
-    duration = door.record_duration(v_max)
+    names = sorted({k for s in states for k in system.states[s].severity})
+    severities = {k: np.zeros(len(states)) for k in names}
+    for i, state in enumerate(states):
+        for k, (lo, hi) in system.states[state].severity.items():
+            severities[k][i] = rng.uniform(lo, hi) if hi > lo else lo
+    duration = float(system.record_duration(operating))
+    signals = None
     with progress(f"simulating {len(states)} runs"):
-        res = door.simulate_batch(theta, damage, jnp.asarray(v_max), duration=duration)
-    status = np.asarray(res.status)
-    if np.any(status != 0):
-        bad = np.flatnonzero(status)
-        raise fail(f"the solve failed for runs {bad.tolist()} (status {status[bad].tolist()})")
-    t_start = np.full(len(states), 0.25)
-    extra: dict = {k: np.asarray(v) for k, v in severities.items()}
+        for state in dict.fromkeys(states):
+            at = np.flatnonzero(np.asarray(states) == state)
+            res = system.simulate_values(
+                values,
+                operating[at],
+                state=state,
+                severity={k: severities[k][at] for k in system.states[state].severity},
+                duration=duration,
+            )
+            status = np.asarray(res.status)
+            if np.any(status != 0):
+                bad = at[np.flatnonzero(status)]
+                raise fail(f"the solve failed for runs {bad.tolist()} (status {status.tolist()})")
+            x = np.asarray(res.signals, dtype=float)
+            if signals is None:
+                signals = np.zeros((len(states), *x.shape[1:]))
+            signals[at] = x
+    t_start, t_stop = system.motion_window(operating, duration=duration)
+    per_run = (
+        {system.conditions[0].name: np.asarray(operating, dtype=float)}
+        if np.ndim(operating) == 1
+        else {c.name: np.asarray(operating)[:, i] for i, c in enumerate(system.conditions)}
+    )
     return make_campaign(
-        np.asarray(res.signals, dtype=float),
-        channels=list(door.channels),
-        fs=door.sampling_rate_hz,
+        signals,
+        channels=list(system.channels),
+        fs=system.sampling_rate_hz,
         state=list(states),
-        v_max=np.asarray(v_max, dtype=float),
-        t_start=t_start,
-        t_stop=t_start + np.asarray(motion_duration(np.asarray(v_max, dtype=float))),
-        system=door.name,
-        **extra,
+        system=system.name,
+        t_start=np.broadcast_to(np.asarray(t_start, dtype=float), (len(states),)),
+        t_stop=np.broadcast_to(np.asarray(t_stop, dtype=float), (len(states),)),
+        **per_run,
+        **severities,
     )

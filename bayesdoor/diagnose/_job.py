@@ -21,6 +21,7 @@ import xarray as xr
 from .._types import Float, Int
 from ..features import motion_window as detect_motion_window
 from ..inference import FitResult, calibration_runs, fit_campaign
+from ..io import operating as campaign_operating
 from ._features import Features, find_features
 from ._gain import (
     RULE,
@@ -267,7 +268,7 @@ class _Measured:
             t = np.arange(x.shape[-1]) / fs
             w = np.array([detect_motion_window(t, s) for s in x])
             t0, t1 = w[:, 0], w[:, 1]
-        operating = np.asarray(chosen["v_max"].values, dtype=float)
+        operating = campaign_operating(chosen, system)
         return cls(np.asarray(runs), x, operating, t0, t1, fs, channels)
 
     @property
@@ -654,12 +655,11 @@ def diagnose_campaign(
     """
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed={seed!r} must be an integer >= 0")
-    catalogue = getattr(system, "catalogue", None) if catalogue is None else catalogue
+    catalogue = system.catalogue if catalogue is None else catalogue
     if not isinstance(catalogue, Catalogue):
         raise ValueError(
             f"{system.name} has no catalogue of discrepancy causes (system.catalogue is "
-            f"{catalogue!r}): pass catalogue= (for the door, bayesdoor.door."
-            "DOOR_CATALOGUE)"
+            f"{catalogue!r}): pass catalogue= (a bayesdoor.diagnose.Catalogue)"
         )
     settings = (
         (DiagnosisSettings.quick() if quick else DiagnosisSettings())
@@ -964,7 +964,7 @@ def extension_gain(
     if not ok[0]:
         raise RuntimeError("the base model failed to simulate the runs at the fit's point")
     setup = measured.setup(system, fit.point, sims[0], sample_times, _band(fit), features)
-    catalogue = getattr(system, "catalogue", None) if catalogue is None else catalogue
+    catalogue = system.catalogue if catalogue is None else catalogue
     ext = proposal.extension
     name = ext if isinstance(ext, str) else getattr(ext, "name", None)
     signatures = (

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._types import Array, Float
-from ..systems import AbstractSystem, DamageSpec, ParameterSpec, SimulationResult
+from ..systems import AbstractSystem, ConditionSpec, DamageSpec, ParameterSpec, SimulationResult
 from . import _geometry as g
 from ._catalogue import DOOR_CATALOGUE
 from ._extensions import AbstractDoorExtension, extension
@@ -29,6 +29,16 @@ from ._simulate import (
 )
 
 V_MAX_RANGE = (0.1, round(max_speed_limit(), 3))
+
+
+#: the door's one operating condition: the commanded peak speed of the S-curve (above the upper
+#: bound the S-curve of the stroke has no cruise phase)
+SPEED = ConditionSpec(
+    "v_max",
+    "m/s",
+    *V_MAX_RANGE,
+    description="commanded peak speed",
+)
 
 
 def check_speed(v_max) -> None:
@@ -221,6 +231,10 @@ class ElevatorDoor(AbstractSystem):
     @property
     def sampling_rate_hz(self) -> float:
         return g.SAMPLING_RATE_HZ
+
+    @property
+    def conditions(self) -> tuple[ConditionSpec, ...]:
+        return (SPEED,)
 
     def record_duration(self, v_max) -> float:
         """Record length (s) for runs at these speeds: rest, the slowest stroke, rest."""

@@ -37,6 +37,7 @@ from .._types import Array, Bool, Float, Int
 from ..features import motion_window as detect_motion_window
 from ..features import objective_j, segment_weights
 from ..io import atomic_write
+from ..io import operating as campaign_operating
 from ..systems import AbstractSystem
 from ._cmaes import CMAESHistory, CMAESResult, minimize_cmaes
 from ._diagnostics import SamplingDiagnostics, diagnose_sampling
@@ -246,7 +247,8 @@ def campaign_data(
     system
         The system the campaign measured.
     campaign
-        A campaign (docs/data.md); the per-run ``v_max`` is the operating point.
+        A campaign (docs/data.md); the system's per-run operating conditions are the
+        operating points.
     runs
         The runs to use.
     spec
@@ -286,7 +288,7 @@ def campaign_data(
     signals = np.asarray(
         selected["acceleration"].sel(channel=list(system.channels)).values, dtype=float
     )
-    operating = np.asarray(selected["v_max"].values, dtype=float)
+    operating = campaign_operating(selected, system)
     if "t_start" in selected.variables and "t_stop" in selected.variables:
         t_start = np.asarray(selected["t_start"].values, dtype=float)
         t_stop = np.asarray(selected["t_stop"].values, dtype=float)
@@ -294,7 +296,8 @@ def campaign_data(
         t = np.arange(signals.shape[-1]) / fs
         windows = np.array([detect_motion_window(t, s) for s in signals])
         t_start, t_stop = windows[:, 0], windows[:, 1]
-    unique, index = np.unique(operating, return_inverse=True)
+    unique, index = np.unique(operating, axis=0, return_inverse=True)
+    index = index.reshape(-1)
     duration = float(system.record_duration(unique))
     if max_motion_s is not None:
         start, _ = system.motion_window(unique)

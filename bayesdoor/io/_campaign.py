@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from ._format import SPLIT_LABELS, STATE_LABELS, atomic_write
+from ._format import SPLIT_LABELS, atomic_write, state_labels, system_of
 from ._validate import check_campaign
 
 
@@ -19,11 +19,10 @@ def make_campaign(
     channels: Sequence[str],
     fs: float,
     state: Sequence[str],
-    v_max: Sequence[float] | np.ndarray,
+    system: str,
     split: Sequence[str] | None = None,
     t_start: Sequence[float] | np.ndarray | None = None,
     t_stop: Sequence[float] | np.ndarray | None = None,
-    system: str = "elevator_door",
     **extra_run_coords,
 ) -> xr.Dataset:
     """Build a campaign dataset: the one constructor every producer of campaigns uses.
@@ -38,18 +37,18 @@ def make_campaign(
     fs
         Sampling rate in Hz.
     state
-        Per run: ``healthy``, ``D1``, ``D2`` or ``unknown``.
-    v_max
-        Per run: commanded peak speed, m/s (NaN where unknown; :func:`validate_campaign`
-        reports it).
+        Per run: one of the system's states (``healthy`` among them) or ``unknown``; a
+        system that is not registered accepts any label.
+    system
+        The system's name (attribute ``system``), as the registry knows it.
     split
         Per run, optional: ``calibration`` or ``test``.
     t_start, t_stop
         Per run, optional: when the motion starts and stops, s.
-    system
-        The system's name (attribute ``system``).
     **extra_run_coords
-        Further per-run coordinates (for example damage severities), kept as given.
+        Further per-run coordinates, kept as given: the operating conditions under the names
+        the system declares (the door's ``v_max``, NaN where unknown:
+        :func:`validate_campaign` reports it), damage severities, record names.
 
     Returns
     -------
@@ -69,7 +68,7 @@ def make_campaign(
     >>> import numpy as np
     >>> ds = make_campaign(
     ...     np.zeros((2, 4, 1024)), channels=["A1X", "A1Z", "A2X", "A2Z"], fs=2048.0,
-    ...     state=["healthy", "D1"], v_max=[0.3, 0.4],
+    ...     state=["healthy", "D1"], system="elevator_door", v_max=[0.3, 0.4],
     ... )
     >>> dict(ds.sizes)
     {'run': 2, 'channel': 4, 'time': 1024}
@@ -85,7 +84,7 @@ def make_campaign(
         )
     if not (np.isfinite(fs) and fs > 0):
         raise ValueError(f"fs must be a positive sampling rate in Hz, got {fs!r}")
-    per_run = {"state": np.asarray(state, dtype=str), "v_max": np.asarray(v_max, dtype=float)}
+    per_run = {"state": np.asarray(state, dtype=str)}
     for name, value, dtype in (
         ("split", split, str),
         ("t_start", t_start, float),
@@ -97,7 +96,11 @@ def make_campaign(
     for name, value in per_run.items():
         if value.shape != (runs,):
             raise ValueError(f"{name} needs one entry per run ({runs}), got shape {value.shape}")
-    for name, allowed in (("state", STATE_LABELS), ("split", SPLIT_LABELS)):
+    known = system_of(system)
+    labels = {"split": SPLIT_LABELS}
+    if known is not None:
+        labels["state"] = state_labels(known)
+    for name, allowed in labels.items():
         bad = sorted(set(map(str, per_run.get(name, ()))) - set(allowed))
         if bad:
             raise ValueError(f"unknown {name} labels {bad}: allowed {', '.join(allowed)}")

@@ -22,7 +22,7 @@ import numpy as np
 import xarray as xr
 
 from ._campaign import make_campaign
-from ._format import atomic_write
+from ._format import atomic_write, system_of
 from ._validate import CampaignError, Problem, check_campaign
 
 #: the sidecar's file name
@@ -251,7 +251,6 @@ def from_csv(
     channels: Sequence[str] | None = None,
     fs: float | None = None,
     state: Sequence[str] | None = None,
-    v_max: Sequence[float] | np.ndarray | None = None,
     split: Sequence[str] | None = None,
     t_start: Sequence[float] | np.ndarray | None = None,
     t_stop: Sequence[float] | np.ndarray | None = None,
@@ -278,12 +277,11 @@ def from_csv(
         (last time - first time), which time stamps rounded by the acquisition do not upset.
     state
         Per run; ``None`` labels every run ``unknown``.
-    v_max
-        Per run, m/s; ``None`` leaves it NaN, which ``check`` reports as missing.
     split, t_start, t_stop, **extra_run_coords
-        As in :func:`make_campaign`.
+        As in :func:`make_campaign` (the operating conditions among them, under the names
+        the system declares; those not given are left NaN, which ``check`` reports).
     system
-        The system's name; ``None`` means ``"elevator_door"``.
+        The system's name, as the registry knows it.
     check
         Run :func:`check_campaign` (default options) on the result.
 
@@ -308,7 +306,7 @@ def from_csv(
         given = {
             k: v
             for k, v in dict(
-                channels=channels, fs=fs, state=state, v_max=v_max, split=split,
+                channels=channels, fs=fs, state=state, split=split,
                 t_start=t_start, t_stop=t_stop, system=system, **extra_run_coords,
             ).items()
             if v is not None
@@ -330,16 +328,18 @@ def from_csv(
             paths = [folder]
         names, time, acc = _read_runs(paths, channels)
         runs = len(paths)
+        known = system_of(system)
+        for name in [] if known is None else known.condition_names():
+            extra_run_coords.setdefault(name, np.full(runs, np.nan))
         ds = make_campaign(
             acc,
             channels=names,
             fs=(time.size - 1) / float(time[-1] - time[0]) if fs is None else fs,
             state=["unknown"] * runs if state is None else state,
-            v_max=np.full(runs, np.nan) if v_max is None else v_max,
             split=split,
             t_start=t_start,
             t_stop=t_stop,
-            system="elevator_door" if system is None else system,
+            system="" if system is None else system,
             **extra_run_coords,
         )
         ds = ds.assign_coords(time=("time", time, ds["time"].attrs))

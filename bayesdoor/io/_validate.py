@@ -8,7 +8,14 @@ from collections.abc import Sequence
 import numpy as np
 import xarray as xr
 
-from ._format import ACCELERATION_UNITS, CONVERTIBLE_UNITS, SPLIT_LABELS, STATE_LABELS
+from ..systems import AbstractSystem, ConditionSpec, available_systems
+from ._format import (
+    ACCELERATION_UNITS,
+    CONVERTIBLE_UNITS,
+    SPLIT_LABELS,
+    state_labels,
+    system_of,
+)
 
 #: how far (in sample periods) a time may lie off the uniform grid of the sampling rate
 _GRID_TOLERANCE = 0.01
@@ -276,50 +283,61 @@ def _label_problems(labels, name: str, allowed) -> list[Problem]:
     ]
 
 
-def _run_problems(ds: xr.Dataset, fs: float | None, nperseg: int) -> list[Problem]:
+def _condition_problems(ds: xr.Dataset, spec: ConditionSpec, runs: int) -> list[Problem]:
+    """``missing_<name>`` (absent or not finite) and ``bad_<name>`` (not positive, where the
+    condition must be) for one of the system's operating conditions."""
+    name, unit = spec.name, f" {spec.unit}" if spec.unit and spec.unit != "-" else ""
+    what = f"{name} ({spec.description}{',' if spec.description else ''}{unit or ' -'})"
+    values, problem = _per_run(ds, name, runs)
+    if problem is not None:
+        return [problem]
+    if values is None:
+        return [Problem(f"missing_{name}", f"the per-run coordinate {what} is missing")]
+    v = np.asarray(values, dtype=float)
+    problems = []
+    missing = np.flatnonzero(~np.isfinite(v))
+    if missing.size:
+        problems.append(
+            Problem(
+                f"missing_{name}",
+                f"{name} is missing (not finite) for runs {missing.tolist()}: give the "
+                f"{what} of every run",
+                int(missing[0]),
+            )
+        )
+    for bad in np.flatnonzero(np.isfinite(v) & (v <= 0)) if spec.positive else ():
+        problems.append(
+            Problem(
+                f"bad_{name}",
+                f"run {bad}: {name} = {float(v[bad])!r}{unit} must be positive",
+                int(bad),
+            )
+        )
+    return problems
+
+
+def _run_problems(
+    ds: xr.Dataset, system: AbstractSystem | None, fs: float | None, nperseg: int
+) -> list[Problem]:
     runs = ds.sizes["run"]
     problems: list[Problem] = []
     values = {}
-    for name in ("state", "v_max", "split", "t_start", "t_stop"):
+    for name in ("state", "split", "t_start", "t_stop"):
         values[name], problem = _per_run(ds, name, runs)
         problems += [problem] if problem else []
+    allowed = None if system is None else state_labels(system)
     if values["state"] is None and "state" not in ds:
         problems.append(
             Problem(
                 "missing_state",
-                f"the per-run coordinate state is missing: label each run with one of "
-                f"{STATE_LABELS}",
+                "the per-run coordinate state is missing: label each run with its state"
+                + ("" if allowed is None else f", one of {allowed}"),
             )
         )
-    elif values["state"] is not None:
-        problems += _label_problems(values["state"], "state", STATE_LABELS)
-    if values["v_max"] is None and "v_max" not in ds:
-        problems.append(
-            Problem(
-                "missing_v_max",
-                "the per-run coordinate v_max (commanded peak speed, m/s) is missing",
-            )
-        )
-    elif values["v_max"] is not None:
-        v = np.asarray(values["v_max"], dtype=float)
-        missing = np.flatnonzero(~np.isfinite(v))
-        if missing.size:
-            problems.append(
-                Problem(
-                    "missing_v_max",
-                    f"v_max is missing (not finite) for runs {missing.tolist()}: give the "
-                    "commanded peak speed (m/s) of every run",
-                    int(missing[0]),
-                )
-            )
-        for bad in np.flatnonzero(np.isfinite(v) & (v <= 0)):
-            problems.append(
-                Problem(
-                    "bad_v_max",
-                    f"run {bad}: v_max = {float(v[bad])!r} m/s must be positive",
-                    int(bad),
-                )
-            )
+    elif values["state"] is not None and allowed is not None:
+        problems += _label_problems(values["state"], "state", allowed)
+    for spec in () if system is None else system.conditions:
+        problems += _condition_problems(ds, spec, runs)
     if values["split"] is not None:
         problems += _label_problems(values["split"], "split", SPLIT_LABELS)
     problems += _window_problems(ds, values["t_start"], values["t_stop"], fs, nperseg)
@@ -369,6 +387,7 @@ def validate_campaign(
     *,
     channels: Sequence[str] | None = None,
     sampling_rate_hz: float | None = None,
+    system: AbstractSystem | None = None,
     nperseg: int = 512,
     min_duration_s: float | None = None,
     clip_run: int = 5,
@@ -386,8 +405,10 @@ def validate_campaign(
     coordinate, whose samples must lie within 0.01 sample periods of a uniform grid),
     ``unexpected_sampling_rate``, ``missing_time``, ``non_monotonic_time``, ``too_short``,
     ``non_finite``, ``flat`` (every sample of a record equal: a dead sensor), ``clipped``,
-    ``missing_state``, ``unknown_state``, ``missing_v_max`` (absent or not finite),
-    ``bad_v_max`` (not positive), ``unknown_split``, ``bad_motion_window``,
+    ``missing_state``, ``unknown_state`` (not one of the system's states or ``unknown``),
+    ``missing_<condition>`` (one of the system's operating conditions absent or not finite,
+    e.g. the door's ``missing_v_max``), ``bad_<condition>`` (not positive where it must be),
+    ``unknown_split``, ``bad_motion_window``,
     ``window_too_short``, ``missing_system``, and ``bad_<name>`` for a per-run coordinate
     without dims ``('run',)``.
 
@@ -408,6 +429,10 @@ def validate_campaign(
         The channels expected (e.g. ``["A1X", "A1Z", "A2X", "A2Z"]``); ``None`` accepts any.
     sampling_rate_hz
         The sampling rate expected; ``None`` accepts any (consistent with the time axis).
+    system
+        The system whose states and operating conditions the runs must carry; ``None``
+        takes the registered system the campaign names in ``attrs['system']``, and checks
+        neither for a system that is not registered.
     nperseg
         The Welch segment length the records must hold at least (also per motion window).
     min_duration_s
@@ -447,12 +472,15 @@ def validate_campaign(
     time_problems, fs = _time_problems(ds, sampling_rate_hz, min_samples, nperseg)
     problems += time_problems
     problems += _sample_problems(ds, clip_run, clip_fraction)
-    problems += _run_problems(ds, fs, nperseg)
+    if system is None:
+        system = system_of(ds)
+    problems += _run_problems(ds, system, fs, nperseg)
     if not str(ds.attrs.get("system", "")).strip():
         problems.append(
             Problem(
                 "missing_system",
-                "attrs['system'] is missing: name the system (e.g. 'elevator_door')",
+                "attrs['system'] is missing: name the system (one of "
+                f"{', '.join(available_systems()) or 'the registered systems'})",
             )
         )
     return problems

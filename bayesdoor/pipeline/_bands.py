@@ -41,7 +41,7 @@ class PredictiveBands:
     @classmethod
     def from_training_data(cls, data) -> PredictiveBands:
         """The bands of a :class:`bayesdoor.datagen.TrainingData` (all its runs)."""
-        speeds = np.unique(data.speeds)
+        speeds = np.unique(data.speeds, axis=0)
         shape = (len(data.states), speeds.size, len(QUANTILES), *data.features.shape[1:])
         values = np.full(shape, np.nan)
         for i in range(len(data.states)):

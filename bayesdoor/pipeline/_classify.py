@@ -30,7 +30,8 @@ from ..datagen import (
     model_error_draws,
 )
 from ..features import CNNInputSpec
-from ..io import atomic_write
+from ..io import atomic_write, system_of
+from ..io import operating as campaign_operating
 from ..report import diagnosis_section, write_damage_report
 from ._bands import PredictiveBands
 from ._fit import FitSummary
@@ -48,6 +49,12 @@ def _clean(value: float) -> float | None:
     """A float for JSON: NaN and infinities become ``None``."""
     value = float(value)
     return value if math.isfinite(value) else None
+
+
+def _operating(value) -> float | list[float | None] | None:
+    """A run's operating point for the JSON: a number, or a list for several conditions."""
+    value = np.asarray(value, dtype=float)
+    return _clean(float(value)) if value.ndim == 0 else [_clean(float(v)) for v in value]
 
 
 def _metrics(probabilities: np.ndarray, labels: np.ndarray) -> dict[str, Any]:
@@ -146,7 +153,7 @@ def ood_model_error(
     at the simulated speeds only the scatter is drawn.
     """
     healthy = runs_in_state(calibration, "healthy")
-    speeds = np.asarray(healthy["v_max"].values, dtype=float)
+    speeds = campaign_operating(healthy)
     simulated = set(np.asarray(data.subset("train").speeds).tolist())
     residuals = None
     if "healthy" in data.states and healthy.sizes["run"] and set(speeds.tolist()) <= simulated:
@@ -204,9 +211,11 @@ def classify_stage(
         if "state" in campaign.coords
         else np.full(n_run, "unknown")
     )
+    system = system_of(campaign)
+    conditions = () if system is None else system.condition_names()
     speeds = (
-        np.asarray(campaign["v_max"].values, dtype=float)
-        if "v_max" in campaign.coords
+        campaign_operating(campaign, system)
+        if system is not None and all(c in campaign for c in conditions)
         else np.full(n_run, np.nan)
     )
     acc = np.asarray(campaign["acceleration"].transpose("run", "channel", "time").values)
@@ -254,7 +263,8 @@ def classify_stage(
         entry: dict[str, Any] = {
             "run": index[i],
             "state": str(states[i]),
-            "v_max": _clean(speeds[i]),
+            "operating": _operating(speeds[i]),
+            **{c: _clean(v) for c, v in zip(conditions, np.atleast_1d(speeds[i]), strict=True)},
             "predicted": None,
             "probabilities": None,
             "entropy": None,

@@ -65,11 +65,10 @@ def features_of(diagnosis: Any) -> Features | None:
 
 def catalogue_of(system: AbstractSystem, diagnosis: Any = None) -> Catalogue | None:
     """The catalogue of candidate causes: the diagnosis's, else the system's, else ``None``."""
-    for owner in (diagnosis, system):
-        catalogue = getattr(owner, "catalogue", None)
-        if isinstance(catalogue, Catalogue):
-            return catalogue
-    return None
+    catalogue = getattr(diagnosis, "catalogue", None)
+    if isinstance(catalogue, Catalogue):
+        return catalogue
+    return system.catalogue
 
 
 def save_diagnosis(

@@ -42,6 +42,7 @@ from ..datagen import (
 )
 from ..inference import calibration_runs, fit_campaign
 from ..io import atomic_write
+from ..io import operating as campaign_operating
 from ..systems import AbstractSystem
 from ._classify import classify_stage, ood_model_error, report_stage, train_stage
 from ._diagnose import DIAGNOSIS_HTML, DIAGNOSIS_JSON, default_diagnose, diagnosis_stage
@@ -289,13 +290,14 @@ def generation_settings(
 ) -> Generation:
     """What the generation stage simulates, and the configuration that decides its reuse.
 
-    The speeds are the campaign's commanded ``v_max`` values (operating conditions, not
-    labels); the parameters come from :func:`parameter_source`.
+    The operating points are the campaign's (its runs' operating conditions, not labels);
+    the parameters come from :func:`parameter_source`.
     """
     params, model_error = parameter_source(system, fit, source, sizes.gaussian_sd)
-    speeds = np.unique(np.asarray(campaign["v_max"].values, dtype=float))
+    points = np.unique(campaign_operating(campaign, system), axis=0)
+    finite = np.isfinite(points.reshape(len(points), -1)).all(axis=1)
     config = GenerationConfig(
-        speeds[np.isfinite(speeds)],
+        points[finite],
         runs_per_state=sizes.runs_per_state,
         validation_fraction=sizes.validation_fraction,
         chunk_size=sizes.chunk_size,

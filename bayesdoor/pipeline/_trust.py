@@ -49,6 +49,7 @@ from ..datagen import (
     measurement_variance,
     with_measured_discrepancy,
 )
+from ..io import operating as campaign_operating
 from ._classify import _write_json, classify_stage, runs_in_state
 
 ADEQUACY_JSON = "adequacy.json"
@@ -83,7 +84,7 @@ def training_data(
     return with_measured_discrepancy(
         data,
         campaign_features(known),
-        np.asarray(known["v_max"].values, dtype=float),
+        campaign_operating(known),
         seed=seed,
         state=KNOWN_STATE,
     )
@@ -123,7 +124,7 @@ def _adequacy(
     data: TrainingData, known: xr.Dataset, *, seed: int, discrepancy: bool
 ) -> dict[str, Any]:
     features = campaign_features(known)
-    speeds = np.asarray(known["v_max"].values, dtype=float)
+    speeds = campaign_operating(known)
     variance = measurement_variance(data)
     model = fit_adequacy(
         data, features, speeds, variance, state=KNOWN_STATE, seed=seed, alpha=TRUST_ALPHA
@@ -299,18 +300,18 @@ def trust_stage(
     picks = [
         (i, r)
         for i, r in enumerate(classification["runs"])
-        if r["predicted"] == KNOWN_STATE and r["v_max"] is not None
+        if r["predicted"] == KNOWN_STATE and _known(r["operating"])
     ]
     if picks and KNOWN_STATE in data.states:
         with np.load(classified / "features.npz", allow_pickle=False) as f:
             features = f["features"][[i for i, _ in picks]]
-        simulated = set(np.round(data.speeds, 9).tolist())
-        at = [j for j, (_, r) in enumerate(picks) if round(r["v_max"], 9) in simulated]
+        simulated = {_key(s) for s in np.asarray(data.speeds)}
+        at = [j for j, (_, r) in enumerate(picks) if _key(r["operating"]) in simulated]
         try:
             scores, bounds = healthy_outliers(
                 data,
                 features[at],
-                [picks[j][1]["v_max"] for j in at],
+                np.asarray([picks[j][1]["operating"] for j in at], dtype=float),
                 measurement_variance(data),
                 seed=seed,
                 alpha=TRUST_ALPHA,
@@ -324,3 +325,13 @@ def trust_stage(
         folder / TRUST_JSON,
         judge_trust(adequacy, known, classification, training, unlike),
     )
+
+
+def _known(point) -> bool:
+    """Whether a run's operating point (a number or a list) is known in full."""
+    return point is not None and all(v is not None for v in np.atleast_1d(point))
+
+
+def _key(point) -> tuple[float, ...]:
+    """A hashable operating point, rounded so that the JSON's and the arrays' values meet."""
+    return tuple(round(float(v), 9) for v in np.atleast_1d(np.asarray(point, dtype=float)))

@@ -217,7 +217,7 @@ def bands_figure(
         fontsize=8,
         frameon=False,
     )
-    fig.suptitle(f"posterior-predictive bands at v_max = {speed:g} m/s", fontsize=10)
+    fig.suptitle(f"posterior-predictive bands at operating point {_point_text(speed)}", fontsize=10)
     return H.png(fig, dpi=90)
 
 
@@ -501,13 +501,12 @@ def write_damage_report(
     speeds = None if bands is None else np.asarray(bands["speeds"], dtype=float)
     band_classes = classes if bands is None else list(bands["states"])
     if band_values is not None and speeds is not None and valid:
-        run_speeds = np.array([r["v_max"] if r["v_max"] is not None else np.nan for r in runs])
         figures = []
         for j, v in enumerate(speeds):
             at = [
                 i
                 for i, r in enumerate(runs)
-                if r["probabilities"] is not None and np.isclose(run_speeds[i], v)
+                if r["probabilities"] is not None and np.allclose(_point(r), v)
             ]
             if not at:
                 continue
@@ -570,7 +569,7 @@ def write_damage_report(
             [
                 f'<a href="runs/{_run_file(r["run"])}">{r["run"]}</a>',
                 _tag(r["state"], colors),
-                _fmt(r["v_max"], 2),
+                _point_text(_point(r)),
                 _tag(r["predicted"], colors),
                 *[("-" if p is None else f"{p[c]:.3f}") for c in classes],
                 _fmt(r["entropy"]),
@@ -591,7 +590,7 @@ def write_damage_report(
                 [
                     "run",
                     "true",
-                    "v_max",
+                    "operating point",
                     "predicted",
                     *[f"p({c})" for c in classes],
                     "entropy",
@@ -634,8 +633,8 @@ def write_damage_report(
             )
             j = (
                 0
-                if speeds is None or r["v_max"] is None
-                else int(np.argmin(np.abs(speeds - r["v_max"])))
+                if speeds is None or not np.all(np.isfinite(_point(r)))
+                else int(np.argmin(np.abs(speeds - _point(r)).reshape(len(speeds), -1).sum(1)))
             )
             if j not in renderers:
                 renderers[j] = _RunFigure(
@@ -645,7 +644,7 @@ def write_damage_report(
                     band_classes,
                     ylims,
                 )
-            speed_note = "" if speeds is None else f" at v_max = {speeds[j]:g} m/s"
+            speed_note = "" if speeds is None else f" at operating point {_point_text(speeds[j])}"
             body.append(
                 H.img(
                     renderers[j].render(features[i]),
@@ -738,3 +737,16 @@ def trust_section(adequacy: Mapping[str, Any] | None, trust: Mapping[str, Any] |
             )
         )
     return H.section("Can these results be trusted?", *parts)
+
+
+def _point(run: dict) -> np.ndarray:
+    """A classified run's operating point (NaN where unknown), from its JSON entry."""
+    point = run.get("operating")
+    values = np.atleast_1d(np.asarray(point if point is not None else np.nan, dtype=object))
+    return np.array([np.nan if v is None else float(v) for v in values], dtype=float)
+
+
+def _point_text(point) -> str:
+    """An operating point as text: its value, or its values separated by ' / '."""
+    values = np.atleast_1d(np.asarray(point, dtype=float))
+    return " / ".join("-" if not np.isfinite(v) else f"{v:g}" for v in values)

@@ -192,7 +192,7 @@ def speed_figure(region: Region, speeds: Float[np.ndarray, " run"] | Sequence[fl
             fit.frequency_hz, color="tab:green", ls="--", label=f"f = {fit.frequency_hz:.1f} Hz"
         )
     ax.set_xlim(0.0, grid[-1])
-    ax.set_xlabel("run speed v_max (m/s)")
+    ax.set_xlabel("run speed (operating condition)")
     ax.set_ylabel("peak frequency (Hz)")
     ax.set_title(f"{region.channel}: speed dependence: {fit.preferred}", fontsize=10, loc="left")
     ax.legend(fontsize=8, frameon=False)
@@ -431,7 +431,7 @@ def gain_figure(
     for k, (name, x, d) in enumerate(series):
         ax.plot(x, d, "os^vDP"[k % 6], label=f"{name}: {int(np.sum(d > 0))} of {d.size} gain")
     ax.axhline(0.0, color="0.4", lw=0.8)
-    ax.set_xlabel("run speed v_max (m/s)")
+    ax.set_xlabel("run speed (operating condition)")
     ax.set_ylabel("held-out log predictive density, gain per run")
     ax.legend(fontsize=8, frameon=False)
     return H.png(fig, dpi=90)

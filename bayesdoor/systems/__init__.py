@@ -6,6 +6,14 @@ points.
 """
 
 from ._base import AbstractSystem as AbstractSystem
+from ._base import ConditionSpec as ConditionSpec
 from ._base import DamageSpec as DamageSpec
 from ._base import ParameterSpec as ParameterSpec
 from ._base import SimulationResult as SimulationResult
+from ._registry import ENTRY_POINT_GROUP as ENTRY_POINT_GROUP
+from ._registry import DemoCampaign as DemoCampaign
+from ._registry import available_demos as available_demos
+from ._registry import available_systems as available_systems
+from ._registry import get_demo as get_demo
+from ._registry import get_system as get_system
+from ._registry import register_system as register_system

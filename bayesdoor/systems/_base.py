@@ -43,6 +43,32 @@ class ParameterSpec:
 
 
 @dataclasses.dataclass(frozen=True)
+class ConditionSpec:
+    """One operating condition of a run (a door's peak speed, a shaft's speed or load).
+
+    Campaigns store it per run under ``name``; ``lower`` and ``upper`` bound what the model
+    can simulate (inclusive). ``positive``: the format requires a value above zero.
+    """
+
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    description: str = ""
+    positive: bool = True
+
+    def check(self, values) -> None:
+        """Raise ``ValueError`` naming the first value outside ``[lower, upper]``."""
+        unit = f" {self.unit}" if self.unit and self.unit != "-" else ""
+        for v in np.atleast_1d(np.asarray(values, dtype=float)).ravel():
+            if not np.isfinite(v) or not self.lower <= v <= self.upper:
+                raise ValueError(
+                    f"{self.name}={float(v)!r}{unit} is outside the range the model simulates, "
+                    f"[{self.lower:g}, {self.upper:g}]{unit} ({self.description})"
+                )
+
+
+@dataclasses.dataclass(frozen=True)
 class DamageSpec:
     """A damage mode (or the healthy state) with its severity parameters and their priors.
 
@@ -88,6 +114,15 @@ class AbstractSystem(eqx.Module):
     @property
     @abc.abstractmethod
     def channels(self) -> tuple[str, ...]: ...
+
+    @property
+    @abc.abstractmethod
+    def conditions(self) -> tuple[ConditionSpec, ...]:
+        """The operating conditions of a run, in the order of ``operating``'s columns.
+
+        Every method that takes ``operating`` takes one value per run for a single condition
+        (shape ``(run,)``), and ``(run, len(conditions))`` for several.
+        """
 
     @property
     @abc.abstractmethod
@@ -178,6 +213,12 @@ class AbstractSystem(eqx.Module):
         return zero, one.signals - zero.signals
 
     @property
+    def catalogue(self):
+        """The system's catalogue of discrepancy causes, for diagnosis (a
+        :class:`bayesdoor.diagnose.Catalogue`); ``None`` for a system without one."""
+        return None
+
+    @property
     def extension_names(self) -> tuple[str, ...]:
         """Catalogue names of the model extensions switched on (none by default)."""
         return ()
@@ -231,6 +272,24 @@ class AbstractSystem(eqx.Module):
                     f"unknown parameter {k!r} for system {self.name}: allowed {', '.join(specs)}"
                 )
             specs[k].check(v)
+
+    def condition_names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.conditions)
+
+    def check_operating(self, operating) -> None:
+        """Raise ``ValueError`` for operating conditions the model cannot simulate."""
+        values = np.asarray(operating, dtype=float)
+        if len(self.conditions) == 1:
+            self.conditions[0].check(values)
+            return
+        values = np.atleast_2d(values)
+        if values.shape[-1] != len(self.conditions):
+            raise ValueError(
+                f"operating has {values.shape[-1]} columns; {self.name} has the conditions "
+                f"{', '.join(self.condition_names())}"
+            )
+        for i, spec in enumerate(self.conditions):
+            spec.check(values[..., i])
 
     def check_state(self, state: str) -> DamageSpec:
         if state not in self.states:

@@ -186,3 +186,18 @@ def load_demo_truth(
     """
     _, truth_path = _ensure(calibration_runs, test_runs_per_state, show_progress)
     return json.loads(truth_path.read_text())
+
+
+class _DoorDemo:
+    """The door's demo campaign for ``bayesdoor demo`` (a
+    :class:`bayesdoor.systems.DemoCampaign`)."""
+
+    def cached_path(self) -> Path:
+        return demo_paths()[0]
+
+    def load(self, *, show_progress: bool) -> xr.Dataset:
+        return load_demo_campaign(show_progress=show_progress)
+
+
+#: the demo campaign that the ``bayesdoor.demos`` entry point names
+DEMO = _DoorDemo()

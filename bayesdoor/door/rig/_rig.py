@@ -352,6 +352,7 @@ class VirtualRig(eqx.Module):
             channels=CHANNELS,
             fs=cfg.sampling_rate_hz,
             state=states,
+            system="elevator_door",
             v_max=speeds,
             t_start=np.full(runs, d.REST_S),
             t_stop=d.REST_S + strokes,

@@ -1,0 +1,340 @@
+"""The drive-end bearing of the CWRU stand as a :class:`~bayesdoor.systems.AbstractSystem`.
+
+A phenomenological model of the drive-end accelerometer (one channel ``DE``, m/s^2): shaft
+harmonics, resonances excited by a broadband background and, for a localised fault, by
+impulses at the kinematic fault frequency with slip jitter and load-zone modulation, plus
+measurement noise (see :mod:`bayesdoor.bearing._model` and docs/bearing.md). References:
+McFadden and Smith, "Model for the vibration produced by a single point defect in a rolling
+element bearing", JSV 96(1), 1984, 69-82; Randall and Antoni, "Rolling element bearing
+diagnostics - A tutorial", MSSP 25, 2011, 485-520; Antoni and Randall, "A stochastic model for
+simulation and diagnostics of rolling element bearings with localized faults", J. Vib. Acoust.
+125, 2003, 282-289.
+
+Randomness (slip jitter, phases, defect angle, background and noise) comes from a key derived
+from the system's ``seed`` folded with the run's index in the batch and the bits of its shaft
+speed and load: the same inputs give the same signal (common random numbers, so a likelihood
+is a smooth function of the parameters and ``jax.grad`` holds the draws fixed).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..systems import AbstractSystem, ConditionSpec, DamageSpec, ParameterSpec, SimulationResult
+from ._geometry import CWRU_DRIVE_END, BearingGeometry
+from ._model import impulse_capacity, run_signal
+
+#: the sampling rate of the CWRU drive-end records modelled, Hz
+FS = 12000.0
+#: the fault states and the prior range of their severity ``fault_size_in``, inch
+FAULT_SIZE_RANGE = (0.005, 0.025)
+
+PARAMETERS = (
+    ParameterSpec(
+        "resonance_1_hz", "Hz", 3200.0, 2000.0, 4500.0, "natural frequency of the housing mode"
+    ),
+    ParameterSpec("damping_1", "-", 0.05, 0.005, 0.3, "damping ratio of the housing mode"),
+    ParameterSpec(
+        "resonance_2_hz", "Hz", 5000.0, 4000.0, 5800.0, "natural frequency of the higher mode"
+    ),
+    ParameterSpec("damping_2", "-", 0.05, 0.005, 0.3, "damping ratio of the higher mode"),
+    ParameterSpec(
+        "resonance_2_gain", "-", 0.3, 0.0, 3.0, "ring-down amplitude of the higher mode per unit "
+        "of the housing mode's"
+    ),
+    ParameterSpec(
+        "impulse_amplitude",
+        "m/s^2",
+        20.0,
+        0.0,
+        300.0,
+        "ring-down amplitude of the housing mode per impulse of a 0.014 in defect",
+    ),
+    ParameterSpec("slip", "-", 0.01, 0.0, 0.05, "rms jitter of the impulse spacing (slip)"),
+    ParameterSpec("shaft_amplitude", "m/s^2", 0.05, 0.0, 2.0, "amplitude of the 1x shaft line"),
+    ParameterSpec(
+        "roughness_rms", "m/s^2", 0.1, 0.0, 5.0, "rms of the broadband resonance response"
+    ),
+    ParameterSpec("noise_rms", "m/s^2", 0.05, 0.0, 2.0, "rms of the white measurement noise"),
+)
+
+STATES = {
+    "healthy": DamageSpec("healthy", "no localised defect"),
+    "inner_race": DamageSpec(
+        "inner_race", "a defect on the inner race", {"fault_size_in": FAULT_SIZE_RANGE}
+    ),
+    "outer_race": DamageSpec(
+        "outer_race",
+        "a defect on the outer race at 6 o'clock (in the load zone)",
+        {"fault_size_in": FAULT_SIZE_RANGE},
+    ),
+    "ball": DamageSpec("ball", "a defect on one ball", {"fault_size_in": FAULT_SIZE_RANGE}),
+}
+
+CONDITIONS = (
+    ConditionSpec("shaft_speed", "rpm", 1600.0, 1900.0, "shaft speed"),
+    ConditionSpec(
+        "load_hp",
+        "hp",
+        0.0,
+        3.0,
+        "motor load (recorded; the model depends on it only through the shaft speed)",
+        positive=False,
+    ),
+)
+
+
+class BearingSystem(AbstractSystem):
+    """The CWRU drive-end bearing (SKF 6205-2RS): one accelerometer ``DE`` at 12 kHz.
+
+    Operating conditions: ``shaft_speed`` (rpm) and ``load_hp``, the columns of
+    ``operating`` (shape ``(run, 2)``; one run may be given as ``(2,)``).
+
+    Parameters
+    ----------
+    geometry
+        The bearing's geometry (the fault frequencies follow from it).
+    segment_s
+        The length of a record, s (:meth:`record_duration`).
+    seed
+        The seed of every run's random key (see the module docstring).
+    harmonic_ratios
+        The shaft harmonics' amplitudes (1x, 2x, 3x) per ``shaft_amplitude``.
+    load_zone_epsilon
+        Load distribution factor of the Stribeck load zone (0.5: half the circumference).
+    ball_inner_ratio
+        Weight of a ball defect's strikes on the inner race (those on the outer race: 1).
+    entry_ratio
+        Area of a defect passage's gradual entry (unloading) per unit of its exit impact.
+
+    Examples
+    --------
+    >>> system = BearingSystem()
+    >>> result = system.simulate_values(
+    ...     system.nominal(), [1797.0, 0.0], state="outer_race", severity={"fault_size_in": 0.007}
+    ... )
+    >>> result.signals.shape
+    (1, 1, 12000)
+    """
+
+    geometry: BearingGeometry = eqx.field(static=True, default=CWRU_DRIVE_END)
+    segment_s: float = eqx.field(static=True, default=1.0)
+    seed: int = eqx.field(static=True, default=0)
+    harmonic_ratios: tuple[float, ...] = eqx.field(static=True, default=(1.0, 0.6, 0.8))
+    load_zone_epsilon: float = eqx.field(static=True, default=0.5)
+    ball_inner_ratio: float = eqx.field(static=True, default=0.5)
+    entry_ratio: float = eqx.field(static=True, default=0.3)
+
+    def __check_init__(self) -> None:
+        if not self.segment_s > 0:
+            raise ValueError(f"segment_s must be positive, got {self.segment_s!r}")
+        if not 0 < self.load_zone_epsilon:
+            raise ValueError(f"load_zone_epsilon must be positive, got {self.load_zone_epsilon}")
+
+    @property
+    def name(self) -> str:
+        return "bearing"
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        return PARAMETERS
+
+    @property
+    def states(self) -> dict[str, DamageSpec]:
+        return dict(STATES)
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        return ("DE",)
+
+    @property
+    def conditions(self) -> tuple[ConditionSpec, ...]:
+        return CONDITIONS
+
+    @property
+    def sampling_rate_hz(self) -> float:
+        return FS
+
+    def describe(self) -> dict:
+        """Name, geometry and the model's fixed settings (JSON-able)."""
+        return {
+            "name": self.name,
+            "extensions": [],
+            "geometry": {
+                "n_balls": self.geometry.n_balls,
+                "ball_diameter_in": self.geometry.ball_diameter_in,
+                "pitch_diameter_in": self.geometry.pitch_diameter_in,
+                "contact_angle_deg": self.geometry.contact_angle_deg,
+            },
+            "segment_s": self.segment_s,
+            "seed": self.seed,
+            "harmonic_ratios": list(self.harmonic_ratios),
+            "load_zone_epsilon": self.load_zone_epsilon,
+            "ball_inner_ratio": self.ball_inner_ratio,
+            "entry_ratio": self.entry_ratio,
+        }
+
+    def fault_frequencies(self, shaft_speed_rpm: float) -> dict[str, float]:
+        """BPFO, BPFI, FTF and BSF (Hz) at a shaft speed in rpm, from the geometry."""
+        return self.geometry.fault_frequencies(shaft_speed_rpm / 60.0)
+
+    def _runs(self, operating) -> int:
+        return int(np.atleast_2d(np.asarray(operating)).shape[0])
+
+    def record_duration(self, operating) -> float:
+        """The segment length, s, whatever the operating conditions."""
+        return float(self.segment_s)
+
+    def motion_window(self, operating, *, duration=None):
+        """The whole record, from its first sample to its last: the shaft turns throughout."""
+        runs = self._runs(operating)
+        n_time = round((self.segment_s if duration is None else float(duration)) * FS)
+        return np.zeros(runs), np.full(runs, (n_time - 1) / FS)
+
+    def simulate(self, theta, damage, operating, *, duration=None) -> SimulationResult:
+        """Runs for parameter values ``theta`` (by name) and a damage.
+
+        ``damage`` is a state name (severity at the middle of its prior range) or a pair
+        ``(state, {"fault_size_in": ...})``.
+        """
+        if isinstance(damage, str):
+            state, severity = damage, None
+        else:
+            state, severity = damage
+        return self.simulate_values(
+            theta, operating, state=state, severity=severity, duration=duration
+        )
+
+    def simulate_values(
+        self,
+        values,
+        operating,
+        *,
+        state: str = "healthy",
+        severity=None,
+        duration: float | None = None,
+        check: bool = True,
+    ) -> SimulationResult:
+        """A batch of runs as one vmapped, jitted computation.
+
+        Parameters
+        ----------
+        values
+            Every parameter by name (:attr:`parameters`), scalars or arrays of one value per
+            run.
+        operating
+            ``(run, 2)``: shaft speed (rpm) and load (hp) of each run; ``(2,)`` for one run.
+        state
+            ``healthy``, ``inner_race``, ``outer_race`` or ``ball``.
+        severity
+            ``{"fault_size_in": ...}`` for a fault (default: the middle of its prior range).
+        duration
+            Record length, s (default :attr:`segment_s`).
+        check
+            Check names, bounds and operating conditions on the host.
+
+        Returns
+        -------
+        result
+            Signals (run, 1, time) in m/s^2; the status of a run is 1 where its signal is not
+            finite (its signal is then zero), else 0.
+        """
+        spec = self.check_state(state)
+        severity = dict(severity or {})
+        unknown = sorted(set(severity) - set(spec.severity))
+        if unknown:
+            raise ValueError(
+                f"unknown severity {unknown} for state {state!r} of {self.name}: allowed "
+                f"{', '.join(spec.severity) or 'none'}"
+            )
+        names = self.parameter_names()
+        missing = [k for k in names if k not in values]
+        extra = [k for k in values if k not in names]
+        if missing or extra:
+            raise ValueError(
+                f"values must name every parameter of {self.name} ({', '.join(names)}); "
+                f"missing {missing or 'none'}, unknown {extra or 'none'}"
+            )
+        op = jnp.atleast_2d(jnp.asarray(operating))
+        if op.ndim != 2 or op.shape[-1] != len(CONDITIONS):
+            raise ValueError(
+                f"operating must have shape (run, {len(CONDITIONS)}) (columns "
+                f"{', '.join(self.condition_names())}), got {jnp.shape(operating)}"
+            )
+        dtype = jnp.result_type(float)
+        op = op.astype(dtype)
+        runs = op.shape[0]
+        size = severity.get("fault_size_in", 0.5 * sum(FAULT_SIZE_RANGE))
+        if check:
+            self._check_host(values, op, state, size)
+        p = {
+            k: jnp.broadcast_to(jnp.asarray(values[k], dtype=dtype), (runs,)) for k in names
+        }
+        size_arr = jnp.broadcast_to(jnp.asarray(size, dtype=dtype), (runs,))
+        n_time = round((self.segment_s if duration is None else float(duration)) * FS)
+        signals, status = _simulate(self, p, op, size_arr, state, n_time)
+        time = jnp.arange(n_time, dtype=dtype) / FS
+        return SimulationResult(signals=signals, status=status, time=time)
+
+    def _check_host(self, values, op, state: str, size) -> None:
+        for spec in self.parameters:
+            v = np.asarray(values[spec.name], dtype=float)
+            spec.check(float(np.nan if not np.isfinite(v).all() else v.min()))
+            spec.check(float(v.max()))
+        self.check_operating(np.asarray(op))
+        if state != "healthy":
+            s = np.asarray(size, dtype=float)
+            lo, hi = FAULT_SIZE_RANGE
+            if not (np.isfinite(s).all() and s.min() >= lo and s.max() <= hi):
+                raise ValueError(
+                    f"fault_size_in={s.ravel().tolist()} is outside its range [{lo}, {hi}] in"
+                )
+
+
+def _float_bits(x: jax.Array) -> jax.Array:
+    return jax.lax.bitcast_convert_type(x.astype(jnp.float32), jnp.uint32)
+
+
+@eqx.filter_jit
+def _simulate(system: BearingSystem, p, op, size, state: str, n_time: int):
+    geometry = system.geometry
+    orders = geometry.orders()
+    order = geometry.impulse_order(state) if state != "healthy" else 1.0
+    slip_max = next(s.upper for s in PARAMETERS if s.name == "slip")
+    rpm_max = CONDITIONS[0].upper
+    capacity = impulse_capacity(n_time / FS, order, 1.5 * rpm_max / 60.0, slip_max)
+    base = jax.random.PRNGKey(system.seed)
+    runs = op.shape[0]
+
+    def one(p_run, op_run, size_run, index):
+        key = jax.random.fold_in(base, index)
+        key = jax.random.fold_in(key, _float_bits(op_run[0]))
+        key = jax.random.fold_in(key, _float_bits(op_run[1]))
+        return run_signal(
+            p_run,
+            op_run[0] / 60.0,
+            size_run,
+            key,
+            state=state,
+            n_time=n_time,
+            fs=FS,
+            order=order,
+            ftf_order=orders["ftf"],
+            surface_speed_per_hz=geometry.surface_speed_per_hz(),
+            n_impulses=capacity,
+            harmonics=system.harmonic_ratios,
+            epsilon=system.load_zone_epsilon,
+            ball_inner_ratio=system.ball_inner_ratio,
+            entry_ratio=system.entry_ratio,
+        )
+
+    x = jax.vmap(one)(p, op, size, jnp.arange(runs, dtype=jnp.uint32))
+    ok = jnp.all(jnp.isfinite(x), axis=-1)
+    status = jnp.where(ok, 0, 1).astype(jnp.int32)
+    x = jnp.where(ok[:, None], x, 0.0)
+    return x[:, None, :], status

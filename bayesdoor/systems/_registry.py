@@ -1,0 +1,102 @@
+"""Systems found by name: the ``bayesdoor.systems`` entry points, and systems registered here.
+
+A package adds a system by declaring an entry point in its ``pyproject.toml``::
+
+    [project.entry-points."bayesdoor.systems"]
+    my_machine = "my_package:MyMachine"
+
+where ``MyMachine`` is an :class:`~bayesdoor.systems.AbstractSystem` whose ``name`` is
+``my_machine``. :func:`register_system` adds one for the running process only (a notebook, a
+test).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import Any, Protocol
+
+from ._base import AbstractSystem
+
+#: the entry-point group that names systems
+ENTRY_POINT_GROUP = "bayesdoor.systems"
+#: the entry-point group of demo campaigns, named after their system
+DEMO_GROUP = "bayesdoor.demos"
+_REGISTERED: dict[str, Callable[[], AbstractSystem]] = {}
+
+
+def register_system(name: str, factory: Callable[[], AbstractSystem]) -> None:
+    """Make ``factory()`` the system called ``name`` in this process (before entry points)."""
+    if not name or not isinstance(name, str):
+        raise ValueError(f"a system's name must be a non-empty string, got {name!r}")
+    _REGISTERED[name] = factory
+
+
+def available_systems() -> tuple[str, ...]:
+    """The names of every system found: registered here and through entry points, sorted."""
+    found = {ep.name for ep in entry_points(group=ENTRY_POINT_GROUP)}
+    return tuple(sorted(found | set(_REGISTERED)))
+
+
+def get_system(name: str) -> AbstractSystem:
+    """The system called ``name``, built with its defaults.
+
+    Raises
+    ------
+    LookupError
+        For a name that no registered system or entry point carries; the message lists the
+        names available.
+    """
+    if name in _REGISTERED:
+        return _check(name, _REGISTERED[name]())
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name == name:
+            return _check(name, ep.load()())
+    raise LookupError(
+        f"no system called {name!r}: available {', '.join(available_systems()) or 'none'} "
+        f"(a package adds one through the {ENTRY_POINT_GROUP!r} entry points)"
+    )
+
+
+def _check(name: str, system) -> AbstractSystem:
+    if not isinstance(system, AbstractSystem):
+        raise TypeError(f"the system {name!r} is a {type(system).__name__}, not an AbstractSystem")
+    return system
+
+
+class DemoCampaign(Protocol):
+    """A campaign that a system ships for ``bayesdoor demo``: recorded on first use, cached."""
+
+    def cached_path(self) -> Path:
+        """Where the campaign is cached (it exists once recorded)."""
+        ...
+
+    def load(self, *, show_progress: bool) -> Any:
+        """The campaign (an ``xarray.Dataset``), recorded first when not cached."""
+        ...
+
+
+def available_demos() -> tuple[str, ...]:
+    """The systems that ship a demo campaign (``bayesdoor.demos`` entry points), sorted."""
+    return tuple(sorted({ep.name for ep in entry_points(group=DEMO_GROUP)}))
+
+
+def get_demo(name: str | None = None) -> DemoCampaign:
+    """The demo campaign of system ``name`` (``None``: the first available, by name).
+
+    Raises
+    ------
+    LookupError
+        When no such demo is declared; the message lists those available.
+    """
+    names = available_demos()
+    if name is None and names:
+        name = names[0]
+    for ep in entry_points(group=DEMO_GROUP):
+        if ep.name == name:
+            return ep.load()
+    raise LookupError(
+        f"no demo campaign for {name!r}: available {', '.join(names) or 'none'} (a package "
+        f"declares one through the {DEMO_GROUP!r} entry points)"
+    )

@@ -1,0 +1,166 @@
+"""The CWRU drive-end bearing model: geometry, the interface, fault signatures, jit/vmap/grad."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bayesdoor.bearing import CWRU_DRIVE_END, BearingGeometry, BearingSystem, envelope_spectrum
+from bayesdoor.bearing._envelope import line_strength
+from bayesdoor.systems import AbstractSystem, get_system
+
+RPM = 1797.0
+OPERATING = [RPM, 0.0]
+
+
+@pytest.fixture(scope="module")
+def system():
+    return BearingSystem()
+
+
+@pytest.fixture(scope="module")
+def signals(system):
+    """One run of each state at 1797 rpm and 0 hp, nominal parameters, 0.007 in faults."""
+    out = {}
+    for state in ("healthy", "outer_race", "inner_race", "ball"):
+        severity = None if state == "healthy" else {"fault_size_in": 0.007}
+        result = system.simulate_values(system.nominal(), OPERATING, state=state, severity=severity)
+        assert result.signals.shape == (1, 1, 12000)
+        assert int(result.status[0]) == 0
+        out[state] = np.asarray(result.signals[0, 0])
+    return out
+
+
+def test_fault_orders_match_the_cwru_table():
+    orders = CWRU_DRIVE_END.orders()
+    expected = {"bpfi": 5.4152, "bpfo": 3.5848, "ftf": 0.39828, "bsf": 2.357}
+    for name, value in expected.items():
+        assert abs(orders[name] - value) < 1e-3, (name, orders[name])
+    assert CWRU_DRIVE_END.impulse_order("ball") == pytest.approx(2 * orders["bsf"])
+    hz = CWRU_DRIVE_END.fault_frequencies(RPM / 60)
+    assert hz["bpfo"] == pytest.approx(3.5848 * RPM / 60, rel=1e-4)
+    # rolling without slip: the surface speed is the cage speed at the outer contact
+    d, big_d = 0.3126 * 0.0254, 1.537 * 0.0254
+    expected_speed = np.pi * (big_d**2 - d**2) / (2 * big_d)
+    assert CWRU_DRIVE_END.surface_speed_per_hz() == pytest.approx(expected_speed)
+
+
+def test_geometry_rejects_impossible_bearings():
+    with pytest.raises(ValueError, match="smaller than the pitch diameter"):
+        BearingGeometry(ball_diameter_in=2.0, pitch_diameter_in=1.5)
+
+
+def test_the_registry_returns_the_bearing(system):
+    found = get_system("bearing")
+    assert isinstance(found, AbstractSystem)
+    assert found == system
+
+
+def test_interface(system):
+    assert system.name == "bearing"
+    assert system.channels == ("DE",)
+    assert system.sampling_rate_hz == 12000.0
+    assert 6 <= len(system.parameters) <= 10
+    for p in system.parameters:
+        p.check(p.nominal)
+        assert p.unit and p.description
+    assert set(system.states) == {"healthy", "inner_race", "outer_race", "ball"}
+    for name, spec in system.states.items():
+        expected = {} if name == "healthy" else {"fault_size_in": (0.005, 0.025)}
+        assert dict(spec.severity) == expected
+    assert system.condition_names() == ("shaft_speed", "load_hp")
+    assert system.conditions[1].positive is False
+    op = np.array([[1797.0, 0.0], [1772.0, 1.0], [1750.0, 2.0]])
+    system.check_operating(op)
+    assert system.record_duration(op) == 1.0
+    start, stop = system.motion_window(op)
+    np.testing.assert_array_equal(start, 0.0)
+    np.testing.assert_allclose(stop, 11999 / 12000)
+    assert system.motion_window(op, duration=0.5)[1][0] == pytest.approx(5999 / 12000)
+    json.dumps(system.describe())
+
+
+def test_bad_inputs_raise(system):
+    values = system.nominal()
+    with pytest.raises(ValueError, match="unknown state"):
+        system.simulate_values(values, OPERATING, state="cage")
+    with pytest.raises(ValueError, match="missing"):
+        system.simulate_values({k: v for k, v in values.items() if k != "slip"}, OPERATING)
+    with pytest.raises(ValueError, match="slip"):
+        system.simulate_values({**values, "slip": 0.5}, OPERATING)
+    with pytest.raises(ValueError, match="shape"):
+        system.simulate_values(values, [1797.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match="shaft_speed"):
+        system.simulate_values(values, [[3000.0, 0.0]])
+    with pytest.raises(ValueError, match="fault_size_in"):
+        system.simulate_values(values, OPERATING, state="ball", severity={"fault_size_in": 0.1})
+    with pytest.raises(ValueError, match="unknown severity"):
+        system.simulate_values(values, OPERATING, severity={"fault_size_in": 0.01})
+
+
+def _strength(x, target):
+    f, a = envelope_spectrum(x, 12000.0)
+    return line_strength(f, a, target, tolerance=0.02)
+
+
+def test_envelope_spectrum_peaks_at_the_fault_frequency(system, signals):
+    hz = system.fault_frequencies(RPM)
+    targets = {"outer_race": hz["bpfo"], "inner_race": hz["bpfi"]}
+    for state, target in targets.items():
+        f, a = envelope_spectrum(signals[state], 12000.0)
+        band = (f > 50) & (f < 400)
+        peak = f[band][np.argmax(a[band])]
+        assert abs(peak - target) <= 2.0, (state, peak, target)
+        assert _strength(signals[state], target)[1] > 10, state
+    # a ball's strikes on the two races: twice the spin frequency
+    assert _strength(signals["ball"], 2 * hz["bsf"])[1] > 5
+    for target in (hz["bpfo"], hz["bpfi"], 2 * hz["bsf"]):
+        assert _strength(signals["healthy"], target)[1] < 4, target
+
+
+def test_signal_levels(signals):
+    rms = {k: float(np.std(v)) for k, v in signals.items()}
+    assert 0.05 < rms["healthy"] < 1.0
+    for state in ("outer_race", "inner_race", "ball"):
+        assert rms[state] > 2 * rms["healthy"], rms
+
+
+def test_the_same_inputs_give_the_same_signal_and_size_raises_the_amplitude(system, signals):
+    again = system.simulate_values(
+        system.nominal(), OPERATING, state="outer_race", severity={"fault_size_in": 0.007}
+    )
+    np.testing.assert_array_equal(np.asarray(again.signals[0, 0]), signals["outer_race"])
+    big = system.simulate_values(
+        system.nominal(), OPERATING, state="outer_race", severity={"fault_size_in": 0.021}
+    )
+    assert np.std(np.asarray(big.signals)) > 2 * np.std(signals["outer_race"])
+
+
+def test_batches_vmap_jit_and_grad(system):
+    values = {**system.nominal(), "impulse_amplitude": jnp.array([10.0, 20.0, 40.0])}
+    op = jnp.array([[1797.0, 0.0], [1772.0, 1.0], [1750.0, 2.0]])
+
+    @jax.jit
+    def rms(amplitude, f1):
+        vals = {**values, "impulse_amplitude": amplitude, "resonance_1_hz": f1}
+        result = system.simulate_values(
+            vals,
+            op,
+            state="outer_race",
+            severity={"fault_size_in": 0.014},
+            duration=0.25,
+            check=False,
+        )
+        return jnp.sqrt(jnp.mean(result.signals**2, axis=(1, 2))), result.status
+
+    levels, status = rms(values["impulse_amplitude"], jnp.full(3, 3200.0))
+    assert levels.shape == (3,) and np.all(np.asarray(status) == 0)
+    assert levels[0] < levels[1] < levels[2]
+    grad = jax.grad(lambda a, f: rms(a, f)[0].sum(), argnums=(0, 1))(
+        values["impulse_amplitude"], jnp.full(3, 3200.0)
+    )
+    for g in grad:
+        assert np.all(np.isfinite(np.asarray(g)))
+    assert np.all(np.asarray(grad[0]) > 0)

@@ -25,12 +25,12 @@ so the ring-down grows with the amplitude; ``tau`` shapes the envelope (the entr
 separation). The impulses are placed at their exact times with a 16-tap windowed-sinc
 fractional delay, so the signal is differentiable in every parameter.
 
-Load zone (Stribeck's distribution, as in Randall and Antoni 2011): ``q(theta) = max(0, 1 - (1 - cos theta) /
-(2 eps))^1.5`` of the angle between the defect and the load direction: the inner-race defect
-turns with the shaft (``theta = 2 pi f_r t + phi``), a ball with the cage
-(``theta = 2 pi FTF t + phi``); an outer-race defect at 6 o'clock sits in the middle of the
-load zone (``q = 1``). A ball's strikes alternate between the outer race (weight 1) and the
-inner race (weight ``ball_inner_ratio``).
+Load zone (Stribeck's distribution, as in Randall and Antoni 2011):
+``q(theta) = max(0, 1 - (1 - cos theta) / (2 eps))^1.5`` of the angle between the defect and
+the load direction: the inner-race defect turns with the shaft (``theta = 2 pi f_r t + phi``),
+a ball with the cage (``theta = 2 pi FTF t + phi``); an outer-race defect at 6 o'clock sits
+in the middle of the load zone (``q = 1``). A ball's strikes alternate between the outer race
+(weight 1) and the inner race (weight ``ball_inner_ratio``).
 """
 
 from __future__ import annotations
@@ -174,9 +174,10 @@ def run_signal(
     )
 
     second = resonance_response(f, fs, p["resonance_2_hz"], p["damping_2"])
-    resonances = resonance_response(f, fs, p["resonance_1_hz"], p["damping_1"]) + p[
-        "resonance_2_gain"
-    ].astype(second.dtype) * second
+    resonances = (
+        resonance_response(f, fs, p["resonance_1_hz"], p["damping_1"])
+        + p["resonance_2_gain"].astype(second.dtype) * second
+    )
     # background: unit white noise through the resonances, scaled to its expected rms
     weight = jnp.ones_like(f).at[1:].set(2.0)
     if n_time % 2 == 0:

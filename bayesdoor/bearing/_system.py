@@ -18,8 +18,6 @@ is a smooth function of the parameters and ``jax.grad`` holds the draws fixed).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -44,8 +42,12 @@ PARAMETERS = (
     ),
     ParameterSpec("damping_2", "-", 0.05, 0.005, 0.3, "damping ratio of the higher mode"),
     ParameterSpec(
-        "resonance_2_gain", "-", 0.3, 0.0, 3.0, "ring-down amplitude of the higher mode per unit "
-        "of the housing mode's"
+        "resonance_2_gain",
+        "-",
+        0.3,
+        0.0,
+        3.0,
+        "ring-down amplitude of the higher mode per unit of the housing mode's",
     ),
     ParameterSpec(
         "impulse_amplitude",
@@ -264,7 +266,7 @@ class BearingSystem(AbstractSystem):
         if op.ndim != 2 or op.shape[-1] != len(CONDITIONS):
             raise ValueError(
                 f"operating must have shape (run, {len(CONDITIONS)}) (columns "
-                f"{', '.join(self.condition_names())}), got {jnp.shape(operating)}"
+                f"{', '.join(self.condition_names())}), got {np.shape(operating)}"
             )
         dtype = jnp.result_type(float)
         op = op.astype(dtype)
@@ -272,9 +274,7 @@ class BearingSystem(AbstractSystem):
         size = severity.get("fault_size_in", 0.5 * sum(FAULT_SIZE_RANGE))
         if check:
             self._check_host(values, op, state, size)
-        p = {
-            k: jnp.broadcast_to(jnp.asarray(values[k], dtype=dtype), (runs,)) for k in names
-        }
+        p = {k: jnp.broadcast_to(jnp.asarray(values[k], dtype=dtype), (runs,)) for k in names}
         size_arr = jnp.broadcast_to(jnp.asarray(size, dtype=dtype), (runs,))
         n_time = round((self.segment_s if duration is None else float(duration)) * FS)
         signals, status = _simulate(self, p, op, size_arr, state, n_time)

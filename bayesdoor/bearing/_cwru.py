@@ -367,8 +367,8 @@ def read_cwru(folder: str | Path, *, segment_s: float = 1.0, calibration_fractio
         Channel ``DE`` in m/s^2 at 12 kHz, system ``bearing``; per run ``state``, ``split``,
         ``record`` (file name without ``.mat``), ``shaft_speed`` (rpm), ``load_hp``,
         ``fault_size_in`` (0 for healthy), ``segment_start_s`` (within the record), and
-        ``t_start``/``t_stop`` (the whole segment: its first and last sample). Attribute ``source``: the importer's
-        summary as JSON.
+        ``t_start``/``t_stop`` (the whole segment: its first and last sample). Attribute
+        ``source``: the importer's summary as JSON.
 
     Raises
     ------
@@ -385,9 +385,9 @@ def read_cwru(folder: str | Path, *, segment_s: float = 1.0, calibration_fractio
         arrays["acceleration"],
         channels=["DE"],
         fs=FS,
-        state=arrays["state"],
+        state=arrays["state"].tolist(),
         system="bearing",
-        split=arrays["split"],
+        split=arrays["split"].tolist(),
         t_start=np.zeros(runs),
         t_stop=np.full(runs, (arrays["acceleration"].shape[-1] - 1) / FS),
         shaft_speed=arrays["shaft_speed"],

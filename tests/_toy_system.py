@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bayesdoor.systems import AbstractSystem, DamageSpec, ParameterSpec
+from bayesdoor.systems import AbstractSystem, ConditionSpec, DamageSpec, ParameterSpec
 
 FS = 2048.0
 REST = 0.1
@@ -83,6 +83,10 @@ class ToySystem(AbstractSystem):
     @property
     def sampling_rate_hz(self):
         return FS
+
+    @property
+    def conditions(self):
+        return (ConditionSpec("v_max", "m/s", 0.05, 2.0, "speed"),)
 
     def record_duration(self, operating):
         return DURATION

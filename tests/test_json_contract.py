@@ -36,6 +36,9 @@ from bayesdoor.inference import (
 )
 from bayesdoor.io import load_campaign, save_campaign
 
+#: the system and operating condition that `bayesdoor simulate` needs
+DOOR = ("--system", "elevator_door", "--condition", "v_max=0.4")
+
 ANY = None
 
 
@@ -248,11 +251,13 @@ def payloads(campaign_file, diagnosis, tmp_path_factory):
         mp.setattr(bayesdoor.inference, "posterior_predictive", made_up_predictive)
         mp.setattr(bayesdoor.diagnose, "diagnose_campaign", diagnose)
         mp.setattr(
-            bayesdoor.door.datasets, "load_demo_campaign", lambda **kw: load_campaign(campaign_file)
+            bayesdoor.door.datasets._demo,
+            "load_demo_campaign",
+            lambda **kw: load_campaign(campaign_file),
         )
         fast(mp, fit=fit_with_diagnostics, diagnose=diagnose)
         job = folder / "job"
-        payload("simulate", "simulate", "--out", folder / "sim.nc", "--state", "D1")
+        payload("simulate", "simulate", "--out", folder / "sim.nc", "--state", "D1", *DOOR)
         payload("inspect", "inspect", campaign_file)
         payload("fit", "fit", campaign_file, "--out", folder / "fit", "--method", "nuts")
         payload("run", "run", campaign_file, "--out", job, "--quick")

@@ -286,7 +286,7 @@ UNUSABLE = {
         for command in ("fit", "run", "diagnose")
     },
     "other_system": {
-        command: "the campaign's system attribute is 'robot_arm'; bayesdoor simulates elevator_door"
+        command: "no system called 'robot_arm': available bearing, elevator_door"
         for command in ("fit", "run", "diagnose")
     },
     "faulty": {
@@ -462,13 +462,25 @@ def demo_is(files, monkeypatch):
     from bayesdoor.io import load_campaign
 
     monkeypatch.setattr(
-        bayesdoor.door.datasets, "load_demo_campaign", lambda **kw: load_campaign(files["good"])
+        bayesdoor.door.datasets._demo,
+        "load_demo_campaign",
+        lambda **kw: load_campaign(files["good"]),
+    )
+    # cached already: the demo says nothing about recording it
+    monkeypatch.setattr(
+        bayesdoor.door.datasets._demo._DoorDemo, "cached_path", lambda _: files["good"]
     )
 
 
+#: the system and operating condition that `bayesdoor simulate` needs
+SIMULATE_DOOR = ("--system", "elevator_door", "--condition", "v_max=0.3")
+
 #: per command: its arguments (campaign, output, model) and the files of a previous result
 PREVIOUS = {
-    "simulate": (lambda path, out, model: ["simulate", "--out", out / "runs.nc"], ["runs.nc"]),
+    "simulate": (
+        lambda path, out, model: ["simulate", "--out", out / "runs.nc", *SIMULATE_DOOR],
+        ["runs.nc"],
+    ),
     "inspect": (COMMANDS["inspect"], ["inspect.json", "psd_0-100Hz.png", "psd_0-1024Hz.png"]),
     "fit": (COMMANDS["fit"], ["fit.json", "posterior.nc", "fit_summary.json"]),
     "run": (COMMANDS["run"], ["job.json", "fit/stage.json"]),
@@ -606,7 +618,7 @@ def test_simulate_interrupted_while_writing_leaves_no_file(tmp_path, monkeypatch
         raise KeyboardInterrupt
 
     monkeypatch.setattr(xr.Dataset, "to_netcdf", interrupted)
-    result = invoke("simulate", "--out", tmp_path / "runs.nc", "--v-max", "0.3")
+    result = invoke("simulate", "--out", tmp_path / "runs.nc", *SIMULATE_DOOR)
     stopped(result, "nothing was written", "run the same command again")
     assert list(tmp_path.iterdir()) == []
 
@@ -805,7 +817,7 @@ def test_demo_says_once_that_it_recorded_the_campaign_and_where(tmp_path, monkey
         return made
 
     jobs = []
-    monkeypatch.setattr(bayesdoor.door.datasets, "load_demo_campaign", record)
+    monkeypatch.setattr(bayesdoor.door.datasets._demo, "load_demo_campaign", record)
     monkeypatch.setattr(bayesdoor.cli._run, "run", lambda data, out, **o: jobs.append(data))
     first = invoke("demo", "--out", tmp_path / "demo", "--quick")
     assert first.exit_code == 0, first.output

@@ -180,6 +180,9 @@ def system_named(campaign: xr.Dataset, name: str | None = None) -> AbstractSyste
     attribute, found through the registry (:func:`bayesdoor.systems.get_system`)."""
     from ..systems import available_systems, get_system
 
+    if "acceleration" not in campaign:
+        where = campaign.encoding.get("source", "the file")
+        raise fail(f"{where} has no 'acceleration' (run, channel, time) variable: not a campaign")
     if name is None:
         name = str(campaign.attrs.get("system", "")).strip()
         if not name:

@@ -80,6 +80,7 @@ def load(
                 f"{name} takes one value for all {runs} runs of {path} or one per run (in "
                 f"file-name order), got {n}"
             )
+    per_run: dict[str, Any] = {k: list(v) * (runs // len(v)) for k, v in conditions.items()}
     try:
         if path.is_dir():
             campaign = from_csv(
@@ -87,7 +88,7 @@ def load(
                 check=False,
                 system=system,
                 state=list(state) * (runs // len(state)) if state else None,
-                **{k: list(v) * (runs // len(v)) for k, v in conditions.items()},
+                **per_run,
             )
             return campaign, []
         return load_campaign(path, check=False), []

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ._common import fail
@@ -73,7 +75,7 @@ def simulate_campaign(system, states, operating, *, seed: int, params, progress)
         raise fail(str(err)) from None
     rng = np.random.default_rng(seed)
     names = sorted({k for s in states for k in system.states[s].severity})
-    severities = {k: np.zeros(len(states)) for k in names}
+    severities: dict[str, Any] = {k: np.zeros(len(states)) for k in names}
     for i, state in enumerate(states):
         for k, (lo, hi) in system.states[state].severity.items():
             severities[k][i] = rng.uniform(lo, hi) if hi > lo else lo
@@ -98,7 +100,8 @@ def simulate_campaign(system, states, operating, *, seed: int, params, progress)
                 signals = np.zeros((len(states), *x.shape[1:]))
             signals[at] = x
     t_start, t_stop = system.motion_window(operating, duration=duration)
-    per_run = (
+    assert signals is not None
+    per_run: dict[str, Any] = (
         {system.conditions[0].name: np.asarray(operating, dtype=float)}
         if np.ndim(operating) == 1
         else {c.name: np.asarray(operating)[:, i] for i, c in enumerate(system.conditions)}

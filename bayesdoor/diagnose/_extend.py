@@ -181,6 +181,10 @@ class HeldExtension(AbstractSystem):
         return self.system.sampling_rate_hz
 
     @property
+    def conditions(self):
+        return self.system.conditions
+
+    @property
     def extension_names(self) -> tuple[str, ...]:
         return self.system.extension_names
 

@@ -18,9 +18,9 @@ def make_campaign(
     *,
     channels: Sequence[str],
     fs: float,
-    state: Sequence[str],
+    state: Sequence[str] | np.ndarray,
     system: str,
-    split: Sequence[str] | None = None,
+    split: Sequence[str] | np.ndarray | None = None,
     t_start: Sequence[float] | np.ndarray | None = None,
     t_stop: Sequence[float] | np.ndarray | None = None,
     **extra_run_coords,
@@ -97,7 +97,7 @@ def make_campaign(
         if value.shape != (runs,):
             raise ValueError(f"{name} needs one entry per run ({runs}), got shape {value.shape}")
     known = system_of(system)
-    labels = {"split": SPLIT_LABELS}
+    labels: dict[str, tuple[str, ...]] = {"split": SPLIT_LABELS}
     if known is not None:
         labels["state"] = state_labels(known)
     for name, allowed in labels.items():

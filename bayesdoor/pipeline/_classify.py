@@ -33,6 +33,7 @@ from ..features import CNNInputSpec
 from ..io import atomic_write, system_of
 from ..io import operating as campaign_operating
 from ..report import diagnosis_section, write_damage_report
+from ..systems import AbstractSystem
 from ._bands import PredictiveBands
 from ._fit import FitSummary
 
@@ -55,6 +56,12 @@ def _operating(value) -> float | list[float | None] | None:
     """A run's operating point for the JSON: a number, or a list for several conditions."""
     value = np.asarray(value, dtype=float)
     return _clean(float(value)) if value.ndim == 0 else [_clean(float(v)) for v in value]
+
+
+def _named(conditions: tuple[str, ...], point) -> dict[str, float | None]:
+    """A run's operating conditions by name (none when the system is not known)."""
+    values = np.broadcast_to(np.asarray(point, dtype=float), (len(conditions),))
+    return {c: _clean(float(v)) for c, v in zip(conditions, values, strict=True)}
 
 
 def _metrics(probabilities: np.ndarray, labels: np.ndarray) -> dict[str, Any]:
@@ -142,6 +149,7 @@ def ood_model_error(
     *,
     key: jax.Array,
     draws: int = 4000,
+    system: AbstractSystem | None = None,
 ) -> np.ndarray:
     """Draws of the model error for the OOD detector, from the fit and its calibration runs.
 
@@ -153,7 +161,7 @@ def ood_model_error(
     at the simulated speeds only the scatter is drawn.
     """
     healthy = runs_in_state(calibration, "healthy")
-    speeds = campaign_operating(healthy)
+    speeds = campaign_operating(healthy, system)
     simulated = set(np.asarray(data.subset("train").speeds).tolist())
     residuals = None
     if "healthy" in data.states and healthy.sizes["run"] and set(speeds.tolist()) <= simulated:
@@ -191,7 +199,12 @@ def model_file(model: Path) -> Path:
 
 
 def classify_stage(
-    model: Path, campaign: xr.Dataset, folder: Path, *, run_index: list[int] | None = None
+    model: Path,
+    campaign: xr.Dataset,
+    folder: Path,
+    *,
+    run_index: list[int] | None = None,
+    system: AbstractSystem | None = None,
 ) -> None:
     """Classify every run of ``campaign`` with the ensemble in ``model``.
 
@@ -199,7 +212,8 @@ def classify_stage(
     ``probabilities``, ``entropy``, ``mutual_information``, ``ood``; ``metrics`` over the
     runs whose true state is one of the classes) and ``features.npz``. A run whose record is
     not finite, or whose features cannot be computed, is reported with its ``problem`` and no
-    prediction; it does not stop the others.
+    prediction; it does not stop the others. Each run's operating conditions are reported
+    under their names (``system``: the campaign's; ``None``: the registered one it names).
     """
     path = model_file(model)
     ensemble = load_ensemble(path)
@@ -211,7 +225,7 @@ def classify_stage(
         if "state" in campaign.coords
         else np.full(n_run, "unknown")
     )
-    system = system_of(campaign)
+    system = system_of(campaign) if system is None else system
     conditions = () if system is None else system.condition_names()
     speeds = (
         campaign_operating(campaign, system)
@@ -264,7 +278,7 @@ def classify_stage(
             "run": index[i],
             "state": str(states[i]),
             "operating": _operating(speeds[i]),
-            **{c: _clean(v) for c, v in zip(conditions, np.atleast_1d(speeds[i]), strict=True)},
+            **_named(conditions, speeds[i]),
             "predicted": None,
             "probabilities": None,
             "entropy": None,

@@ -512,7 +512,12 @@ def run_job(
             "check": ADEQUACY_CHECK,
         },
         lambda folder: adequacy_stage(
-            gen_record.path / "data", calibration, folder, seed=seed, discrepancy=discrepancy
+            gen_record.path / "data",
+            calibration,
+            folder,
+            seed=seed,
+            discrepancy=discrepancy,
+            system=system,
         ),
         report=report,
     )
@@ -523,7 +528,11 @@ def run_job(
 
     def compute_train(folder: Path) -> None:
         data = training_data(
-            gen_record.path / "data", calibration, discrepancy=discrepancy, seed=seed
+            gen_record.path / "data",
+            calibration,
+            discrepancy=discrepancy,
+            seed=seed,
+            system=system,
         )
         train_stage(
             data,
@@ -533,7 +542,7 @@ def run_job(
             ood_quantile=sizes.ood_quantile,
             progress=progress,
             ood_model_error=ood_model_error(
-                data, calibration, summary, key=jax.random.fold_in(key, 3)
+                data, calibration, summary, key=jax.random.fold_in(key, 3), system=system
             ),
         )
 
@@ -557,7 +566,9 @@ def run_job(
         out,
         "classify",
         {"model": train_record.config_hash, "runs": digest_runs(test), "indices": runs},
-        lambda folder: classify_stage(train_record.path, test, folder, run_index=runs),
+        lambda folder: classify_stage(
+            train_record.path, test, folder, run_index=runs, system=system
+        ),
         report=report,
     )
     records.append(classify_record)
@@ -582,6 +593,7 @@ def run_job(
             folder,
             seed=seed,
             discrepancy=discrepancy,
+            system=system,
         ),
         report=report,
     )

@@ -50,6 +50,7 @@ from ..datagen import (
     with_measured_discrepancy,
 )
 from ..io import operating as campaign_operating
+from ..systems import AbstractSystem
 from ._classify import _write_json, classify_stage, runs_in_state
 
 ADEQUACY_JSON = "adequacy.json"
@@ -72,11 +73,17 @@ KNOWN_STATE = "healthy"
 
 
 def training_data(
-    data_folder: Path, calibration: xr.Dataset, *, discrepancy: bool, seed: int
+    data_folder: Path,
+    calibration: xr.Dataset,
+    *,
+    discrepancy: bool,
+    seed: int,
+    system: AbstractSystem | None = None,
 ) -> TrainingData:
     """The job's training data: the generated runs, with the measured discrepancy of the
     healthy calibration runs added when the source carries it
-    (:func:`bayesdoor.datagen.with_measured_discrepancy`)."""
+    (:func:`bayesdoor.datagen.with_measured_discrepancy`). ``system``: the campaign's system
+    (``None``: the registered one it names)."""
     data = load_training_data(data_folder)
     known = runs_in_state(calibration, KNOWN_STATE)
     if not discrepancy or KNOWN_STATE not in data.states or known.sizes["run"] == 0:
@@ -84,7 +91,7 @@ def training_data(
     return with_measured_discrepancy(
         data,
         campaign_features(known),
-        campaign_operating(known),
+        campaign_operating(known, system),
         seed=seed,
         state=KNOWN_STATE,
     )
@@ -97,6 +104,7 @@ def adequacy_stage(
     *,
     seed: int,
     discrepancy: bool = False,
+    system: AbstractSystem | None = None,
 ) -> None:
     """Write ``adequacy.json``: :func:`bayesdoor.datagen.fit_adequacy` of the calibration runs.
 
@@ -114,17 +122,16 @@ def adequacy_stage(
         )
         return
     try:
-        payload = _adequacy(data, known, seed=seed, discrepancy=discrepancy)
+        payload = _adequacy(data, known, campaign_operating(known, system), seed, discrepancy)
     except ValueError as err:  # too few simulated runs at a speed, for example
         payload = {"verdict": None, "reason": " ".join(str(err).split())}
     _write_json(folder / ADEQUACY_JSON, payload)
 
 
 def _adequacy(
-    data: TrainingData, known: xr.Dataset, *, seed: int, discrepancy: bool
+    data: TrainingData, known: xr.Dataset, speeds: np.ndarray, seed: int, discrepancy: bool
 ) -> dict[str, Any]:
     features = campaign_features(known)
-    speeds = campaign_operating(known)
     variance = measurement_variance(data)
     model = fit_adequacy(
         data, features, speeds, variance, state=KNOWN_STATE, seed=seed, alpha=TRUST_ALPHA
@@ -279,6 +286,7 @@ def trust_stage(
     *,
     seed: int,
     discrepancy: bool = False,
+    system: AbstractSystem | None = None,
 ) -> None:
     """Write ``trust.json`` and ``known/classification.json`` (the calibration runs' classes).
 
@@ -289,13 +297,15 @@ def trust_stage(
     known = None
     if known_runs.sizes["run"]:
         (folder / "known").mkdir(parents=True, exist_ok=True)
-        classify_stage(model, known_runs, folder / "known")
+        classify_stage(model, known_runs, folder / "known", system=system)
         known = json.loads((folder / "known" / "classification.json").read_text())
         known["runs"] = [r for r in known["runs"] if r["predicted"] is not None]
     classification = json.loads((classified / "classification.json").read_text())
     training = json.loads((model / "training.json").read_text())
     adequacy = json.loads((adequacy_folder / ADEQUACY_JSON).read_text())
-    data = training_data(data_folder, calibration, discrepancy=discrepancy, seed=seed)
+    data = training_data(
+        data_folder, calibration, discrepancy=discrepancy, seed=seed, system=system
+    )
     unlike: list[int] = []
     picks = [
         (i, r)

@@ -65,6 +65,13 @@ class FeatureSpec(eqx.Module):
                 f"noverlap must lie in [0, nperseg) = [0, {self.nperseg}), got {self.noverlap!r}"
             )
 
+    @classmethod
+    def of(cls, system) -> FeatureSpec:
+        """The fit's features as ``system`` declares them (:attr:`~bayesdoor.systems.
+        AbstractSystem.features`)."""
+        f = system.features
+        return cls(f_low=f.f_low, f_high=f.f_high, band_width=f.band_width, nperseg=f.nperseg)
+
     @property
     def step(self) -> int:
         """Samples between the starts of consecutive segments."""

@@ -252,7 +252,7 @@ def campaign_data(
     runs
         The runs to use.
     spec
-        The feature definition; ``None`` means ``FeatureSpec()``.
+        The feature definition; ``None`` means the system's (``FeatureSpec.of(system)``).
     max_motion_s
         Longest stretch of motion (s) to use; ``None``: all of it.
 
@@ -268,7 +268,7 @@ def campaign_data(
     ValueError
         For a sampling rate or channels that differ from the system's, or no runs.
     """
-    spec = FeatureSpec() if spec is None else spec
+    spec = FeatureSpec.of(system) if spec is None else spec
     runs = np.asarray(runs, dtype=int)
     if runs.size == 0:
         raise ValueError("runs is empty: pass the indices of at least one run")
@@ -1116,7 +1116,7 @@ def fit_campaign(
     settings
         The stage sizes (overrides ``quick``).
     spec
-        The feature definition; ``None`` means ``FeatureSpec()``.
+        The feature definition; ``None`` means the system's (``FeatureSpec.of(system)``).
     error
         The model-error prior; ``None`` means ``ModelError()``.
     x0
@@ -1150,7 +1150,7 @@ def fit_campaign(
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed={seed!r} must be an integer >= 0")
     settings = (FitSettings.quick() if quick else FitSettings()) if settings is None else settings
-    spec = FeatureSpec() if spec is None else spec
+    spec = FeatureSpec.of(system) if spec is None else spec
     integer_name, law = _integer_parameter(system, law)
     timings: dict[str, float] = {}
     notes: list[str] = []

@@ -40,6 +40,7 @@ from ..datagen import (
     describe_system,
     generate,
 )
+from ..features import CNNInputSpec
 from ..inference import calibration_runs, fit_campaign
 from ..io import atomic_write
 from ..io import operating as campaign_operating
@@ -301,6 +302,9 @@ def generation_settings(
         runs_per_state=sizes.runs_per_state,
         validation_fraction=sizes.validation_fraction,
         chunk_size=sizes.chunk_size,
+        spec=CNNInputSpec(
+            fmax=system.features.classifier_fmax, nperseg=system.features.classifier_nperseg
+        ),
     )
     stage = {
         "fit": fit_hash,

@@ -10,6 +10,7 @@ from ._base import ConditionSpec as ConditionSpec
 from ._base import DamageSpec as DamageSpec
 from ._base import ParameterSpec as ParameterSpec
 from ._base import SimulationResult as SimulationResult
+from ._base import SpectralFeatures as SpectralFeatures
 from ._registry import ENTRY_POINT_GROUP as ENTRY_POINT_GROUP
 from ._registry import DemoCampaign as DemoCampaign
 from ._registry import available_demos as available_demos

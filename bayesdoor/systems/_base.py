@@ -69,6 +69,26 @@ class ConditionSpec:
 
 
 @dataclasses.dataclass(frozen=True)
+class SpectralFeatures:
+    """What fitting and classification compare, as a system declares it: log Welch PSDs.
+
+    The fit compares band means of the log10 Welch PSD (``nperseg`` samples per segment)
+    from ``f_low`` to ``f_high`` in bands of ``band_width`` Hz
+    (:class:`bayesdoor.inference.FeatureSpec`); the classifier sees each channel's log10
+    Welch PSD from 0 Hz to ``classifier_fmax`` with ``classifier_nperseg`` samples per segment
+    (:class:`bayesdoor.features.CNNInputSpec`). The defaults are the elevator door paper's:
+    4-96 Hz in 4 Hz bands at 2048 Hz sampling.
+    """
+
+    f_low: float = 4.0
+    f_high: float = 96.0
+    band_width: float = 4.0
+    nperseg: int = 512
+    classifier_fmax: float = 96.0
+    classifier_nperseg: int = 512
+
+
+@dataclasses.dataclass(frozen=True)
 class DamageSpec:
     """A damage mode (or the healthy state) with its severity parameters and their priors.
 
@@ -211,6 +231,11 @@ class AbstractSystem(eqx.Module):
         zero = self.simulate_values(off, operating, duration=duration, check=check)
         one = self.simulate_values(on, operating, duration=duration, check=check)
         return zero, one.signals - zero.signals
+
+    @property
+    def features(self) -> SpectralFeatures:
+        """What fitting and classification compare (default: :class:`SpectralFeatures`'s)."""
+        return SpectralFeatures()
 
     @property
     def catalogue(self):

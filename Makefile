@@ -29,6 +29,7 @@ lint: install
 	$(BIN)/ruff check bayesdoor tests benchmarks scripts examples docs/api
 	$(BIN)/ruff format --check bayesdoor tests benchmarks scripts examples docs/api
 	$(BIN)/mypy
+	$(BIN)/lint-imports
 
 bench: install
 	$(BIN)/python benchmarks/bench_simulate.py

@@ -226,6 +226,42 @@ def demo(
     )
 
 
+@app.command("import")
+@on_interrupt("nothing was written (the campaign file is written whole or not at all)")
+def import_(
+    format: Annotated[str, typer.Argument(help="the data's format, e.g. cwru")],
+    source: Annotated[Path, typer.Argument(help="the measured data (a file or a folder)")],
+    out: Annotated[Path, typer.Option("--out", help="campaign file to write (.nc)")],
+    force: Annotated[bool, typer.Option(help="overwrite an existing file")] = False,
+    json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
+) -> None:
+    """Turn measured data into a campaign file, through the importer of its format."""
+    configure_jax()
+    from ..systems import get_importer
+
+    try:
+        importer = get_importer(format)
+    except LookupError as err:
+        raise fail(str(err)) from None
+    if not source.exists():
+        raise fail(f"{source}: no such file or folder")
+    if out.suffix != ".nc":
+        raise fail(f"--out must be a NetCDF file ending in .nc, got {out}")
+    check_output_path(out, force)
+    check_writable(out)
+    with _progress(json)(f"importing {source}"), writing(out):
+        try:
+            summary = importer(source, out, overwrite=force)
+        except (ValueError, OSError) as err:
+            raise fail(str(err)) from None
+    if json:
+        emit_json(summary)
+    else:
+        per_state = summary.get("runs_per_state", {})
+        states = ", ".join(f"{k} {v}" for k, v in per_state.items())
+        _err.print(f"wrote {summary.get('runs', '?')} runs ({states}) to {out}", soft_wrap=True)
+
+
 @app.command()
 @on_interrupt(
     "the classification was stopped before it started: nothing was written; run the same "

@@ -14,7 +14,9 @@ from ._base import SpectralFeatures as SpectralFeatures
 from ._registry import ENTRY_POINT_GROUP as ENTRY_POINT_GROUP
 from ._registry import DemoCampaign as DemoCampaign
 from ._registry import available_demos as available_demos
+from ._registry import available_importers as available_importers
 from ._registry import available_systems as available_systems
 from ._registry import get_demo as get_demo
+from ._registry import get_importer as get_importer
 from ._registry import get_system as get_system
 from ._registry import register_system as register_system

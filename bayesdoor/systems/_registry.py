@@ -23,6 +23,8 @@ from ._base import AbstractSystem
 ENTRY_POINT_GROUP = "bayesdoor.systems"
 #: the entry-point group of demo campaigns, named after their system
 DEMO_GROUP = "bayesdoor.demos"
+#: the entry-point group of importers of measured data (``bayesdoor import NAME``)
+IMPORTER_GROUP = "bayesdoor.importers"
 _REGISTERED: dict[str, Callable[[], AbstractSystem]] = {}
 
 
@@ -99,4 +101,27 @@ def get_demo(name: str | None = None) -> DemoCampaign:
     raise LookupError(
         f"no demo campaign for {name!r}: available {', '.join(names) or 'none'} (a package "
         f"declares one through the {DEMO_GROUP!r} entry points)"
+    )
+
+
+def available_importers() -> tuple[str, ...]:
+    """The formats ``bayesdoor import`` reads (``bayesdoor.importers`` entry points), sorted."""
+    return tuple(sorted({ep.name for ep in entry_points(group=IMPORTER_GROUP)}))
+
+
+def get_importer(name: str) -> Callable[..., dict]:
+    """The importer ``name``: ``importer(source, out, *, overwrite=False) -> summary`` writes
+    a campaign file from measured data at ``source`` and returns a JSON-able summary.
+
+    Raises
+    ------
+    LookupError
+        When no such importer is declared; the message lists those available.
+    """
+    for ep in entry_points(group=IMPORTER_GROUP):
+        if ep.name == name:
+            return ep.load()
+    raise LookupError(
+        f"no importer called {name!r}: available {', '.join(available_importers()) or 'none'} "
+        f"(a package declares one through the {IMPORTER_GROUP!r} entry points)"
     )

@@ -53,12 +53,12 @@ STRAYS = [
 
 
 @pytest.mark.parametrize(("package", "imports", "broken"), STRAYS, ids=[s[0] for s in STRAYS])
-def test_an_import_across_the_layers_breaks_them(tmp_path, module, imports, broken):
-    shutil.copytree(
-        ROOT / "bayesdoor", tmp_path / "bayesdoor", ignore=shutil.ignore_patterns("__pycache__")
-    )
+def test_an_import_across_the_layers_breaks_them(tmp_path, package, imports, broken):
+    ignore = shutil.ignore_patterns("__pycache__")
+    shutil.copytree(ROOT / "bayesdoor", tmp_path / "bayesdoor", ignore=ignore)
     shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
-    (tmp_path / "bayesdoor" / module).write_text(f'"""A stray import."""\n\n{imports}\n')
+    stray = tmp_path / "bayesdoor" / package / "_stray.py"
+    stray.write_text(f'"""A stray import."""\n\n{imports}\n')
     result = lint_imports(tmp_path)
     assert result.returncode != 0
     assert broken in result.stdout, result.stdout

@@ -42,8 +42,8 @@ import numpy as np
 from _cases import ROOT, command_line, write_results
 from scipy import stats
 
-from bayesdoor.diagnose import capped_t, rule_passes, rule_thresholds, t_statistic
-from bayesdoor.diagnose._gain import _runs
+from bayesdoor.diagnose import capped_t, rule_passes, rule_thresholds
+from bayesdoor.diagnose._gain import _runs, t_statistic
 
 #: the threshold on t of the plain rule (``bayesdoor.diagnose.DECISIVE_SE``)
 THRESHOLD = 4.0
@@ -482,7 +482,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     if args.union:
-        from bayesdoor.diagnose import capped_threshold
+        from bayesdoor.diagnose._gain import capped_threshold
 
         scales = {n: union_scale(n, args.draws, args.seed, capped_threshold(n)) for n in TABLE_RUNS}
         print(f"# {command_line('decision_rule.py', argv)}; Monte Carlo standard errors:")

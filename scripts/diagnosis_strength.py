@@ -128,7 +128,7 @@ def effect_z(
     sd
         Each run's Welch standard deviation of a log10 PSD bin, decades.
     """
-    from bayesdoor.diagnose import Spectra
+    from bayesdoor.diagnose._refit import Spectra
 
     def spectra(x: np.ndarray) -> Any:
         return Spectra.of_measured(x, fs, t_start, t_stop, band, nperseg=int(fs))

@@ -48,7 +48,8 @@ def ceiling_gain(
     effect (``setup.spectra.measured`` less the log PSD of ``clean_signals``, the same runs
     recorded without it), judged as the diagnosis judges a refit
     (:func:`~bayesdoor.diagnose.judge_folds`); and the held-out runs in the gain's order."""
-    from bayesdoor.diagnose import judge_folds, windowed_log_psd
+    from bayesdoor.diagnose import windowed_log_psd
+    from bayesdoor.diagnose._job import judge_folds
 
     spectra = setup.spectra
     _, clean, _ = windowed_log_psd(

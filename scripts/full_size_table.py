@@ -25,14 +25,9 @@ from typing import Any
 import numpy as np
 from _cases import NONE, RIG_EFFECTS, ROOT, command_line, hidden_effect, write_results
 
-from bayesdoor.diagnose import (
-    DECISIVE_SE,
-    capped_t,
-    rule_passes,
-    rule_thresholds,
-    t_statistic,
-    verdict_order,
-)
+from bayesdoor.diagnose import capped_t, rule_passes, rule_thresholds
+from bayesdoor.diagnose._gain import DECISIVE_SE, t_statistic
+from bayesdoor.diagnose._job import verdict_order
 
 
 def fmt(value: Any, spec: str) -> str:

@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bayesdoor.diagnose import ExtensionProposal, RefitSetup, Spectra, refit_extension
+from bayesdoor.diagnose import ExtensionProposal
+from bayesdoor.diagnose._refit import RefitSetup, Spectra, refit_extension
 from bayesdoor.door import (
     CHANNELS,
     STATE_SIZE,

@@ -31,7 +31,7 @@ def _samples(seed: int, rows: int, runs: int) -> np.ndarray:
 
 
 def test_t_statistic_is_the_rule_of_compare_held_out():
-    from bayesdoor.diagnose import compare_held_out
+    from bayesdoor.diagnose._gain import compare_held_out
 
     gain = compare_held_out(np.zeros(12), RAIL, np.ones(12), np.zeros(12))
     assert t_statistic(RAIL) == pytest.approx(gain.elpd_difference / gain.elpd_se, rel=1e-12)
@@ -128,7 +128,7 @@ def test_t_false_alarms_under_normal_noise_match_the_t_distribution():
 
 
 def test_the_librarys_union_scale_is_found_again_on_other_draws():
-    from bayesdoor.diagnose import UNION_SCALE, capped_threshold
+    from bayesdoor.diagnose._gain import UNION_SCALE, capped_threshold
 
     # 10 x 20,000 draws of another seed than the table's 10 x 100,000
     k, se = union_scale(8, 20_000, 3, capped_threshold(8))

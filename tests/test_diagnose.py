@@ -16,18 +16,17 @@ import scipy.stats
 
 from bayesdoor.diagnose import (
     NONE,
-    benjamini_hochberg,
     coherence_map,
-    dof_from_log10_variance,
     find_features,
     log10_psd_variance,
-    log_chi2_normal_scores,
     rank_causes,
     residual_map,
     rest_lines,
     welch_dof,
-    within_run_speed,
 )
+from bayesdoor.diagnose._stats import benjamini_hochberg
+from bayesdoor.diagnose._welch_stats import dof_from_log10_variance, log_chi2_normal_scores
+from bayesdoor.diagnose._within import within_run_speed
 from bayesdoor.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE
 
 FS = 2048.0

@@ -12,16 +12,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bayesdoor.diagnose import (
+from bayesdoor.diagnose import LOCAL_BINS
+from bayesdoor.diagnose._gain import (
     CHANGE_FRACTION,
-    LOCAL_BINS,
     SIGMA_FLOOR,
     changed_bins,
     estimate_change_discrepancy,
     estimate_discrepancy,
     log_predictive,
-    smooth_discrepancy,
 )
+from bayesdoor.diagnose._residual import smooth_discrepancy
 
 N_F = 90
 

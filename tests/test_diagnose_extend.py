@@ -8,16 +8,9 @@ import numpy as np
 import pytest
 from test_diagnosis_gain import stand_in
 
-from bayesdoor.diagnose import (
-    ExtensionProposal,
-    RefitSetup,
-    Spectra,
-    box_ends,
-    exact_spectra,
-    held_out_folds,
-    refit_extension,
-    verdict_extension,
-)
+from bayesdoor.diagnose import ExtensionProposal, verdict_extension
+from bayesdoor.diagnose._job import held_out_folds
+from bayesdoor.diagnose._refit import RefitSetup, Spectra, box_ends, exact_spectra, refit_extension
 from bayesdoor.door import DoorParameters, ElevatorDoor, SensorCrossAxis
 
 

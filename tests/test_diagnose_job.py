@@ -20,26 +20,26 @@ import pytest
 import scipy.stats
 
 from bayesdoor.diagnose import (
-    CAPPED_THRESHOLDS,
-    DECISIVE_SE,
     LOCAL_BINS,
     NONE,
-    UNION_SCALE,
     ExtensionProposal,
-    base_fit_notes,
     capped_t,
-    compare_held_out,
     diagnose_campaign,
-    estimate_discrepancy,
-    extension_gain,
-    feature_bins,
-    log_predictive,
     residual_map,
     rule_passes,
     rule_thresholds,
-    smooth_discrepancy,
-    verdict_order,
 )
+from bayesdoor.diagnose._gain import (
+    CAPPED_THRESHOLDS,
+    DECISIVE_SE,
+    UNION_SCALE,
+    compare_held_out,
+    estimate_discrepancy,
+    feature_bins,
+    log_predictive,
+)
+from bayesdoor.diagnose._job import base_fit_notes, extension_gain, verdict_order
+from bayesdoor.diagnose._residual import smooth_discrepancy
 from bayesdoor.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE, CoupledFrameMode, ElevatorDoor
 from bayesdoor.door import FrameMode as FrameModeExtension
 from bayesdoor.door.rig import (

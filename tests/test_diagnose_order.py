@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bayesdoor.diagnose import harmonic_comb, order_log_psd, order_peak
+from bayesdoor.diagnose._comb import harmonic_comb
+from bayesdoor.diagnose._order import order_log_psd, order_peak
 from bayesdoor.door import DOOR_CATALOGUE
 
 FS = 2048.0

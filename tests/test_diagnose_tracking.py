@@ -13,19 +13,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bayesdoor.diagnose import (
-    LOCAL_BINS,
+from bayesdoor.diagnose import LOCAL_BINS, FirstOf, FixedFrequency, HarmonicComb, SpeedTracking
+from bayesdoor.diagnose._gain import (
     SIGMA_FLOOR,
-    FirstOf,
-    FixedFrequency,
-    HarmonicComb,
-    SpeedTracking,
     estimate_change_discrepancy,
     estimate_tracking_change_discrepancy,
     log_predictive,
-    smooth_discrepancy,
-    tracks_speed,
 )
+from bayesdoor.diagnose._job import tracks_speed
+from bayesdoor.diagnose._residual import smooth_discrepancy
 from bayesdoor.door import DOOR_CATALOGUE
 
 FREQS = 4.0 + np.arange(40.0)

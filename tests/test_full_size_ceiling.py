@@ -12,7 +12,7 @@ from test_diagnose_extend import _door_setup
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))
 from full_size_case import ceiling_gain
 
-from bayesdoor.diagnose import held_out_folds
+from bayesdoor.diagnose._job import held_out_folds
 
 
 def test_the_ceiling_of_a_leak_is_the_measurement_and_of_nothing_is_zero():

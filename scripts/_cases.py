@@ -49,7 +49,7 @@ def hidden_effect(effect: str, seed: int):
 
     ``effect`` is one of ``RIG_EFFECTS``, or ``NONE`` for nothing hidden.
     """
-    from bayesdoor import rig
+    from bayesdoor.door import rig
 
     kinds: dict[str, Any] = {
         "frame_mode": rig.FrameMode,

@@ -299,11 +299,6 @@ STAGES = ["fit", "generate", "adequacy", "train", "classify", "trust", "diagnose
 #: 512 samples: 49 bins at 1024 Hz) where the training data used the system's (200 Hz, 256
 #: samples: 51 bins), and the train stage fails; remove these marks once the pipeline passes
 #: the training data's spec there
-SPEC_BLOCKER = (
-    "bayesdoor/pipeline/_classify.py ood_model_error and bayesdoor/pipeline/_trust.py "
-    "training_data / adequacy_stage call campaign_features() without the training data's "
-    "spec: 'features must be (run, 2, 51) ... got features (8, 2, 49)'"
-)
 runner = CliRunner()
 
 
@@ -367,7 +362,6 @@ def test_the_diagnosis_names_a_hum_by_refitting_the_fans_extension():
     assert payload["causes"][0]["name"] == "hum"
 
 
-@pytest.mark.xfail(strict=True, raises=ValueError, reason=SPEC_BLOCKER)
 def test_the_job_runs_on_the_fan_through_the_api(tmp_path):
     out = tmp_path / "job"
     lines: list[str] = []
@@ -440,7 +434,6 @@ def invoke(*args):
     return runner.invoke(app, [str(a) for a in args])
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=SPEC_BLOCKER)
 @pytest.mark.long
 def test_bayesdoor_run_finds_the_fan_through_its_entry_point(fan_plugin, tmp_path):
     path = tmp_path / "fan.nc"

@@ -142,6 +142,12 @@ def runs_in_state(campaign: xr.Dataset, state: str) -> xr.Dataset:
     return campaign.isel(run=np.flatnonzero(states == state))
 
 
+def data_spec(data: TrainingData) -> CNNInputSpec:
+    """The classifier input the training data were computed with (its generation's spec)."""
+    spec = data.manifest.get("config", {}).get("spec")
+    return CNNInputSpec() if spec is None else CNNInputSpec(**spec)
+
+
 def ood_model_error(
     data: TrainingData,
     calibration: xr.Dataset,
@@ -165,7 +171,9 @@ def ood_model_error(
     simulated = set(np.asarray(data.subset("train").speeds).tolist())
     residuals = None
     if "healthy" in data.states and healthy.sizes["run"] and set(speeds.tolist()) <= simulated:
-        residuals = calibration_residuals(data, campaign_features(healthy), speeds, state="healthy")
+        residuals = calibration_residuals(
+            data, campaign_features(healthy, spec=data_spec(data)), speeds, state="healthy"
+        )
     return model_error_draws(
         draws,
         key=key,

@@ -51,7 +51,7 @@ from ..datagen import (
 )
 from ..io import operating as campaign_operating
 from ..systems import AbstractSystem
-from ._classify import _write_json, classify_stage, runs_in_state
+from ._classify import _write_json, classify_stage, data_spec, runs_in_state
 
 ADEQUACY_JSON = "adequacy.json"
 TRUST_JSON = "trust.json"
@@ -90,7 +90,7 @@ def training_data(
         return data
     return with_measured_discrepancy(
         data,
-        campaign_features(known),
+        campaign_features(known, spec=data_spec(data)),
         campaign_operating(known, system),
         seed=seed,
         state=KNOWN_STATE,
@@ -131,7 +131,7 @@ def adequacy_stage(
 def _adequacy(
     data: TrainingData, known: xr.Dataset, speeds: np.ndarray, seed: int, discrepancy: bool
 ) -> dict[str, Any]:
-    features = campaign_features(known)
+    features = campaign_features(known, spec=data_spec(data))
     variance = measurement_variance(data)
     model = fit_adequacy(
         data, features, speeds, variance, state=KNOWN_STATE, seed=seed, alpha=TRUST_ALPHA

@@ -43,6 +43,9 @@ from scipy import stats
 from .._types import Float
 from ._generate import TrainingData
 from ._model_error import with_measured_discrepancy
+from ._points import at_point, point_key
+from ._points import measured_points as _measured_points
+from ._points import show_point as _show
 
 #: family-wise false-alarm rate of the adequacy verdict (all channels and bands together)
 ALPHA = 0.01
@@ -292,7 +295,7 @@ def _inputs(data, features, speeds, variance, state, alpha, bands):
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"alpha={alpha!r} must be in (0, 1)")
     x = np.asarray(features, dtype=float)
-    v = np.asarray(speeds, dtype=float).reshape(-1)
+    v = _measured_points(speeds, data.speeds)
     shape = data.features.shape[1:]
     if x.ndim != 3 or x.shape[1:] != shape or len(v) != len(x) or len(x) == 0:
         raise ValueError(
@@ -320,15 +323,15 @@ def _scores(data, x, v, var, state, groups, null=None):
     ratio = np.empty_like(gauss)
     threshold = np.empty(n)
     sims_at = np.empty(n)
-    cache: dict[float, tuple] = {}
+    cache: dict[float | tuple[float, ...], tuple] = {}
     for i, speed in enumerate(v):
-        key = float(speed)
+        key = point_key(speed)
         if key not in cache:
-            at = own & np.isclose(data.speeds, speed, rtol=1e-9, atol=0.0)
+            at = own & at_point(data.speeds, speed)
             if at.sum() < 5:
                 raise ValueError(
-                    f"run {i} has speed {speed} but the data hold {int(at.sum())} simulated "
-                    f"{state} runs there (need 5): generate at the campaign's speeds"
+                    f"run {i} has speed {_show(speed)} but the data hold {int(at.sum())} "
+                    f"simulated {state} runs there (need 5): generate at the campaign's speeds"
                 )
             sims = data.features[at]
             mean = sims.mean(axis=0)

@@ -68,7 +68,8 @@ def validation_mask(job: Job, state: int) -> np.ndarray:
 
 
 def _draw(job: Job, state: str, key: Array) -> dict[str, Any]:
-    """Parameters, severities and speeds for one full chunk (``chunk_size`` runs)."""
+    """Parameters, severities and operating points (``speed``: numbers, or rows for several
+    conditions) for one full chunk (``chunk_size`` runs)."""
     n = job.config.chunk_size
     k_param, k_sev, k_speed = jax.random.split(key, 3)
     params = {k: np.asarray(v, dtype=float) for k, v in job.source.sample(n, key=k_param).items()}
@@ -111,7 +112,13 @@ def _simulate(job: Job, state: str, draws: dict[str, Any]):
 
 
 def _select(mask: np.ndarray, new: dict[str, Any], old: dict[str, Any]) -> dict[str, Any]:
-    return jax.tree_util.tree_map(lambda a, b: np.where(mask, a, b), new, old)
+    """``new`` where ``mask`` (one flag per run, the first axis), else ``old``; an operating
+    point of several conditions is a row and is taken whole."""
+
+    def pick(a, b):
+        return np.where(mask.reshape(mask.shape + (1,) * (np.ndim(a) - 1)), a, b)
+
+    return jax.tree_util.tree_map(pick, new, old)
 
 
 def compute_chunk(job: Job, index: int) -> dict[str, np.ndarray]:

@@ -18,8 +18,10 @@ class GenerationConfig(eqx.Module):
     Parameters
     ----------
     speeds
-        The operating speeds runs are drawn from (uniformly, with replacement), for example
-        the campaign's ``v_max`` values.
+        The operating points runs are drawn from (uniformly, with replacement), for example
+        the campaign's ``v_max`` values: numbers for a system with one operating condition,
+        rows (one value per condition, in the order of the system's ``conditions``) for a
+        system with several.
     runs_per_state
         Simulated runs of every state (the paper: 600, so 1800 for three states).
     states
@@ -47,7 +49,7 @@ class GenerationConfig(eqx.Module):
         Redraw rounds per chunk before a still-failing run is dropped.
     """
 
-    speeds: tuple[float, ...] = eqx.field(static=True)
+    speeds: tuple[float, ...] | tuple[tuple[float, ...], ...] = eqx.field(static=True)
     runs_per_state: int = eqx.field(static=True, default=600)
     states: tuple[str, ...] | None = eqx.field(static=True, default=None)
     validation_fraction: float = eqx.field(static=True, default=0.3)
@@ -70,7 +72,11 @@ class GenerationConfig(eqx.Module):
         on_failure: Literal["redraw", "drop"] = "redraw",
         max_redraws: int = 5,
     ):
-        self.speeds = tuple(float(v) for v in speeds)
+        points = np.asarray(list(speeds), dtype=float)
+        if points.ndim == 2:
+            self.speeds = tuple(tuple(float(v) for v in row) for row in points)
+        else:
+            self.speeds = tuple(float(v) for v in points)
         self.runs_per_state = int(runs_per_state)
         self.states = None if states is None else tuple(str(s) for s in states)
         self.validation_fraction = float(validation_fraction)
@@ -82,7 +88,7 @@ class GenerationConfig(eqx.Module):
 
     def __check_init__(self):
         if not self.speeds:
-            raise ValueError("speeds is empty: give the operating speeds to draw runs at")
+            raise ValueError("speeds is empty: give the operating points to draw runs at")
         if self.runs_per_state < 1:
             raise ValueError(f"runs_per_state must be at least 1, got {self.runs_per_state}")
         if self.states is not None and (
@@ -137,7 +143,7 @@ class GenerationConfig(eqx.Module):
     def to_dict(self) -> dict[str, Any]:
         """The settings as JSON-able values (for the manifest and the configuration hash)."""
         return {
-            "speeds": list(self.speeds),
+            "speeds": [list(p) if isinstance(p, tuple) else p for p in self.speeds],
             "runs_per_state": self.runs_per_state,
             "states": None if self.states is None else list(self.states),
             "validation_fraction": self.validation_fraction,

@@ -44,7 +44,9 @@ class TrainingData:
     Runs are ordered by ``run_ids`` (state by state); runs dropped after failed solves are
     missing and listed in ``dropped_run_ids``. ``features`` already include the model-error
     offsets (kept separately in ``model_error``; zero without model-error draws). Severities
-    of a run are NaN for the severity parameters of other states.
+    of a run are NaN for the severity parameters of other states. ``speeds`` holds each run's
+    operating point: ``(run,)`` for a system with one operating condition, ``(run,
+    condition)`` for one with several.
     """
 
     features: np.ndarray

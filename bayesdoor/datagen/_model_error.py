@@ -20,6 +20,9 @@ import numpy as np
 from .._types import Array, Float
 from ..inference import FeatureSpec, welch_log10_variance
 from ._generate import TrainingData
+from ._points import at_point, point_list, unique_points
+from ._points import measured_points as _measured_points
+from ._points import show_point as _show
 
 
 def calibration_residuals(
@@ -61,7 +64,7 @@ def calibration_residuals(
     if state not in data.states:
         raise ValueError(f"state={state!r} is not one of the training data's {data.states}")
     x = np.asarray(features, dtype=float)
-    v = np.asarray(speeds, dtype=float).reshape(-1)
+    v = _measured_points(speeds, data.speeds)
     if x.ndim != 3 or x.shape[1:] != data.features.shape[1:] or len(v) != len(x):
         raise ValueError(
             f"features must be (run, {', '.join(map(str, data.features.shape[1:]))}) like the "
@@ -71,11 +74,11 @@ def calibration_residuals(
     own = train.labels == data.states.index(state)
     residuals = np.empty_like(x)
     for i, speed in enumerate(v):
-        at = own & np.isclose(train.speeds, speed, rtol=1e-9, atol=0.0)
+        at = own & at_point(train.speeds, speed)
         if not at.any():
             raise ValueError(
-                f"run {i} has speed {speed} but the training split holds no {state} run at that "
-                f"speed (simulated speeds {sorted(set(train.speeds.tolist()))}): generate the "
+                f"run {i} has speed {_show(speed)} but the training split holds no {state} run "
+                f"at that speed (simulated speeds {point_list(train.speeds)}): generate the "
                 "training data at the campaign's speeds"
             )
         residuals[i] = x[i] - train.features[at].mean(axis=0)
@@ -241,7 +244,7 @@ def with_measured_discrepancy(
     if state not in data.states:
         raise ValueError(f"state={state!r} is not one of the training data's {data.states}")
     x = np.asarray(features, dtype=float)
-    v = np.asarray(speeds, dtype=float).reshape(-1)
+    v = _measured_points(speeds, data.speeds)
     if x.ndim != 3 or x.shape[1:] != data.features.shape[1:] or len(v) != len(x) or not len(x):
         raise ValueError(
             f"features must be (run, {', '.join(map(str, data.features.shape[1:]))}) with one "
@@ -250,20 +253,20 @@ def with_measured_discrepancy(
     own = data.labels == data.states.index(state)
     residuals = np.empty_like(x)
     for i, speed in enumerate(v):
-        at = own & np.isclose(data.speeds, speed, rtol=1e-9, atol=0.0)
+        at = own & at_point(data.speeds, speed)
         if not at.any():
             raise ValueError(
-                f"measured run {i} has speed {speed} but no simulated {state} run is at that "
-                f"speed (simulated: {sorted(set(np.asarray(data.speeds).tolist()))})"
+                f"measured run {i} has speed {_show(speed)} but no simulated {state} run is at "
+                f"that speed (simulated: {point_list(data.speeds)})"
             )
         residuals[i] = x[i] - data.features[at].mean(axis=0)
     rng = np.random.default_rng(seed)
     shifted = np.empty_like(data.features)
-    for speed in np.unique(data.speeds):
-        runs = np.flatnonzero(np.isclose(data.speeds, speed, rtol=1e-9, atol=0.0))
-        pool = np.flatnonzero(np.isclose(v, speed, rtol=1e-9, atol=0.0))
+    for speed in unique_points(data.speeds):
+        runs = np.flatnonzero(at_point(data.speeds, speed))
+        pool = np.flatnonzero(at_point(v, speed))
         pool = pool if pool.size else np.arange(len(v))
-        at = own & np.isclose(data.speeds, speed, rtol=1e-9, atol=0.0)
+        at = own & at_point(data.speeds, speed)
         # the simulated healthy mean at this speed (speeds without one take the residual
         # as a plain offset)
         base = data.features[at].mean(axis=0) if at.any() else None

@@ -187,7 +187,8 @@ class CalibrationData(eqx.Module):
     welch_variance
         The Welch scatter of each run's features, decades^2.
     operating
-        The distinct operating points; the forward model must be built on the same ones.
+        The distinct operating points (rows for several operating conditions); the forward
+        model must be built on the same ones.
     run_operating
         The index into ``operating`` of each run.
     band_centres
@@ -219,7 +220,8 @@ class CalibrationData(eqx.Module):
         fs
             Sampling rate, Hz.
         operating
-            The operating point of each run (runs at equal values share a simulation).
+            The operating point of each run (runs at equal values share a simulation):
+            ``(run,)`` for one operating condition, ``(run, condition)`` for several.
         t_start, t_stop
             The motion window of each run, s.
         spec
@@ -235,7 +237,11 @@ class CalibrationData(eqx.Module):
         op = np.asarray(operating, dtype=float)
         starts = np.asarray(t_start, dtype=float)
         stops = np.asarray(t_stop, dtype=float)
-        if signals.ndim != 3 or not op.shape == starts.shape == stops.shape == signals.shape[:1]:
+        if (
+            signals.ndim != 3
+            or op.ndim not in (1, 2)
+            or not op.shape[:1] == starts.shape == stops.shape == signals.shape[:1]
+        ):
             raise ValueError(
                 f"signals must be (run, channel, time) with one operating point and window per "
                 f"run; got signals {signals.shape}, operating {op.shape}, t_start "
@@ -260,7 +266,12 @@ class CalibrationData(eqx.Module):
         features, n_segments = run_features(
             signals, fs, jnp.asarray(starts), jnp.asarray(stops), spec
         )
-        unique, index = np.unique(op, return_inverse=True)
+        # a point of several operating conditions is a row
+        unique, index = (
+            np.unique(op, return_inverse=True)
+            if op.ndim == 1
+            else np.unique(op, axis=0, return_inverse=True)
+        )
         return cls(
             y=features,
             welch_variance=welch_log10_variance(n_segments, fs, spec),

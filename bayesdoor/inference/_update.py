@@ -477,8 +477,10 @@ class _Population(eqx.Module):
     ) -> tuple[Float[Array, "pop op channel band"], Bool[Array, " pop"]]:
         pop, n_op = x.shape[0], self.operating.shape[0]
         values = {p.name: jnp.repeat(x[:, i], n_op) for i, p in enumerate(self.system.parameters)}
+        # every candidate at every operating point (a row for several conditions)
+        reps = (pop,) + (1,) * (self.operating.ndim - 1)
         result = self.system.simulate_values(
-            values, jnp.tile(self.operating, pop), duration=self.horizon, check=False
+            values, jnp.tile(self.operating, reps), duration=self.horizon, check=False
         )
         features, _ = run_features(
             result.signals,
@@ -1542,7 +1544,8 @@ def posterior_predictive(
             own[:, None, :, None] ** 2 + common_var[:, None], mean.shape
         ).copy()
         for i, op in enumerate(ops):
-            match = np.flatnonzero(np.isclose(measured, op))
+            same = np.isclose(measured, op)
+            match = np.flatnonzero(same if measured.ndim == 1 else np.all(same, axis=-1))
             if match.size:
                 shift[:, i] = delta_mean[:, match[0]]
                 spread[:, i] = delta_var[:, match[0]]

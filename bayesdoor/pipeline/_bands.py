@@ -22,7 +22,8 @@ class PredictiveBands:
     states
         The simulated states.
     speeds
-        The operating speeds the training runs were drawn at.
+        The operating points the training runs were drawn at: ``(speed,)`` for one operating
+        condition, ``(speed, condition)`` (one row per point) for several.
     values
         Quantiles :data:`QUANTILES` of the features, ``(state, speed, quantile, channel,
         freq)``; NaN where a state has no run at a speed.
@@ -42,11 +43,14 @@ class PredictiveBands:
     def from_training_data(cls, data) -> PredictiveBands:
         """The bands of a :class:`bayesdoor.datagen.TrainingData` (all its runs)."""
         speeds = np.unique(data.speeds, axis=0)
-        shape = (len(data.states), speeds.size, len(QUANTILES), *data.features.shape[1:])
+        shape = (len(data.states), len(speeds), len(QUANTILES), *data.features.shape[1:])
         values = np.full(shape, np.nan)
         for i in range(len(data.states)):
             for j, v in enumerate(speeds):
-                rows = data.features[(data.labels == i) & (data.speeds == v)]
+                same = data.speeds == v
+                # a point of several operating conditions is a row: every condition matches
+                at = same if same.ndim == 1 else np.all(same, axis=-1)
+                rows = data.features[(data.labels == i) & at]
                 if len(rows):
                     values[i, j] = np.quantile(rows, QUANTILES, axis=0)
         return cls(
@@ -57,9 +61,13 @@ class PredictiveBands:
             np.asarray(data.frequencies, dtype=float),
         )
 
-    def nearest(self, speed: float) -> int:
-        """Index of the band speed closest to ``speed``."""
-        return int(np.argmin(np.abs(self.speeds - float(speed))))
+    def nearest(self, speed) -> int:
+        """Index of the band speed closest to ``speed`` (a number, or a row of the operating
+        conditions: the smallest sum of absolute differences)."""
+        if self.speeds.ndim == 1:
+            return int(np.argmin(np.abs(self.speeds - float(speed))))
+        distance = np.abs(self.speeds - np.asarray(speed, dtype=float)).sum(axis=-1)
+        return int(np.argmin(distance))
 
     def save(self, path: Path) -> None:
         """Write the bands to one ``.npz`` file, atomically."""

@@ -29,6 +29,7 @@ from ..datagen import (
     measurement_variance,
     model_error_draws,
 )
+from ..datagen._points import point_key
 from ..features import CNNInputSpec
 from ..io import atomic_write, system_of
 from ..io import operating as campaign_operating
@@ -168,9 +169,11 @@ def ood_model_error(
     """
     healthy = runs_in_state(calibration, "healthy")
     speeds = campaign_operating(healthy, system)
-    simulated = set(np.asarray(data.subset("train").speeds).tolist())
+    # operating points as keys: numbers for one condition, tuples (rows) for several
+    simulated = {point_key(p) for p in np.asarray(data.subset("train").speeds)}
+    measured = {point_key(p) for p in np.asarray(speeds)}
     residuals = None
-    if "healthy" in data.states and healthy.sizes["run"] and set(speeds.tolist()) <= simulated:
+    if "healthy" in data.states and healthy.sizes["run"] and measured <= simulated:
         residuals = calibration_residuals(
             data, campaign_features(healthy, spec=data_spec(data)), speeds, state="healthy"
         )

@@ -185,7 +185,7 @@ def bands_figure(
     channels: Sequence[str],
     bands: np.ndarray,
     classes: Sequence[str],
-    speed: float,
+    speed: float | np.ndarray,
 ) -> bytes:
     """Every channel: the simulated band of each state and the measured runs' features."""
     colors = _colors(classes)
@@ -519,9 +519,11 @@ def write_damage_report(
                         channels,
                         band_values[:, j],
                         band_classes,
-                        float(v),
+                        float(v) if v.ndim == 0 else v,
                     ),
-                    f"bands at {v:g} m/s",
+                    f"bands at {v:g} m/s"
+                    if v.ndim == 0
+                    else f"bands at operating point {_point_text(v)}",
                 )
             )
         parts.append(

@@ -82,6 +82,31 @@ def test_interface(system):
     json.dumps(system.describe())
 
 
+def test_features_cover_the_resonance_region(system):
+    from bayesdoor.features import CNNInputSpec
+    from bayesdoor.inference import FeatureSpec
+
+    spec = FeatureSpec.of(system)
+    fs = system.sampling_rate_hz
+    # 100 Hz bands of four 25 Hz bins, 1.5-5.4 kHz: above the healthy record's lines near
+    # 1 kHz, below the anti-alias roll-off, over both resonances' ranges where they overlap it
+    assert spec.bins_per_band(fs) == 4
+    edges = spec.band_edges(fs)
+    assert len(edges) - 1 == 39
+    assert edges[0] == pytest.approx(1487.5) and edges[-1] == pytest.approx(5387.5)
+    ranges = {p.name: (p.lower, p.upper) for p in system.parameters}
+    assert edges[0] < ranges["resonance_1_hz"][0] and edges[-1] > ranges["resonance_2_hz"][0]
+    classifier = CNNInputSpec(
+        fmax=system.features.classifier_fmax, nperseg=system.features.classifier_nperseg
+    )
+    freqs = classifier.frequencies(fs)
+    assert len(freqs) == 461 and freqs[-1] <= 5400.0
+    # the bins resolve the fault lines: BPFO, 2 BSF and BPFI lie more than a bin apart
+    hz = system.fault_frequencies(RPM)
+    lines = sorted([hz["bpfo"], 2 * hz["bsf"], hz["bpfi"]])
+    assert np.min(np.diff(lines)) > freqs[1] - freqs[0]
+
+
 def test_bad_inputs_raise(system):
     values = system.nominal()
     with pytest.raises(ValueError, match="unknown state"):

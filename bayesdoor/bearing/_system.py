@@ -23,7 +23,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..systems import AbstractSystem, ConditionSpec, DamageSpec, ParameterSpec, SimulationResult
+from ..systems import (
+    AbstractSystem,
+    ConditionSpec,
+    DamageSpec,
+    ParameterSpec,
+    SimulationResult,
+    SpectralFeatures,
+)
 from ._geometry import CWRU_DRIVE_END, BearingGeometry
 from ._model import impulse_capacity, run_signal
 
@@ -88,6 +95,21 @@ CONDITIONS = (
         "motor load (recorded; the model depends on it only through the shaft speed)",
         positive=False,
     ),
+)
+
+#: what the fit and the classifier compare (docs/bearing.md, "Features"): the fit, log10 Welch
+#: PSDs (480 samples, 25 Hz bins) in 39 bands of 100 Hz from 1.5 to 5.4 kHz, the resonance
+#: region the model describes (below it the real healthy record holds lines the model lacks,
+#: above it the recorder's anti-alias filter cuts the spectrum); the classifier, the log10
+#: Welch PSD of 1024-sample segments from 0 Hz to 5.4 kHz (461 bins of 11.7 Hz, fine enough
+#: to put BPFO, 2 BSF and BPFI, 107, 141 and 162 Hz at 1797 rpm, in different bins)
+FEATURES = SpectralFeatures(
+    f_low=1500.0,
+    f_high=5375.0,
+    band_width=100.0,
+    nperseg=480,
+    classifier_fmax=5400.0,
+    classifier_nperseg=1024,
 )
 
 
@@ -161,6 +183,11 @@ class BearingSystem(AbstractSystem):
     @property
     def sampling_rate_hz(self) -> float:
         return FS
+
+    @property
+    def features(self) -> SpectralFeatures:
+        """Log-PSD bands over the resonance region (:data:`FEATURES`, docs/bearing.md)."""
+        return FEATURES
 
     def describe(self) -> dict:
         """Name, geometry and the model's fixed settings (JSON-able)."""

@@ -37,6 +37,7 @@ from ..datagen import (
     GenerationConfig,
     ModelErrorDraws,
     PosteriorDraws,
+    TrainingData,
     describe_system,
     generate,
 )
@@ -421,11 +422,8 @@ def run_job(
         raise ValueError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
     out = Path(out)
     sizes = (Sizes.quick() if quick else Sizes()) if sizes is None else sizes
-    fit = _default_fit if fit is None else fit
     fit_seed = seed if fit_seed is None else fit_seed
     options = dict(fit_options or {})
-    calibration = campaign.isel(run=calibration_runs(campaign))
-    test = runs_to_classify(campaign)
     system_description = describe_system(system)
     settings = {
         "system": system_description,
@@ -439,259 +437,440 @@ def run_job(
         "sizes": sizes.to_json(),
     }
     job_hash = configuration_hash(settings)
+    calibration = campaign.isel(run=calibration_runs(campaign))
+    test = runs_to_classify(campaign)
     _check_folder(out, settings, job_hash, overwrite)
     out.mkdir(parents=True, exist_ok=True)
-    versions = _versions()
-    records: list[StageRecord] = []
-
-    def compute_fit(folder: Path) -> None:
-        result = fit(
-            system,
-            calibration,
-            method=method,
-            law=None,
-            seed=fit_seed,
-            quick=quick,
-            progress=progress,
-            **options,
-        )
-        result.save(folder / "result")
-        FitSummary.from_result(result, method).save(folder)
-
-    fit_record = run_stage(
-        out,
-        "fit",
-        {
-            "system": system_description,
-            "calibration_runs": digest_runs(calibration),
-            "method": method,
-            "seed": fit_seed,
-            "quick": quick,
-            "options": {k: repr(v) for k, v in options.items()},
-            "versions": versions,
-        },
-        compute_fit,
+    job = _Job(
+        system=system,
+        system_description=system_description,
+        campaign=campaign,
+        calibration=calibration,
+        test=test,
+        out=out,
+        quick=quick,
+        seed=seed,
+        fit_seed=fit_seed,
+        source=source,
+        method=method,
+        sizes=sizes,
+        fit=_default_fit if fit is None else fit,
+        options=options,
+        progress=progress,
         report=report,
+        diagnose=default_diagnose if diagnose is None else diagnose,
+        versions=_versions(),
+        key=jax.random.key(seed),
+        html=html,
+        diagnosis=html if diagnosis is None else diagnosis,
     )
-    records.append(fit_record)
-    summary = FitSummary.load(fit_record.path)
-
-    generation = generation_settings(
-        system, campaign, summary, fit_record.config_hash, source, sizes, seed
-    )
-    key = jax.random.key(seed)
-
-    def compute_generate(folder: Path) -> None:
-        generate(
-            system,
-            generation.source,
-            generation.generation,
-            folder / "data",
-            key=jax.random.fold_in(key, 1),
-            model_error=generation.model_error,
-            progress=progress,
-        )
-
-    gen_record = run_stage(
-        out,
-        "generate",
-        generation.config,
-        compute_generate,
-        resumable=True,
-        report=report,
-    )
-    records.append(gen_record)
-    # the default source carries the model error as measured: the calibration runs'
-    # discrepancy from the simulated healthy runs, added to every training run
-    discrepancy = source == "posterior+model_error"
-    discrepancy_form = DISCREPANCY_FORM if discrepancy else None
-    adequacy_record = run_stage(
-        out,
-        "adequacy",
-        {
-            "data": gen_record.config_hash,
-            "runs": digest_runs(calibration),
-            "seed": seed,
-            "discrepancy": discrepancy_form,
-            "check": ADEQUACY_CHECK,
-        },
-        lambda folder: adequacy_stage(
-            gen_record.path / "data",
-            calibration,
-            folder,
-            seed=seed,
-            discrepancy=discrepancy,
-            system=system,
-        ),
-        report=report,
-    )
-    records.append(adequacy_record)
-    adequacy = json.loads((adequacy_record.path / ADEQUACY_JSON).read_text())
-    if adequacy.get("summary"):
-        report(f"adequacy: {adequacy['summary']}")
-
-    def compute_train(folder: Path) -> None:
-        data = training_data(
-            gen_record.path / "data",
-            calibration,
-            discrepancy=discrepancy,
-            seed=seed,
-            system=system,
-        )
-        train_stage(
-            data,
-            folder,
-            key=jax.random.fold_in(key, 2),
-            config=sizes.train,
-            ood_quantile=sizes.ood_quantile,
-            progress=progress,
-            ood_model_error=ood_model_error(
-                data, calibration, summary, key=jax.random.fold_in(key, 3), system=system
-            ),
-        )
-
-    train_record = run_stage(
-        out,
-        "train",
-        {
-            "data": gen_record.config_hash,
-            "sizes": sizes.to_json(),
-            "seed": seed,
-            "ood": "model-error draws",
-            "discrepancy": discrepancy_form,
-        },
-        compute_train,
-        report=report,
-    )
-    records.append(train_record)
-
-    runs = [int(i) for i in np.flatnonzero(np.isin(campaign["run"].values, test["run"].values))]
-    classify_record = run_stage(
-        out,
-        "classify",
-        {"model": train_record.config_hash, "runs": digest_runs(test), "indices": runs},
-        lambda folder: classify_stage(
-            train_record.path, test, folder, run_index=runs, system=system
-        ),
-        report=report,
-    )
-    records.append(classify_record)
-    trust_record = run_stage(
-        out,
-        "trust",
-        {
-            "model": train_record.config_hash,
-            "classification": classify_record.config_hash,
-            "adequacy": adequacy_record.config_hash,
-            "checks": TRUST_CHECKS,
-            "runs": digest_runs(calibration),
-            "seed": seed,
-            "discrepancy": discrepancy_form,
-        },
-        lambda folder: trust_stage(
-            train_record.path,
-            classify_record.path,
-            gen_record.path / "data",
-            adequacy_record.path,
-            calibration,
-            folder,
-            seed=seed,
-            discrepancy=discrepancy,
-            system=system,
-        ),
-        report=report,
-    )
-    records.append(trust_record)
-    trust = json.loads((trust_record.path / TRUST_JSON).read_text())
-    said = trust["reasons"] + trust.get("warnings", [])
-    report(f"trust: {trust['verdict']}" + (": " + "; ".join(said) if said else ""))
-    diagnosis_json: dict[str, Any] | None = None
-    diagnosis_hash = None
-    if html if diagnosis is None else diagnosis:
-        try:
-            diagnose_record = run_stage(
-                out,
-                "diagnose",
-                {
-                    "fit": fit_record.config_hash,
-                    "runs": digest_runs(calibration),
-                    "seed": seed,
-                    "quick": quick,
-                    "versions": versions,
-                },
-                lambda folder: diagnosis_stage(
-                    system,
-                    campaign,
-                    fit_record.path / "result",
-                    folder,
-                    diagnose=default_diagnose if diagnose is None else diagnose,
-                    seed=seed,
-                    quick=quick,
-                    progress=progress,
-                    fit=summary.to_json(),
-                ),
-                report=report,
-            )
-        except ValueError as err:
-            # the classification stands without it: the job reports why and retries next time
-            reason = " ".join(str(err).split())
-            report(f"diagnose: not made: {reason}")
-            diagnosis_json = {"verdict": None, "causes": [], "error": reason, "report": None}
-            diagnosis_hash = configuration_hash({"error": reason})
-        else:
-            records.append(diagnose_record)
-            diagnosis_json = json.loads((diagnose_record.path / DIAGNOSIS_JSON).read_text())
-            diagnosis_json["report"] = str(diagnose_record.path / DIAGNOSIS_HTML)
-            diagnosis_hash = diagnose_record.config_hash
-    report_path = None
-    if html:
-        report_record = run_stage(
-            out,
-            "report",
-            {
-                "classification": classify_record.config_hash,
-                "fit": fit_record.config_hash,
-                "diagnosis": diagnosis_hash,
-                "trust": trust_record.config_hash,
-                "versions": versions,
-            },
-            lambda folder: report_stage(
-                classify_record.path,
-                train_record.path,
-                folder,
-                fit=summary,
-                title=f"{system.name}: damage report",
-                diagnosis=diagnosis_json,
-                adequacy=adequacy,
-                trust=trust,
-            ),
-            report=report,
-        )
-        records.append(report_record)
-        report_path = report_record.path / "index.html"
-    classification = json.loads((classify_record.path / "classification.json").read_text())
+    for stage in JOB_STAGES:
+        job.run(stage)
+    products = job.products
+    adequacy, trust = products["adequacy"], products["trust"]
+    diagnosis_json = products.get("diagnose")
     result = JobResult(
         out=out,
-        stages=tuple(records),
-        fit=summary,
-        classification=classification,
-        report=report_path,
+        stages=tuple(job.records.values()),
+        fit=products["fit"],
+        classification=products["classify"],
+        report=products.get("report"),
         diagnosis=diagnosis_json,
         adequacy=adequacy,
         trust=trust,
     )
-    job = {
+    record = {
         "job_hash": job_hash,
         "system": system.name,
         **{k: v for k, v in settings.items() if k != "system"},
-        "stages": {s.name: s.config_hash for s in records},
-        "metrics": classification.get("metrics"),
+        "stages": {name: r.config_hash for name, r in job.records.items()},
+        "metrics": result.classification.get("metrics"),
         "adequacy": adequacy.get("verdict"),
         "trust": trust["verdict"],
         "trust_reasons": trust["reasons"],
         "verdict": None if diagnosis_json is None else diagnosis_json.get("verdict"),
-        "report": None if report_path is None else str(report_path),
+        "report": None if result.report is None else str(result.report),
     }
-    text = json.dumps(job, indent=1, default=float) + "\n"
+    text = json.dumps(record, indent=1, default=float) + "\n"
     atomic_write(out / "job.json", lambda tmp: tmp.write_text(text), overwrite=True)
     return result
+
+
+@dataclasses.dataclass
+class _Job:
+    """What the stages of one job share: its inputs, and each finished stage's record and
+    product (read from the stage's folder once, whether computed now or reused, and handed to
+    the later stages in memory)."""
+
+    system: AbstractSystem
+    system_description: dict[str, Any]
+    campaign: xr.Dataset
+    calibration: xr.Dataset
+    test: xr.Dataset
+    out: Path
+    quick: bool
+    seed: int
+    fit_seed: int
+    source: Source
+    method: str
+    sizes: Sizes
+    fit: Callable[..., Any]
+    options: dict[str, Any]
+    progress: bool
+    report: Callable[[str], None]
+    diagnose: Callable[..., Any]
+    versions: dict[str, str]
+    key: jax.Array
+    html: bool
+    diagnosis: bool
+    records: dict[str, StageRecord] = dataclasses.field(default_factory=dict)
+    products: dict[str, Any] = dataclasses.field(default_factory=dict)
+    #: the configuration hash a stage that could not be made stands in with (its reason's)
+    failed: dict[str, str] = dataclasses.field(default_factory=dict)
+    _generation: Generation | None = None
+
+    def run(self, stage: JobStage) -> None:
+        """Run ``stage`` (or reuse it), keep its record and product."""
+        if not stage.wanted(self):
+            return
+        try:
+            record = run_stage(
+                self.out,
+                stage.name,
+                stage.config(self),
+                lambda folder: stage.compute(self, folder),
+                resumable=stage.resumable,
+                report=self.report,
+            )
+        except ValueError as err:
+            if not stage.optional:
+                raise
+            # the job stands without it: it reports why and tries again next time
+            reason = " ".join(str(err).split())
+            self.report(f"{stage.name}: not made: {reason}")
+            self.products[stage.name] = stage.failure(reason)
+            self.failed[stage.name] = configuration_hash({"error": reason})
+            return
+        self.records[stage.name] = record
+        self.products[stage.name] = stage.load(self, record.path)
+
+    def path(self, stage: str) -> Path:
+        return self.records[stage].path
+
+    def hash(self, stage: str) -> str | None:
+        """The configuration hash of a finished stage (or of why it was not made)."""
+        record = self.records.get(stage)
+        return record.config_hash if record is not None else self.failed.get(stage)
+
+    @property
+    def discrepancy(self) -> bool:
+        """The default source carries the model error as measured: the calibration runs'
+        discrepancy from the simulated healthy runs, added to every training run."""
+        return self.source == "posterior+model_error"
+
+    @property
+    def discrepancy_form(self) -> str | None:
+        return DISCREPANCY_FORM if self.discrepancy else None
+
+    @property
+    def generation(self) -> Generation:
+        """What the generation stage simulates (from the fit)."""
+        if self._generation is None:
+            self._generation = generation_settings(
+                self.system,
+                self.campaign,
+                self.products["fit"],
+                self.records["fit"].config_hash,
+                self.source,
+                self.sizes,
+                self.seed,
+            )
+        return self._generation
+
+    def training_data(self) -> TrainingData:
+        return training_data(
+            self.path("generate") / "data",
+            self.calibration,
+            discrepancy=self.discrepancy,
+            seed=self.seed,
+            system=self.system,
+        )
+
+    @property
+    def test_indices(self) -> list[int]:
+        """The positions of the test runs in the campaign."""
+        found = np.isin(self.campaign["run"].values, self.test["run"].values)
+        return [int(i) for i in np.flatnonzero(found)]
+
+
+def _always(job: _Job) -> bool:
+    return True
+
+
+def _nothing(job: _Job, folder: Path) -> None:
+    return None
+
+
+def _not_made(reason: str) -> Any:
+    return None
+
+
+@dataclasses.dataclass(frozen=True)
+class JobStage:
+    """One step of the main job.
+
+    Attributes
+    ----------
+    name
+        Its folder under the job's.
+    config
+        Everything its output depends on (the hashes of the stages it reads included): the
+        stage is reused when a finished one has the same.
+    compute
+        Writes its files into the folder it is given.
+    load
+        Its product, read from its folder, for the later stages and the result.
+    resumable
+        An interrupted run of the same configuration continues (:func:`run_stage`).
+    wanted
+        Whether the job runs it.
+    optional
+        A ``ValueError`` of ``compute`` leaves the job going: ``failure(reason)`` stands in
+        for the product.
+    """
+
+    name: str
+    config: Callable[[_Job], dict[str, Any]]
+    compute: Callable[[_Job, Path], None]
+    load: Callable[[_Job, Path], Any] = _nothing
+    resumable: bool = False
+    wanted: Callable[[_Job], bool] = _always
+    optional: bool = False
+    failure: Callable[[str], Any] = _not_made
+
+
+def _fit_config(job: _Job) -> dict[str, Any]:
+    return {
+        "system": job.system_description,
+        "calibration_runs": digest_runs(job.calibration),
+        "method": job.method,
+        "seed": job.fit_seed,
+        "quick": job.quick,
+        "options": {k: repr(v) for k, v in job.options.items()},
+        "versions": job.versions,
+    }
+
+
+def _fit(job: _Job, folder: Path) -> None:
+    result = job.fit(
+        job.system,
+        job.calibration,
+        method=job.method,
+        law=None,
+        seed=job.fit_seed,
+        quick=job.quick,
+        progress=job.progress,
+        **job.options,
+    )
+    result.save(folder / "result")
+    FitSummary.from_result(result, job.method).save(folder)
+
+
+def _generate(job: _Job, folder: Path) -> None:
+    generate(
+        job.system,
+        job.generation.source,
+        job.generation.generation,
+        folder / "data",
+        key=jax.random.fold_in(job.key, 1),
+        model_error=job.generation.model_error,
+        progress=job.progress,
+    )
+
+
+def _adequacy_config(job: _Job) -> dict[str, Any]:
+    return {
+        "data": job.hash("generate"),
+        "runs": digest_runs(job.calibration),
+        "seed": job.seed,
+        "discrepancy": job.discrepancy_form,
+        "check": ADEQUACY_CHECK,
+    }
+
+
+def _adequacy(job: _Job, folder: Path) -> None:
+    adequacy_stage(
+        job.path("generate") / "data",
+        job.calibration,
+        folder,
+        seed=job.seed,
+        discrepancy=job.discrepancy,
+        system=job.system,
+    )
+
+
+def _load_adequacy(job: _Job, folder: Path) -> dict[str, Any]:
+    adequacy = json.loads((folder / ADEQUACY_JSON).read_text())
+    if adequacy.get("summary"):
+        job.report(f"adequacy: {adequacy['summary']}")
+    return adequacy
+
+
+def _train_config(job: _Job) -> dict[str, Any]:
+    return {
+        "data": job.hash("generate"),
+        "sizes": job.sizes.to_json(),
+        "seed": job.seed,
+        "ood": "model-error draws",
+        "discrepancy": job.discrepancy_form,
+    }
+
+
+def _train(job: _Job, folder: Path) -> None:
+    data = job.training_data()
+    train_stage(
+        data,
+        folder,
+        key=jax.random.fold_in(job.key, 2),
+        config=job.sizes.train,
+        ood_quantile=job.sizes.ood_quantile,
+        progress=job.progress,
+        ood_model_error=ood_model_error(
+            data,
+            job.calibration,
+            job.products["fit"],
+            key=jax.random.fold_in(job.key, 3),
+            system=job.system,
+        ),
+    )
+
+
+def _classify_config(job: _Job) -> dict[str, Any]:
+    return {"model": job.hash("train"), "runs": digest_runs(job.test), "indices": job.test_indices}
+
+
+def _classify(job: _Job, folder: Path) -> None:
+    classify_stage(
+        job.path("train"), job.test, folder, run_index=job.test_indices, system=job.system
+    )
+
+
+def _load_classification(job: _Job, folder: Path) -> dict[str, Any]:
+    return json.loads((folder / "classification.json").read_text())
+
+
+def _trust_config(job: _Job) -> dict[str, Any]:
+    return {
+        "model": job.hash("train"),
+        "classification": job.hash("classify"),
+        "adequacy": job.hash("adequacy"),
+        "checks": TRUST_CHECKS,
+        "runs": digest_runs(job.calibration),
+        "seed": job.seed,
+        "discrepancy": job.discrepancy_form,
+    }
+
+
+def _trust(job: _Job, folder: Path) -> None:
+    trust_stage(
+        job.path("train"),
+        job.path("classify"),
+        job.path("generate") / "data",
+        job.path("adequacy"),
+        job.calibration,
+        folder,
+        seed=job.seed,
+        discrepancy=job.discrepancy,
+        system=job.system,
+    )
+
+
+def _load_trust(job: _Job, folder: Path) -> dict[str, Any]:
+    trust = json.loads((folder / TRUST_JSON).read_text())
+    said = trust["reasons"] + trust.get("warnings", [])
+    job.report(f"trust: {trust['verdict']}" + (": " + "; ".join(said) if said else ""))
+    return trust
+
+
+def _diagnose_config(job: _Job) -> dict[str, Any]:
+    return {
+        "fit": job.hash("fit"),
+        "runs": digest_runs(job.calibration),
+        "seed": job.seed,
+        "quick": job.quick,
+        "versions": job.versions,
+    }
+
+
+def _diagnose(job: _Job, folder: Path) -> None:
+    diagnosis_stage(
+        job.system,
+        job.campaign,
+        job.path("fit") / "result",
+        folder,
+        diagnose=job.diagnose,
+        seed=job.seed,
+        quick=job.quick,
+        progress=job.progress,
+        fit=job.products["fit"].to_json(),
+    )
+
+
+def _load_diagnosis(job: _Job, folder: Path) -> dict[str, Any]:
+    diagnosis = json.loads((folder / DIAGNOSIS_JSON).read_text())
+    diagnosis["report"] = str(folder / DIAGNOSIS_HTML)
+    return diagnosis
+
+
+def _no_diagnosis(reason: str) -> dict[str, Any]:
+    return {"verdict": None, "causes": [], "error": reason, "report": None}
+
+
+def _report_config(job: _Job) -> dict[str, Any]:
+    return {
+        "classification": job.hash("classify"),
+        "fit": job.hash("fit"),
+        "diagnosis": job.hash("diagnose"),
+        "trust": job.hash("trust"),
+        "versions": job.versions,
+    }
+
+
+def _report(job: _Job, folder: Path) -> None:
+    report_stage(
+        job.path("classify"),
+        job.path("train"),
+        folder,
+        fit=job.products["fit"],
+        title=f"{job.system.name}: damage report",
+        diagnosis=job.products.get("diagnose"),
+        adequacy=job.products["adequacy"],
+        trust=job.products["trust"],
+    )
+
+
+#: the main job, in order: each stage reads only the products of the stages before it
+JOB_STAGES = (
+    JobStage("fit", _fit_config, _fit, load=lambda job, folder: FitSummary.load(folder)),
+    JobStage("generate", lambda job: job.generation.config, _generate, resumable=True),
+    JobStage("adequacy", _adequacy_config, _adequacy, load=_load_adequacy),
+    JobStage("train", _train_config, _train),
+    JobStage("classify", _classify_config, _classify, load=_load_classification),
+    JobStage("trust", _trust_config, _trust, load=_load_trust),
+    JobStage(
+        "diagnose",
+        _diagnose_config,
+        _diagnose,
+        load=_load_diagnosis,
+        wanted=lambda job: job.diagnosis,
+        optional=True,
+        failure=_no_diagnosis,
+    ),
+    JobStage(
+        "report",
+        _report_config,
+        _report,
+        load=lambda job, folder: folder / "index.html",
+        wanted=lambda job: job.html,
+    ),
+)

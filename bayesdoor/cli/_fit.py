@@ -102,6 +102,7 @@ def write_figures(result, system, campaign, folder: Path, seed: int) -> dict[str
         system.channels,
         folder / "predictive_psd.png",
         title=f"{result.method} fit, law {result.law}, calibration runs",
+        conditions=[(c.name, c.unit) for c in system.conditions],
     )
     files["predictive_psd"] = str(path)
     return {"files": files, "predictive_coverage_90": coverage}

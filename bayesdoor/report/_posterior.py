@@ -19,6 +19,16 @@ def _pyplot():
     return plt
 
 
+def _point_label(conditions: Sequence[tuple[str, str]], point) -> str:
+    """``name = value unit`` for each condition of an operating point, comma-separated."""
+    values = np.atleast_1d(np.asarray(point, dtype=float))
+    names = list(conditions) + [("", "")] * (values.size - len(conditions))
+    return ", ".join(
+        f"{name} = {v:g}{' ' + unit if unit and unit != '-' else ''}".strip(" =")
+        for (name, unit), v in zip(names, values, strict=False)
+    )
+
+
 def plot_predictive_bands(
     replicates: np.ndarray,
     measured: np.ndarray,
@@ -29,8 +39,7 @@ def plot_predictive_bands(
     path: str | Path,
     *,
     title: str = "posterior-predictive log PSD",
-    operating_label: str = "v_max",
-    operating_unit: str = "m/s",
+    conditions: Sequence[tuple[str, str]] = (("operating point", ""),),
 ) -> tuple[Path, float]:
     """Posterior-predictive 90 % bands of the log-PSD features against the measured ones.
 
@@ -56,8 +65,9 @@ def plot_predictive_bands(
         The PNG to write (its folder is created).
     title
         Figure title.
-    operating_label, operating_unit
-        How to label the operating points.
+    conditions
+        The name and unit of each operating condition, in the order of an operating point's
+        values (a system's ``(c.name, c.unit) for c in system.conditions``).
 
     Returns
     -------
@@ -108,8 +118,7 @@ def plot_predictive_bands(
                 ax.set_ylabel(f"{channels[c]}\nlog10 PSD")
             if c == 0:
                 ax.set_title(
-                    f"{operating_label} = {operating[o]:g} {operating_unit} ({runs.size} runs)",
-                    fontsize=10,
+                    f"{_point_label(conditions, operating[o])} ({runs.size} runs)", fontsize=10
                 )
             if c == n_ch - 1:
                 ax.set_xlabel("frequency (Hz)")

@@ -469,8 +469,8 @@ def test_fit_campaign_updates_the_extension_parameters_with_table_2(base_runs):
         v_max=SPEEDS,
     )
     settings = FitSettings(max_motion_s=0.5, cmaes_max_evals=8, cmaes_restarts=0, cmaes_popsize=4)
-    fit = fit_campaign(door, campaign, law=6, settings=settings, progress=False)
-    assert set(fit.point) == set(door.parameter_names())
+    fit = fit_campaign(door, campaign, fixed={"I": 6}, settings=settings, progress=False)
+    assert set(fit.point) == set(door.parameter_names()) and fit.held == {"I": 6.0}
     for p in door.parameters:
         assert p.lower <= fit.point[p.name] <= p.upper
     assert np.isfinite(fit.j)

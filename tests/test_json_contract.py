@@ -157,7 +157,7 @@ def made_up_fit(system, data, **options) -> FitResult:
     history = CMAESHistory(*(np.arange(1.0, 4.0) for _ in range(7)))
     return FitResult(
         method="nuts",
-        law=int(point["I"]),
+        held={"I": point["I"]},
         point=point,
         j=0.25,
         idata=idata,
@@ -283,6 +283,7 @@ def test_the_payloads_describe_what_was_done(payloads, campaign_file):
     # the contact-law index is fixed, not sampled: a point, no interval
     law = float(DoorParameters.paper_optimum().to_dict()["I"])
     assert fit["parameters"]["I"]["point"] == law and fit["parameters"]["I"]["q5"] is None
+    assert fit["held"] == {"I": law} and "law" not in fit
     assert fit["parameters"]["K"]["q5"] < fit["parameters"]["K"]["mean"]
     assert fit["diagnostics"]["divergences"] == 0
     run = payloads["run"]

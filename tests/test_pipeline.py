@@ -98,7 +98,7 @@ class StandInFit:
         (Path(folder) / "point.json").write_text(json.dumps(self.point))
 
 
-def stand_in_fit(system, campaign, *, method, law, seed, quick, progress):
+def stand_in_fit(system, campaign, *, method, seed, quick, progress):
     StandInFit.calls += 1
     assert set(np.asarray(campaign["split"].values)) == {"calibration"}
     return StandInFit(seed)

@@ -27,6 +27,7 @@ from bayesdoor.inference import (
     welch_j_standard_error,
 )
 from bayesdoor.io import make_campaign
+from bayesdoor.systems import ParameterSpec
 
 CHANNELS = ("A1X", "A1Z", "A2X", "A2Z")
 
@@ -65,8 +66,21 @@ def test_a_campaign_without_healthy_runs_is_refused_before_any_simulation():
         calibration_runs(faulty_calibration)
     with pytest.raises(ValueError, match="method='lbfgs'"):
         fit_campaign(ElevatorDoor(), faulty, method="lbfgs")  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match=r"law=12 must be an integer in \[1, 9\]"):
-        fit_campaign(ElevatorDoor(), faulty, law=12)
+    # the held values are checked before the runs: each against its ParameterSpec
+    with pytest.raises(ValueError, match=r"parameter I=12.0 is outside its allowed range \[1, 9\]"):
+        fit_campaign(ElevatorDoor(), faulty, fixed={"I": 12})
+    with pytest.raises(ValueError, match=r"parameter I=2.5 must be an integer"):
+        fit_campaign(ElevatorDoor(), faulty, fixed={"I": 2.5})
+    with pytest.raises(ValueError, match=r"fixed names \['law', 'Q'\], which are not parameters"):
+        fit_campaign(ElevatorDoor(), faulty, fixed={"law": 3, "Q": 1.0, "I": 3})
+    with pytest.raises(ValueError, match=r"fixed\['K'\]='1e6' must be a number"):
+        fit_campaign(ElevatorDoor(), faulty, fixed={"K": "1e6"})
+    everything = dict(ElevatorDoor().nominal())
+    with pytest.raises(ValueError, match="fixed holds every parameter of elevator_door"):
+        fit_campaign(ElevatorDoor(), faulty, fixed=everything)
+    del everything["I"]
+    with pytest.raises(ValueError, match="method='nuts' samples the continuous parameters"):
+        fit_campaign(ElevatorDoor(), faulty, method="nuts", fixed=everything)
 
 
 def _features(operating, y):
@@ -220,6 +234,46 @@ def test_cmaes_stops_at_a_tenth_of_js_standard_error():
     _stops_at_a_tenth_and_near_the_budgets_j(toy, campaign, se)
 
 
+class TwoIndexToy(ToySystem):
+    """The toy system with a second integer parameter, which its signals ignore."""
+
+    @property
+    def parameters(self):
+        extra = ParameterSpec("mode", "-", 1, 0, 2, "a second index", integer=True)
+        return (*super().parameters, extra)
+
+
+def test_every_integer_parameter_is_searched_then_held_and_a_continuous_one_may_be_held():
+    """Two integer parameters: CMA-ES searches both as integer variables after the continuous
+    ones and holds them at the optimum; ``fixed`` takes a continuous parameter out of the
+    search and the sampled names, and an integer one out of the search."""
+    _, campaign = _toy_campaign([0.3, 0.5] * 2)
+    toy = TwoIndexToy()
+    settings = FitSettings(max_motion_s=0.5, cmaes_max_evals=60, cmaes_restarts=0)
+    fit = fit_campaign(toy, campaign, method="cmaes", settings=settings, progress=False)
+    assert fit.names == ("k", "m") and list(fit.held) == ["law", "mode"]
+    # the search vector: k, m, then law and mode, integral as pycma keeps them
+    x = fit.cmaes.x_best
+    assert x.shape == (4,) and x[2] == fit.held["law"] and x[3] == fit.held["mode"]
+    assert all(v == round(v) for v in fit.held.values())
+    assert fit.point == {"k": x[0], "m": x[1], **fit.held}
+    assert fit.to_json()["held"] == fit.held
+    held = fit_campaign(
+        toy,
+        campaign,
+        method="cmaes",
+        fixed={"mode": 2, "m": 1.0},
+        settings=settings,
+        progress=False,
+    )
+    assert held.names == ("k",) and held.cmaes.x_best.shape == (2,)
+    # the system's order, the searched integer at its optimum
+    assert held.held == {"m": 1.0, "law": held.cmaes.x_best[1], "mode": 2.0}
+    assert held.point == {"k": held.cmaes.x_best[0], **held.held}
+    # the toy's tone follows k (20 + 40 k Hz): the runs' k of 0.5 is found with m held
+    assert abs(held.point["k"] - 0.5) < 0.05
+
+
 def test_cmaes_without_replicates_stops_at_a_tenth_of_the_welch_standard_error():
     """No speed measured twice: the stop falls back on the Welch scatter's standard error,
     says so in the notes, and still ends before a run to the budget, within one such
@@ -301,7 +355,9 @@ def test_cmaes_reaches_the_truths_j_on_rig_data(rig, cmaes_fit):
     # iteration that reaches it; 132 = 11 x 12 measured for a budget of 120)
     history = cmaes_fit.cmaes.history
     assert cmaes_fit.cmaes.evaluations <= cmaes_fit.settings.cmaes_max_evals + history.popsize[-1]
-    assert cmaes_fit.law in range(1, 10)
+    # the contact-law index, the door's one integer parameter, searched and then held
+    assert list(cmaes_fit.held) == ["I"] and cmaes_fit.held["I"] in range(1, 10)
+    assert cmaes_fit.point["I"] == cmaes_fit.held["I"] and "I" not in cmaes_fit.names
 
 
 def test_a_fit_saves_loads_and_refuses_to_overwrite(cmaes_fit, tmp_path):
@@ -318,7 +374,20 @@ def test_a_fit_saves_loads_and_refuses_to_overwrite(cmaes_fit, tmp_path):
     draws = again.posterior_draws()
     assert set(draws) == set(again.names) and all(v.shape == (1,) for v in draws.values())
     assert again.model_error_draws().shape == (1, 4)
-    assert json.loads(before)["method"] == "cmaes"
+    record = json.loads(before)
+    assert record["method"] == "cmaes"
+    assert record["held"] == cmaes_fit.held == again.held and "law" not in record
+    # a fit written before "held" recorded the integer parameter's value as "law": it is the
+    # parameter of the point that the sampled names lack
+    old = {k: v for k, v in record.items() if k != "held"}
+    old["law"] = int(cmaes_fit.held["I"])
+    (folder / "fit.json").write_text(json.dumps(old))
+    assert FitResult.load(folder).held == cmaes_fit.held
+    # one that cannot tell which parameter the law was is refused, not guessed
+    old["names"] = [n for n in old["names"] if n != "K"]
+    (folder / "fit.json").write_text(json.dumps(old))
+    with pytest.raises(ValueError, match=r"old fit record \(law=\d, no 'held'\).*\['I', 'K'\]"):
+        FitResult.load(folder)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -350,7 +419,7 @@ def demo_fit():
     truth = load_demo_truth()["parameters"]
     door = ElevatorDoor()
     t0 = time.perf_counter()
-    result = fit_campaign(door, campaign, method="nuts", law=truth["I"], progress=False)
+    result = fit_campaign(door, campaign, method="nuts", fixed={"I": truth["I"]}, progress=False)
     print(f"NUTS fit in {time.perf_counter() - t0:.0f} s: {result.timings}")
     print(result.diagnostics)
     print("notes:", result.notes)

@@ -5,14 +5,15 @@ The pipeline of :func:`fit_campaign`:
 1. the calibration runs of the campaign (``split == "calibration"`` when present, else every
    ``healthy`` run) become feature vectors (:class:`CalibrationData`), with each run's motion
    window clipped to the length of the simulated one, so both sides average the same stretch;
-2. CMA-ES minimises the paper's objective J over the parameters' bounds, an integer
-   parameter (a contact-law index) as an integer variable unless it is fixed, each population
-   simulated as one vmapped batch over all operating points;
-3. for ``nuts`` and ``emcee``: a quadratic surrogate of the features is fitted in a box around
-   the optimum (parameters the data cannot move span their whole range), its held-out error
-   enters the likelihood, the sampling coordinates are whitened by a Laplace approximation,
-   and the sampler starts at the optimum; the convergence gates are checked and a failure is
-   reported loudly.
+2. CMA-ES minimises the paper's objective J over the bounds of the parameters not held fixed,
+   every integer parameter (a contact-law index) as an integer variable, each population
+   simulated as one vmapped batch over all operating points; the integer parameters are then
+   held at the optimum's values;
+3. for ``nuts`` and ``emcee``, over the continuous parameters not held: a quadratic surrogate
+   of the features is fitted in a box around the optimum (parameters the data cannot move
+   span their whole range), its held-out error enters the likelihood, the sampling
+   coordinates are whitened by a Laplace approximation, and the sampler starts at the
+   optimum; the convergence gates are checked and a failure is reported loudly.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import dataclasses
 import json
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -529,7 +530,7 @@ class _PartialForward(AbstractForward):
     """The population simulator as a forward model of some parameters, the rest held.
 
     The held values (for example the contact-law index) are traced, not static, so a fit per
-    law reuses one compilation of the vmapped simulation.
+    held value reuses one compilation of the vmapped simulation.
     """
 
     population: _Population
@@ -595,11 +596,13 @@ class FitResult:
     ----------
     method
         ``cmaes``, ``nuts`` or ``emcee``.
-    law
-        The integer parameter's value (the contact-law index), or ``None`` without one.
+    held
+        Every parameter held fixed, by name: those the fit was given (``fixed``) and the
+        integer ones (the door's contact-law index ``I``) at the CMA-ES optimum's value;
+        empty when every parameter was sampled or optimised.
     point
         Every parameter by name: the CMA-ES optimum (``cmaes``) or the posterior mean, with
-        the integer parameter at ``law``.
+        the held parameters at ``held``.
     j
         The paper's objective J at ``point`` (exact simulator), averaged over the runs.
     idata
@@ -614,7 +617,7 @@ class FitResult:
     settings
         The stage sizes.
     names
-        The sampled (continuous) parameters, in order.
+        The sampled (continuous, not held) parameters, in order.
     sigma_point
         Model-error (discrepancy) scale at the CMA-ES optimum (decades), per operating point
         (in the order of the calibration runs' distinct operating points) and channel, or per
@@ -647,7 +650,7 @@ class FitResult:
     """
 
     method: str
-    law: int | None
+    held: dict[str, float]
     point: dict[str, float]
     j: float
     idata: az.InferenceData | None
@@ -756,7 +759,7 @@ class FitResult:
         sigma = self.model_error_draws()
         return {
             "method": self.method,
-            "law": self.law,
+            "held": self.held,
             "j": self.j,
             "parameters": parameters,
             "model_error": None if sigma is None else np.mean(sigma, axis=0).tolist(),
@@ -796,7 +799,7 @@ class FitResult:
         h = self.cmaes.history
         record = {
             "method": self.method,
-            "law": self.law,
+            "held": self.held,
             "point": self.point,
             "j": self.j,
             "feature_spec": {
@@ -855,10 +858,15 @@ class FitResult:
     def load(cls, folder: str | Path) -> FitResult:
         """Read a fit written by :meth:`save`.
 
+        Fits written before ``held`` recorded the one integer parameter's value as ``law``;
+        that parameter is the one of ``point`` that ``names`` (the sampled ones) lacks.
+
         Raises
         ------
         FileNotFoundError
             When the folder holds no ``fit.json`` (or a sampled fit lacks ``posterior.nc``).
+        ValueError
+            For an old record whose ``law`` cannot be told to which parameter it belongs.
         """
         folder = Path(folder)
         target = folder / "fit.json"
@@ -892,7 +900,7 @@ class FitResult:
             diagnostics = SamplingDiagnostics(**d)
         return cls(
             method=r["method"],
-            law=r["law"],
+            held=_held_of(r, target),
             point={k: float(v) for k, v in r["point"].items()},
             j=_float(r["j"]),
             idata=None if r["method"] == "cmaes" else load_posterior(folder / "posterior.nc"),
@@ -919,6 +927,24 @@ class FitResult:
             seed=int(r["seed"]),
             system=r.get("system"),
         )
+
+
+def _held_of(record: dict[str, Any], target: Path) -> dict[str, float]:
+    """The held parameters of a ``fit.json`` record; of an old one (``law`` instead of
+    ``held``), the parameter of ``point`` that ``names`` lacks at the value ``law``."""
+    if "held" in record:
+        return {str(k): float(v) for k, v in record["held"].items()}
+    law = record.get("law")
+    held = {str(k): float(v) for k, v in record["point"].items() if k not in record["names"]}
+    if law is None and not held:
+        return {}
+    if law is not None and len(held) == 1 and next(iter(held.values())) == float(law):
+        return held
+    raise ValueError(
+        f"{target} is an old fit record (law={law!r}, no 'held') whose held parameter cannot be "
+        f"told from its point and names (parameters not sampled: {sorted(held) or 'none'}): "
+        "refit it"
+    )
 
 
 def _described(description: dict[str, Any]) -> Any:
@@ -953,27 +979,41 @@ def _float(value: float | None) -> float:
 # the fit
 
 
-def _integer_parameter(system: AbstractSystem, law: int | None) -> tuple[str | None, int | None]:
-    """The system's integer parameter (if any) and the value ``law`` fixes it to."""
-    integer = [p for p in system.parameters if p.integer]
-    if len(integer) > 1:
+def _held_parameters(system: AbstractSystem, fixed: Mapping[str, float] | None) -> dict[str, float]:
+    """The values ``fixed`` holds, checked against the system's parameters (in their order).
+
+    Raises
+    ------
+    ValueError
+        Naming the unknown names, or the parameter whose value is not a number, lies outside
+        its bounds or is not integral for an integer parameter.
+    """
+    if fixed is None:
+        return {}
+    specs = {p.name: p for p in system.parameters}
+    unknown = [str(n) for n in fixed if n not in specs]
+    if unknown:
         raise ValueError(
-            f"{system.name} has {len(integer)} integer parameters "
-            f"({', '.join(p.name for p in integer)}); fit_campaign handles at most one"
+            f"fixed names {unknown}, which are not parameters of {system.name}: use some of "
+            f"{list(specs)}"
         )
-    if not integer:
-        if law is not None:
-            raise ValueError(f"law={law!r}, but {system.name} has no integer parameter to fix")
-        return None, None
-    spec = integer[0]
-    if law is not None:
-        if isinstance(law, bool) or int(law) != law or not spec.lower <= law <= spec.upper:
+    held = {}
+    for name, spec in specs.items():
+        if name not in fixed:
+            continue
+        value = fixed[name]
+        try:
+            if isinstance(value, bool | str):
+                raise TypeError
+            number = float(value)
+        except (TypeError, ValueError):
             raise ValueError(
-                f"law={law!r} must be an integer in [{spec.lower:g}, {spec.upper:g}] "
-                f"({spec.name}: {spec.description})"
-            )
-        law = int(law)
-    return spec.name, law
+                f"fixed[{name!r}]={value!r} must be a number in [{spec.lower:g}, "
+                f"{spec.upper:g}] ({spec.description})"
+            ) from None
+        spec.check(number)
+        held[name] = number
+    return held
 
 
 def _box_room(
@@ -1084,7 +1124,7 @@ def fit_campaign(
     campaign: xr.Dataset,
     *,
     method: Method = "cmaes",
-    law: int | None = None,
+    fixed: Mapping[str, float] | None = None,
     seed: int = 0,
     quick: bool = False,
     progress: bool = True,
@@ -1105,9 +1145,12 @@ def fit_campaign(
     method
         ``cmaes`` (the optimum of J only), ``nuts`` or ``emcee`` (a posterior on a surrogate
         of the simulator, started at the CMA-ES optimum).
-    law
-        Fix the system's integer parameter (the door's contact-law index) to this value;
-        ``None``: CMA-ES searches it and the posterior is conditional on its optimum.
+    fixed
+        Parameters held at these values by name (for example ``{"I": 3}``, the door's
+        contact-law index): they are neither searched nor sampled. Every integer parameter
+        not in it is searched by CMA-ES as an integer variable and then held at the
+        optimum's value, so the posterior is conditional on it; a continuous one in it leaves
+        the search and the posterior. ``None``: nothing given.
     seed
         Seeds CMA-ES (``seed + 1``, pycma needs a positive seed), the surrogate design and
         the sampler.
@@ -1124,8 +1167,8 @@ def fit_campaign(
     x0
         CMA-ES start point by parameter name (a warm start, e.g. another fit's ``point``,
         with a smaller ``settings.cmaes_sigma0``); a searched parameter it lacks starts in
-        the middle of its range, and a held one (the integer parameter when ``law`` is
-        given) is ignored. ``None``: the middle of every range.
+        the middle of its range, and one in ``fixed`` is ignored. ``None``: the middle of
+        every range.
 
     Returns
     -------
@@ -1135,9 +1178,11 @@ def fit_campaign(
     Raises
     ------
     ValueError
-        For an unknown method, an invalid ``law`` or ``seed``, an ``x0`` with an unknown
-        name or a value outside its bounds, or a campaign without a usable healthy run (see
-        :func:`calibration_runs`).
+        For an unknown method or ``seed``; a ``fixed`` with an unknown name, a value outside
+        its bounds or a non-integral value of an integer parameter, or one that leaves nothing
+        to search (or, for ``nuts``/``emcee``, nothing continuous to sample); an ``x0`` with
+        an unknown name or a value outside its bounds; or a campaign without a usable healthy
+        run (see :func:`calibration_runs`).
     RuntimeError
         When every CMA-ES candidate failed to simulate.
 
@@ -1153,7 +1198,23 @@ def fit_campaign(
         raise ValueError(f"seed={seed!r} must be an integer >= 0")
     settings = (FitSettings.quick() if quick else FitSettings()) if settings is None else settings
     spec = FeatureSpec.of(system) if spec is None else spec
-    integer_name, law = _integer_parameter(system, law)
+    given = _held_parameters(system, fixed)
+    specs = {p.name: p for p in system.parameters}
+    free = tuple(p.name for p in system.parameters if not p.integer and p.name not in given)
+    integer = tuple(p.name for p in system.parameters if p.integer and p.name not in given)
+    # the search vector: the continuous parameters, then the integer ones (system order)
+    search = (*free, *integer)
+    if not search:
+        raise ValueError(
+            f"fixed holds every parameter of {system.name} ({', '.join(given)}): nothing is "
+            "left to fit; leave at least one out"
+        )
+    if method != "cmaes" and not free:
+        raise ValueError(
+            f"method={method!r} samples the continuous parameters, but fixed holds all of "
+            f"them ({', '.join(n for n in given if not specs[n].integer)}): leave one out, or "
+            "use method='cmaes'"
+        )
     timings: dict[str, float] = {}
     notes: list[str] = []
     t0 = time.perf_counter()
@@ -1163,10 +1224,6 @@ def fit_campaign(
     )
     timings["features"] = time.perf_counter() - t0
 
-    specs = {p.name: p for p in system.parameters}
-    free = tuple(p.name for p in system.parameters if not p.integer)
-    search = free if integer_name is None or law is not None else (*free, integer_name)
-    fixed = {} if integer_name is None or law is None else {integer_name: float(law)}
     lower = np.array([specs[n].lower for n in search])
     upper = np.array([specs[n].upper for n in search])
     population = _Population.build(system, data, duration, spec)
@@ -1179,9 +1236,9 @@ def fit_campaign(
         chunk = -(-len(x) // settings.workers)
         workers = settings.workers if chunk in compiled else 1
         compiled.add(chunk)
-        return _j(*_simulate(population, _full(system, x, search, fixed), chunk, workers), data)
+        return _j(*_simulate(population, _full(system, x, search, given), chunk, workers), data)
 
-    integers = [len(search) - 1] if integer_name in search else []
+    integers = list(range(len(free), len(search)))
     start = _start_point(x0, search, specs, lower, upper)
     start[integers] = np.round(start[integers])
     tolerance = None
@@ -1219,19 +1276,18 @@ def fit_campaign(
             "solver's max_steps"
         )
     optimum = dict(zip(search, (float(v) for v in cmaes.x_best), strict=True))
-    if integer_name is not None:
-        law = round(optimum.pop(integer_name, law))  # type: ignore[arg-type]
+    found = {n: float(round(optimum.pop(n))) for n in integer}
+    held = {p.name: {**given, **found}[p.name] for p in system.parameters if p.name not in free}
     theta_opt = np.array([optimum[n] for n in free])
     bounds = (np.array([specs[n].lower for n in free]), np.array([specs[n].upper for n in free]))
-    fixed_law = {} if integer_name is None else {integer_name: float(law)}  # type: ignore[arg-type]
-    full_point = {**optimum, **fixed_law}
-    sim, _ = _simulate(population, _full(system, theta_opt, free, fixed_law), chunk)
+    full_point = {**optimum, **held}
+    sim, _ = _simulate(population, _full(system, theta_opt, free, held), chunk)
     residual = np.asarray(data.y) - sim[0][np.asarray(data.run_operating)]
     error = ModelError() if error is None else error
     sigma_point, scatter_point = _point_error(residual, data, error)
 
     common = dict(
-        law=law,
+        held=held,
         cmaes=cmaes,
         feature_spec=spec,
         settings=settings,
@@ -1266,14 +1322,14 @@ def fit_campaign(
     ends[2 * np.arange(d), np.arange(d)] = bounds[0]
     ends[2 * np.arange(d) + 1, np.arange(d)] = bounds[1]
     end_features, _ = _simulate(
-        population, _full(system, ends, free, fixed_law), chunk, settings.workers
+        population, _full(system, ends, free, held), chunk, settings.workers
     )
     reach = np.max(np.abs(end_features[0::2] - end_features[1::2]), axis=(1, 2, 3))
     welch_sd = float(np.sqrt(np.median(np.asarray(data.welch_variance))))
     loose = reach < settings.insensitive * welch_sd
     fractions = jnp.asarray(np.where(loose, 1.0, settings.box_fraction))
     n_terms = 1 + d + d * (d + 1) // 2
-    forward = _PartialForward.build(system, population, free, fixed_law)
+    forward = _PartialForward.build(system, population, free, held)
     centre, sigma_init, rho_init = theta_opt, jnp.asarray(sigma_point), jnp.asarray(scatter_point)
     length_init = error.correlation_length()
     tau_init = jnp.asarray(_common_point(residual, data)) if error.common else None
@@ -1404,8 +1460,8 @@ def fit_campaign(
     _add_predictive(idata, model, settings.predictive_draws, key_pred)
     record_system(idata, system.describe())
     point = {n: float(np.mean(draws[:, i])) for i, n in enumerate(free)}
-    point.update(fixed_law)
-    x_mean = _full(system, np.array([point[n] for n in search]), search, fixed)
+    point.update(held)
+    x_mean = _full(system, np.array([point[n] for n in free]), free, held)
     j = float(_j(*_simulate(population, x_mean, chunk), data)[0])
     return FitResult(
         method=method,

@@ -30,7 +30,8 @@ class FitSummary:
         How the fit was made (``"cmaes"``, ``"nuts"``, ``"emcee"``).
     point
         One value per system parameter (the posterior mean of a sampled fit, the CMA-ES
-        optimum of a point fit; the contact-law index included).
+        optimum of a point fit; the held parameters, such as the door's contact-law index,
+        included).
     optimum
         The CMA-ES optimum, one value per system parameter (the centre of the paper's
         Gaussian baseline).

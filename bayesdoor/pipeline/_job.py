@@ -372,10 +372,12 @@ def run_job(
     sizes
         Sizes of the generation and training; ``None``: the paper's, or the quick ones.
     fit
-        The model-updating function, called as ``fit(system, calibration, method=, law=None,
-        seed=, quick=, progress=)`` and returning a ``FitResult``-like object (``point``, ``j``,
-        ``posterior_draws()``, ``model_error_draws()``, ``save(folder)``); ``None`` means
-        :func:`bayesdoor.inference.fit_campaign`.
+        The model-updating function, called as ``fit(system, calibration, method=, seed=,
+        quick=, progress=, **fit_options)`` and returning a ``FitResult``-like object
+        (``point``, ``j``, ``posterior_draws()``, ``model_error_draws()``, ``save(folder)``);
+        ``None`` means :func:`bayesdoor.inference.fit_campaign`, whose integer parameters (the
+        door's contact-law index) CMA-ES searches unless ``fit_options`` holds them
+        (``fixed={"I": 3}``).
     fit_options
         Further keyword arguments of ``fit`` (for example ``settings``, a
         :class:`bayesdoor.inference.FitSettings`); they enter the fit stage's configuration
@@ -666,7 +668,6 @@ def _fit(job: _Job, folder: Path) -> None:
         job.system,
         job.calibration,
         method=job.method,
-        law=None,
         seed=job.fit_seed,
         quick=job.quick,
         progress=job.progress,

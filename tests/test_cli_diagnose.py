@@ -215,16 +215,16 @@ def test_bad_posterior_folders_fail_in_one_line(calls, campaign, tmp_path):
     one_line_failure(
         invoke("diagnose", campaign, "--out", out, "--posterior", empty), "holds no fit.json"
     )
-    laws = tmp_path / "laws"
+    laws = tmp_path / "laws"  # bayesdoor fit --each I
     for i in (1, 2):
-        (laws / f"law_{i}").mkdir(parents=True)
-        (laws / f"law_{i}" / "fit.json").write_text("{}")
+        (laws / f"I_{i}").mkdir(parents=True)
+        (laws / f"I_{i}" / "fit.json").write_text("{}")
     one_line_failure(
         invoke("diagnose", campaign, "--out", out, "--posterior", laws),
-        "one fit per contact law",
-        str(laws / "law_1"),
+        "holds several fits, one per value of a parameter (I_1, I_2)",
+        str(laws / "I_1"),
     )
-    broken = laws / "law_1"
+    broken = laws / "I_1"
     one_line_failure(
         invoke("diagnose", campaign, "--out", out, "--posterior", broken), "cannot be read"
     )

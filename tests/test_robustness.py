@@ -343,17 +343,22 @@ def test_fit_accepts_bad_records_outside_the_calibration_runs(files, tmp_path, m
 
 
 @pytest.mark.parametrize(
-    ("law", "message"),
+    ("options", "message"),
     [
-        ("abc", "--law 'abc': give an integer in [1, 9] or 'all'"),
-        ("1.5", "--law '1.5': give an integer in [1, 9] or 'all'"),
-        ("99", "--law 99 lies outside [1, 9]"),
-        ("0", "--law 0 lies outside [1, 9]"),
+        (["--fix", "I"], "--fix 'I': give NAME=VALUE with a parameter of elevator_door"),
+        (["--fix", "I=abc"], "--fix 'I=abc': give NAME=VALUE"),
+        (["--fix", "I=99"], "--fix I=99: parameter I=99.0 is outside its allowed range [1, 9]"),
+        (["--fix", "I=1.5"], "--fix I=1.5: parameter I=1.5 must be an integer"),
+        (["--fix", "law=3"], "--fix law=3: unknown parameter 'law' for system elevator_door"),
+        (["--fix", "I=3", "--fix", "I=4"], "--fix I is given twice"),
+        (["--each", "law"], "--each law: not a parameter of elevator_door; give one of its"),
+        (["--each", "K"], "--each K: not an integer parameter of elevator_door"),
+        (["--each", "I", "--fix", "I=3"], "--each I and --fix I=... both given"),
     ],
 )
-def test_fit_refuses_a_bad_law_before_any_work(files, tmp_path, law, message):
+def test_fit_refuses_a_bad_fix_or_each_before_any_work(files, tmp_path, options, message):
     out = tmp_path / "out"
-    refused(invoke(*COMMANDS["fit"](files["good"], out, None), "--law", law), message)
+    refused(invoke(*COMMANDS["fit"](files["good"], out, None), *options), message)
     assert not out.exists()
 
 

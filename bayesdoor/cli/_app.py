@@ -382,8 +382,23 @@ def fit(
     path: Annotated[Path, typer.Argument(help="campaign NetCDF file")],
     out: Annotated[Path, typer.Option("--out", help="output folder")],
     method: Annotated[str, typer.Option(help="cmaes, nuts or emcee")] = "cmaes",
-    law: Annotated[
-        str, typer.Option(help="fix the contact-law index I, or 'all' (default: searched)")
+    fix: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--fix",
+            metavar="NAME=VALUE",
+            help="hold a parameter at a value, e.g. --fix I=3 (repeatable; integer parameters "
+            "not held are searched by CMA-ES)",
+        ),
+    ] = None,
+    each: Annotated[
+        str,
+        typer.Option(
+            "--each",
+            metavar="NAME",
+            help="one fit per value of an integer parameter over its bounds, e.g. --each I "
+            "(the door's contact-law ablation), into --out/NAME_VALUE",
+        ),
     ] = "",
     seed: Annotated[int, typer.Option(help="seed of CMA-ES, surrogate and sampler")] = 0,
     quick: Annotated[bool, typer.Option(help="small sizes (demos, tests; not converged)")] = False,
@@ -394,7 +409,7 @@ def fit(
     configure_jax()
     from ._fit import run_fit
 
-    payload = run_fit(path, out, method, law, seed, quick, force, json)
+    payload = run_fit(path, out, method, fix or [], each, seed, quick, force, json)
     if json:
         emit_json(payload)
 

@@ -21,19 +21,20 @@ def load_fit(folder: Path, system) -> Any:
     Raises
     ------
     typer.Exit
-        (through :func:`fail`) for a missing folder, a folder of several laws, a folder
-        without a fit, an unreadable fit, or a fit of another system's parameters.
+        (through :func:`fail`) for a missing folder, a folder of several fits (``bayesdoor
+        fit --each``), a folder without a fit, an unreadable fit, or a fit of another
+        system's parameters.
     """
     from ..inference import FitResult
 
     if not folder.is_dir():
         raise fail(f"--posterior {folder}: no such folder; pass the --out folder of bayesdoor fit")
-    laws = sorted(p.name for p in folder.glob("law_*") if (p / "fit.json").is_file())
+    fits = sorted(p.name for p in folder.iterdir() if (p / "fit.json").is_file())
     if not (folder / "fit.json").is_file():
-        if laws:
+        if fits:
             raise fail(
-                f"--posterior {folder} holds one fit per contact law ({', '.join(laws)}): pass "
-                f"one of them, e.g. --posterior {folder / laws[0]}"
+                f"--posterior {folder} holds several fits, one per value of a parameter "
+                f"({', '.join(fits)}): pass one of them, e.g. --posterior {folder / fits[0]}"
             )
         raise fail(
             f"--posterior {folder} holds no fit.json: pass the --out folder of bayesdoor fit"

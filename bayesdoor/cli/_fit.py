@@ -26,19 +26,65 @@ FIT_FILES = (
 )
 
 
-def parse_law(law: str, lower: float, upper: float) -> list[int | None]:
-    """``--law``: empty for a searched law, an index, or ``all`` for every index."""
-    if law == "":
-        return [None]
-    if law == "all":
-        return list(range(int(lower), int(upper) + 1))
-    try:
-        value = int(law)
-    except ValueError:
-        raise fail(f"--law {law!r}: give an integer in [{lower:g}, {upper:g}] or 'all'") from None
-    if not lower <= value <= upper:
-        raise fail(f"--law {value} lies outside [{lower:g}, {upper:g}]")
-    return [value]
+def parse_fixed(items: list[str], system: Any) -> dict[str, float]:
+    """``--fix NAME=VALUE`` (repeatable): the parameters held, checked against the system.
+
+    Raises
+    ------
+    typer.Exit
+        (through :func:`fail`) for an item without ``=`` or a number, a name given twice, an
+        unknown name, a value outside the parameter's bounds or a non-integral value of an
+        integer parameter.
+    """
+    fixed: dict[str, float] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        try:
+            if not sep or not name:
+                raise ValueError
+            value = float(text)
+        except ValueError:
+            raise fail(
+                f"--fix {item!r}: give NAME=VALUE with a parameter of {system.name} and a number, "
+                f"e.g. --fix {system.parameters[0].name}={system.parameters[0].nominal:g}"
+            ) from None
+        if name in fixed:
+            raise fail(f"--fix {name} is given twice: give each parameter once")
+        try:
+            system.check_parameters({name: value})
+        except ValueError as err:
+            raise fail(f"--fix {item}: {err}") from None
+        fixed[name] = value
+    return fixed
+
+
+def parse_each(each: str, system: Any, fixed: dict[str, float]) -> list[int]:
+    """``--each NAME``: every integer value of an integer parameter over its bounds.
+
+    Raises
+    ------
+    typer.Exit
+        (through :func:`fail`) for a name that is not an integer parameter of the system, or
+        one that ``--fix`` holds.
+    """
+    specs = {p.name: p for p in system.parameters}
+    integer = [p.name for p in system.parameters if p.integer]
+    if each not in specs or not specs[each].integer:
+        what = "not a parameter" if each not in specs else "not an integer parameter"
+        raise fail(
+            f"--each {each}: {what} of {system.name}; give one of its integer parameters "
+            f"({', '.join(integer) or 'it has none'})"
+        )
+    if each in fixed:
+        raise fail(f"--each {each} and --fix {each}=... both given: give one of them")
+    spec = specs[each]
+    return list(range(int(np.ceil(spec.lower)), int(np.floor(spec.upper)) + 1))
+
+
+def held_text(held: dict[str, float]) -> str:
+    """The held parameters as ``I = 3, K = 1e+06``."""
+    return ", ".join(f"{k} = {v:g}" for k, v in held.items())
 
 
 def check_fit_system(fit: Any, system: Any, folder: Path) -> None:
@@ -65,9 +111,10 @@ def check_fit_system(fit: Any, system: Any, folder: Path) -> None:
         raise fail(str(err)) from None
 
 
-def fit_folder(out: Path, law: int | None, several: bool) -> Path:
-    """Where one fit goes: ``out`` itself, or ``out/law_I`` when several laws are fitted."""
-    return out / f"law_{law}" if several else out
+def fit_folder(out: Path, each: str, value: int | None, several: bool) -> Path:
+    """Where one fit goes: ``out`` itself, or ``out/NAME_VALUE`` (``out/I_3``) when several
+    values of the ``--each`` parameter are fitted."""
+    return out / f"{each}_{value}" if several else out
 
 
 def check_free(folders: list[Path], force: bool) -> None:
@@ -101,7 +148,10 @@ def write_figures(result, system, campaign, folder: Path, seed: int) -> dict[str
         np.asarray(data.band_centres),
         system.channels,
         folder / "predictive_psd.png",
-        title=f"{result.method} fit, law {result.law}, calibration runs",
+        title=", ".join(
+            [f"{result.method} fit", *([held_text(result.held)] if result.held else [])]
+        )
+        + ", calibration runs",
         conditions=[(c.name, c.unit) for c in system.conditions],
     )
     files["predictive_psd"] = str(path)
@@ -110,7 +160,8 @@ def write_figures(result, system, campaign, folder: Path, seed: int) -> dict[str
 
 def summary_text(result) -> str:
     """The posterior summary table (or the CMA-ES point) as text."""
-    lines = [f"method {result.method}, law {result.law}, J = {result.j:.4f}"]
+    held = f", {held_text(result.held)}" if result.held else ""
+    lines = [f"method {result.method}{held}, J = {result.j:.4f}"]
     if result.idata is None:
         lines += [f"  {k:8s} {v:.6g}" for k, v in result.point.items()]
         lines.append(
@@ -145,9 +196,18 @@ def _move_into(work: Path, out: Path) -> None:
 
 
 def run_fit(
-    path: Path, out: Path, method: str, law: str, seed: int, quick: bool, force: bool, as_json: bool
+    path: Path,
+    out: Path,
+    method: str,
+    fix: list[str],
+    each: str,
+    seed: int,
+    quick: bool,
+    force: bool,
+    as_json: bool,
 ) -> dict[str, Any]:
-    """The ``fit`` command: load, fit each law, write the folder(s), return the JSON payload.
+    """The ``fit`` command: load, fit (once per value of ``each``), write the folder(s),
+    return the JSON payload.
 
     Everything is computed in a hidden folder under ``out`` and moved into place when every
     fit is finished, so an interrupted fit leaves no partial result (a hidden folder left by a
@@ -171,26 +231,32 @@ def run_fit(
     except (ValueError, OSError) as err:
         raise fail(str(err)) from None
     system = system_named(campaign)
-    integer = [p for p in system.parameters if p.integer]
-    if law and not integer:
-        raise fail(f"--law given, but {system.name} has no integer parameter")
-    laws = parse_law(law, integer[0].lower, integer[0].upper) if integer else [None]
+    fixed = parse_fixed(fix, system)
+    values: list[int | None] = list(parse_each(each, system, fixed)) if each else [None]
     check_for_job(campaign, system, str(path), calibration_runs)
-    several = len(laws) > 1
-    check_free([fit_folder(out, i, several) for i in laws], force)
+    several = len(values) > 1
+    check_free([fit_folder(out, each, v, several) for v in values], force)
     results: dict[Any, Any] = {}
-    payload: dict[str, Any] = {"file": str(path), "method": method, "out": str(out), "fits": []}
+    payload: dict[str, Any] = {
+        "file": str(path),
+        "method": method,
+        "out": str(out),
+        "fixed": fixed,
+        "each": each or None,
+        "fits": [],
+    }
     for stale in out.glob(".fit.*.tmp"):
         shutil.rmtree(stale)
     work = out / f".fit.{uuid.uuid4().hex}.tmp"
     with writing(out):
         try:
             work.mkdir(parents=True)
-            for i in laws:
+            for value in values:
+                given = fixed if value is None else {**fixed, each: float(value)}
                 if not as_json:
                     _err.print(
-                        f"fitting {path.name} with {method}, law "
-                        f"{i if i is not None else 'searched'}"
+                        f"fitting {path.name} with {method}"
+                        + (f", {held_text(given)}" if given else "")
                     )
                 try:
                     with warnings.catch_warnings():
@@ -199,22 +265,22 @@ def run_fit(
                             system,
                             campaign,
                             method=method,  # type: ignore[arg-type]
-                            law=i,
+                            fixed=given or None,
                             seed=seed,
                             quick=quick,
                             progress=not as_json,
                         )
                 except ValueError as err:
                     raise fail(str(err)) from None
-                folder = fit_folder(work, i, several)
+                folder = fit_folder(work, each, value, several)
                 result.save(folder, force=True)
                 figures = write_figures(result, system, campaign, folder, seed)
+                target = fit_folder(out, each, value, several)
                 figures["files"] = {
-                    k: str(fit_folder(out, i, several) / Path(v).name)
-                    for k, v in figures["files"].items()
+                    k: str(target / Path(v).name) for k, v in figures["files"].items()
                 }
-                entry = {**result.to_json(), **figures, "folder": str(fit_folder(out, i, several))}
-                results[result.law] = result
+                entry = {**result.to_json(), **figures, "folder": str(target)}
+                results[value] = result
                 payload["fits"].append(entry)
                 if not as_json:
                     _err.print(summary_text(result))
@@ -223,7 +289,7 @@ def run_fit(
             if several:
                 from ..report import ablation_table
 
-                rows, table = ablation_table(results)
+                rows, table = ablation_table(results, each)
                 payload["ablation"] = rows
                 (work / "ablation.md").write_text(table)
                 payload["ablation_table"] = str(out / "ablation.md")

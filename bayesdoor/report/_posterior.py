@@ -177,40 +177,47 @@ def plot_posterior_trace(idata: az.InferenceData, names: Sequence[str], path: st
     return path
 
 
-def ablation_table(results: dict[int, Any]) -> tuple[list[dict[str, Any]], str]:
-    """PSIS-LOO per law and stacking weights (``arviz.compare``), and a Markdown table.
+def ablation_table(results: dict[Any, Any], name: str) -> tuple[list[dict[str, Any]], str]:
+    """PSIS-LOO per value of a varied parameter and stacking weights (``arviz.compare``), and a
+    Markdown table: a fit per value of ``name`` (the door's contact-law ablation: one per
+    contact-law index ``I``).
 
     Parameters
     ----------
     results
-        A fit (``bayesdoor.inference.FitResult``) per law index.
+        A fit (``bayesdoor.inference.FitResult``) per value of the varied parameter.
+    name
+        The varied parameter (``"I"``).
 
     Returns
     -------
     rows
-        Per law: ``j``, posterior ``mean`` and ``sd`` per parameter, ``elpd_loo``, ``se``,
-        ``pareto_k_bad`` (Pareto k > 0.7), ``rank``, ``elpd_diff``, ``dse``, ``weight``
-        (stacking) and ``gates_passed``.
+        Per value: ``parameter`` (``name``), ``value``, ``j``, posterior ``mean`` and ``sd``
+        per sampled parameter, ``elpd_loo``, ``se``, ``pareto_k_bad`` (Pareto k > 0.7),
+        ``rank``, ``elpd_diff``, ``dse``, ``weight`` (stacking) and ``gates_passed``.
     table
-        The rows as Markdown.
+        The rows as Markdown, the first column headed ``name``.
     """
 
-    sampled = {f"law {k}": r.idata for k, r in results.items() if r.idata is not None}
+    def label(value: Any) -> str:
+        return f"{name}={value}"
+
+    sampled = {label(k): r.idata for k, r in results.items() if r.idata is not None}
     compare = az.compare(sampled, ic="loo", method="stacking") if len(sampled) > 1 else None
     rows = []
-    for law, r in results.items():
-        row: dict[str, Any] = {"law": law, "j": r.j, "mean": {}, "sd": {}}
+    for value, r in results.items():
+        row: dict[str, Any] = {"parameter": name, "value": value, "j": r.j, "mean": {}, "sd": {}}
         draws = r.posterior_draws()
-        for name in r.names:
-            row["mean"][name] = float(draws[name].mean())
-            row["sd"][name] = float(draws[name].std())
+        for n in r.names:
+            row["mean"][n] = float(draws[n].mean())
+            row["sd"][n] = float(draws[n].std())
         if r.idata is not None:
             loo = az.loo(r.idata)
             row["elpd_loo"] = float(loo.elpd_loo)
             row["se"] = float(loo.se)
             row["pareto_k_bad"] = int((loo.pareto_k.values > 0.7).sum())
         if compare is not None:
-            entry = compare.loc[f"law {law}"]
+            entry = compare.loc[label(value)]
             row["rank"] = int(entry["rank"])
             row["elpd_diff"] = float(entry["elpd_diff"])
             row["dse"] = float(entry["dse"])
@@ -222,17 +229,19 @@ def ablation_table(results: dict[int, Any]) -> tuple[list[dict[str, Any]], str]:
 
 
 def markdown_table(rows: list[dict[str, Any]]) -> str:
-    """One line per law: J, ELPD (SE), difference to the best, stacking weight, means (sd).
+    """One line per value of the varied parameter (the rows of :func:`ablation_table`): J,
+    ELPD (SE), difference to the best, stacking weight, means (sd).
 
     Rows of CMA-ES fits (no posterior) show the optimum and no ELPD.
     """
     if not rows:
         return ""
     names = list(rows[0]["mean"])
-    head = ["law", "J", "ELPD-LOO (SE)", "dELPD (dSE)", "weight", "gates", *names]
+    head = [str(rows[0]["parameter"]), "J", "ELPD-LOO (SE)", "dELPD (dSE)", "weight", "gates"]
+    head += names
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
-        cells = [str(row["law"]), f"{row['j']:.4f}"]
+        cells = [str(row["value"]), f"{row['j']:.4f}"]
         cells.append(f"{row['elpd_loo']:.1f} ({row['se']:.1f})" if "elpd_loo" in row else "-")
         cells.append(f"{row['elpd_diff']:.1f} ({row['dse']:.1f})" if "elpd_diff" in row else "-")
         cells.append(f"{row['weight']:.2f}" if "weight" in row else "-")

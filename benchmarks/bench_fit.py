@@ -173,7 +173,7 @@ def time_fit(
         "load_average_at_start": load,
         "load_average_at_end": os.getloadavg()[0],
         "timings": fit.timings,
-        "law": fit.law,
+        "held": fit.held,
         "j": fit.j,
         "point": fit.point,
         "cmaes": {
@@ -244,7 +244,7 @@ def _print(result: dict[str, Any]) -> None:
         )
         print(
             f"  CMA-ES: {c['evaluations']} evaluations, {c['restarts']} restarts, stop "
-            f"{c['stop']}, J {f['j']:.5f}, law {f['law']}, {c['s_per_evaluation']:.3f} s per "
+            f"{c['stop']}, J {f['j']:.5f}, held {f['held']}, {c['s_per_evaluation']:.3f} s per "
             "evaluation"
         )
         if "gates" in f:

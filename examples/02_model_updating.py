@@ -110,7 +110,7 @@ print("calibration runs:", fitted, "at v_max", campaign.v_max.values[fitted])
 # %%
 door = ElevatorDoor()
 fit = fit_campaign(door, campaign, method="nuts", settings=size["settings"], seed=0)
-print(f"contact law I = {fit.law}, J at the posterior mean = {fit.j:.3f}")
+print(f"contact law I = {fit.held['I']:g}, J at the posterior mean = {fit.j:.3f}")
 print({stage: round(seconds, 1) for stage, seconds in fit.timings.items()})
 
 # %%
@@ -179,7 +179,7 @@ np.ravel(axes)[0].figure.savefig(OUT / "pairs.png", dpi=90)
 
 # %%
 draws = fit.posterior_draws()
-print(f"law: fitted {fit.law}, rig {truth['parameters']['I']}")
+print(f"law: fitted {fit.held['I']:g}, rig {truth['parameters']['I']}")
 print(f"{'parameter':>10} {'rig':>9} {'5 %':>9} {'95 %':>9}  inside")
 for name in fit.names:
     q5, q95 = np.quantile(draws[name], [0.05, 0.95])
@@ -191,11 +191,11 @@ for name in fit.names:
 # 1), so compare `xi`, not the law's index:
 
 # %%
-xi_fit = np.asarray(hysteresis_factor(fit.law, draws["c_r"]))
+xi_fit = np.asarray(hysteresis_factor(int(fit.held["I"]), draws["c_r"]))
 xi_rig = float(hysteresis_factor(truth["parameters"]["I"], truth["parameters"]["c_r"]))
 q5, q95 = np.quantile(xi_fit, [0.05, 0.95])
 print(f"xi: rig {xi_rig:.3f} (law {truth['parameters']['I']}, c_r {truth['parameters']['c_r']})")
-print(f"xi: fit {q5:.3f} to {q95:.3f} (90 %, law {fit.law})")
+print(f"xi: fit {q5:.3f} to {q95:.3f} (90 %, law {fit.held['I']:g})")
 
 # %% [markdown]
 # ## The posterior predictive on held-out runs

@@ -102,7 +102,10 @@ door = ElevatorDoor()
 n_calibration, n_test = size["campaign"]
 campaign = load_demo_campaign(calibration_runs=n_calibration, test_runs_per_state=n_test)
 test = campaign.isel(run=np.flatnonzero(campaign.split.values == "test"))
-print(f"fit: {fit.method}, law {fit.law}, J {fit.j:.3f}; gates passed: {fit.diagnostics.passed}")
+print(
+    f"fit: {fit.method}, law {fit.held['I']:g}, J {fit.j:.3f}; "
+    f"gates passed: {fit.diagnostics.passed}"
+)
 states, counts = np.unique(test.state.values, return_counts=True)
 print(f"{test.sizes['run']} test runs:", dict(zip(states.tolist(), counts.tolist(), strict=True)))
 

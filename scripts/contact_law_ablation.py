@@ -5,7 +5,7 @@ The design (so that nine full-size posteriors fit in well under an hour on two c
 1. **One shared search.** CMA-ES on the paper's J with the contact law searched as an integer
    variable, at the full settings of the campaign's own fit (``FitSettings()``: 1500
    evaluations, two IPOP restarts). Its optimum and law are the reference.
-2. **Per law, a warm-started fit.** For each of the nine laws, ``fit_campaign(law=k,
+2. **Per law, a warm-started fit.** For each of the nine laws, ``fit_campaign(fixed={"I": k},
    method="nuts", x0=...)`` starts CMA-ES at the reference optimum with a smaller step and
    budget (``cmaes_sigma0`` 0.1 of each range, 240 evaluations, no restart). The start's c_r
    is the value whose hysteresis factor xi(c_r) equals the reference law's: in the persistent
@@ -201,7 +201,7 @@ def fit_one(
             ElevatorDoor(),
             _load(campaign_file),
             method="cmaes" if law is None else "nuts",
-            law=law,
+            fixed=None if law is None else {"I": law},
             seed=seed,
             progress=False,
             settings=settings_for("reference" if law is None else "law", quick),
@@ -224,7 +224,7 @@ def reusable(folder: Path, law: int | None, seed: int, quick: bool, x0) -> Any:
         # the parent writes the start beside a finished fit: FitResult does not record x0
         path = folder / "start.json"
         started = json.loads(path.read_text()) if path.is_file() else None
-        same = same and r.law == law and started == [x0[n] for n in r.names]
+        same = same and r.held == {"I": law} and started == [x0[n] for n in r.names]
     return r if same else None
 
 
@@ -297,16 +297,16 @@ def main() -> int:
                 ).result()
                 reference = FitResult.load(folder)
                 print(
-                    f"shared search: law {reference.law}, J {reference.j:.4f}, "
+                    f"shared search: law {law_of(reference)}, J {reference.j:.4f}, "
                     f"{reference.cmaes.evaluations} evaluations, {reference_seconds:.0f} s",
                     file=sys.stderr,
                 )
             starts = {
-                law: warm_start(reference.point, reference.law, law, c_r_bounds) for law in laws
+                law: warm_start(reference.point, law_of(reference), law, c_r_bounds) for law in laws
             }
             futures = {}
             # the reference law first: the pool runs fits in the order they are submitted
-            for law in sorted(laws, key=lambda k: k != reference.law):
+            for law in sorted(laws, key=lambda k: k != law_of(reference)):
                 folder = work / f"law_{law}"
                 found = reusable(folder, law, args.seed, args.quick, starts[law])
                 if found is not None:
@@ -334,7 +334,7 @@ def main() -> int:
                     file=sys.stderr,
                 )
     results = dict(sorted(results.items()))
-    rows, table = ablation_table(results)
+    rows, table = ablation_table(results, "I")
     table += search_table(starts, results, seconds)
     table += damping_table(results)
     elapsed = time.perf_counter() - started
@@ -362,7 +362,7 @@ def main() -> int:
         + "\n\n"
         f"How each law's optimum was found: one shared CMA-ES search with the law searched "
         f"({reference.cmaes.evaluations} evaluations, {reference.cmaes.restarts} restarts, "
-        f"stop: {', '.join(reference.cmaes.stop)}) chose law {reference.law} at J = "
+        f"stop: {', '.join(reference.cmaes.stop)}) chose law {law_of(reference)} at J = "
         f"{reference.j:.4f} (c_r = {reference.point['c_r']:.4f}, xi = {ref_xi:.4f}); each "
         f"law then ran CMA-ES with the law fixed, started there with c_r moved to give the "
         f"same xi, step {warm.cmaes_sigma0} of each range, {warm.cmaes_max_evals} "
@@ -379,6 +379,7 @@ def main() -> int:
     # the discussion after the block is kept
     write_results(args.out, "# Contact-law ablation\n\n" + block, echo=False)
     for row in rows:
+        row["law"] = row["value"]  # the contact-law index I
         r = results[row["law"]]
         row["start"] = starts[row["law"]]
         row["j_optimum"] = r.cmaes.f_best
@@ -391,7 +392,7 @@ def main() -> int:
         "command": command,
         "partial": partial,
         "reference": {
-            "law": reference.law,
+            "law": law_of(reference),
             "point": reference.point,
             "j": reference.j,
             "xi": ref_xi,
@@ -405,11 +406,16 @@ def main() -> int:
     return 0
 
 
+def law_of(fit) -> int:
+    """The contact-law index a fit held (searched by CMA-ES or given)."""
+    return int(fit.held["I"])
+
+
 def door_xi(fit) -> float:
     """The hysteresis factor of a fit's law at its c_r."""
     from bayesdoor.door.contact import get_law
 
-    return float(get_law(fit.law).hysteresis_factor(jnp.asarray(fit.point["c_r"])))
+    return float(get_law(law_of(fit)).hysteresis_factor(jnp.asarray(fit.point["c_r"])))
 
 
 if __name__ == "__main__":

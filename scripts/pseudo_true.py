@@ -52,7 +52,9 @@ def main() -> None:
     healthy["split"] = ("run", np.full(healthy.sizes["run"], "calibration"))
     door = ElevatorDoor()
     t0 = time.perf_counter()
-    fit = fit_campaign(door, healthy, method="cmaes", law=truth["I"], progress=True, seed=0)
+    fit = fit_campaign(
+        door, healthy, method="cmaes", fixed={"I": truth["I"]}, progress=True, seed=0
+    )
     wall = time.perf_counter() - t0
     rig = {p.name: float(truth[p.name]) for p in door.parameters}
     j_truth = j_at(door, healthy, rig)

@@ -104,6 +104,7 @@ def test_quick_ablation_of_two_laws_writes_and_resumes(tmp_path):
     subprocess.run(command, check=True, cwd=ROOT, timeout=3600)
     record = json.loads(out.with_suffix(".json").read_text())
     assert [row["law"] for row in record["laws"]] == [3, 4]
+    assert all(row["parameter"] == "I" and row["value"] == row["law"] for row in record["laws"])
     assert record["partial"] == [1, 2, 5, 6, 7, 8, 9]
     assert "PARTIAL" in out.read_text()
     first = out.with_suffix(".json").read_text()

@@ -81,7 +81,7 @@ def test_02_03_04_update_train_report_diagnose(tiny):
     g2 = _run("02_model_updating.py")
     assert (tiny / "02" / "fit" / "fit.json").is_file()
     assert g2["fit"].idata is not None and 0.0 <= g2["inside"].mean() <= 1.0
-    assert g2["fit"].law in range(1, 10)
+    assert g2["fit"].held["I"] in range(1, 10)
 
     g3 = _run("03_training_calibration_report.py")
     report = tiny / "03" / "report" / "index.html"

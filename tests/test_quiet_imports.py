@@ -1,6 +1,7 @@
 """A job's progress is not interrupted by third-party announcements: importing bayesdoor and
 then ArviZ prints nothing, where ArviZ alone announces its refactor (once a day per machine)."""
 
+import importlib.util
 import os
 import subprocess
 import sys
@@ -26,4 +27,7 @@ def test_arviz_alone_still_announces_so_the_filter_is_needed(tmp_path):
 
     if tuple(int(v) for v in arviz.__version__.split(".")[:2]) < (0, 22):
         pytest.skip(f"ArviZ {arviz.__version__} makes no announcement: nothing to filter")
+    parts = ("arviz_base", "arviz_stats", "arviz_plots")
+    if all(importlib.util.find_spec(p) is not None for p in parts):
+        pytest.skip("ArviZ's new subpackages are installed: it makes no announcement")
     assert "ArviZ is undergoing a major refactor" in stderr_of("import arviz", tmp_path / "b")

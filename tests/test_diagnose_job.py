@@ -1,8 +1,8 @@
 """Tests of the diagnosis job on virtual-rig data with one catalogue effect hidden in it.
 
-The rig (``bayesdoor.door.rig.VirtualRig``) is a separate, higher-fidelity simulator of the door; each
-test records a few healthy runs at several speeds with one effect drawn by its ``from_seed``
-(parameters drawn from a seed, not chosen to suit the detector) or with none, and asks
+The rig (``bayesdoor.door.rig.VirtualRig``) is a separate, higher-fidelity simulator of the
+door; each test records a few healthy runs at several speeds with one effect drawn by its
+``from_seed`` (parameters drawn from a seed, not chosen to suit the detector) or with none, and asks
 :func:`diagnose_campaign` for the cause. The base model is fitted once, by CMA-ES, on a
 campaign of the same rig with nothing hidden (the cheap path: the effect campaigns are
 diagnosed under that fit, as a model calibrated earlier would be); under ``slow`` every

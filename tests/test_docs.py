@@ -61,8 +61,9 @@ def site(tmp_path_factory):
     return out
 
 
-# the two tests of the built site share its build, 16-68 s on a shared 2-core machine (mkdocs
-# renders every page and API reference): in the long tier, which CI runs after the default suite
+# the two tests of the built site share its build, 9-68 s on a 2-core machine (the higher
+# figures with other work beside it; mkdocs renders every page and API reference): in the long
+# tier, which CI runs after the default suite
 @pytest.mark.long
 def test_strict_build_renders_the_re_exported_api(site):
     # Public names are re-exported from private modules (``from ._x import f as f``); without

@@ -283,7 +283,7 @@ def payloads(quick_payloads, campaign_file, diagnosis, tmp_path_factory):
 
 
 #: the commands whose payloads take tens of seconds (the door's simulation, the job; all seven
-#: payloads took 55-207 s with an empty JAX cache): in the long tier, which CI runs after the
+#: payloads took 40-207 s with an empty JAX cache): in the long tier, which CI runs after the
 #: default suite, with the test that reads every payload. The default suite checks the JSON of
 #: ``simulate`` in tests/test_cli.py and of ``classify`` in tests/test_cli_run.py
 _SLOW_PAYLOADS = ("simulate", "run", "demo", "classify")

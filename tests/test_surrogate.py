@@ -183,9 +183,9 @@ def box_posterior(door_case):
 
 
 # the two NUTS runs on the surrogate (the plain box's, shared through ``box_posterior``, and the
-# whitened one's): 24-40 s and 26-56 s with an empty JAX cache on a shared 2-core machine, in
-# the long tier, which CI runs after the default suite (the surrogate's error and its
-# density's gradients stay in it)
+# whitened one's): 19-40 s and 18-56 s with an empty JAX cache on a 2-core machine (the higher
+# figures with other work beside it), in the long tier, which CI runs after the default suite
+# (the surrogate's error and its density's gradients stay in it)
 @pytest.mark.long
 def test_nuts_on_the_surrogate_is_fast_and_covers_the_truth(door_case, box_posterior):
     samples, divergences, seconds = box_posterior

@@ -279,9 +279,9 @@ def cmaes_fit(rig):
 
 
 # the two tests of the quick CMA-ES fit on rig data share its recording and fit (40-103 s with
-# an empty JAX cache on a shared 2-core machine; computed twice when pytest -n 2 gave the two
-# tests to both processes): in the long tier, which CI runs after the default suite. The fit's
-# refusals and settings stay above; FitResult's save and load are also checked in
+# an empty JAX cache on a 2-core machine, 48 s idle; computed twice when pytest -n 2 gave the
+# two tests to both processes): in the long tier, which CI runs after the default suite. The
+# fit's refusals and settings stay above; FitResult's save and load are also checked in
 # tests/test_diagnosis_gain.py
 @pytest.mark.long
 def test_cmaes_reaches_the_truths_j_on_rig_data(rig, cmaes_fit):

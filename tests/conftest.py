@@ -85,15 +85,73 @@ _LONG = (
 )
 
 
+#: files whose tests share compiled programs, run in one process with the file named: the rig's
+#: solve at the demo campaign's record length (tests/test_rig.py), the tone system's job
+#: (tests/test_pipeline.py), the door-like tone system's job and made-up fit
+#: (tests/test_robustness.py)
+_TOGETHER = {
+    "tests/test_datasets.py": "tests/test_rig.py",
+    "tests/test_cli_run.py": "tests/test_pipeline.py",
+    "tests/test_json_contract.py": "tests/test_robustness.py",
+}
+
+
+#: the default suite's costliest files (with the files ``_TOGETHER`` sends along with them),
+#: costliest first: under ``pytest -n 2`` they start first, so that the run does not end with
+#: one process on one of them (their seconds on an empty JAX cache, 2026-11-27, the machine
+#: shared with other work: 240, 235, 200, 145, 140, 115, 100, 95, 90, 85)
+_COSTLY = (
+    "tests/test_rig.py",
+    "tests/test_door.py",
+    "tests/test_robustness.py",
+    "tests/test_coupled_frame_mode.py",
+    "tests/test_samplers.py",
+    "tests/test_likelihood.py",
+    "tests/test_cli_diagnose.py",
+    "tests/test_classify.py",
+    "tests/test_pipeline.py",
+    "tests/test_diagnose.py",
+)
+
+
 def pytest_collection_modifyitems(config, items):
-    """The long tests first, in their listed order; the rest as collected (a stable sort,
-    the same on every worker). None of them shares a module-scoped fixture with a test left
-    behind, except the diagnosis cases' base fit, which only those use."""
+    """The long tests first, in their listed order, then the costly files, in theirs; the rest
+    as collected (a stable sort, the same on every worker). None of the long tests shares a
+    module-scoped fixture with a test left behind, except the diagnosis cases' base fit, which
+    only those use."""
 
     def rank(item):
         for i, prefix in enumerate(_LONG):
             if item.nodeid.startswith(prefix):
-                return i
-        return len(_LONG)
+                return (0, i)
+        path = item.nodeid.split("::", 1)[0]
+        path = _TOGETHER.get(path, path)
+        if path in _COSTLY:
+            return (1, _COSTLY.index(path))
+        return (2, 0)
 
     items.sort(key=rank)
+
+
+#: the selection of ``addopts`` (pyproject.toml): the default suite
+_DEFAULT_SELECTION = "not slow and not long"
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """Under ``pytest -n 2``, the default suite is shared out file by file: a file's tests run
+    in one process, which computes its module-scoped fixtures and compiles its programs once
+    (shared out test by test, both processes did much of that work again), and the files of
+    ``_TOGETHER`` go with their partner. The files go out in the order of the sort above. The
+    long and slow tiers keep xdist's test-by-test scheduling: their tests take minutes each."""
+    if config.getvalue("dist") != "load" or config.option.markexpr != _DEFAULT_SELECTION:
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ByFile(LoadScopeScheduling):
+        def _split_scope(self, nodeid):
+            path = nodeid.split("::", 1)[0]
+            return _TOGETHER.get(path, path)
+
+    config.option.loadscopereorder = False  # the order of the sort, not by number of tests
+    return ByFile(config, log)

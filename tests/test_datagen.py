@@ -516,6 +516,11 @@ def test_simulated_duration_ends_just_after_the_latest_motion_stop():
     assert GenerationConfig([0.3], duration=1.0).record_duration(door) == 1.0
 
 
+# the door's training data end to end, 16-48 s with an empty JAX cache on a 2-core machine (the
+# higher figures with other work beside it; most of it compiling the batched solves of its
+# chunks): in the long tier, which CI runs after the default suite; the generator itself is
+# tested on the toy system above
+@pytest.mark.long
 def test_door_generation_small(tmp_path, key):
     door = ElevatorDoor()
     optimum = {p.name: p.reference_value for p in door.parameters}

@@ -61,6 +61,10 @@ def site(tmp_path_factory):
     return out
 
 
+# the two tests of the built site share its build, 9-68 s on a 2-core machine (the higher
+# figures with other work beside it; mkdocs renders every page and API reference): in the long
+# tier, which CI runs after the default suite
+@pytest.mark.long
 def test_strict_build_renders_the_re_exported_api(site):
     # Public names are re-exported from private modules (``from ._x import f as f``); without
     # the redundant-alias extension the pages would hold only the package docstrings.
@@ -72,6 +76,7 @@ def test_strict_build_renders_the_re_exported_api(site):
     assert "<code>from_covariance</code>" in page
 
 
+@pytest.mark.long
 def test_results_tables_are_published_and_linked(site):
     page = (site / "features" / "index.html").read_text()
     assert 'href="../results/performance/"' in page

@@ -453,6 +453,10 @@ def test_gradients_through_the_solve_of_surface_extensions_match_central_differe
 # the generic layers take the extended parameters
 
 
+# a whole (tiny) CMA-ES fit of the extended door, 12-75 s with an empty JAX cache on a 2-core
+# machine (the higher figures with other work beside it), nearly all of it compiling the fit's
+# solves of that door: in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_fit_campaign_updates_the_extension_parameters_with_table_2(base_runs):
     """Smoke: a campaign with a 60 Hz hum on every channel, fitted by a tiny CMA-ES with the
     extended door. The generic layer sees only names: the point names every parameter and

@@ -373,7 +373,11 @@ def test_plot_state_psds_refuses_bad_arguments(tmp_path):
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 
 
-@pytest.mark.parametrize("page", ["features.md", "data.md"])
+#: docs/features.md's examples take 7-31 s with an empty JAX cache on a 2-core machine (the
+#: higher figures with other work beside it), most of it compiling the feature functions they
+#: call (tests/test_features.py checks those in the default suite): in the long tier, as
+#: tests/test_doc_blocks.py puts pages whose examples take more than a few seconds
+@pytest.mark.parametrize("page", [pytest.param("features.md", marks=pytest.mark.long), "data.md"])
 def test_documentation_examples_run_and_print_what_they_show(page, tmp_path, monkeypatch):
     """Every ```python block of the page, in order, in one namespace, as doctests."""
     text = (DOCS / page).read_text(encoding="utf-8")

@@ -227,16 +227,8 @@ def campaign_file(tmp_path_factory):
     return save_campaign(campaign(), tmp_path_factory.mktemp("contract") / "campaign.nc")
 
 
-@pytest.fixture(scope="module")
-def payloads(campaign_file, diagnosis, tmp_path_factory):
-    """The ``--json`` of every command, by name."""
-    folder = tmp_path_factory.mktemp("outputs")
-    found = {}
-
-    def payload(name, *args):
-        result = invoke(*args, "--json")
-        assert result.exit_code == 0, result.output
-        found[name] = json.loads(result.stdout)  # the JSON alone on stdout
+def _patched(mp, campaign_file, diagnosis):
+    """The stand-ins of the payloads' commands (the module docstring says which)."""
 
     def diagnose(*args, **options):
         return diagnosis
@@ -246,33 +238,72 @@ def payloads(campaign_file, diagnosis, tmp_path_factory):
         fit.diagnostics = DIAGNOSTICS
         return fit
 
+    mp.setattr(bayesdoor.inference, "fit_campaign", made_up_fit)
+    mp.setattr(bayesdoor.inference, "posterior_predictive", made_up_predictive)
+    mp.setattr(bayesdoor.diagnose, "diagnose_campaign", diagnose)
+    mp.setattr(
+        bayesdoor.door.datasets._demo,
+        "load_demo_campaign",
+        lambda **kw: load_campaign(campaign_file),
+    )
+    fast(mp, fit=fit_with_diagnostics, diagnose=diagnose)
+
+
+def _payload(found, name, *args):
+    result = invoke(*args, "--json")
+    assert result.exit_code == 0, result.output
+    found[name] = json.loads(result.stdout)  # the JSON alone on stdout
+
+
+@pytest.fixture(scope="module")
+def quick_payloads(campaign_file, diagnosis, tmp_path_factory):
+    """The ``--json`` of the commands that take seconds, by name."""
+    folder = tmp_path_factory.mktemp("outputs")
+    found = {}
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(bayesdoor.inference, "fit_campaign", made_up_fit)
-        mp.setattr(bayesdoor.inference, "posterior_predictive", made_up_predictive)
-        mp.setattr(bayesdoor.diagnose, "diagnose_campaign", diagnose)
-        mp.setattr(
-            bayesdoor.door.datasets._demo,
-            "load_demo_campaign",
-            lambda **kw: load_campaign(campaign_file),
-        )
-        fast(mp, fit=fit_with_diagnostics, diagnose=diagnose)
-        job = folder / "job"
-        payload("simulate", "simulate", "--out", folder / "sim.nc", "--state", "D1", *DOOR)
-        payload("inspect", "inspect", campaign_file)
-        payload("fit", "fit", campaign_file, "--out", folder / "fit", "--method", "nuts")
-        payload("run", "run", campaign_file, "--out", job, "--quick")
-        # the same job on the same campaign: every stage is reused
-        payload("demo", "demo", "--out", job, "--quick")
-        payload("classify", "classify", campaign_file, "--model", job, "--out", folder / "cls")
-        payload("diagnose", "diagnose", campaign_file, "--out", folder / "diag", "--quick")
+        _patched(mp, campaign_file, diagnosis)
+        _payload(found, "inspect", "inspect", campaign_file)
+        _payload(found, "fit", "fit", campaign_file, "--out", folder / "fit", "--method", "nuts")
+        _payload(found, "diagnose", "diagnose", campaign_file, "--out", folder / "diag", "--quick")
     return found
 
 
-@pytest.mark.parametrize("command", SCHEMA)
-def test_json_holds_the_design_keys(payloads, command):
-    assert missing(payloads[command], SCHEMA[command]) == []
+@pytest.fixture(scope="module")
+def payloads(quick_payloads, campaign_file, diagnosis, tmp_path_factory):
+    """The ``--json`` of every command, by name: ``quick_payloads`` and those of the door's
+    simulation and the job (its training data and ensemble), which take tens of seconds."""
+    folder = tmp_path_factory.mktemp("outputs")
+    found = dict(quick_payloads)
+    with pytest.MonkeyPatch.context() as mp:
+        _patched(mp, campaign_file, diagnosis)
+        job = folder / "job"
+        _payload(found, "simulate", "simulate", "--out", folder / "sim.nc", "--state", "D1", *DOOR)
+        _payload(found, "run", "run", campaign_file, "--out", job, "--quick")
+        # the same job on the same campaign: every stage is reused
+        _payload(found, "demo", "demo", "--out", job, "--quick")
+        _payload(
+            found, "classify", "classify", campaign_file, "--model", job, "--out", folder / "cls"
+        )
+    return found
 
 
+#: the commands whose payloads take tens of seconds (the door's simulation, the job; all seven
+#: payloads took 40-207 s with an empty JAX cache): in the long tier, which CI runs after the
+#: default suite, with the test that reads every payload. The default suite checks the JSON of
+#: ``simulate`` in tests/test_cli.py and of ``classify`` in tests/test_cli_run.py
+_SLOW_PAYLOADS = ("simulate", "run", "demo", "classify")
+
+
+@pytest.mark.parametrize(
+    "command",
+    [pytest.param(c, marks=pytest.mark.long) if c in _SLOW_PAYLOADS else c for c in SCHEMA],
+)
+def test_json_holds_the_design_keys(request, command):
+    fixture = "payloads" if command in _SLOW_PAYLOADS else "quick_payloads"
+    assert missing(request.getfixturevalue(fixture)[command], SCHEMA[command]) == []
+
+
+@pytest.mark.long
 def test_the_payloads_describe_what_was_done(payloads, campaign_file):
     """Spot checks that the keys hold the values they name."""
     assert payloads["simulate"]["runs"] == 1 and payloads["simulate"]["channels"] == list(CHANNELS)

@@ -298,8 +298,11 @@ def _short_run(sampler, progress):
     )
 
 
+#: emcee's bar in the default suite; NUTS's (8-25 s with an empty JAX cache on a 2-core machine,
+#: the higher figures with other work beside it; nearly all of it tracing and compiling) in the
+#: long tier, which CI runs after it
 @pytest.mark.filterwarnings("ignore:More chains")
-@pytest.mark.parametrize("sampler", ["nuts", "emcee"])
+@pytest.mark.parametrize("sampler", [pytest.param("nuts", marks=pytest.mark.long), "emcee"])
 def test_progress_bar_only_when_asked_for_and_on_a_terminal(sampler, monkeypatch):
     """A bar redrawn into a log file or pipe (CI, ``bayesdoor demo > log``) floods it; a
     Jupyter kernel's standard error is no terminal but shows the bar in place."""

@@ -338,6 +338,12 @@ def cmaes_fit(rig):
     return result
 
 
+# the two tests of the quick CMA-ES fit on rig data share its recording and fit (40-103 s with
+# an empty JAX cache on a 2-core machine, 48 s idle; computed twice when pytest -n 2 gave the
+# two tests to both processes): in the long tier, which CI runs after the default suite. The
+# fit's refusals and settings stay above; FitResult's save and load are also checked in
+# tests/test_diagnosis_gain.py
+@pytest.mark.long
 def test_cmaes_reaches_the_truths_j_on_rig_data(rig, cmaes_fit):
     campaign, truth = rig
     door = ElevatorDoor()
@@ -360,6 +366,7 @@ def test_cmaes_reaches_the_truths_j_on_rig_data(rig, cmaes_fit):
     assert cmaes_fit.point["I"] == cmaes_fit.held["I"] and "I" not in cmaes_fit.names
 
 
+@pytest.mark.long
 def test_a_fit_saves_loads_and_refuses_to_overwrite(cmaes_fit, tmp_path):
     folder = cmaes_fit.save(tmp_path / "fit")
     again = FitResult.load(folder)

@@ -10,6 +10,7 @@ caller's pyplot backend is left alone.
 
 from __future__ import annotations
 
+import dataclasses
 import html
 import io
 import tempfile
@@ -327,6 +328,35 @@ def _verdict(run: Mapping[str, Any], threshold: float | None) -> str:
     return text
 
 
+@dataclasses.dataclass(frozen=True)
+class _Inputs:
+    """What every section of a damage report reads: the classification and the features."""
+
+    classes: list[str]
+    runs: list[Mapping[str, Any]]
+    metrics: Mapping[str, Any] | None
+    threshold: float | None
+    temperature: float
+    n_failed: int
+    features: np.ndarray
+    frequencies: np.ndarray
+    channels: Sequence[str]
+    #: posterior-predictive bands ``(state, speed, quantile, channel, freq)``, their speeds
+    #: and states (the classes when there are no bands)
+    band_values: np.ndarray | None
+    speeds: np.ndarray | None
+    band_classes: list[str]
+
+    @property
+    def valid(self) -> list[Mapping[str, Any]]:
+        """The classified runs."""
+        return [r for r in self.runs if r["probabilities"] is not None]
+
+    @property
+    def colors(self) -> dict[str, str]:
+        return _colors(self.classes)
+
+
 def write_damage_report(
     folder: str | Path,
     classification: Mapping[str, Any],
@@ -381,18 +411,44 @@ def write_damage_report(
     """
     folder = Path(folder)
     (folder / "runs").mkdir(parents=True, exist_ok=True)
-    classes = list(classification["classes"])
-    runs = list(classification["runs"])
-    metrics = classification.get("metrics")
-    threshold = classification.get("ood_threshold")
-    colors = _colors(classes)
+    inputs = _Inputs(
+        classes=list(classification["classes"]),
+        runs=list(classification["runs"]),
+        metrics=classification.get("metrics"),
+        threshold=classification.get("ood_threshold"),
+        temperature=classification.get("temperature", float("nan")),
+        n_failed=classification.get("n_failed") or 0,
+        features=features,
+        frequencies=frequencies,
+        channels=channels,
+        band_values=None if bands is None else np.asarray(bands["values"]),
+        speeds=None if bands is None else np.asarray(bands["speeds"], dtype=float),
+        band_classes=list(classification["classes"] if bands is None else bands["states"]),
+    )
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    parts: list[str] = []
-    if adequacy is not None or trust is not None:
-        parts.append(trust_section(adequacy, trust))
+    opening = [] if adequacy is None and trust is None else [trust_section(adequacy, trust)]
+    parts = [
+        *opening,
+        *_summary(inputs),
+        _probabilities_section(inputs),
+        *([] if inputs.metrics is None else [_calibration_section(inputs, training)]),
+        _uncertainty_section(inputs),
+        *_bands_section(inputs),
+        *([] if fit is None else [_fit_section(fit)]),
+        *sections,
+        _runs_section(inputs),
+    ]
+    index = folder / "index.html"
+    subtitle = f"{len(inputs.runs)} runs, generated {stamp}"
+    _write_text(index, H.page(title, subtitle, "".join(parts)))
+    _write_run_pages(folder / "runs", inputs, f"{title}, generated {stamp}")
+    return index
 
-    valid = [r for r in runs if r["probabilities"] is not None]
-    headline = [("runs classified", f"{len(valid)} / {len(runs)}", "")]
+
+def _summary(inputs: _Inputs) -> list[str]:
+    """The headline cards, a warning when most runs are OOD, and how to read the page."""
+    metrics, valid = inputs.metrics, inputs.valid
+    headline = [("runs classified", f"{len(valid)} / {len(inputs.runs)}", "")]
     if metrics is not None:
         acc = metrics["accuracy"]
         headline += [
@@ -403,9 +459,9 @@ def write_damage_report(
         ]
     n_ood = sum(1 for r in valid if r["ood"])
     headline.append(("flagged OOD", str(n_ood), "bad" if n_ood else "good"))
-    if classification.get("n_failed"):
-        headline.append(("not classified", str(classification["n_failed"]), "bad"))
-    parts.append(H.cards(headline))
+    if inputs.n_failed:
+        headline.append(("not classified", str(inputs.n_failed), "bad"))
+    parts = [H.cards(headline)]
     if valid and n_ood > len(valid) / 2:
         parts.append(
             H.warning(
@@ -419,153 +475,168 @@ def write_damage_report(
         )
     parts.append(
         H.note(
-            f"Classes: {', '.join(classes)}. Probabilities are the ensemble's, calibrated by "
-            f"temperature scaling (T = {classification.get('temperature', float('nan')):.3f}, "
+            f"Classes: {', '.join(inputs.classes)}. Probabilities are the ensemble's, calibrated "
+            f"by temperature scaling (T = {inputs.temperature:.3f}, "
             "fitted on simulated validation runs only). Runs whose features lie farther from "
             "every simulated state than 99 % of the simulated validation runs are flagged "
             "out-of-distribution (OOD)."
         )
     )
+    return parts
 
-    parts.append(
-        H.section(
-            "Class probabilities per run",
-            H.img(
-                probability_bars(runs, classes),
-                "probability bars",
-                "Stacked calibrated probabilities of each run, grouped by true state (as in the "
-                "paper's Figure 6). A bar entirely in the colour of its panel's state is a "
-                "confident, correct prediction.",
-            ),
-        )
+
+def _probabilities_section(inputs: _Inputs) -> str:
+    """The stacked class probabilities of every run (the paper's Figure 6)."""
+    return H.section(
+        "Class probabilities per run",
+        H.img(
+            probability_bars(inputs.runs, inputs.classes),
+            "probability bars",
+            "Stacked calibrated probabilities of each run, grouped by true state (as in the "
+            "paper's Figure 6). A bar entirely in the colour of its panel's state is a "
+            "confident, correct prediction.",
+        ),
     )
-    if metrics is not None:
-        labels = np.array([classes.index(r["state"]) for r in valid if r["state"] in classes])
-        probs = np.array(
-            [[r["probabilities"][c] for c in classes] for r in valid if r["state"] in classes]
+
+
+def _calibration_section(inputs: _Inputs, training: Mapping[str, Any] | None) -> str:
+    """The metrics table, the confusion matrix and the reliability diagram."""
+    metrics, classes = inputs.metrics, inputs.classes
+    assert metrics is not None
+    known = [r for r in inputs.valid if r["state"] in classes]
+    labels = np.array([classes.index(r["state"]) for r in known])
+    probs = np.array([[r["probabilities"][c] for c in classes] for r in known])
+    metric_rows = [
+        [name, _fmt(metrics[key], 4)]
+        for name, key in (
+            ("accuracy", "accuracy"),
+            ("expected calibration error (15 equal-width bins)", "ece"),
+            ("expected calibration error (15 equal-mass bins)", "ece_mass"),
+            ("negative log-likelihood (nats per run)", "nll"),
+            ("Brier score", "brier"),
         )
-        metric_rows = [
-            [name, _fmt(metrics[key], 4)]
-            for name, key in (
-                ("accuracy", "accuracy"),
-                ("expected calibration error (15 equal-width bins)", "ece"),
-                ("expected calibration error (15 equal-mass bins)", "ece_mass"),
-                ("negative log-likelihood (nats per run)", "nll"),
-                ("Brier score", "brier"),
-            )
-        ]
-        metric_rows.append(["runs with a known true state", str(metrics["runs"])])
-        if training is not None:
-            val = training["validation"]["calibrated"]
-            metric_rows.append(
-                ["simulated validation accuracy / ECE", f"{val['accuracy']:.4f} / {val['ece']:.4f}"]
-            )
-        with tempfile.TemporaryDirectory() as tmp:
-            reliability = plot_reliability(
-                probs,
-                labels,
-                Path(tmp) / "reliability.png",
-                n_bins=min(15, max(1, len(labels))),
-                title="Reliability on the classified runs",
-            ).read_bytes()
-        parts.append(
-            H.section(
-                "Accuracy and calibration",
-                H.table(["metric", "value"], metric_rows),
-                H.img(
-                    confusion_figure(metrics["confusion"], classes),
-                    "confusion matrix",
-                    "Confusion matrix (paper, Figure 7): counts and share of each true state.",
-                ),
-                H.img(
-                    reliability,
-                    "reliability diagram",
-                    "Accuracy against confidence. Points on the diagonal mean the stated "
-                    "probabilities can be taken at face value.",
-                ),
-            )
+    ]
+    metric_rows.append(["runs with a known true state", str(metrics["runs"])])
+    if training is not None:
+        val = training["validation"]["calibrated"]
+        metric_rows.append(
+            ["simulated validation accuracy / ECE", f"{val['accuracy']:.4f} / {val['ece']:.4f}"]
         )
-    parts.append(
-        H.section(
-            "Uncertainty and out-of-distribution runs",
-            H.img(
-                uncertainty_figure(runs, classes, threshold),
-                "uncertainty",
-                "Left: total uncertainty (entropy) against disagreement between the ensemble's "
-                "members (mutual information); the dotted line is the entropy of a uniform "
-                "guess. Right: OOD scores by true state against the threshold.",
-            ),
-        )
+    with tempfile.TemporaryDirectory() as tmp:
+        reliability = plot_reliability(
+            probs,
+            labels,
+            Path(tmp) / "reliability.png",
+            n_bins=min(15, max(1, len(labels))),
+            title="Reliability on the classified runs",
+        ).read_bytes()
+    return H.section(
+        "Accuracy and calibration",
+        H.table(["metric", "value"], metric_rows),
+        H.img(
+            confusion_figure(metrics["confusion"], classes),
+            "confusion matrix",
+            "Confusion matrix (paper, Figure 7): counts and share of each true state.",
+        ),
+        H.img(
+            reliability,
+            "reliability diagram",
+            "Accuracy against confidence. Points on the diagonal mean the stated "
+            "probabilities can be taken at face value.",
+        ),
     )
-    band_values = None if bands is None else np.asarray(bands["values"])
-    speeds = None if bands is None else np.asarray(bands["speeds"], dtype=float)
-    band_classes = classes if bands is None else list(bands["states"])
-    if band_values is not None and speeds is not None and valid:
-        figures = []
-        for j, v in enumerate(speeds):
-            at = [
-                i
-                for i, r in enumerate(runs)
-                if r["probabilities"] is not None and np.allclose(_point(r), v)
-            ]
-            if not at:
-                continue
-            figures.append(
-                H.img(
-                    bands_figure(
-                        features[at],
-                        [runs[i]["state"] for i in at],
-                        frequencies,
-                        channels,
-                        band_values[:, j],
-                        band_classes,
-                        float(v) if v.ndim == 0 else v,
-                    ),
-                    f"bands at {v:g} m/s"
-                    if v.ndim == 0
-                    else f"bands at operating point {_point_text(v)}",
-                )
-            )
-        parts.append(
-            H.section(
-                "Measured features against the posterior-predictive bands",
-                H.note(
-                    "Shaded: the 5-95 % range of the simulated training features of each state "
-                    "(the posterior-predictive distribution the classifier learned from); "
-                    "dashed: the median of the measured runs of each true state at that speed. "
-                    "Where a measured line leaves its own state's band, the model and the "
-                    "measurements disagree there."
-                ),
-                *figures,
-            )
-        )
-    if fit is not None:
-        rows = [
-            [
-                row["parameter"],
-                _fmt(row["point"], 4),
-                _fmt(row.get("mean"), 4),
-                _fmt(row.get("sd"), 4),
-                "-" if "q05" not in row else f"{row['q05']:.4g} to {row['q95']:.4g}",
-            ]
-            for row in fit["table"]
+
+
+def _uncertainty_section(inputs: _Inputs) -> str:
+    """Entropy against mutual information, and the OOD scores against the threshold."""
+    return H.section(
+        "Uncertainty and out-of-distribution runs",
+        H.img(
+            uncertainty_figure(inputs.runs, inputs.classes, inputs.threshold),
+            "uncertainty",
+            "Left: total uncertainty (entropy) against disagreement between the ensemble's "
+            "members (mutual information); the dotted line is the entropy of a uniform "
+            "guess. Right: OOD scores by true state against the threshold.",
+        ),
+    )
+
+
+def _bands_section(inputs: _Inputs) -> list[str]:
+    """The measured features against the posterior-predictive bands, one figure per
+    operating point with classified runs (none without bands)."""
+    runs, band_values, speeds = inputs.runs, inputs.band_values, inputs.speeds
+    if band_values is None or speeds is None or not inputs.valid:
+        return []
+    figures = []
+    for j, v in enumerate(speeds):
+        at = [
+            i
+            for i, r in enumerate(runs)
+            if r["probabilities"] is not None and np.allclose(_point(r), v)
         ]
-        parts.append(
-            H.section(
-                "Model updating on the calibration runs",
-                H.note(
-                    f"Method: {fit['method']}; objective J at the point: {_fmt(fit['j'], 4)}. "
-                    "The training runs were simulated from these parameters. They are effective "
-                    "values: the reduced model's best description of this machine, which it "
-                    "does not describe exactly (see the fit adequacy above), not the machine's "
-                    "physical values."
+        if not at:
+            continue
+        figures.append(
+            H.img(
+                bands_figure(
+                    inputs.features[at],
+                    [runs[i]["state"] for i in at],
+                    inputs.frequencies,
+                    inputs.channels,
+                    band_values[:, j],
+                    inputs.band_classes,
+                    float(v) if v.ndim == 0 else v,
                 ),
-                H.table(["parameter", "point", "posterior mean", "sd", "90 % interval"], rows),
+                f"bands at {v:g} m/s"
+                if v.ndim == 0
+                else f"bands at operating point {_point_text(v)}",
             )
         )
-    parts.extend(sections)
+    return [
+        H.section(
+            "Measured features against the posterior-predictive bands",
+            H.note(
+                "Shaded: the 5-95 % range of the simulated training features of each state "
+                "(the posterior-predictive distribution the classifier learned from); "
+                "dashed: the median of the measured runs of each true state at that speed. "
+                "Where a measured line leaves its own state's band, the model and the "
+                "measurements disagree there."
+            ),
+            *figures,
+        )
+    ]
+
+
+def _fit_section(fit: Mapping[str, Any]) -> str:
+    """The model updating's method, objective and parameter table."""
+    rows = [
+        [
+            row["parameter"],
+            _fmt(row["point"], 4),
+            _fmt(row.get("mean"), 4),
+            _fmt(row.get("sd"), 4),
+            "-" if "q05" not in row else f"{row['q05']:.4g} to {row['q95']:.4g}",
+        ]
+        for row in fit["table"]
+    ]
+    return H.section(
+        "Model updating on the calibration runs",
+        H.note(
+            f"Method: {fit['method']}; objective J at the point: {_fmt(fit['j'], 4)}. "
+            "The training runs were simulated from these parameters. They are effective "
+            "values: the reduced model's best description of this machine, which it "
+            "does not describe exactly (see the fit adequacy above), not the machine's "
+            "physical values."
+        ),
+        H.table(["parameter", "point", "posterior mean", "sd", "90 % interval"], rows),
+    )
+
+
+def _runs_section(inputs: _Inputs) -> str:
+    """Every run in one table, each linked to its own page."""
+    classes, colors = inputs.classes, inputs.colors
     run_rows, row_classes = [], []
-    for r in runs:
+    for r in inputs.runs:
         p = r["probabilities"]
         run_rows.append(
             [
@@ -581,84 +652,95 @@ def write_damage_report(
             ]
         )
         row_classes.append(_row_class(r, classes))
-    parts.append(
-        H.section(
-            "Every run",
-            H.note(
-                "Red rows: misclassified; yellow: flagged OOD; grey: not classified. Each run "
-                "number links to its own report."
-            ),
-            H.table(
-                [
-                    "run",
-                    "true",
-                    "operating point",
-                    "predicted",
-                    *[f"p({c})" for c in classes],
-                    "entropy",
-                    "MI",
-                    "OOD",
-                    "problem",
-                ],
-                run_rows,
-                row_classes=row_classes,
-                left=1,
-                raw=True,
-            ),
-        )
+    return H.section(
+        "Every run",
+        H.note(
+            "Red rows: misclassified; yellow: flagged OOD; grey: not classified. Each run "
+            "number links to its own report."
+        ),
+        H.table(
+            [
+                "run",
+                "true",
+                "operating point",
+                "predicted",
+                *[f"p({c})" for c in classes],
+                "entropy",
+                "MI",
+                "OOD",
+                "problem",
+            ],
+            run_rows,
+            row_classes=row_classes,
+            left=1,
+            raw=True,
+        ),
     )
-    subtitle = f"{len(runs)} runs, generated {stamp}"
-    index = folder / "index.html"
-    _write_text(index, H.page(title, subtitle, "".join(parts)))
 
+
+def _write_run_pages(folder: Path, inputs: _Inputs, subtitle: str) -> None:
+    """One page per run: its cards, verdict, probabilities and features against the bands.
+
+    The bands of each operating point are drawn once and every run's lines on top of them.
+    """
     renderers: dict[int, _RunFigure] = {}
-    ylims = _ylims(features, band_values)
-    for i, r in enumerate(runs):
-        body = [
-            H.cards(
-                [
-                    ("true state", r["state"], ""),
-                    ("predicted", r["predicted"] or "-", "bad" if _row_class(r, classes) else ""),
-                    ("entropy (nats)", _fmt(r["entropy"]), ""),
-                    ("mutual information", _fmt(r["mutual_information"]), ""),
-                    ("OOD score", _fmt(r["ood_score"], 2), "bad" if r["ood"] else ""),
-                ]
-            ),
-            H.note(_verdict(r, threshold)),
-        ]
+    ylims = _ylims(inputs.features, inputs.band_values)
+    for i, r in enumerate(inputs.runs):
+        body = [_run_cards(r, inputs), H.note(_verdict(r, inputs.threshold))]
         if r["probabilities"] is not None:
-            body.append(
-                H.table(
-                    ["state", "probability"],
-                    [[c, f"{r['probabilities'][c]:.4f}"] for c in classes],
-                )
-            )
-            j = (
-                0
-                if speeds is None or not np.all(np.isfinite(_point(r)))
-                else int(np.argmin(np.abs(speeds - _point(r)).reshape(len(speeds), -1).sum(1)))
-            )
+            j = _nearest_speed(r, inputs.speeds)
             if j not in renderers:
                 renderers[j] = _RunFigure(
-                    frequencies,
-                    channels,
-                    None if band_values is None else band_values[:, j],
-                    band_classes,
+                    inputs.frequencies,
+                    inputs.channels,
+                    None if inputs.band_values is None else inputs.band_values[:, j],
+                    inputs.band_classes,
                     ylims,
                 )
-            speed_note = "" if speeds is None else f" at operating point {_point_text(speeds[j])}"
-            body.append(
-                H.img(
-                    renderers[j].render(features[i]),
-                    "features against bands",
-                    "The run's log-PSD features (black) against the 5-95 % posterior-predictive "
-                    f"band of each state{speed_note} (simulated training runs).",
-                )
-            )
+            body += _run_figures(r, inputs, j, renderers[j].render(inputs.features[i]))
         body.append('<p><a href="../index.html">back to the campaign report</a></p>')
-        page = H.page(f"Run {r['run']}", f"{title}, generated {stamp}", "".join(body))
-        _write_text(folder / "runs" / _run_file(r["run"]), page)
-    return index
+        page = H.page(f"Run {r['run']}", subtitle, "".join(body))
+        _write_text(folder / _run_file(r["run"]), page)
+
+
+def _run_cards(r: Mapping[str, Any], inputs: _Inputs) -> str:
+    """A run's true and predicted state and its uncertainty, as cards."""
+    return H.cards(
+        [
+            ("true state", r["state"], ""),
+            ("predicted", r["predicted"] or "-", "bad" if _row_class(r, inputs.classes) else ""),
+            ("entropy (nats)", _fmt(r["entropy"]), ""),
+            ("mutual information", _fmt(r["mutual_information"]), ""),
+            ("OOD score", _fmt(r["ood_score"], 2), "bad" if r["ood"] else ""),
+        ]
+    )
+
+
+def _nearest_speed(r: Mapping[str, Any], speeds: np.ndarray | None) -> int:
+    """The index of the bands' operating point nearest the run's (0 without bands, or for a
+    run whose point is not known)."""
+    point = _point(r)
+    if speeds is None or not np.all(np.isfinite(point)):
+        return 0
+    return int(np.argmin(np.abs(speeds - point).reshape(len(speeds), -1).sum(1)))
+
+
+def _run_figures(r: Mapping[str, Any], inputs: _Inputs, j: int, figure: bytes) -> list[str]:
+    """A classified run's probability table and its features against the bands at ``j``."""
+    speeds = inputs.speeds
+    speed_note = "" if speeds is None else f" at operating point {_point_text(speeds[j])}"
+    return [
+        H.table(
+            ["state", "probability"],
+            [[c, f"{r['probabilities'][c]:.4f}"] for c in inputs.classes],
+        ),
+        H.img(
+            figure,
+            "features against bands",
+            "The run's log-PSD features (black) against the 5-95 % posterior-predictive "
+            f"band of each state{speed_note} (simulated training runs).",
+        ),
+    ]
 
 
 def _run_file(run: int) -> str:
@@ -741,7 +823,7 @@ def trust_section(adequacy: Mapping[str, Any] | None, trust: Mapping[str, Any] |
     return H.section("Can these results be trusted?", *parts)
 
 
-def _point(run: dict) -> np.ndarray:
+def _point(run: Mapping[str, Any]) -> np.ndarray:
     """A classified run's operating point (NaN where unknown), from its JSON entry."""
     point = run.get("operating")
     values = np.atleast_1d(np.asarray(point if point is not None else np.nan, dtype=object))

@@ -74,7 +74,16 @@ def _speed_message(value: str) -> str:
         (["--condition", "v_max=-0.2"], _speed_message("-0.2")),
         (["--condition", "v_max=0.9"], _speed_message("0.9")),
         (["--condition", "v_max=nan"], _speed_message("nan")),
-        (["--condition", "speed=0.3"], re.escape("elevator_door has the conditions v_max")),
+        (
+            ["--condition", "speed=0.3"],
+            re.escape("--condition speed: unknown name; the known names are v_max"),
+        ),
+        (
+            ["--condition", "v_max=0.3", "--condition", "v_max=0.4"],
+            re.escape("v_max is given twice"),
+        ),
+        (["--param", "nope=1"], re.escape("--param nope: unknown name; the known names are ")),
+        (["--param", "K=stiff"], re.escape("--param K: 'stiff' is not a number")),
         (["--param", "K=9000"], re.escape("K=9000.0")),
         (["--param", "K"], re.escape("NAME=VALUE")),
         (["--system", "lift"], re.escape("no system called 'lift'")),

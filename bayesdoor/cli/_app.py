@@ -19,6 +19,7 @@ from ._common import (
     fail,
     interruptible,
     on_interrupt,
+    parse_assignments,
     writing,
 )
 
@@ -77,8 +78,7 @@ def simulate(
     configure_jax()
     from ..io import save_campaign
     from ..systems import get_system
-    from ._inspect import parse_conditions
-    from ._simulate import _parse_overrides, operating_points, simulate_campaign
+    from ._simulate import operating_points, simulate_campaign
 
     try:
         model = get_system(system)
@@ -87,7 +87,9 @@ def simulate(
     for s in state:
         if s not in model.states:
             raise fail(f"unknown state {s!r}: allowed {', '.join(model.states)}")
-    operating = operating_points(model, parse_conditions(condition), len(state))
+    conditions = parse_assignments(condition, "--condition", model.condition_names(), several=True)
+    params = parse_assignments(param, "--param", [p.name for p in model.parameters])
+    operating = operating_points(model, conditions, len(state))
     if out.suffix != ".nc":
         raise fail(f"--out must be a NetCDF file ending in .nc, got {out}")
     check_output_path(out, force)
@@ -97,7 +99,7 @@ def simulate(
         state,
         operating,
         seed=seed,
-        params=_parse_overrides(param),
+        params={name: values[0] for name, values in params.items()},
         progress=_progress(json),
     )
     with writing(out):
@@ -327,9 +329,9 @@ def inspect(
     from ..io import atomic_write, validate_campaign
     from . import _inspect
 
-    ds, problems = _inspect.load(
-        path, system=system, conditions=_inspect.parse_conditions(condition), state=state
-    )
+    known = _inspect.condition_names(system)
+    conditions = parse_assignments(condition, "--condition", known, several=True)
+    ds, problems = _inspect.load(path, system=system, conditions=conditions, state=state)
     warnings: list[str] = []
     if ds is not None:
         options, warnings = _inspect.expectations(ds)

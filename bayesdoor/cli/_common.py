@@ -9,7 +9,7 @@ import json
 import os
 import sys
 import warnings
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, ParamSpec, TypeVar
 
@@ -60,6 +60,46 @@ def check_writable(path: Path, option: str = "--out") -> None:
     folder = existing if existing.is_dir() else existing.parent
     if not os.access(folder, os.W_OK | os.X_OK):
         raise fail(f"{option} {path}: no permission to write in {folder}; pass a writable path")
+
+
+def parse_assignments(
+    items: Sequence[str],
+    option: str,
+    known: Sequence[str] | None = None,
+    *,
+    several: bool = False,
+) -> dict[str, list[float]]:
+    """The ``NAME=VALUE`` items of a repeatable option as ``{name: values}``.
+
+    ``several`` allows ``NAME=V1,V2,...`` (else each name gets one value); ``known``, when
+    given, are the names the option accepts. Each name may be given once.
+
+    Raises
+    ------
+    typer.Exit
+        (through :func:`fail`, one line naming ``option``) for an item without ``=`` or a
+        name, a name given twice, a name not in ``known`` (the line lists the known ones) or a
+        value that is not a number.
+    """
+    form = "NAME=VALUE[,VALUE...]" if several else "NAME=VALUE"
+    example = f" (e.g. {option} {known[0]}=...)" if known else ""
+    out: dict[str, list[float]] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise fail(f"{option} takes {form}{example}, got {item!r}")
+        if name in out:
+            raise fail(f"{option} {name} is given twice: give each name once")
+        if known is not None and name not in known:
+            raise fail(f"{option} {name}: unknown name; the known names are {', '.join(known)}")
+        parts = text.split(",") if several else [text]
+        try:
+            out[name] = [float(part) for part in parts]
+        except ValueError:
+            what = "a number or a list of numbers" if several else "a number"
+            raise fail(f"{option} {name}: {text!r} is not {what}") from None
+    return out
 
 
 @contextlib.contextmanager

@@ -11,7 +11,14 @@ from typing import Any
 import numpy as np
 from rich.console import Console
 
-from ._common import check_for_job, check_writable, fail, system_named, writing
+from ._common import (
+    check_for_job,
+    check_writable,
+    fail,
+    parse_assignments,
+    system_named,
+    writing,
+)
 
 _err = Console(stderr=True)
 
@@ -32,30 +39,17 @@ def parse_fixed(items: list[str], system: Any) -> dict[str, float]:
     Raises
     ------
     typer.Exit
-        (through :func:`fail`) for an item without ``=`` or a number, a name given twice, an
-        unknown name, a value outside the parameter's bounds or a non-integral value of an
-        integer parameter.
+        (through :func:`~bayesdoor.cli._common.parse_assignments`) for an item without ``=``
+        or a number, a name given twice or an unknown name; (through :func:`fail`) for a value
+        outside the parameter's bounds or a non-integral value of an integer parameter.
     """
-    fixed: dict[str, float] = {}
-    for item in items:
-        name, sep, text = item.partition("=")
-        name = name.strip()
-        try:
-            if not sep or not name:
-                raise ValueError
-            value = float(text)
-        except ValueError:
-            raise fail(
-                f"--fix {item!r}: give NAME=VALUE with a parameter of {system.name} and a number, "
-                f"e.g. --fix {system.parameters[0].name}={system.parameters[0].nominal:g}"
-            ) from None
-        if name in fixed:
-            raise fail(f"--fix {name} is given twice: give each parameter once")
+    names = [p.name for p in system.parameters]
+    fixed = {name: values[0] for name, values in parse_assignments(items, "--fix", names).items()}
+    for name, value in fixed.items():
         try:
             system.check_parameters({name: value})
         except ValueError as err:
-            raise fail(f"--fix {item}: {err}") from None
-        fixed[name] = value
+            raise fail(f"--fix {name}={value:g}: {err}") from None
     return fixed
 
 

@@ -27,18 +27,14 @@ _BAD_RUN = {"non_finite", "flat", "clipped", "bad_motion_window", "window_too_sh
 _LOW_BAND_HZ = 100.0
 
 
-def parse_conditions(items: Sequence[str]) -> dict[str, list[float]]:
-    """``--condition NAME=VALUE[,VALUE...]`` options as {name: values}."""
-    out: dict[str, list[float]] = {}
-    for item in items:
-        name, sep, values = item.partition("=")
-        if not sep or not name.strip():
-            raise fail(f"--condition takes NAME=VALUE[,VALUE...] (e.g. v_max=0.3), got {item!r}")
-        try:
-            out[name.strip()] = [float(v) for v in values.split(",")]
-        except ValueError:
-            raise fail(f"--condition {name}: {values!r} is not a list of numbers") from None
-    return out
+def condition_names(system: str | None) -> list[str] | None:
+    """The operating conditions of the registered system named ``system`` (``--system``), the
+    names ``--condition`` accepts; None when no registered system is named."""
+    from ..systems import available_systems, get_system
+
+    if system is None or system not in available_systems():
+        return None
+    return list(get_system(system).condition_names())
 
 
 def load(

@@ -9,19 +9,6 @@ import numpy as np
 from ._common import fail
 
 
-def _parse_overrides(items: list[str]) -> dict[str, float]:
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise fail(f"--param takes NAME=VALUE (e.g. K=1863), got {item!r}")
-        name, value = item.split("=", 1)
-        try:
-            out[name.strip()] = float(value)
-        except ValueError:
-            raise fail(f"--param {name}: {value!r} is not a number") from None
-    return out
-
-
 def reference_values(system) -> dict[str, float]:
     """Each parameter's reference value (a published optimum, say), else its nominal one."""
     return {

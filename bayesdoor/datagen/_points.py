@@ -42,9 +42,12 @@ def unique_points(points: np.ndarray) -> np.ndarray:
 
 
 def point_key(point) -> float | tuple[float, ...]:
-    """A hashable point: the number for one condition, the tuple of its values for several."""
+    """A hashable point: the number for one condition, the tuple of its values for several,
+    rounded to 9 decimals so that a value read back from JSON meets the array's."""
     value = np.asarray(point, dtype=float)
-    return float(value) if value.ndim == 0 else tuple(float(v) for v in value.ravel())
+    if value.ndim == 0:
+        return round(float(value), 9)
+    return tuple(round(float(v), 9) for v in value.ravel())
 
 
 def point_list(points: Iterable) -> list:

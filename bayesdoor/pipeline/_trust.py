@@ -49,6 +49,7 @@ from ..datagen import (
     measurement_variance,
     with_measured_discrepancy,
 )
+from ..datagen._points import point_key
 from ..io import operating as campaign_operating
 from ..systems import AbstractSystem
 from ._classify import _write_json, classify_stage, data_spec, runs_in_state
@@ -315,8 +316,8 @@ def trust_stage(
     if picks and KNOWN_STATE in data.states:
         with np.load(classified / "features.npz", allow_pickle=False) as f:
             features = f["features"][[i for i, _ in picks]]
-        simulated = {_key(s) for s in np.asarray(data.speeds)}
-        at = [j for j, (_, r) in enumerate(picks) if _key(r["operating"]) in simulated]
+        simulated = {point_key(s) for s in np.asarray(data.speeds)}
+        at = [j for j, (_, r) in enumerate(picks) if point_key(r["operating"]) in simulated]
         try:
             scores, bounds = healthy_outliers(
                 data,
@@ -340,8 +341,3 @@ def trust_stage(
 def _known(point) -> bool:
     """Whether a run's operating point (a number or a list) is known in full."""
     return point is not None and all(v is not None for v in np.atleast_1d(point))
-
-
-def _key(point) -> tuple[float, ...]:
-    """A hashable operating point, rounded so that the JSON's and the arrays' values meet."""
-    return tuple(round(float(v), 9) for v in np.atleast_1d(np.asarray(point, dtype=float)))

@@ -504,3 +504,25 @@ def test_make_campaign_refuses_bad_input():
         make_campaign(acc, **{**kwargs, "split": ["train", "test"]})
     with pytest.raises(ValueError, match="fs must be a positive sampling rate in Hz, got -1"):
         make_campaign(acc, **{**kwargs, "fs": -1.0})
+
+
+def test_system_of_builds_a_system_once_per_name_and_factory():
+    """A campaign's system is built on first use and the same object is returned after; a
+    different factory registered under the name builds anew; an unknown name gives None."""
+    from bayesdoor.door import ElevatorDoor
+    from bayesdoor.io import system_of
+    from bayesdoor.systems import register_system
+
+    built = []
+
+    def factory():
+        built.append(ElevatorDoor())
+        return built[-1]
+
+    register_system("door_built_once", factory)
+    campaign = xr.Dataset(attrs={"system": "door_built_once"})
+    assert system_of(campaign) is system_of("door_built_once") is built[0]
+    assert len(built) == 1
+    register_system("door_built_once", lambda: factory())
+    assert system_of(campaign) is built[1] and len(built) == 2
+    assert system_of("no_such_system") is None

@@ -12,6 +12,7 @@ test).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -42,7 +43,8 @@ def available_systems() -> tuple[str, ...]:
 
 
 def get_system(name: str) -> AbstractSystem:
-    """The system called ``name``, built with its defaults.
+    """The system called ``name``, built with its defaults: once per name and factory, later
+    calls return the same (immutable) object.
 
     Raises
     ------
@@ -51,14 +53,20 @@ def get_system(name: str) -> AbstractSystem:
         names available.
     """
     if name in _REGISTERED:
-        return _check(name, _REGISTERED[name]())
+        return _built(name, _REGISTERED[name])
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         if ep.name == name:
-            return _check(name, ep.load()())
+            return _built(name, ep.load())
     raise LookupError(
         f"no system called {name!r}: available {', '.join(available_systems()) or 'none'} "
         f"(a package adds one through the {ENTRY_POINT_GROUP!r} entry points)"
     )
+
+
+@functools.cache
+def _built(name: str, factory: Callable[[], AbstractSystem]) -> AbstractSystem:
+    """``factory()``, built once: a factory registered again under the name builds anew."""
+    return _check(name, factory())
 
 
 def _check(name: str, system) -> AbstractSystem:

@@ -28,7 +28,7 @@ from bayesdoor import configure_jax
 # as the command line sets JAX up: the cache of $BAYESDOOR_JAX_CACHE or ./.jax_cache
 configure_jax()
 
-#: the issue's target for 12 runs on the 2-core development machine
+#: the target for 12 runs on the 2-core development machine
 TARGET_S = 600.0
 
 

@@ -1,6 +1,6 @@
 """Model-updating times on the demo campaign: the CMA-ES stage and the default NUTS posterior.
 
-Issue 4's targets on a 2-core machine: CMA-ES on the 10 calibration runs within 3 minutes, the
+The targets on a 2-core machine: CMA-ES on the 10 calibration runs within 3 minutes, the
 default posterior (R-hat <= 1.01 and bulk ESS >= 400 for every parameter) within 15 minutes.
 All figures come from one process, so the ratio in 1 compares like with like under load:
 

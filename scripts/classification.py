@@ -365,7 +365,7 @@ def write_markdown(
     lines += [
         "",
         f"The paper reports {100 * PAPER_ACCURACY:.1f} % on its door (Gaussian scatter, "
-        "measured test data). The issue's targets for the posterior variant: accuracy >= 95 % "
+        "measured test data). The targets for the posterior variant: accuracy >= 95 % "
         "and ECE <= 0.05.",
         "",
         "## Every job",

@@ -225,3 +225,13 @@ def test_envelope_rule_names_the_family_and_keeps_its_false_alarm_rate():
         assert rule.classify(_ringing_train(rate, rng), 12000.0, rpm) == state
     with pytest.raises(ValueError, match="false_alarm_rate"):
         EnvelopeRule.from_healthy(healthy, 12000.0, rpm, false_alarm_rate=1.5)
+
+
+def test_training_points_span_the_speeds_and_loads_and_keep_the_campaigns(system):
+    measured = np.array([[1796.0, 0.0], [1772.0, 1.0]])
+    points = system.training_points(measured)
+    assert {tuple(p) for p in measured} <= {tuple(p) for p in points}
+    assert points[:, 0].min() == 1700.0 and points[:, 0].max() == 1800.0
+    assert set(points[:, 1]) == {0.0, 1.0, 2.0, 3.0}
+    assert len(points) == len({tuple(p) for p in points}) == 2 + 5 * 4
+    system.check_operating(points)

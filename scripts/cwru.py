@@ -32,6 +32,7 @@ block of an existing results file is kept.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import subprocess
@@ -57,6 +58,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--quick", action="store_true", help="the quick sizes of the jobs")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
+        "--runs-per-state",
+        type=int,
+        default=None,
+        help="simulated training runs per state (default: the job's, 100 with --quick)",
+    )
+    parser.add_argument(
         "--jobs",
         nargs="*",
         choices=("nuts", "cmaes"),
@@ -68,7 +75,7 @@ def main(argv: list[str] | None = None) -> None:
     setup_jax()
 
     from bayesdoor.bearing import EnvelopeRule, read_cwru
-    from bayesdoor.pipeline import default_source, run_job
+    from bayesdoor.pipeline import Sizes, default_source, run_job
     from bayesdoor.systems import get_system
 
     system = get_system("bearing")
@@ -79,6 +86,9 @@ def main(argv: list[str] | None = None) -> None:
     _check_split(runs)
     files = {r["record"]: r["file"] for r in json.loads(campaign.attrs["source"])["records"]}
 
+    sizes = Sizes.quick() if args.quick else Sizes()
+    if args.runs_per_state is not None:
+        sizes = dataclasses.replace(sizes, runs_per_state=args.runs_per_state)
     results: list[dict[str, Any]] = []
     for method in args.jobs:
         source = default_source(method)
@@ -88,6 +98,7 @@ def main(argv: list[str] | None = None) -> None:
             campaign,
             args.out / method,
             quick=args.quick,
+            sizes=sizes,
             seed=args.seed,
             method=method,
             source=source,

@@ -232,6 +232,6 @@ def test_training_points_span_the_speeds_and_loads_and_keep_the_campaigns(system
     points = system.training_points(measured)
     assert {tuple(p) for p in measured} <= {tuple(p) for p in points}
     assert points[:, 0].min() == 1700.0 and points[:, 0].max() == 1800.0
-    assert set(points[:, 1]) == {0.0, 1.0, 2.0, 3.0}
-    assert len(points) == len({tuple(p) for p in points}) == 2 + 5 * 4
+    assert points[:, 1].min() == 0.0 and points[:, 1].max() == 3.0
+    assert len(points) == len({tuple(p) for p in points}) == 2 + 3 * 2
     system.check_operating(points)

@@ -164,16 +164,27 @@ def ood_model_error(
     at its speed (:func:`bayesdoor.datagen.calibration_residuals`: the structured
     discrepancy the model leaves) plus independent per-feature scatter with the variance the
     fit's likelihood gives a measured feature (Welch scatter and the posterior of the model
-    error, :func:`bayesdoor.datagen.measurement_variance`). Without healthy calibration runs
-    at the simulated speeds only the scatter is drawn.
+    error, :func:`bayesdoor.datagen.measurement_variance`). Without healthy calibration runs,
+    or when a calibration run's operating point has no simulated healthy training run, only
+    the scatter is drawn.
     """
     healthy = runs_in_state(calibration, "healthy")
     speeds = campaign_operating(healthy, system)
-    # operating points as keys: numbers for one condition, tuples (rows) for several
-    simulated = {point_key(p) for p in np.asarray(data.subset("train").speeds)}
+    # operating points as keys: numbers for one condition, tuples (rows) for several; the
+    # residuals need simulated healthy runs at every calibration run's point
+    train = data.subset("train")
+    simulated = (
+        {
+            point_key(p)
+            for p, label in zip(np.asarray(train.speeds), train.labels, strict=True)
+            if data.states[int(label)] == "healthy"
+        }
+        if "healthy" in data.states
+        else set()
+    )
     measured = {point_key(p) for p in np.asarray(speeds)}
     residuals = None
-    if "healthy" in data.states and healthy.sizes["run"] and measured <= simulated:
+    if healthy.sizes["run"] and simulated and measured <= simulated:
         residuals = calibration_residuals(
             data, campaign_features(healthy, spec=data_spec(data)), speeds, state="healthy"
         )

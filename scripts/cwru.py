@@ -126,6 +126,11 @@ def main(argv: list[str] | None = None) -> None:
                 result["name"] += f", training seed {seed}"
                 result["detail"] = False
             results.append(result)
+        # the main seed's row first, then the further seeds'
+        results[len(results) - len(seeds) :] = [
+            results[-1],
+            *results[len(results) - len(seeds) : -1],
+        ]
 
     t0 = time.perf_counter()
     x = np.asarray(campaign["acceleration"].values)[:, 0, :]

@@ -189,3 +189,49 @@ def test_batches_vmap_jit_and_grad(system):
     for g in grad:
         assert np.all(np.isfinite(np.asarray(g)))
     assert np.all(np.asarray(grad[0]) > 0)
+
+
+def _ringing_train(rate_hz, rng, *, fs=12000.0, n=12000, amplitude=3.0):
+    """White noise plus, for ``rate_hz``, impulses at that rate ringing a 3 kHz mode."""
+    x = rng.standard_normal(n)
+    if rate_hz is None:
+        return x
+    t = np.arange(200) / fs
+    ring = np.exp(-300 * t) * np.sin(2 * np.pi * 3000 * t)
+    train = np.zeros(n)
+    times = np.cumsum(
+        np.full(int(n / fs * rate_hz) + 2, 1 / rate_hz)
+        * (1 + 0.01 * rng.standard_normal(int(n / fs * rate_hz) + 2))
+    )
+    train[(times[times < n / fs] * fs).astype(int)] = amplitude
+    return x + np.convolve(train, ring)[:n] * 5
+
+
+def test_envelope_rule_names_the_family_and_keeps_its_false_alarm_rate():
+    from bayesdoor.bearing import EnvelopeRule
+
+    rng = np.random.default_rng(0)
+    rpm = 1797.0
+    hz = CWRU_DRIVE_END.fault_frequencies(rpm / 60)
+    healthy = np.stack([_ringing_train(None, rng) for _ in range(30)])
+    rule = EnvelopeRule.from_healthy(healthy, 12000.0, np.full(30, rpm), false_alarm_rate=0.05)
+    # the t prediction bound of 30 segments at 1 - 0.05 / 3, one-sided
+    assert rule.z_threshold == pytest.approx(2.2343 * np.sqrt(1 + 1 / 30), abs=1e-3)
+    calls = [rule.classify(_ringing_train(None, rng), 12000.0, rpm) for _ in range(100)]
+    # 5 false alarms expected of 100; more than 12 has a binomial probability of 0.15 %
+    assert 100 - calls.count("healthy") <= 12
+    for state, line in (("outer_race", "bpfo"), ("inner_race", "bpfi"), ("ball", "bsf")):
+        rate = hz[line] * (2 if state == "ball" else 1)  # a ball strikes at 2 BSF
+        assert rule.classify(_ringing_train(rate, rng), 12000.0, rpm) == state
+    with pytest.raises(ValueError, match="false_alarm_rate"):
+        EnvelopeRule.from_healthy(healthy, 12000.0, rpm, false_alarm_rate=1.5)
+
+
+def test_training_points_span_the_speeds_and_loads_and_keep_the_campaigns(system):
+    measured = np.array([[1796.0, 0.0], [1772.0, 1.0]])
+    points = system.training_points(measured)
+    assert {tuple(p) for p in measured} <= {tuple(p) for p in points}
+    assert points[:, 0].min() == 1700.0 and points[:, 0].max() == 1800.0
+    assert points[:, 1].min() == 0.0 and points[:, 1].max() == 3.0
+    assert len(points) == len({tuple(p) for p in points}) == 2 + 3 * 2
+    system.check_operating(points)

@@ -113,3 +113,37 @@ def test_demo_writes_the_campaign_and_both_psd_figures(tmp_path):
     assert list(xr.load_dataset(payload["campaign"]).state.values) == ["healthy", "D1", "D2"]
     again = runner.invoke(app, ["demo", "--out", str(out)])
     assert again.exit_code != 0 and "--force" in again.stderr
+
+
+def test_classify_prints_the_records_votes():
+    from rich.console import Console
+
+    from bayesdoor.cli._classify import _records_table
+
+    records = [
+        {
+            "record": "IR007_0",
+            "state": "inner_race",
+            "runs": 10,
+            "majority": "inner_race",
+            "mean_probabilities": {"healthy": 0.1, "inner_race": 0.85},
+            "share_flagged": 0.7,
+            "flagged": True,
+        },
+        {
+            "record": "B007_0",
+            "state": "ball",
+            "runs": 4,
+            "majority": None,
+            "mean_probabilities": None,
+            "share_flagged": 1.0,
+            "flagged": True,
+        },
+    ]
+    console = Console(record=True, width=120)
+    console.print(_records_table(records, ["healthy", "inner_race"]))
+    text = console.export_text()
+    assert re.search(
+        r"IR007_0\s.*inner_race\s.*10\s.*inner_race\s.*0\.85\s.*70 % \(flagged\)", text
+    )
+    assert re.search(r"B007_0\s.*None\s.*-\s.*100 % \(flagged\)", text)

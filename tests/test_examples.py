@@ -48,6 +48,7 @@ def test_every_notebook_is_tested():
         "02_model_updating.py",
         "03_training_calibration_report.py",
         "04_diagnosing_a_discrepancy.py",
+        "05_real_bearing.py",
     ]
 
 
@@ -102,3 +103,25 @@ def test_02_03_04_update_train_report_diagnose(tiny):
     assert g4["diagnosis"].runs.tolist() == [0, 1, 2, 3]
     assert g4["residuals"].freqs.min() >= g2["fit"].feature_spec.f_low
     assert (tiny / "04" / "residual_map.png").is_file()
+
+
+#: the real CWRU records, outside the repository (the notebook's default folder)
+CWRU = EXAMPLES.parent.parent / "shared" / "data" / "cwru"
+
+
+#: 40-100 s on a 2-core machine (reading the records, a quick CMA-ES fit): in the long tier
+@pytest.mark.long
+@pytest.mark.skipif(not CWRU.is_dir(), reason="the CWRU records are not at ../shared/data/cwru")
+def test_05_real_bearing(tiny, monkeypatch):
+    monkeypatch.setenv("BAYESDOOR_CWRU", str(CWRU))
+    g = _run("05_real_bearing.py")
+    # the text's claim: the geometry gives the CWRU documentation's orders (to its digits)
+    for name, value in g["cwru"].items():
+        assert g["orders"][name] == pytest.approx(value, abs=5e-5)
+    # every test segment called, by the rule whose reference is the calibration split only
+    assert len(g["calls"]) == len(g["test"]) == g["runs"] - len(g["calibration"])
+    assert set(g["state"][g["calibration"]]) == {"healthy"}
+    assert len(g["votes"]) == len(set(g["record"]))
+    assert g["band_error_db"].shape == g["edges"].shape
+    assert (tiny / "05" / "healthy_psd.png").is_file()
+    assert (tiny / "05" / "envelope_spectra.png").is_file()

@@ -524,3 +524,67 @@ def test_corrupted_and_unknown_runs_are_reported_per_run(finished, tmp_path):
     assert runs[2]["predicted"] is not None and runs[2]["state"] == "unknown"
     assert payload["metrics"]["runs"] == len(runs) - 2
     assert payload["n_failed"] == 1
+
+
+def test_classification_votes_per_record(finished, tmp_path):
+    from bayesdoor.pipeline import classify_stage
+
+    _, out = finished
+    campaign = runs_to_classify(tone_campaign(seed=4))
+    n = campaign.sizes["run"]
+    # two records per state, runs of one record adjacent in campaign order
+    states = campaign["state"].values.astype(str)
+    names = [f"{s}-{i % 2}" for i, s in enumerate(states)]
+    campaign = campaign.assign_coords(record=("run", names))
+    classify_stage(out / "train", campaign, tmp_path)
+    payload = json.loads((tmp_path / "classification.json").read_text())
+    runs, classes = payload["runs"], payload["classes"]
+    assert [r["record"] for r in payload["records"]] == list(dict.fromkeys(names))
+    for entry in payload["records"]:
+        members = [runs[i] for i in range(n) if names[i] == entry["record"]]
+        assert entry["runs"] == len(members) and entry["state"] == members[0]["state"]
+        votes = {c: sum(m["predicted"] == c for m in members) for c in classes}
+        assert entry["votes"] == votes
+        assert votes[entry["majority"]] == max(votes.values())
+        for c in classes:
+            mean = np.mean([m["probabilities"][c] for m in members])
+            assert entry["mean_probabilities"][c] == pytest.approx(mean)
+        share = np.mean([bool(m["ood"]) for m in members])
+        assert entry["share_flagged"] == pytest.approx(share)
+        assert entry["flagged"] == (share > 0.5)
+    metrics = payload["record_metrics"]
+    right = [r["majority"] == r["state"] for r in payload["records"]]
+    assert metrics["records"] == len(right)
+    assert metrics["accuracy"] == pytest.approx(np.mean(right))
+    assert np.sum(metrics["confusion"]) == len(right)
+
+
+def test_record_votes_ties_unclassified_runs_and_balanced_accuracy():
+    from bayesdoor.pipeline._classify import record_metrics, record_votes
+
+    classes = ["a", "b"]
+
+    def run(state, predicted, pa=None, ood=False):
+        probabilities = None if predicted is None else {"a": pa, "b": 1 - pa}
+        return {"state": state, "predicted": predicted, "probabilities": probabilities, "ood": ood}
+
+    runs = [
+        run("a", "a", 0.6),
+        run("a", "b", 0.1),  # a tie of one vote each: the mean probability (0.35 for a) decides
+        run("b", "b", 0.2, ood=True),
+        run("b", None),
+        run("b", "a", 0.9, ood=True),
+        run("a", "a", 0.8),
+    ]
+    record = np.array(["r1", "r1", "r2", "r2", "r2", "r3"])
+    r1, r2, r3 = record_votes(runs, record, classes)
+    assert r1["votes"] == {"a": 1, "b": 1} and r1["majority"] == "b"
+    assert r1["mean_probabilities"]["a"] == pytest.approx(0.35)
+    assert (r2["runs"], r2["classified"], r2["share_flagged"], r2["flagged"]) == (3, 2, 1.0, True)
+    assert r2["majority"] == "a"  # one vote each, mean p(a) 0.55
+    assert (r3["majority"], r3["flagged"]) == ("a", False)
+    metrics = record_metrics([r1, r2, r3], classes)
+    assert metrics["confusion"] == [[1, 1], [1, 0]]
+    assert metrics["accuracy"] == pytest.approx(1 / 3)
+    assert metrics["balanced_accuracy"] == pytest.approx((0.5 + 0.0) / 2)
+    assert (metrics["misnamed"], metrics["misnamed_flagged"]) == (2, 1)

@@ -9,7 +9,9 @@ from ._cwru import import_cwru as import_cwru
 from ._cwru import read_cwru as read_cwru
 from ._cwru import read_record as read_record
 from ._cwru import settle_sampling_rate as settle_sampling_rate
+from ._envelope import EnvelopeRule as EnvelopeRule
 from ._envelope import envelope_spectrum as envelope_spectrum
+from ._envelope import fault_indicators as fault_indicators
 from ._envelope import fault_line_check as fault_line_check
 from ._geometry import CWRU_DRIVE_END as CWRU_DRIVE_END
 from ._geometry import BearingGeometry as BearingGeometry

@@ -7,6 +7,7 @@ look for a line at the fault frequency in the envelope's spectrum (Randall and A
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -135,3 +136,118 @@ def fault_line_check(
             row["shows"] = bool(own >= threshold_db and own > max(family.values()))
         rows.append(row)
     return rows
+
+
+#: the lines of the physics rule's indicator of each fault state: harmonics 1..3 of BPFO and
+#: BPFI; harmonics 1..4 of BSF for a ball (a ball strikes the races at 2 BSF and, when its
+#: defect meets one race only, at BSF)
+RULE_LINES = {
+    "outer_race": ("bpfo", (1, 2, 3)),
+    "inner_race": ("bpfi", (1, 2, 3)),
+    "ball": ("bsf", (1, 2, 3, 4)),
+}
+
+
+def fault_indicators(
+    x: np.ndarray,
+    fs: float,
+    shaft_speed_rpm: float,
+    *,
+    band: tuple[float, float] = BAND_HZ,
+    tolerance: float = 0.02,
+    geometry=None,
+) -> dict[str, float]:
+    """Each fault family's envelope-line indicator of one segment, dB.
+
+    The segment is band-passed to ``band``, enveloped and its envelope spectrum taken at the
+    resolution of the whole segment (:func:`envelope_spectrum`); at each line of
+    :data:`RULE_LINES` (from the geometry and ``shaft_speed_rpm``) the strongest bin within
+    ``tolerance`` (relative, for slip) is compared with the median within 20 %
+    (:func:`line_strength`). A family's indicator is the mean of its lines' prominences, dB.
+    """
+    from ._geometry import CWRU_DRIVE_END
+
+    geometry = CWRU_DRIVE_END if geometry is None else geometry
+    x = np.asarray(x, dtype=float).ravel()
+    f, amplitude = envelope_spectrum(x, fs, band, segment_s=x.size / fs)
+    hz = geometry.fault_frequencies(shaft_speed_rpm / 60.0)
+    out = {}
+    for state, (line, harmonics) in RULE_LINES.items():
+        ratios = [
+            line_strength(f, amplitude, k * hz[line], tolerance=tolerance)[1] for k in harmonics
+        ]
+        out[state] = float(np.mean(20 * np.log10(ratios)))
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvelopeRule:
+    """A physics rule without learning: envelope lines at the kinematic fault frequencies.
+
+    Each segment's family indicators (:func:`fault_indicators`) are standardised by their
+    mean and standard deviation over healthy reference segments. A segment is called healthy
+    when no family's standardised indicator exceeds ``z_threshold``; else the family with the
+    largest one. ``z_threshold`` follows from the stated false-alarm rate
+    ``false_alarm_rate`` of a healthy segment (:meth:`from_healthy`): the one-sided normal
+    prediction bound for a new segment from ``n`` reference segments (Student's t with
+    ``n - 1`` degrees of freedom, times ``sqrt(1 + 1/n)``), at the rate split over the three
+    families (Bonferroni), so a healthy segment whose indicators scatter as the reference's
+    (normally) is called faulty with at most that probability.
+
+    Attributes
+    ----------
+    mean, sd
+        Per family, the healthy reference's indicator mean and standard deviation, dB.
+    z_threshold
+        The standardised indicator above which a family is detected.
+    false_alarm_rate
+        The stated false-alarm rate per healthy segment it was derived from.
+    band
+        The envelope's pass band, Hz.
+    """
+
+    mean: dict[str, float]
+    sd: dict[str, float]
+    z_threshold: float
+    false_alarm_rate: float
+    band: tuple[float, float] = BAND_HZ
+
+    @classmethod
+    def from_healthy(
+        cls,
+        segments: np.ndarray,
+        fs: float,
+        shaft_speed_rpm: np.ndarray,
+        *,
+        false_alarm_rate: float = 0.01,
+        band: tuple[float, float] = BAND_HZ,
+    ) -> EnvelopeRule:
+        """The rule from healthy reference segments ``(segment, time)`` and their speeds."""
+        from scipy.stats import t as student
+
+        if not 0 < false_alarm_rate < 1:
+            raise ValueError(f"false_alarm_rate must be in (0, 1), got {false_alarm_rate!r}")
+        segments = np.atleast_2d(np.asarray(segments, dtype=float))
+        speeds = np.broadcast_to(np.asarray(shaft_speed_rpm, dtype=float), (len(segments),))
+        if len(segments) < 3:
+            raise ValueError(f"the rule needs at least 3 healthy segments, got {len(segments)}")
+        rows = [
+            fault_indicators(x, fs, s, band=band) for x, s in zip(segments, speeds, strict=True)
+        ]
+        mean = {k: float(np.mean([r[k] for r in rows])) for k in RULE_LINES}
+        sd = {k: float(np.std([r[k] for r in rows], ddof=1)) for k in RULE_LINES}
+        n = len(rows)
+        quantile = student.ppf(1 - false_alarm_rate / len(RULE_LINES), n - 1)
+        z = float(quantile * np.sqrt(1 + 1 / n))
+        return cls(mean, sd, z, false_alarm_rate, band)
+
+    def scores(self, x: np.ndarray, fs: float, shaft_speed_rpm: float) -> dict[str, float]:
+        """The standardised indicator of each fault family for one segment."""
+        raw = fault_indicators(x, fs, shaft_speed_rpm, band=self.band)
+        return {k: (raw[k] - self.mean[k]) / self.sd[k] for k in RULE_LINES}
+
+    def classify(self, x: np.ndarray, fs: float, shaft_speed_rpm: float) -> str:
+        """``healthy`` or the state of the most prominent detected family."""
+        z = self.scores(x, fs, shaft_speed_rpm)
+        best = max(z, key=lambda k: z[k])
+        return best if z[best] > self.z_threshold else "healthy"

@@ -97,6 +97,14 @@ CONDITIONS = (
     ),
 )
 
+#: the shaft speeds (rpm) and motor loads (hp) the training data span besides the campaign's
+#: own operating points: a user's machine does not run at the calibration speed. The ends and
+#: the middle of 1700-1800 rpm, at the ends of 0-3 hp (the model depends on the load only
+#: through the speed); few points, so that each, the calibration speed among them, keeps
+#: enough simulated runs for the fit-adequacy check
+TRAINING_SPEEDS_RPM = (1700.0, 1750.0, 1800.0)
+TRAINING_LOADS_HP = (0.0, 3.0)
+
 #: what the fit and the classifier compare (docs/bearing.md, "Features"): the fit, log10 Welch
 #: PSDs (480 samples, 25 Hz bins) in 39 bands of 100 Hz from 1.5 to 5.4 kHz, the resonance
 #: region the model describes (below it the real healthy record holds lines the model lacks,
@@ -207,6 +215,13 @@ class BearingSystem(AbstractSystem):
             "ball_inner_ratio": self.ball_inner_ratio,
             "entry_ratio": self.entry_ratio,
         }
+
+    def training_points(self, points: np.ndarray) -> np.ndarray:
+        """The campaign's points and the grid of :data:`TRAINING_SPEEDS_RPM` x
+        :data:`TRAINING_LOADS_HP` (1700-1800 rpm, 0 and 3 hp), without repeats."""
+        grid = np.array([(v, load) for v in TRAINING_SPEEDS_RPM for load in TRAINING_LOADS_HP])
+        points = np.asarray(points, dtype=float).reshape(-1, len(CONDITIONS))
+        return np.unique(np.concatenate([points, grid]), axis=0)
 
     def fault_frequencies(self, shaft_speed_rpm: float) -> dict[str, float]:
         """BPFO, BPFI, FTF and BSF (Hz) at a shaft speed in rpm, from the geometry."""

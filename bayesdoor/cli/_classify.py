@@ -8,6 +8,7 @@ from pathlib import Path
 
 import xarray as xr
 from rich.console import Console
+from rich.table import Table
 
 from ._common import StageLog, check_writable, emit_json, fail, interruptible, writing
 from ._run import print_summary
@@ -96,4 +97,25 @@ def classify(campaign: xr.Dataset, model: Path, out: Path, *, force: bool, json:
     if json:
         emit_json(payload)
     else:
-        print_summary(payload, Console())
+        console = Console()
+        print_summary(payload, console)
+        if payload.get("records"):
+            console.print(_records_table(payload["records"], payload["classes"]))
+
+
+def _records_table(records: list[dict], classes: list[str]) -> Table:
+    """The records' votes: true state, majority, its mean probability, share flagged."""
+    table = Table(title=f"votes of {len(records)} records")
+    for column in ("record", "state", "runs", "majority", "mean p(majority)", "flagged"):
+        table.add_column(column, justify="left" if column in ("record", "state") else "right")
+    for r in records:
+        mean = r["mean_probabilities"]
+        table.add_row(
+            r["record"],
+            str(r["state"]),
+            str(r["runs"]),
+            str(r["majority"]),
+            "-" if mean is None else f"{mean[r['majority']]:.2f}",
+            f"{100 * r['share_flagged']:.0f} %" + (" (flagged)" if r["flagged"] else ""),
+        )
+    return table

@@ -164,16 +164,27 @@ def ood_model_error(
     at its speed (:func:`bayesdoor.datagen.calibration_residuals`: the structured
     discrepancy the model leaves) plus independent per-feature scatter with the variance the
     fit's likelihood gives a measured feature (Welch scatter and the posterior of the model
-    error, :func:`bayesdoor.datagen.measurement_variance`). Without healthy calibration runs
-    at the simulated speeds only the scatter is drawn.
+    error, :func:`bayesdoor.datagen.measurement_variance`). Without healthy calibration runs,
+    or when a calibration run's operating point has no simulated healthy training run, only
+    the scatter is drawn.
     """
     healthy = runs_in_state(calibration, "healthy")
     speeds = campaign_operating(healthy, system)
-    # operating points as keys: numbers for one condition, tuples (rows) for several
-    simulated = {point_key(p) for p in np.asarray(data.subset("train").speeds)}
+    # operating points as keys: numbers for one condition, tuples (rows) for several; the
+    # residuals need simulated healthy runs at every calibration run's point
+    train = data.subset("train")
+    simulated = (
+        {
+            point_key(p)
+            for p, label in zip(np.asarray(train.speeds), train.labels, strict=True)
+            if data.states[int(label)] == "healthy"
+        }
+        if "healthy" in data.states
+        else set()
+    )
     measured = {point_key(p) for p in np.asarray(speeds)}
     residuals = None
-    if "healthy" in data.states and healthy.sizes["run"] and measured <= simulated:
+    if healthy.sizes["run"] and simulated and measured <= simulated:
         residuals = calibration_residuals(
             data, campaign_features(healthy, spec=data_spec(data)), speeds, state="healthy"
         )
@@ -317,6 +328,11 @@ def classify_stage(
         metrics = _metrics(probabilities[known], labels)
         metrics["ood_runs"] = int(flags[known].sum())
         metrics["classes"] = classes
+    records = (
+        record_votes(runs, np.asarray(campaign["record"].values).astype(str), classes)
+        if "record" in campaign.variables and campaign["record"].dims == ("run",)
+        else None
+    )
     payload = {
         "classes": classes,
         "temperature": float(ensemble.temperature),
@@ -327,6 +343,9 @@ def classify_stage(
         "runs": runs,
         "metrics": metrics,
     }
+    if records is not None:
+        payload["records"] = records
+        payload["record_metrics"] = record_metrics(records, classes)
     _write_json(folder / "classification.json", payload)
 
     def write(tmp: Path) -> None:
@@ -340,6 +359,90 @@ def classify_stage(
             )
 
     atomic_write(folder / "features.npz", write, overwrite=True)
+
+
+def record_votes(
+    runs: list[dict[str, Any]], record: np.ndarray, classes: list[str]
+) -> list[dict[str, Any]]:
+    """Per-record votes of the classified runs, in the order records first appear.
+
+    Parameters
+    ----------
+    runs
+        The runs of ``classification.json`` (``state``, ``predicted``, ``probabilities``,
+        ``ood``, ``problem``), in campaign order.
+    record
+        Each run's record name.
+    classes
+        The ensemble's classes.
+
+    Returns
+    -------
+    records
+        Per record: ``record``; ``state`` (its runs' true state when they share one, else
+        ``None``); ``runs`` and ``classified`` (runs with a prediction); ``votes`` (runs
+        called each class); ``majority`` (the class with most votes, a tie broken by the
+        higher mean probability; ``None`` when no run is classified); ``mean_probabilities``
+        (the classified runs' mean probability of each class); ``share_flagged`` (runs flagged
+        out-of-distribution or not classified, per run); ``flagged`` (more than half of its
+        runs flagged: the record's vote is not to be relied on).
+    """
+    order = list(dict.fromkeys(str(r) for r in record))
+    out = []
+    for name in order:
+        members = [runs[i] for i in np.flatnonzero(record == name)]
+        done = [m for m in members if m["predicted"] is not None]
+        votes = {c: sum(m["predicted"] == c for m in done) for c in classes}
+        mean = (
+            {c: float(np.mean([m["probabilities"][c] for m in done])) for c in classes}
+            if done
+            else None
+        )
+        majority = (
+            None if mean is None else max(classes, key=lambda c: (votes[c], mean[c]))  # type: ignore[index]
+        )
+        flagged = sum(m["predicted"] is None or bool(m["ood"]) for m in members)
+        states = {m["state"] for m in members}
+        out.append(
+            {
+                "record": name,
+                "state": states.pop() if len(states) == 1 else None,
+                "runs": len(members),
+                "classified": len(done),
+                "votes": votes,
+                "majority": majority,
+                "mean_probabilities": mean,
+                "share_flagged": flagged / len(members),
+                "flagged": flagged > len(members) / 2,
+            }
+        )
+    return out
+
+
+def record_metrics(records: list[dict[str, Any]], classes: list[str]) -> dict[str, Any] | None:
+    """Accuracy, balanced accuracy and confusion of the records' majority votes.
+
+    Over the records whose true state is one of ``classes`` and that have a vote; the
+    balanced accuracy is the mean over the true states present of their records' accuracy.
+    ``misnamed_flagged`` counts the misnamed records that are flagged.
+    """
+    known = [r for r in records if r["state"] in classes and r["majority"] is not None]
+    if not known:
+        return None
+    confusion = np.zeros((len(classes), len(classes)), dtype=int)
+    for r in known:
+        confusion[classes.index(r["state"]), classes.index(r["majority"])] += 1
+    present = confusion.sum(axis=1) > 0
+    recall = np.diag(confusion)[present] / confusion.sum(axis=1)[present]
+    wrong = [r for r in known if r["majority"] != r["state"]]
+    return {
+        "records": len(known),
+        "accuracy": float(np.trace(confusion) / confusion.sum()),
+        "balanced_accuracy": float(recall.mean()),
+        "confusion": confusion.tolist(),
+        "misnamed": len(wrong),
+        "misnamed_flagged": sum(r["flagged"] for r in wrong),
+    }
 
 
 def report_stage(

@@ -292,14 +292,15 @@ def generation_settings(
 ) -> Generation:
     """What the generation stage simulates, and the configuration that decides its reuse.
 
-    The operating points are the campaign's (its runs' operating conditions, not labels);
-    the parameters come from :func:`parameter_source`.
+    The operating points are the campaign's (its runs' operating conditions, not labels),
+    extended by the system (:meth:`~bayesdoor.systems.AbstractSystem.training_points`); the
+    parameters come from :func:`parameter_source`.
     """
     params, model_error = parameter_source(system, fit, source, sizes.gaussian_sd)
     points = np.unique(campaign_operating(campaign, system), axis=0)
     finite = np.isfinite(points.reshape(len(points), -1)).all(axis=1)
     config = GenerationConfig(
-        points[finite],
+        system.training_points(points[finite]),
         runs_per_state=sizes.runs_per_state,
         validation_fraction=sizes.validation_fraction,
         chunk_size=sizes.chunk_size,

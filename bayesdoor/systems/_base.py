@@ -237,6 +237,16 @@ class AbstractSystem(eqx.Module):
         """What fitting and classification compare (default: :class:`SpectralFeatures`'s)."""
         return SpectralFeatures()
 
+    def training_points(self, points: np.ndarray) -> np.ndarray:
+        """The operating points the job's training data are simulated at.
+
+        ``points``: the campaign's distinct operating points (``(point,)`` for one condition,
+        ``(point, condition)`` for several). Default: those points. A system whose users run
+        it at other conditions than the measured ones returns more (keep the campaign's: the
+        OOD detector compares the calibration runs with simulations at their own points).
+        """
+        return points
+
     @property
     def catalogue(self):
         """The system's catalogue of discrepancy causes, for diagnosis (a

@@ -23,7 +23,7 @@ Usage::
     .venv/bin/python scripts/cwru.py --data ../shared/data/cwru --out out/cwru --quick
 
 writes ``results/cwru.md`` (``--results``): the command, the date and the commit, the
-records, a summary of the three classifiers against the issue's targets, then per classifier
+records, a summary of the three classifiers against the targets, then per classifier
 the per-record table (file, class, size, load, predicted, mean probability, flagged), the
 confusion matrices at segment and record level, and the timings. Text outside the generated
 block of an existing results file is kept.
@@ -377,7 +377,7 @@ def _summary_text(results) -> str:
     lines = [
         "## Summary",
         "",
-        "Targets (the issue): every inner- and outer-race record named at record level; "
+        "Targets: every inner- and outer-race record named at record level; "
         "balanced record accuracy >= 90 %; segment ECE <= 0.05; every misnamed record flagged.",
         "",
         "| classifier | segment accuracy | segment balanced accuracy | segment ECE | "

@@ -98,19 +98,21 @@ _TOGETHER = {
 
 #: the default suite's costliest files (with the files ``_TOGETHER`` sends along with them),
 #: costliest first: under ``pytest -n 2`` they start first, so that the run does not end with
-#: one process on one of them (their seconds on an empty JAX cache, 2026-11-27, the machine
-#: shared with other work: 240, 235, 200, 145, 140, 115, 100, 95, 90, 85)
+#: one process on one of them (the seconds their tests that stay in the default suite took in
+#: ``pytest -n 2 --durations=0``, 2026-11-27, the 2-core machine under load 12-16: 280, 260, 245,
+#: 215, 200, 190, 160, 155, 150, 140, 120)
 _COSTLY = (
     "tests/test_rig.py",
-    "tests/test_door.py",
-    "tests/test_robustness.py",
-    "tests/test_coupled_frame_mode.py",
-    "tests/test_samplers.py",
     "tests/test_likelihood.py",
+    "tests/test_samplers.py",
     "tests/test_cli_diagnose.py",
-    "tests/test_classify.py",
+    "tests/test_coupled_frame_mode.py",
+    "tests/test_robustness.py",
     "tests/test_pipeline.py",
     "tests/test_diagnose.py",
+    "tests/test_door.py",
+    "tests/test_classify.py",
+    "tests/test_extensions.py",
 )
 
 

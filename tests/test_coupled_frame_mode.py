@@ -229,6 +229,9 @@ def test_gains_must_name_free_parameters_and_channels(refit_case):
         refit_extension(setup, proposal, np.array([0, 1]), seed=0, max_evals=8)
 
 
+# 115 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): three
+# solves of the extended door; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_one_solve_gives_each_gains_signal_as_two_solves_do():
     """The door returns the participations' signals from one solve (the sensors' derivative
     along them); the generic way solves twice, at 0 and at 1. The dynamics do not depend on
@@ -250,6 +253,10 @@ def test_one_solve_gives_each_gains_signal_as_two_solves_do():
     )
 
 
+# 43 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): the
+# extended door's and the virtual rig's linearisations at rest; in the long tier, which CI runs
+# after the default suite
+@pytest.mark.long
 def test_the_installed_frequency_is_the_extended_doors_mode_at_rest_nearest_the_bare_one():
     from bayesdoor.door._catalogue import FrameModeRefit
     from bayesdoor.door.rig import Effects, VirtualRig

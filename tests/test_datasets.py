@@ -38,6 +38,10 @@ def small(tmp_path_factory):
     }
 
 
+# 75 s (the setup of `small`: a demo campaign recorded by the virtual rig) in the default suite
+# (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): with the other tests of `small`;
+# in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_small_demo_campaign_has_the_planned_runs(small):
     ds = small["campaign"]
     check_campaign(ds, channels=["A1X", "A1Z", "A2X", "A2Z"], sampling_rate_hz=2048.0)
@@ -51,6 +55,10 @@ def test_small_demo_campaign_has_the_planned_runs(small):
     assert list(test.split.values) == ["test"] * 3
 
 
+# 0.1 s after `small` (75 s) in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine
+# under load 12-16): with the other tests of `small`; in the long tier, which CI runs after the
+# default suite
+@pytest.mark.long
 def test_demo_is_cached_atomically_under_a_generator_hash(small):
     nc, truth = small["paths"]
     assert small["files"] == sorted([nc.name, truth.name])  # no temporary files left
@@ -65,6 +73,10 @@ def test_demo_is_cached_atomically_under_a_generator_hash(small):
     assert demo_paths(1, 2)[0].name != nc.name
 
 
+# 0.1 s after `small` (75 s) in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine
+# under load 12-16): with the other tests of `small`; in the long tier, which CI runs after the
+# default suite
+@pytest.mark.long
 def test_truth_is_separate_and_matches_the_runs(small):
     ds, truth = small["campaign"], small["truth"]
     assert truth["parameters"]["I"] == 3

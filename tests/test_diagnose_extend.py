@@ -106,6 +106,9 @@ def test_exact_spectra_give_each_run_its_own_values():
         exact_spectra(setup, proposal, {}, [0])
 
 
+# 64 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): held-
+# out refits of every fold, twice; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_folds_refitted_at_once_give_the_fits_of_one_at_a_time():
     # four runs whose A2Z carries 8 % of A2X; the leak refitted on two folds in two threads
     # and in one: every fold has its own seed, so the fits and the judgement are the same

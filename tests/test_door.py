@@ -50,12 +50,12 @@ def test_numpy_and_jax_right_hand_sides_agree():
         np.testing.assert_allclose(f_jax, f_np, rtol=1e-12, atol=1e-12 * np.abs(f_jax).max())
 
 
-#: the healthy case in the default suite; the damaged ones (7-20 s each with an empty JAX cache
-#: on a 2-core machine, the higher figures with other work beside it; most of it outside JAX:
-#: scipy's reference solve at rtol 1e-10) in the long tier, which CI runs after it
-@pytest.mark.parametrize(
-    "case", [c if c == "healthy" else pytest.param(c, marks=pytest.mark.long) for c in CASES]
-)
+#: in the long tier, which CI runs after the default suite: 7-20 s each with an empty JAX cache
+#: on a 2-core machine, the higher figures with other work beside it (most of it outside JAX:
+#: scipy's reference solve at rtol 1e-10); the healthy case took 52 s in the default suite
+#: (`pytest -n 2`, 2026-11-27, the machine under load 12-16)
+@pytest.mark.long
+@pytest.mark.parametrize("case", list(CASES))
 def test_diffrax_matches_scipy_dop853(case):
     """Same equations, independent integrator: scipy DOP853 at rtol 1e-10 is the reference.
 
@@ -142,6 +142,9 @@ def test_static_deflection_matches_hand_calculation(params, expected_mm):
     assert np.all(gaps[2:] < 0)  # the guide shoe is clear of both groove walls
 
 
+# 61 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): two
+# solves, one at tight tolerances; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_run_at_rest_stays_at_rest():
     """The record before the drive starts (0.25 s) must be still: equilibrium is solved to
     machine precision, so any acceleration is integration error. With tight tolerances it is
@@ -236,6 +239,10 @@ def test_d1_impacts_are_transversal_at_the_bumps(signatures):
         assert x_energy[window].max() > 100 * x_energy[before].max()
 
 
+# 38 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): four
+# whole solves with D2, one at tight tolerances; in the long tier, which CI runs after the default
+# suite
+@pytest.mark.long
 def test_contact_law_changes_the_response():
     """Laws with different hysteresis factors at c_r = 0.69 (Lee-Wang 0.23, Lankarani-Nikravesh
     0.39, Gonthier 0.76) damp the wheel impacts differently. The change of the log-PSD must
@@ -253,6 +260,10 @@ def test_contact_law_changes_the_response():
         assert np.abs(log_psd(law) - base).mean() > 20 * noise
 
 
+# 182 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16):
+# batched and single solves of the door at the default record length, and a starved batch; in the
+# long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_batch_equals_single_runs_and_reports_failures():
     door = ElevatorDoor()
     params = DoorParameters(**{**OPT.to_dict(), "K": jnp.asarray([1500.0, 2200.0])})
@@ -275,6 +286,10 @@ def test_batch_equals_single_runs_and_reports_failures():
         starved.simulate(OPT, CASES["D2"], 0.45)
 
 
+# 101 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a
+# float32 solve that no other default test compiles, against float64; in the long tier, which CI
+# runs after the default suite
+@pytest.mark.long
 def test_float32_on_request_tracks_float64():
     """Healthy rolling is insensitive to round-off: float32 must reproduce the float64 log-PSD
     in the CNN's 4-96 Hz band to 5 % per bin (measured: 1.5 % max, 0.09 % mean). Impact runs (D1)

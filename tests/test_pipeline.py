@@ -327,6 +327,9 @@ def test_a_job_without_html_skips_the_diagnosis(tmp_path):
     assert not (tmp_path / "batch" / "diagnose").exists()
 
 
+# 33 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a job
+# run twice; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_a_failed_diagnosis_leaves_the_job_whole_and_is_retried(finished, tmp_path):
     _, out = finished
     copy = tmp_path / "job"

@@ -105,6 +105,11 @@ def _peak_prominence(f, p, lo=155.0, hi=185.0):
     return np.log10(p[..., peak].max(-1)) - np.log10(p[..., sides]).mean(-1)
 
 
+# 68 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16), the
+# setup of `clean` and `reduced` (a recording without measurement errors and the reduced model's
+# solves at the rig's speeds), which only this test, the noise floor's and the analysis band's use:
+# the three in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_bending_mode_is_a_peak_the_reduced_model_lacks(clean, reduced):
     """The panel bending mode (165 Hz) is a peak of A1X over a decade above its surroundings
     at both speeds; the reduced model (rigid panel) has nothing there (under half a decade),
@@ -118,6 +123,8 @@ def test_bending_mode_is_a_peak_the_reduced_model_lacks(clean, reduced):
     assert np.all(np.argmax(rig, axis=-1) == 0)
 
 
+# with the other tests of `clean` (see above); in the long tier
+@pytest.mark.long
 def test_noise_floor_at_rest_and_quantisation(baseline, clean):
     """Before the drive starts the door is still: the record is the acquisition noise,
     sqrt(noise_rms^2 + LSB^2 / 12) per channel (410 samples: the RMS estimate scatters by
@@ -201,6 +208,8 @@ def test_installed_frame_modes_match_reduced_model():
         assert np.min(np.abs(rest.frequencies_hz - f)) < 0.04 * f
 
 
+# 1.5 s after `clean` and `reduced` (see above); in the long tier
+@pytest.mark.long
 def test_analysis_band_matches_reduced_model(clean, reduced):
     """Healthy runs without noise or scatter: the 4-96 Hz log10 PSD (4 Hz bins) of the rig is
     close to the reduced model's at the same parameters, in every bin a measurement resolves
@@ -300,6 +309,9 @@ def _order_spectrum(x, v, t, step=0.5e-3):
     return np.fft.rfftfreq(16384, step), spec
 
 
+# 39 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a
+# recording of its own by the virtual rig; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_frame_mode_is_a_peak_at_its_frequency_at_every_speed(baseline):
     """frame_mode at 41 Hz: at both speeds the PSD with the effect over the PSD without it
     peaks within 2 Hz of 41 Hz (1 Hz bins; its rail coupling shifts it by under 1 Hz), and it
@@ -324,6 +336,9 @@ def test_frame_mode_is_a_peak_at_its_frequency_at_every_speed(baseline):
     assert end < 0.2 * after
 
 
+# 40 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a
+# recording of its own by the virtual rig; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_wheel_eccentricity_tones_track_the_speed(baseline):
     """An out-of-round right wheel: against travel, the added signal peaks at whole orders of
     the wheel revolution, k / (2 pi R), at both speeds; in time, tones at k v / (2 pi R)
@@ -349,6 +364,9 @@ def test_wheel_eccentricity_tones_track_the_speed(baseline):
             assert p[np.argmin(np.abs(f - k * v / TWO_PI_R))] > 10 * median
 
 
+# 51 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a
+# recording of its own by the virtual rig; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_rail_waviness_tone_at_speed_over_wavelength(baseline):
     """A 30 mm rail waviness: the added signal's strongest tone during the cruise is at
     v / lambda (11.7 and 16.7 Hz), within the 1.1 Hz resolution of the shorter cruise."""
@@ -384,6 +402,9 @@ def test_sensor_cross_axis_raises_coherence_and_nothing_else(baseline):
         assert slope == pytest.approx(0.1, abs=1e-3)
 
 
+# 43 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a
+# recording of its own by the virtual rig; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_mains_hum_is_a_line_present_at_rest(baseline):
     """50 Hz hum of 20 mm/s^2 with a 30 % second harmonic: in the rest segment before the
     drive starts, the 50 and 100 Hz lines stand over 100x above the baseline's noise level

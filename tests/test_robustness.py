@@ -427,6 +427,22 @@ def story(files, tmp_path_factory):
     return out, seen
 
 
+@pytest.fixture(scope="module")
+def job(files, tmp_path_factory):
+    """A finished quick job on the good campaign: the model folder of the tests that classify.
+    ``story`` makes one too, through a killed and an interrupted run, in the long tier."""
+    out = tmp_path_factory.mktemp("job") / "job"
+    with pytest.MonkeyPatch.context() as mp:
+        fast(mp)
+        result = invoke("run", files["good"], "--out", out, "--quick")
+    assert result.exit_code == 0, result.output
+    return out
+
+
+# 162 s (the setup of `story`) in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine
+# under load 12-16): a job killed in a fresh Python process, interrupted, then run to the end; in
+# the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_a_killed_run_leaves_no_half_written_result_and_the_rerun_completes(story):
     out, seen = story
     code, after_kill, stderr = seen["killed"]
@@ -497,7 +513,7 @@ PREVIOUS = {
 
 @pytest.mark.parametrize("command", PREVIOUS)
 def test_a_previous_result_is_refused_without_force_and_left_as_it_was(
-    files, story, tmp_path, command, demo_is
+    files, job, tmp_path, command, demo_is
 ):
     arguments, previous = PREVIOUS[command]
     out = tmp_path / "out"
@@ -507,19 +523,19 @@ def test_a_previous_result_is_refused_without_force_and_left_as_it_was(
         text = json.dumps({"job_hash": "another", "config_hash": "another", "seed": 7})
         (out / name).write_text(text if name.endswith(".json") else "a previous result")
     before = snapshot(out)
-    line = refused(invoke(*arguments(files["good"], out, story[0])))
+    line = refused(invoke(*arguments(files["good"], out, job)))
     assert "--force" in line
     assert snapshot(out) == before
 
 
 @pytest.mark.parametrize("command", PREVIOUS)
 def test_an_output_path_below_a_file_is_refused_before_any_work(
-    files, story, tmp_path, command, demo_is
+    files, job, tmp_path, command, demo_is
 ):
     arguments, _ = PREVIOUS[command]
     blocker = tmp_path / "notes.txt"
     blocker.write_text("mine")
-    line = refused(invoke(*arguments(files["good"], blocker / "out", story[0])))
+    line = refused(invoke(*arguments(files["good"], blocker / "out", job)))
     assert f"{blocker} is a file" in line
     assert blocker.read_text() == "mine"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
@@ -527,7 +543,7 @@ def test_an_output_path_below_a_file_is_refused_before_any_work(
 
 @pytest.mark.parametrize("command", PREVIOUS)
 def test_a_read_only_output_folder_is_refused_before_any_work(
-    files, story, tmp_path, command, demo_is, monkeypatch
+    files, job, tmp_path, command, demo_is, monkeypatch
 ):
     """A folder without write permission (for root, which writes anyway, the permission
     check is told so for that folder alone)."""
@@ -541,7 +557,7 @@ def test_a_read_only_output_folder_is_refused_before_any_work(
             os, "access", lambda path, mode: Path(path) != locked and access(path, mode)
         )
     try:
-        line = refused(invoke(*arguments(files["good"], locked / "out", story[0])))
+        line = refused(invoke(*arguments(files["good"], locked / "out", job)))
         assert f"no permission to write in {locked}" in line
         assert list(locked.iterdir()) == []
     finally:
@@ -565,9 +581,9 @@ def test_a_full_disk_while_writing_is_one_line_and_leaves_nothing(files, tmp_pat
     assert not out.exists()
 
 
-def test_classify_refuses_a_model_of_another_version(files, story, tmp_path):
+def test_classify_refuses_a_model_of_another_version(files, job, tmp_path):
     model = tmp_path / "old_model"
-    shutil.copytree(story[0] / "train", model)
+    shutil.copytree(job / "train", model)
     ensemble = model / "ensemble.eqx"
     header, weights = ensemble.read_bytes().split(b"\n", 1)
     old = {**json.loads(header), "format_version": 0, "library_version": "0.0.1"}
@@ -579,9 +595,9 @@ def test_classify_refuses_a_model_of_another_version(files, story, tmp_path):
     assert not out.exists()
 
 
-def test_classify_refuses_a_truncated_model_before_any_work(files, story, tmp_path):
+def test_classify_refuses_a_truncated_model_before_any_work(files, job, tmp_path):
     model = tmp_path / "cut_model"
-    shutil.copytree(story[0] / "train", model)
+    shutil.copytree(job / "train", model)
     ensemble = model / "ensemble.eqx"
     ensemble.write_bytes(ensemble.read_bytes()[:-100])
     out = tmp_path / "report"
@@ -590,24 +606,24 @@ def test_classify_refuses_a_truncated_model_before_any_work(files, story, tmp_pa
     assert not out.exists()
 
 
-def test_classify_refuses_a_campaign_without_the_models_channels(files, story, tmp_path):
+def test_classify_refuses_a_campaign_without_the_models_channels(files, job, tmp_path):
     out = tmp_path / "report"
-    args = ["classify", files["missing_channel"], "--model", story[0], "--out", out]
+    args = ["classify", files["missing_channel"], "--model", job, "--out", out]
     line = refused(invoke(*args))
     assert "takes 4 channels, the campaign has 3 (A1X, A1Z, A2X)" in line
     assert not out.exists()
 
 
-def test_classify_refuses_an_empty_campaign(files, story, tmp_path):
+def test_classify_refuses_an_empty_campaign(files, job, tmp_path):
     out = tmp_path / "report"
-    refused(invoke("classify", files["empty"], "--model", story[0], "--out", out), "no runs")
+    refused(invoke("classify", files["empty"], "--model", job, "--out", out), "no runs")
     assert not out.exists()
 
 
-def test_classify_reports_a_bad_record_run_by_run(files, story, tmp_path):
+def test_classify_reports_a_bad_record_run_by_run(files, job, tmp_path):
     """Corrupted runs are reported per run, not crashed on."""
     out = tmp_path / "report"
-    result = invoke("classify", files["nan_test"], "--model", story[0], "--out", out, "--json")
+    result = invoke("classify", files["nan_test"], "--model", job, "--out", out, "--json")
     assert result.exit_code == 0, result.output
     runs = json.loads(result.stdout)["runs"]
     assert runs[4]["problem"] == "the record holds non-finite samples"
@@ -615,6 +631,10 @@ def test_classify_reports_a_bad_record_run_by_run(files, story, tmp_path):
     assert all(r["problem"] is None and r["predicted"] for i, r in enumerate(runs) if i != 4)
 
 
+# 54 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a
+# whole door simulation before the write it interrupts; in the long tier, which CI runs after the
+# default suite
+@pytest.mark.long
 def test_simulate_interrupted_while_writing_leaves_no_file(tmp_path, monkeypatch):
     """Ctrl-C half way through the NetCDF write: no file, no temporary file."""
 
@@ -628,6 +648,10 @@ def test_simulate_interrupted_while_writing_leaves_no_file(tmp_path, monkeypatch
     assert list(tmp_path.iterdir()) == []
 
 
+# 67 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a fit
+# command run twice, its plots and posterior written; in the long tier, which CI runs after the
+# default suite
+@pytest.mark.long
 def test_fit_killed_half_way_keeps_the_previous_fit_and_the_rerun_completes(
     files, tmp_path, monkeypatch
 ):
@@ -670,6 +694,9 @@ def test_fit_killed_half_way_keeps_the_previous_fit_and_the_rerun_completes(
     assert json.loads(after["fit_summary.json"])["method"] == "nuts"
 
 
+# 43 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): two
+# fit commands; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_a_forced_point_fit_removes_the_posterior_it_replaces(files, tmp_path, monkeypatch):
     """After ``--force`` the folder describes the new fit alone: a CMA-ES fit over a NUTS fit
     leaves no ``posterior.nc``, pair or trace plot of the old one."""
@@ -718,7 +745,10 @@ def test_demo_with_a_damaged_cache_says_how_to_record_it_again(tmp_path, monkeyp
     assert not out.exists()
 
 
-@pytest.mark.parametrize("stage", ["fit", "generate"])
+#: 27 s each in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load
+#: 12-16), a quick job stopped and run again: the generate case in the long tier, which CI runs
+#: after the default suite; the fit case stays
+@pytest.mark.parametrize("stage", ["fit", pytest.param("generate", marks=pytest.mark.long)])
 def test_run_interrupted_in_a_stage_says_what_is_kept_and_resumes(files, tmp_path, stage):
     """Ctrl-C as a stage starts: the stages before it are kept (and reused by the rerun), the
     stopped one leaves no visible file."""
@@ -740,7 +770,7 @@ def test_run_interrupted_in_a_stage_says_what_is_kept_and_resumes(files, tmp_pat
     assert reused["fit"] == (stage == "generate") and not reused["generate"]
 
 
-def test_classify_interrupted_while_writing_leaves_nothing(files, story, tmp_path, monkeypatch):
+def test_classify_interrupted_while_writing_leaves_nothing(files, job, tmp_path, monkeypatch):
     real = bayesdoor.pipeline.classify_stage
 
     def interrupted(model, campaign, folder):
@@ -749,12 +779,12 @@ def test_classify_interrupted_while_writing_leaves_nothing(files, story, tmp_pat
 
     out = tmp_path / "report"
     monkeypatch.setattr(bayesdoor.pipeline, "classify_stage", interrupted)
-    line = stopped(invoke("classify", files["good"], "--model", story[0], "--out", out))
+    line = stopped(invoke("classify", files["good"], "--model", job, "--out", out))
     assert f"the classification in {out} was stopped in its classify stage" in line
     assert "no stage had finished" in line
     assert not out.exists()
     monkeypatch.setattr(bayesdoor.pipeline, "classify_stage", real)
-    rerun = invoke("classify", files["good"], "--model", story[0], "--out", out, "--json")
+    rerun = invoke("classify", files["good"], "--model", job, "--out", out, "--json")
     assert rerun.exit_code == 0, rerun.output
 
 
@@ -834,6 +864,9 @@ def test_demo_says_once_that_it_recorded_the_campaign_and_where(tmp_path, monkey
     assert jobs == [made, made]
 
 
+# 39 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a
+# whole quick job; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_a_warning_in_the_job_is_one_line_without_a_source_path(files, tmp_path):
     """A failed sampling gate, say: ``warning: <message>`` once, its lines joined, not Python's
     ``/path/to/_job.py:197: SamplingGateWarning: ...`` with the offending source line."""

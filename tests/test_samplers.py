@@ -212,6 +212,9 @@ def two_modes():
     numpyro.factor("modes", jax.scipy.special.logsumexp(dist.Normal(modes, 0.5).log_prob(x)))
 
 
+# 46 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a NUTS
+# run; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_nuts_starts_at_init_values():
     # two modes 40 sds apart: a chain stays in the mode it starts in, so the draws tell
     # where it started; from the default start (the prior median 0, between the modes) both
@@ -255,6 +258,9 @@ def test_emcee_starts_in_a_small_ball_around_init_values():
     np.testing.assert_allclose(idata.posterior["lam"].values[:, 0], 10.0, rtol=0.02)
 
 
+# 22 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): three
+# emcee runs; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 @pytest.mark.filterwarnings("ignore:More chains")
 def test_emcee_same_key_same_draws_other_key_differs():
     kw = dict(model_kwargs=KWARGS, n_steps=40, burn=10, progress=False)
@@ -362,6 +368,9 @@ def adaptive_idata():
     )
 
 
+# 21 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): an
+# adaptive emcee run to its gates; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_adaptive_emcee_stops_by_itself_passes_its_gates_and_matches_the_moments(adaptive_idata):
     stats = adaptive_idata.sample_stats.attrs
     assert stats["stopped"] == "converged"
@@ -383,6 +392,9 @@ def test_adaptive_emcee_stops_by_itself_passes_its_gates_and_matches_the_moments
     assert not bad, f"moments off by more than {Z_MAX} MCSE: {bad}"
 
 
+# 15 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): two
+# emcee runs; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_adaptive_emcee_capped_short_says_so_and_equals_a_fixed_run():
     kw = dict(model_kwargs=KWARGS, init_values={"theta": MU0, "lam": 2.0}, burn=100, progress=False)
     # 500 kept steps are about 9 autocorrelation times: the cap stops the run
@@ -528,6 +540,9 @@ def centred_funnel():
     numpyro.sample("x", dist.Normal(jnp.zeros(4), jnp.exp(v / 2)))
 
 
+# 50 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a NUTS
+# run; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_neals_funnel_in_centred_form_fails_with_divergences():
     idata = sample_nuts(
         centred_funnel,

@@ -183,6 +183,10 @@ def nuts_sbc(y_scale):
     return sbc_uniformity(ranks, result.n_rank_draws, names=["mu", "lam"]), result
 
 
+# 90 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16):
+# simulation-based calibration of NUTS, one run per replicate; in the long tier, which CI runs after
+# the default suite
+@pytest.mark.long
 def test_nuts_on_a_conjugate_target_passes_sbc():
     test, result = nuts_sbc(1.0)
     assert test.passed, str(test)

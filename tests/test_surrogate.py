@@ -127,6 +127,10 @@ def door_case():
     }
 
 
+# 105 s (101 s of it the setup of `door_case`, a design of door solves) in the default suite
+# (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): with the other tests of
+# `door_case`; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_door_surrogate_heldout_error_is_reported_and_bounded(door_case):
     """The quadratic's held-out RMS error, and an independent check of it on fresh runs.
 
@@ -154,6 +158,10 @@ def test_door_surrogate_heldout_error_is_reported_and_bounded(door_case):
     assert 0.5 * overall < fresh_rms < 2.0 * overall
 
 
+# 82 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16):
+# gradients through the door surrogate of `door_case`; in the long tier, which CI runs after the
+# default suite
+@pytest.mark.long
 def test_surrogate_log_density_has_finite_gradients(door_case, key):
     model = make_model(door_case["data"], door_case["surrogate"], door_case["box"])
     zs = 3.0 * jax.random.normal(key, (20, len(FREE)))  # out to the box's edges

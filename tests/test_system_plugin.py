@@ -341,6 +341,9 @@ def test_the_hum_is_an_output_extension_of_the_fan():
         fan.with_extensions("wheel")
 
 
+# 44 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a
+# diagnosis with a refit; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_the_diagnosis_names_a_hum_by_refitting_the_fans_extension():
     """diagnose_campaign with the fan's catalogue: the RestLine signature finds the 50 Hz
     line, the recipe's output extension is refitted on half the runs and judged on the
@@ -362,6 +365,9 @@ def test_the_diagnosis_names_a_hum_by_refitting_the_fans_extension():
     assert payload["causes"][0]["name"] == "hum"
 
 
+# 66 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): the
+# whole job on the toy fan; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_the_job_runs_on_the_fan_through_the_api(tmp_path):
     out = tmp_path / "job"
     lines: list[str] = []

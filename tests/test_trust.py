@@ -184,6 +184,9 @@ def _gain(campaign, db, runs=None):
     return out
 
 
+# 57 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a
+# whole job; in the long tier, which CI runs after the default suite
+@pytest.mark.long
 def test_a_gross_mismatch_makes_the_job_warn_instead_of_answering_confidently(tmp_path):
     # a 10 dB gain error on channel Z of every run (calibration and test): a sensor whose
     # sensitivity was entered wrong. Simulations from the posterior alone cannot reproduce it.

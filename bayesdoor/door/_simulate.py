@@ -7,6 +7,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 
 from .._cacheable import errors_as_nan
 from .._types import Array, Float, Int
@@ -77,35 +78,37 @@ class SolverConfig(eqx.Module):
         return 1e-7 if self.dtype == "float32" else 1e-8
 
 
-def static_equilibrium(args: DoorArgs, iterations: int = 30) -> Float[Array, " 7"]:
-    """Rest configuration with the drive at the closed position (Newton on the static forces).
+def static_equilibrium(args: DoorArgs) -> Float[Array, " 7"]:
+    """Rest configuration with the drive at the closed position: the static forces' root.
 
-    The Jacobian is taken by central differences, all 2 x 7 displaced configurations in one
-    vmapped evaluation of the static forces, rather than by ``jax.jacfwd``: the forward-mode
-    trace of the forces was 40 % of the batched solve's compile time, the differences cost a
-    third of it. The step, the initial indentation times eps^(1/3) (about 2e-9 m in float64),
-    balances truncation against round-off to a relative Jacobian error of about 1e-10, far
-    below the millimetre scales of the contact and the rail. An approximate Jacobian only
-    turns Newton's quadratic convergence into a linear one with that factor: the root is the
-    same to round-off, and so is its derivative with respect to the parameters (the unrolled
-    iterations converge to the implicit-function derivative).
+    ``optimistix.Newton`` from the wheels' Hertz indentation under half the weight
+    (``(m g / 2 / K)^(1/n)``, everything else at zero), with the exact forward-mode Jacobian,
+    on the forces in units of that half weight. It stops when a step moves no coordinate by
+    more than ``1e-12 (1 m + |q|)`` and the scaled forces are below 1e-12; Newton converges
+    quadratically, so the last step leaves the root accurate to round-off. The derivative
+    with respect to the parameters is the implicit-function one
+    (``optimistix.ImplicitAdjoint``), not one through the iterations. A solve that does not
+    converge in 30 steps (parameters where the door has no rest configuration) gives NaN, so
+    the simulation that starts from it fails with a status.
     """
     dtype = args.k_contact.dtype
     load = args.mass * g.GRAVITY / 2.0
     indent = jnp.exp(jnp.log(load / args.k_contact) / args.n)
     q0 = jnp.zeros(N_DOF, dtype=dtype).at[1].set(-indent)
-    step = indent * float(np.finfo(dtype).eps) ** (1.0 / 3.0)
-    offsets = step * jnp.concatenate([jnp.eye(N_DOF, dtype=dtype), -jnp.eye(N_DOF, dtype=dtype)])
+    solution: optx.Solution = optx.root_find(
+        _scaled_static_forces,
+        optx.Newton(rtol=1e-12, atol=1e-12),
+        q0,
+        (args, load),
+        max_steps=30,
+        throw=False,
+    )
+    return jnp.where(solution.result == optx.RESULTS.successful, solution.value, jnp.nan)
 
-    def forces(q):
-        return static_residual(q, args, jnp)
 
-    def body(_, q):
-        values = jax.vmap(forces)(jnp.concatenate([q[None], q + offsets]))
-        jac = ((values[1 : 1 + N_DOF] - values[1 + N_DOF :]) / (2.0 * step)).T
-        return q - jnp.linalg.solve(jac, values[0])
-
-    return jax.lax.fori_loop(0, iterations, body, q0)
+def _scaled_static_forces(q: Float[Array, " 7"], args_load) -> Float[Array, " 7"]:
+    args, load = args_load
+    return static_residual(q, args, jnp) / load
 
 
 def initial_state(args: DoorArgs) -> Float[Array, " state"]:

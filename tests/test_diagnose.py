@@ -25,9 +25,9 @@ from bayesdoor.diagnose import (
     welch_dof,
 )
 from bayesdoor.diagnose._stats import benjamini_hochberg
-from bayesdoor.diagnose._welch_stats import dof_from_log10_variance, log_chi2_normal_scores
 from bayesdoor.diagnose._within import within_run_speed
 from bayesdoor.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE
+from bayesdoor.features import dof_from_log10_variance, log_chi2_normal_scores
 
 FS = 2048.0
 CHANNELS = ("A1X", "A1Z", "A2X", "A2Z")

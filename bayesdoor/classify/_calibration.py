@@ -104,6 +104,8 @@ def fit_temperature(
     def objective(log_t: float) -> float:
         return ensemble_nll(z, y, float(np.exp(log_t)))
 
+    # a bounded search (optimistix's minimisers take no bounds): the NLL may keep falling
+    # towards a bound, where it is flat to round-off and a gradient search would wander
     result = scipy.optimize.minimize_scalar(
         objective, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6}
     )

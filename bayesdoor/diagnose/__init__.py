@@ -26,6 +26,9 @@ The public names are what a user calls:
 The tuning constants and the internal steps stay in their private modules.
 """
 
+from ..features import log10_psd_variance as log10_psd_variance
+from ..features import welch_dof as welch_dof
+from ..features import windowed_log_psd as windowed_log_psd
 from ._coherence import CoherenceMap as CoherenceMap
 from ._coherence import PairCoherence as PairCoherence
 from ._coherence import coherence_map as coherence_map
@@ -73,7 +76,4 @@ from ._signatures import Match as Match
 from ._signatures import NoResidual as NoResidual
 from ._signatures import RestLine as RestLine
 from ._signatures import SpeedTracking as SpeedTracking
-from ._welch_stats import log10_psd_variance as log10_psd_variance
-from ._welch_stats import welch_dof as welch_dof
-from ._welch_stats import windowed_log_psd as windowed_log_psd
 from ._within import WithinRunFit as WithinRunFit

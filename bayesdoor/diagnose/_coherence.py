@@ -11,8 +11,8 @@ import scipy.stats
 from jaxtyping import Complex
 
 from .._types import Bool, Float
+from ..features import welch_dof
 from ._stats import benjamini_hochberg
-from ._welch_stats import welch_dof
 
 
 @dataclasses.dataclass(frozen=True)

@@ -8,11 +8,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from .._types import Float
+from ..features import windowed_log_psd
 from ._coherence import CoherenceMap, coherence_map
 from ._order import OrderSpectra, order_log_psd
 from ._residual import Region, ResidualMap, residual_map
 from ._rest import RestLines, rest_lines, rest_segments
-from ._welch_stats import windowed_log_psd
 from ._within import WithinRunFit, within_run_speed
 
 

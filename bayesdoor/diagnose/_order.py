@@ -15,7 +15,7 @@ import numpy as np
 import scipy.signal
 
 from .._types import Float
-from ._welch_stats import log10_psd_variance, welch_dof
+from ..features import log10_psd_variance, welch_dof
 
 #: the resampled span is where the speed is at least this fraction of the run's peak speed
 MOVING_FRACTION = 0.2

@@ -27,10 +27,10 @@ import numpy as np
 import scipy.optimize
 
 from .._types import Array, Bool, Float, Int
+from ..features import windowed_log_psd
 from ..inference import minimize_cmaes
 from ..inference._surrogate import map_padded_chunks
 from ._gain import estimate_discrepancy, log_predictive
-from ._welch_stats import windowed_log_psd
 
 if TYPE_CHECKING:
     from ..systems import AbstractSystem

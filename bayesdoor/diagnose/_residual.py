@@ -11,8 +11,8 @@ import scipy.ndimage
 import scipy.stats
 
 from .._types import Bool, Float
+from ..features import dof_from_log10_variance, log_chi2_normal_scores
 from ._stats import benjamini_hochberg, contiguous_runs, parabolic_offset
-from ._welch_stats import dof_from_log10_variance, log_chi2_normal_scores
 
 #: a run counts as affected by a region when its own standardised residual there exceeds this
 #: (two-sided p of about 0.003 for one pre-located bin: a descriptor, not the tested statistic)

@@ -10,8 +10,8 @@ import scipy.signal
 import scipy.stats
 
 from .._types import Bool, Float
+from ..features import welch_dof
 from ._stats import benjamini_hochberg, contiguous_runs, parabolic_offset
-from ._welch_stats import welch_dof
 
 #: bins on either side of a bin whose median is its local noise floor
 FLOOR_HALF_WIDTH = 10

@@ -9,8 +9,8 @@ import numpy as np
 import scipy.signal
 
 from .._types import Float
+from ..features import log10_psd_variance
 from ._residual import FIXED, FREQUENCY, TRACKING, UNDETERMINED, Region
-from ._welch_stats import log10_psd_variance
 
 #: the within-run statistic decides at this many standard deviations
 WITHIN_Z = 3.0

@@ -7,6 +7,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 
 from .._cacheable import errors_as_nan
 from .._types import Array, Float, Int
@@ -77,35 +78,75 @@ class SolverConfig(eqx.Module):
         return 1e-7 if self.dtype == "float32" else 1e-8
 
 
-def static_equilibrium(args: DoorArgs, iterations: int = 30) -> Float[Array, " 7"]:
-    """Rest configuration with the drive at the closed position (Newton on the static forces).
+def static_equilibrium(args: DoorArgs) -> Float[Array, " 7"]:
+    """Rest configuration with the drive at the closed position: the static forces' root.
 
-    The Jacobian is taken by central differences, all 2 x 7 displaced configurations in one
-    vmapped evaluation of the static forces, rather than by ``jax.jacfwd``: the forward-mode
-    trace of the forces was 40 % of the batched solve's compile time, the differences cost a
-    third of it. The step, the initial indentation times eps^(1/3) (about 2e-9 m in float64),
-    balances truncation against round-off to a relative Jacobian error of about 1e-10, far
-    below the millimetre scales of the contact and the rail. An approximate Jacobian only
-    turns Newton's quadratic convergence into a linear one with that factor: the root is the
-    same to round-off, and so is its derivative with respect to the parameters (the unrolled
-    iterations converge to the implicit-function derivative).
+    ``optimistix.Newton`` on the forces in units of half the weight, from the wheels' Hertz
+    indentation under it (``(m g / 2 / K)^(1/n)``, everything else at zero). It stops when a
+    step moves no coordinate by more than ``1e-12 (1 m + |q|)`` and the scaled forces are
+    below 1e-12 (in float32: 1.2e-5, a hundred round-offs). A solve that does not converge
+    in 30 steps (parameters where the door has no rest configuration) gives NaN, so the
+    simulation that starts from it fails with a status.
+
+    The Jacobian in ``q`` is taken by central differences (:func:`_forces_in_q`), all 2 x 7
+    displaced configurations in one vmapped evaluation of the static forces, rather than by
+    forward mode: the forward-mode trace of the forces makes a batched solve's compilation a
+    third longer (tracing and compiling four runs of 0.3 s: 61 to 67 s against 47 to 53 s
+    on a loaded 2-core CPU). The step, the initial indentation times eps^(1/3) (about 2e-9 m
+    in float64), balances truncation against round-off to a relative Jacobian error of about
+    1e-10, far below the millimetre scales of the contact and the rail. An approximate
+    Jacobian only turns Newton's quadratic convergence into a linear one with that factor:
+    the root is the same to round-off. The derivative with respect to the parameters is the
+    implicit-function one (``optimistix.ImplicitAdjoint``): the exact derivative of the
+    forces in the parameters, solved with that Jacobian.
     """
     dtype = args.k_contact.dtype
     load = args.mass * g.GRAVITY / 2.0
     indent = jnp.exp(jnp.log(load / args.k_contact) / args.n)
     q0 = jnp.zeros(N_DOF, dtype=dtype).at[1].set(-indent)
-    step = indent * float(np.finfo(dtype).eps) ** (1.0 / 3.0)
-    offsets = step * jnp.concatenate([jnp.eye(N_DOF, dtype=dtype), -jnp.eye(N_DOF, dtype=dtype)])
+    eps = float(np.finfo(dtype).eps)
+    step = indent * eps ** (1.0 / 3.0)
+    # 1e-12 in float64; in float32 a hundred round-offs of the scaled forces
+    tolerance = max(1e-12, 100.0 * eps)
+    solution: optx.Solution = optx.root_find(
+        _scaled_static_forces,
+        optx.Newton(rtol=tolerance, atol=tolerance),
+        q0,
+        (args, load, step),
+        max_steps=30,
+        throw=False,
+    )
+    return jnp.where(solution.result == optx.RESULTS.successful, solution.value, jnp.nan)
 
-    def forces(q):
-        return static_residual(q, args, jnp)
 
-    def body(_, q):
-        values = jax.vmap(forces)(jnp.concatenate([q[None], q + offsets]))
-        jac = ((values[1 : 1 + N_DOF] - values[1 + N_DOF :]) / (2.0 * step)).T
-        return q - jnp.linalg.solve(jac, values[0])
+def _scaled_static_forces(q: Float[Array, " 7"], inputs) -> Float[Array, " 7"]:
+    """The static forces over half the weight: differentiated in ``q`` by central
+    differences, in the parameters exactly (the second term is zero in value)."""
+    args, load, step = inputs
+    exact = static_residual(jax.lax.stop_gradient(q), args, jnp) / load
+    by_differences = _forces_in_q(q, jax.lax.stop_gradient((args, load, step)))
+    return by_differences + (exact - jax.lax.stop_gradient(exact))
 
-    return jax.lax.fori_loop(0, iterations, body, q0)
+
+@jax.custom_jvp
+def _forces_in_q(q: Float[Array, " 7"], inputs) -> Float[Array, " 7"]:
+    args, load, _ = inputs
+    return static_residual(q, args, jnp) / load
+
+
+@_forces_in_q.defjvp
+def _forces_in_q_jvp(primals, tangents):
+    """The Jacobian by central differences times the tangent in ``q`` (the inputs' tangent
+    is zero: they enter through ``jax.lax.stop_gradient``)."""
+    q, inputs = primals
+    dq, _ = tangents
+    step = inputs[2]
+    offsets = step * jnp.concatenate(
+        [jnp.eye(N_DOF, dtype=q.dtype), -jnp.eye(N_DOF, dtype=q.dtype)]
+    )
+    values = jax.vmap(lambda x: _forces_in_q(x, inputs))(jnp.concatenate([q[None], q + offsets]))
+    jac = ((values[1 : 1 + N_DOF] - values[1 + N_DOF :]) / (2.0 * step)).T
+    return values[0], jac @ dq
 
 
 def initial_state(args: DoorArgs) -> Float[Array, " state"]:

@@ -8,12 +8,16 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-import jax.scipy.special as jsp
 import numpy as np
-import scipy.signal
 
 from .._types import Array, Float
-from ..features import band_features, segment_weights, welch_psd
+from ..features import (
+    band_features,
+    log10_psd_variance,
+    segment_weights,
+    welch_dof,
+    welch_psd,
+)
 
 #: how far (in bin spacings) a band edge may sit from a multiple of the bin spacing
 _GRID_TOLERANCE = 1e-9
@@ -183,38 +187,17 @@ def run_features(
     return band_features(freqs, psd, edges.tolist()), jnp.sum(weights, axis=-1)
 
 
-def _correlation_table(spec: FeatureSpec, fs: float) -> np.ndarray:
-    """Squared correlations of periodogram values, by segment lag and bin lag.
-
-    For Gaussian noise with a locally flat spectrum, the periodograms of two segments ``d``
-    steps apart at bins ``m`` apart have correlation ``|sum_n w(n) w(n + d D)
-    exp(-2 pi i m n / N)|^2 / (sum_n w(n)^2)^2`` (Welch 1967, eq. 12, extended to bin lags).
-    """
-    win = scipy.signal.get_window(spec.window, spec.nperseg)
-    bins = spec.bins_per_band(fs)
-    lags = int(np.ceil(spec.nperseg / spec.step))
-    n = np.arange(spec.nperseg)
-    table = np.zeros((lags, bins))
-    for d in range(lags):
-        shift = d * spec.step
-        product = win[: spec.nperseg - shift] * win[shift:]
-        for m in range(bins):
-            phase = np.exp(-2j * np.pi * m * n[: spec.nperseg - shift] / spec.nperseg)
-            table[d, m] = abs(np.sum(product * phase)) ** 2
-    return table / np.sum(win * win) ** 2
-
-
 def welch_degrees_of_freedom(
     n_segments: Float[Array, "*batch"] | float, fs: float, spec: FeatureSpec | None = None
 ) -> Float[Array, "*batch"]:
     """Equivalent chi-square degrees of freedom of a band-mean Welch PSD.
 
-    A band mean of ``B`` bins, each averaged over ``K`` overlapping windowed segments, is
-    distributed approximately as ``P chi2_nu / nu`` with ``nu = 2 / r`` and ``r`` its relative
-    variance ``(1 / (K B)^2) sum_{segments, bins} rho^2``, the sum over all pairs of the squared
-    correlations of :func:`_correlation_table`. With one bin and no overlap ``nu = 2 K``; the
-    Hann window at 50 % overlap correlates neighbouring segments (``rho^2 = 1/36``) and
-    neighbouring bins (``rho^2 = 4/9``), so ``nu`` is smaller than ``2 K B``.
+    :func:`bayesdoor.features.welch_dof` for the segmentation and the bins per band of
+    ``spec`` at sampling rate ``fs``: a band mean of ``B`` bins, each averaged over ``K``
+    overlapping windowed segments, is distributed approximately as ``P chi2_nu / nu``. With
+    one bin and no overlap ``nu = 2 K``; the Hann window at 50 % overlap correlates
+    neighbouring segments (``rho^2 = 1/36``) and neighbouring bins (``rho^2 = 4/9``), so
+    ``nu`` is smaller than ``2 K B``.
 
     Parameters
     ----------
@@ -229,25 +212,15 @@ def welch_degrees_of_freedom(
     -------
     nu
         The degrees of freedom of each run's band means.
-
-    References
-    ----------
-    P. D. Welch, IEEE Trans. Audio Electroacoustics 15(2), 1967, eqs. (11)-(12); D. B.
-    Percival and A. T. Walden, Spectral Analysis for Physical Applications, 1993, sec. 6.17.
     """
     spec = FeatureSpec() if spec is None else spec
-    table = _correlation_table(spec, fs)
-    bins = table.shape[1]
-    lag_weight = np.where(np.arange(table.shape[0]) == 0, 1.0, 2.0)
-    bin_weight = np.where(np.arange(bins) == 0, 1.0, 2.0) * (bins - np.arange(bins))
-    per_lag = jnp.asarray(lag_weight * (table @ bin_weight))
-    k = jnp.asarray(n_segments)
-    if not jnp.issubdtype(k.dtype, jnp.floating):
-        k = k.astype(jnp.result_type(float))
-    lags = jnp.arange(table.shape[0], dtype=k.dtype)
-    pairs = jnp.maximum(k[..., None] - lags, 0.0)
-    ratio = jnp.sum(pairs * per_lag.astype(k.dtype), axis=-1) / (k * bins) ** 2
-    return 2.0 / ratio
+    return welch_dof(
+        jnp.asarray(n_segments),
+        spec.nperseg,
+        spec.noverlap,
+        spec.window,
+        bins=spec.bins_per_band(fs),
+    )
 
 
 def welch_log10_variance(
@@ -255,9 +228,8 @@ def welch_log10_variance(
 ) -> Float[Array, "*batch"]:
     """Variance of a log10 band-mean Welch PSD about log10 of its expectation.
 
-    For ``X = chi2_nu / nu``, ``var(ln X) = trigamma(nu / 2)``, so the variance of the log10
-    feature is ``trigamma(nu / 2) / ln(10)^2`` with ``nu`` from
-    :func:`welch_degrees_of_freedom`. (Its mean is also shifted, by ``(digamma(nu / 2) -
+    :func:`bayesdoor.features.log10_psd_variance` of :func:`welch_degrees_of_freedom`:
+    ``trigamma(nu / 2) / ln(10)^2``. (Its mean is also shifted, by ``(digamma(nu / 2) -
     ln(nu / 2)) / ln 10``, about ``-0.01`` decades for the door's 20-odd segments; the
     likelihood leaves that to the model error.)
 
@@ -275,5 +247,4 @@ def welch_log10_variance(
     variance
         Variance in decades^2, one per run.
     """
-    nu = welch_degrees_of_freedom(n_segments, fs, spec)
-    return jsp.polygamma(1, 0.5 * nu) / np.log(10.0) ** 2
+    return log10_psd_variance(welch_degrees_of_freedom(n_segments, fs, spec))

@@ -17,12 +17,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import numpyro.distributions as dist
+import optimistix as optx
 from jax.scipy.linalg import solve_triangular
-from jax.scipy.optimize import minimize
 from numpyro.distributions import transforms
 
 from .._types import Array, Float
 from ..systems import ParameterSpec
+
+#: the Laplace mode's BFGS stops when its last step moved every logit coordinate by less than
+#: this plus as much relative, and the negative log density by less than this plus as much
+#: relative; BFGS converges superlinearly, so the mode is then far closer than the posterior's
+#: scales (sds of 1e-3 or more in the logits) and the Hessian there moves by as little
+_MODE_TOLERANCE = 1e-8
 
 
 class SamplingTransform(eqx.Module):
@@ -197,8 +203,9 @@ class SamplingTransform(eqx.Module):
         """Laplace whitening: the mode and inverse Hessian of the density in logit coordinates.
 
         The density of ``u`` is ``log_density(theta(u))`` plus the Jacobian of the logit map
-        (the uniform box prior); BFGS finds its mode from ``theta_start`` (for example the
-        CMA-ES optimum), and the inverse of the negative Hessian there becomes the covariance.
+        (the uniform box prior); ``optimistix.BFGS`` finds its mode from ``theta_start`` (for
+        example the CMA-ES optimum), and the inverse of the negative Hessian there becomes the
+        covariance.
         Eigenvalues of the negative Hessian below ``floor`` (directions the density barely
         constrains) are raised to it, so those directions keep a prior-sized scale.
 
@@ -213,7 +220,7 @@ class SamplingTransform(eqx.Module):
         floor
             Smallest eigenvalue kept of the negative Hessian.
         max_iterations
-            BFGS iterations.
+            Most BFGS steps (a search cut off there keeps the point it reached).
 
         Raises
         ------
@@ -221,18 +228,24 @@ class SamplingTransform(eqx.Module):
             When the density or its Hessian is not finite at the mode found.
         """
 
-        def negative(u):
+        def negative(u, _=None):
             return -(log_density(self.constrained(u)) + self.log_jacobian(u))
 
         u0 = self.unconstrained(jnp.asarray(theta_start, dtype=self.lower.dtype))
-        found = minimize(negative, u0, method="BFGS", options={"maxiter": max_iterations})
-        precision = np.asarray(jax.hessian(negative)(found.x))
-        if not (np.isfinite(float(found.fun)) and np.all(np.isfinite(precision))):
+        mode = optx.minimise(
+            negative,
+            optx.BFGS(rtol=_MODE_TOLERANCE, atol=_MODE_TOLERANCE),
+            u0,
+            max_steps=max_iterations,
+            throw=False,
+        ).value
+        precision = np.asarray(jax.hessian(negative)(mode))
+        if not (np.isfinite(float(negative(mode))) and np.all(np.isfinite(precision))):
             raise ValueError(
                 f"the log density or its Hessian is not finite at the mode found "
-                f"({self.constrained(found.x).tolist()}): (a) theta_start sits on the box "
+                f"({self.constrained(mode).tolist()}): (a) theta_start sits on the box "
                 "edge, (b) the forward model fails there"
             )
         eig, vec = np.linalg.eigh(0.5 * (precision + precision.T))
         cov = (vec / np.maximum(eig, floor)) @ vec.T
-        return self.with_covariance(self.constrained(found.x), 0.5 * (cov + cov.T))
+        return self.with_covariance(self.constrained(mode), 0.5 * (cov + cov.T))

@@ -3,12 +3,13 @@ sampler (emcee), both returning the same ArviZ layout."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import sys
 import warnings
 from collections.abc import Callable, Mapping
-from typing import Any, TypeVar, cast
+from typing import Any, Protocol, TypeVar, cast
 
 import arviz as az
 import emcee
@@ -567,3 +568,85 @@ def sample_emcee(
     stats["stopped"] = stopped
     stats["thin"] = every
     return idata
+
+
+# ---------------------------------------------------------------------------------------------
+# one interface for the fit: a sampler chosen by name, its sizes fixed
+
+
+class _Sampler(Protocol):
+    """A posterior sampler of a numpyro model: draws (and the sampler's statistics) of its
+    sites from ``init_values``, as :class:`arviz.InferenceData`."""
+
+    def sample(
+        self,
+        model: Callable[..., Any],
+        *,
+        key: jax.Array,
+        init_values: Mapping[str, Any],
+        progress: bool,
+    ) -> az.InferenceData: ...
+
+
+@dataclasses.dataclass(frozen=True)
+class _NUTS:
+    """:func:`sample_nuts` with its run sizes fixed."""
+
+    num_warmup: int
+    num_samples: int
+    num_chains: int
+    target_accept: float
+    chain_method: str
+
+    def sample(
+        self,
+        model: Callable[..., Any],
+        *,
+        key: jax.Array,
+        init_values: Mapping[str, Any],
+        progress: bool,
+    ) -> az.InferenceData:
+        return sample_nuts(
+            model,
+            key=key,
+            init_values=init_values,
+            num_warmup=self.num_warmup,
+            num_samples=self.num_samples,
+            num_chains=self.num_chains,
+            target_accept=self.target_accept,
+            chain_method=self.chain_method,
+            progress=progress,
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Emcee:
+    """:func:`sample_emcee` with its run sizes fixed."""
+
+    n_walkers: int | None
+    n_steps: int | None
+    max_steps: int
+    burn: int
+    thin: int | None
+    init_scale: float
+
+    def sample(
+        self,
+        model: Callable[..., Any],
+        *,
+        key: jax.Array,
+        init_values: Mapping[str, Any],
+        progress: bool,
+    ) -> az.InferenceData:
+        return sample_emcee(
+            model,
+            key=key,
+            init_values=init_values,
+            n_walkers=self.n_walkers,
+            n_steps=self.n_steps,
+            max_steps=self.max_steps,
+            burn=self.burn,
+            thin=self.thin,
+            init_scale=self.init_scale,
+            progress=progress,
+        )

@@ -22,7 +22,7 @@ import dataclasses
 import json
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -56,7 +56,7 @@ from ._likelihood import (
 )
 from ._parameterisation import SamplingTransform
 from ._posterior import load_posterior, record_system, save_posterior
-from ._samplers import sample_emcee, sample_nuts
+from ._samplers import _NUTS, _Emcee, _Sampler
 from ._surrogate import box_around, fit_surrogate, map_padded_chunks
 
 Method = Literal["cmaes", "nuts", "emcee"]
@@ -1135,6 +1135,11 @@ def fit_campaign(
 ) -> FitResult:
     """Update a system's parameters on the healthy calibration runs of a campaign.
 
+    The steps: the campaign's calibration features; CMA-ES on J (:func:`_optimise`); for
+    ``nuts`` and ``emcee``, a surrogate in a box around the optimum and the posterior sampled
+    on it (:func:`_sample_posterior`, the box moved when it cuts the posterior); the gates
+    and the predictive draws (:func:`_summarise`).
+
     Parameters
     ----------
     system
@@ -1198,36 +1203,189 @@ def fit_campaign(
         raise ValueError(f"seed={seed!r} must be an integer >= 0")
     settings = (FitSettings.quick() if quick else FitSettings()) if settings is None else settings
     spec = FeatureSpec.of(system) if spec is None else spec
-    given = _held_parameters(system, fixed)
-    specs = {p.name: p for p in system.parameters}
-    free = tuple(p.name for p in system.parameters if not p.integer and p.name not in given)
-    integer = tuple(p.name for p in system.parameters if p.integer and p.name not in given)
-    # the search vector: the continuous parameters, then the integer ones (system order)
-    search = (*free, *integer)
-    if not search:
-        raise ValueError(
-            f"fixed holds every parameter of {system.name} ({', '.join(given)}): nothing is "
-            "left to fit; leave at least one out"
-        )
-    if method != "cmaes" and not free:
-        raise ValueError(
-            f"method={method!r} samples the continuous parameters, but fixed holds all of "
-            f"them ({', '.join(n for n in given if not specs[n].integer)}): leave one out, or "
-            "use method='cmaes'"
-        )
-    timings: dict[str, float] = {}
-    notes: list[str] = []
+    error = ModelError() if error is None else error
+    search = _SearchSpace.of(system, fixed, method)
     t0 = time.perf_counter()
     runs = calibration_runs(campaign)
     data, duration = campaign_data(
         system, campaign, runs, spec=spec, max_motion_s=settings.max_motion_s
     )
-    timings["features"] = time.perf_counter() - t0
-
-    lower = np.array([specs[n].lower for n in search])
-    upper = np.array([specs[n].upper for n in search])
+    timings = {"features": time.perf_counter() - t0}
     population = _Population.build(system, data, duration, spec)
 
+    optimum = _optimise(search, population, data, settings, x0=x0, seed=seed, progress=progress)
+    timings["cmaes"] = optimum.seconds
+    notes = list(optimum.notes)
+    sigma_point, scatter_point = _point_error(optimum.residual, data, error)
+    common = dict(
+        held=optimum.held,
+        cmaes=optimum.cmaes,
+        feature_spec=spec,
+        settings=settings,
+        names=search.free,
+        sigma_point=sigma_point,
+        scatter_point=scatter_point,
+        model_error=error,
+        bounds=search.bounds(),
+        runs=runs,
+        duration=duration,
+        seed=seed,
+        system=system.describe(),
+    )
+    if method == "cmaes":
+        return FitResult(
+            method=method,
+            point=optimum.point,
+            j=float(optimum.cmaes.f_best),
+            idata=None,
+            diagnostics=None,
+            surrogate_box=None,
+            surrogate_rms=None,
+            notes=tuple(notes),
+            timings=timings,
+            **common,  # type: ignore[arg-type]
+        )
+
+    key_sur, key_sample, key_pred = jax.random.split(jax.random.key(seed), 3)
+    start = _ErrorStart.at_point(sigma_point, scatter_point, optimum.residual, data, error)
+    posterior = _sample_posterior(
+        search,
+        population,
+        data,
+        optimum,
+        start,
+        _SAMPLERS[method](settings),
+        error,
+        settings,
+        keys=(key_sur, key_sample),
+        progress=progress,
+    )
+    timings.update(posterior.timings)
+    notes.extend(posterior.notes)
+    summary = _summarise(posterior, search, population, data, optimum, settings, key_pred)
+    notes.extend(summary.notes)
+    record_system(posterior.idata, system.describe())
+    return FitResult(
+        method=method,
+        point=summary.point,
+        j=summary.j,
+        idata=posterior.idata,
+        diagnostics=summary.diagnostics,
+        surrogate_box=posterior.box,
+        surrogate_rms=posterior.surrogate_rms,
+        notes=tuple(notes),
+        timings=timings,
+        **common,  # type: ignore[arg-type]
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# the steps of fit_campaign
+
+
+@dataclasses.dataclass(frozen=True)
+class _SearchSpace:
+    """The parameters of a fit: those held by the caller, the continuous ones (searched, then
+    sampled) and the integer ones (searched, then held at the optimum)."""
+
+    system: AbstractSystem
+    given: dict[str, float]
+    free: tuple[str, ...]
+    integer: tuple[str, ...]
+
+    @classmethod
+    def of(
+        cls, system: AbstractSystem, fixed: Mapping[str, float] | None, method: str
+    ) -> _SearchSpace:
+        """The search of ``system`` with ``fixed`` held, for a fit by ``method``.
+
+        Raises
+        ------
+        ValueError
+            When ``fixed`` is invalid (:func:`_held_parameters`), holds every parameter, or
+            holds every continuous one when a posterior is to be sampled.
+        """
+        given = _held_parameters(system, fixed)
+        specs = {p.name: p for p in system.parameters}
+        free = tuple(p.name for p in system.parameters if not p.integer and p.name not in given)
+        integer = tuple(p.name for p in system.parameters if p.integer and p.name not in given)
+        if not free + integer:
+            raise ValueError(
+                f"fixed holds every parameter of {system.name} ({', '.join(given)}): nothing "
+                "is left to fit; leave at least one out"
+            )
+        if method != "cmaes" and not free:
+            raise ValueError(
+                f"method={method!r} samples the continuous parameters, but fixed holds all "
+                f"of them ({', '.join(n for n in given if not specs[n].integer)}): leave one "
+                "out, or use method='cmaes'"
+            )
+        return cls(system, given, free, integer)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The search vector: the continuous parameters, then the integer ones."""
+        return (*self.free, *self.integer)
+
+    def bounds(self, names: Sequence[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of ``names`` (``None``: the continuous parameters)."""
+        specs = {p.name: p for p in self.system.parameters}
+        names = self.free if names is None else names
+        return np.array([specs[n].lower for n in names]), np.array([specs[n].upper for n in names])
+
+
+@dataclasses.dataclass(frozen=True)
+class _Optimum:
+    """CMA-ES's optimum of J: the run, the parameters held from now on (given and integer),
+    the continuous optimum, every parameter's value, and the residuals there."""
+
+    cmaes: CMAESResult
+    held: dict[str, float]
+    theta: Float[np.ndarray, " free"]
+    point: dict[str, float]
+    residual: Float[np.ndarray, "run channel band"]
+    chunk: int
+    notes: tuple[str, ...]
+    seconds: float
+
+
+def _cmaes_tolerance(data: CalibrationData, settings: FitSettings) -> tuple[float | None, str]:
+    """CMA-ES's tolerance on J (``settings.cmaes_tolerance`` times J's standard error) and a
+    note when the standard error comes from the Welch scatter alone."""
+    if settings.cmaes_tolerance is None:
+        return None, ""
+    se = j_standard_error(data)
+    note = ""
+    if se is None:
+        se = welch_j_standard_error(data)
+        note = (
+            f"no replicate runs: CMA-ES stops at {settings.cmaes_tolerance:g} x J's standard "
+            f"error from the Welch scatter alone ({se:.2g}, a lower bound)"
+        )
+    return settings.cmaes_tolerance * se, note
+
+
+def _optimise(
+    search: _SearchSpace,
+    population: _Population,
+    data: CalibrationData,
+    settings: FitSettings,
+    *,
+    x0: dict[str, float] | None,
+    seed: int,
+    progress: bool,
+) -> _Optimum:
+    """CMA-ES on J over the search, each population one vmapped batch per worker.
+
+    Raises
+    ------
+    ValueError
+        For an ``x0`` with an unknown name or a value outside its bounds.
+    RuntimeError
+        When every candidate failed to simulate.
+    """
+    system, names = search.system, search.names
+    lower, upper = search.bounds(names)
     compiled: set[int] = set()
 
     def batch(x: np.ndarray) -> np.ndarray:
@@ -1236,21 +1394,14 @@ def fit_campaign(
         chunk = -(-len(x) // settings.workers)
         workers = settings.workers if chunk in compiled else 1
         compiled.add(chunk)
-        return _j(*_simulate(population, _full(system, x, search, given), chunk, workers), data)
+        full = _full(system, x, names, search.given)
+        return _j(*_simulate(population, full, chunk, workers), data)
 
-    integers = list(range(len(free), len(search)))
-    start = _start_point(x0, search, specs, lower, upper)
+    integers = list(range(len(search.free), len(names)))
+    specs = {p.name: p for p in system.parameters}
+    start = _start_point(x0, names, specs, lower, upper)
     start[integers] = np.round(start[integers])
-    tolerance = None
-    if settings.cmaes_tolerance is not None:
-        se = j_standard_error(data)
-        if se is None:
-            se = welch_j_standard_error(data)
-            notes.append(
-                f"no replicate runs: CMA-ES stops at {settings.cmaes_tolerance:g} x J's standard "
-                f"error from the Welch scatter alone ({se:.2g}, a lower bound)"
-            )
-        tolerance = settings.cmaes_tolerance * se
+    tolerance, note = _cmaes_tolerance(data, settings)
     t0 = time.perf_counter()
     cmaes = minimize_cmaes(
         batch,
@@ -1267,7 +1418,7 @@ def fit_campaign(
         affordable_restarts=True,
         progress=progress,
     )
-    timings["cmaes"] = time.perf_counter() - t0
+    seconds = time.perf_counter() - t0
     chunk = -(-int(cmaes.history.popsize[0]) // settings.workers)
     if not cmaes.success:
         raise RuntimeError(
@@ -1275,149 +1426,241 @@ def fit_campaign(
             "bounds reach where the solver breaks down, (b) the record is too long for the "
             "solver's max_steps"
         )
-    optimum = dict(zip(search, (float(v) for v in cmaes.x_best), strict=True))
-    found = {n: float(round(optimum.pop(n))) for n in integer}
-    held = {p.name: {**given, **found}[p.name] for p in system.parameters if p.name not in free}
-    theta_opt = np.array([optimum[n] for n in free])
-    bounds = (np.array([specs[n].lower for n in free]), np.array([specs[n].upper for n in free]))
-    full_point = {**optimum, **held}
-    sim, _ = _simulate(population, _full(system, theta_opt, free, held), chunk)
+    optimum = dict(zip(names, (float(v) for v in cmaes.x_best), strict=True))
+    found = {n: float(round(optimum.pop(n))) for n in search.integer}
+    values = {**search.given, **found}
+    held = {p.name: values[p.name] for p in system.parameters if p.name not in search.free}
+    theta = np.array([optimum[n] for n in search.free])
+    sim, _ = _simulate(population, _full(system, theta, search.free, held), chunk)
     residual = np.asarray(data.y) - sim[0][np.asarray(data.run_operating)]
-    error = ModelError() if error is None else error
-    sigma_point, scatter_point = _point_error(residual, data, error)
-
-    common = dict(
-        held=held,
+    return _Optimum(
         cmaes=cmaes,
-        feature_spec=spec,
-        settings=settings,
-        names=free,
-        sigma_point=sigma_point,
-        scatter_point=scatter_point,
-        model_error=error,
-        bounds=bounds,
-        runs=runs,
-        duration=duration,
-        seed=seed,
-        system=system.describe(),
+        held=held,
+        theta=theta,
+        point={**optimum, **held},
+        residual=residual,
+        chunk=chunk,
+        notes=(note,) if note else (),
+        seconds=seconds,
     )
-    if method == "cmaes":
-        return FitResult(
-            method=method,
-            point=full_point,
-            j=float(cmaes.f_best),
-            idata=None,
-            diagnostics=None,
-            surrogate_box=None,
-            surrogate_rms=None,
-            notes=tuple(notes),
-            timings=timings,
-            **common,  # type: ignore[arg-type]
+
+
+@dataclasses.dataclass(frozen=True)
+class _ErrorStart:
+    """Start values of the model-error sites: the discrepancy scales, the run scatter, the
+    correlation length and the common discrepancy's scales (``None`` without one)."""
+
+    sigma: Array
+    rho: Array
+    length: float | None
+    tau: Array | None
+
+    @classmethod
+    def at_point(
+        cls,
+        sigma_point: np.ndarray,
+        scatter_point: np.ndarray,
+        residual: np.ndarray,
+        data: CalibrationData,
+        error: ModelError,
+    ) -> _ErrorStart:
+        """The moment estimates at the CMA-ES optimum."""
+        tau = jnp.asarray(_common_point(residual, data)) if error.common else None
+        return cls(
+            jnp.asarray(sigma_point), jnp.asarray(scatter_point), error.correlation_length(), tau
         )
 
-    key_sur, key_sample, key_pred = jax.random.split(jax.random.key(seed), 3)
-    t0 = time.perf_counter()
-    d = len(free)
-    ends = np.repeat(theta_opt[None], 2 * d, axis=0)
-    ends[2 * np.arange(d), np.arange(d)] = bounds[0]
-    ends[2 * np.arange(d) + 1, np.arange(d)] = bounds[1]
-    end_features, _ = _simulate(
-        population, _full(system, ends, free, held), chunk, settings.workers
-    )
+    def moved(self, posterior: xr.Dataset, error: ModelError) -> _ErrorStart:
+        """The posterior means of the sampled model-error sites (the others kept)."""
+
+        def mean(name: str, trailing: int) -> Array:
+            draws = np.asarray(posterior[name].values)
+            return jnp.asarray(draws.reshape(-1, *draws.shape[2:][-trailing:]).mean(axis=0))
+
+        sigma = np.asarray(posterior[_sigma_site(error)].values)
+        return _ErrorStart(
+            sigma=jnp.asarray(sigma.reshape(-1, *sigma.shape[2:]).mean(axis=0)),
+            rho=mean("run_scatter", 1) if error.shared else self.rho,
+            length=(
+                float(np.mean(posterior["discrepancy_length"].values))
+                if error.infer_correlation
+                else self.length
+            ),
+            tau=mean("sigma_common", 1) if error.common else self.tau,
+        )
+
+    def values(self, error: ModelError) -> dict[str, Any]:
+        """The start values by sampled site (the sampling coordinate ``z`` aside)."""
+        init: dict[str, Any] = {_sigma_site(error): self.sigma}
+        if error.shared:
+            init["run_scatter"] = self.rho
+        if error.infer_correlation:
+            init["discrepancy_length"] = jnp.asarray(self.length)
+        if self.tau is not None:
+            init["sigma_common"] = self.tau
+        return init
+
+
+def _box_fractions(
+    search: _SearchSpace,
+    population: _Population,
+    data: CalibrationData,
+    optimum: _Optimum,
+    settings: FitSettings,
+) -> Array:
+    """The surrogate box's half-width per parameter, as a fraction of its range: the whole
+    range for a parameter whose move across its bounds (the others at the optimum) changes no
+    feature by ``settings.insensitive`` Welch sds, else ``settings.box_fraction``."""
+    d, (lower, upper) = len(search.free), search.bounds()
+    ends = np.repeat(optimum.theta[None], 2 * d, axis=0)
+    ends[2 * np.arange(d), np.arange(d)] = lower
+    ends[2 * np.arange(d) + 1, np.arange(d)] = upper
+    full = _full(search.system, ends, search.free, optimum.held)
+    end_features, _ = _simulate(population, full, optimum.chunk, settings.workers)
     reach = np.max(np.abs(end_features[0::2] - end_features[1::2]), axis=(1, 2, 3))
     welch_sd = float(np.sqrt(np.median(np.asarray(data.welch_variance))))
     loose = reach < settings.insensitive * welch_sd
-    fractions = jnp.asarray(np.where(loose, 1.0, settings.box_fraction))
+    return jnp.asarray(np.where(loose, 1.0, settings.box_fraction))
+
+
+def _surrogate_in_box(
+    forward: _PartialForward,
+    centre: np.ndarray,
+    fractions: Array,
+    bounds: tuple[np.ndarray, np.ndarray],
+    settings: FitSettings,
+    key: jax.Array,
+):
+    """The box around ``centre`` and the quadratic surrogate fitted in it."""
+    d = len(centre)
     n_terms = 1 + d + d * (d + 1) // 2
-    forward = _PartialForward.build(system, population, free, held)
-    centre, sigma_init, rho_init = theta_opt, jnp.asarray(sigma_point), jnp.asarray(scatter_point)
-    length_init = error.correlation_length()
-    tau_init = jnp.asarray(_common_point(residual, data)) if error.common else None
-    timings["sensitivity"] = time.perf_counter() - t0
-    timings["surrogate"] = timings["sampling"] = 0.0
+    box = box_around(jnp.asarray(centre), jnp.asarray(bounds[0]), jnp.asarray(bounds[1]), fractions)
+    surrogate = fit_surrogate(
+        forward,
+        jnp.asarray(box[0]),
+        jnp.asarray(box[1]),
+        key=key,
+        n_train=settings.train_per_term * n_terms,
+        n_test=settings.n_test,
+        workers=settings.workers,
+    )
+    return box, surrogate
+
+
+def _whitened_model(
+    names: tuple[str, ...],
+    data: CalibrationData,
+    surrogate,
+    box,
+    centre: np.ndarray,
+    start: _ErrorStart,
+    error: ModelError,
+) -> tuple[Any, dict[str, Any], str | None]:
+    """The numpyro model on the surrogate in Laplace-whitened box coordinates, its start
+    values (``centre`` moved 2 % of the box inside it), and a note when the whitening fails
+    (then the coordinates are the plain logits of the box)."""
+    inside = box[0] + np.clip((centre - box[0]) / (box[1] - box[0]), 0.02, 0.98) * (box[1] - box[0])
+    transform = SamplingTransform.box(names, box[0].tolist(), box[1].tolist())
+
+    def density(theta):
+        return log_likelihood(
+            theta,
+            start.sigma,
+            data,
+            surrogate,
+            run_scatter=start.rho,
+            shared=error.shared,
+            correlation_length=start.length,
+            common=start.tau,
+        )
+
+    note = None
+    try:
+        transform = transform.whitened_at(density, jnp.asarray(inside))
+    except ValueError as err:
+        note = f"Laplace whitening failed ({err}); sampling in plain logit coordinates"
+    model = make_model(data, surrogate, transform, error)
+    init = {"z": transform.to_sampling(jnp.asarray(inside)), **start.values(error)}
+    return model, init, note
+
+
+def _box_cuts(
+    names: tuple[str, ...],
+    draws: Float[np.ndarray, "sample param"],
+    box,
+    bounds: tuple[np.ndarray, np.ndarray],
+    surrogate,
+) -> list[str]:
+    """The parameters whose posterior the box may cut: a face that is not a bound within
+    ``_BOX_ROOM_SD`` posterior sds of the mean, or more than 5 % of the draws at it."""
+    room = _box_room(draws, box, bounds)
+    edge = surrogate.edge_fraction(jnp.asarray(draws), bounds)
+    return [
+        f"{n} ({r:.1f} sd, {100 * e:.0f} % of the draws at the face)"
+        for n, r, e in zip(names, room, edge, strict=True)
+        if r < _BOX_ROOM_SD or e > 0.05
+    ]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Posterior:
+    """The samples of the last box, the model they came from, and the box's surrogate."""
+
+    idata: az.InferenceData
+    model: Any
+    draws: Float[np.ndarray, "sample free"]
+    box: tuple[np.ndarray, np.ndarray]
+    surrogate_rms: float
+    notes: tuple[str, ...]
+    timings: dict[str, float]
+
+
+def _sample_posterior(
+    search: _SearchSpace,
+    population: _Population,
+    data: CalibrationData,
+    optimum: _Optimum,
+    start: _ErrorStart,
+    sampler: _Sampler,
+    error: ModelError,
+    settings: FitSettings,
+    *,
+    keys: tuple[jax.Array, jax.Array],
+    progress: bool,
+) -> _Posterior:
+    """The posterior of the continuous parameters on a surrogate around the optimum.
+
+    A surrogate is fitted in a box around the optimum, the posterior sampled on it from the
+    optimum; while the box may cut the posterior (:func:`_box_cuts`) and moves are left
+    (``settings.box_moves``), the box moves to the posterior mean, widens to ``_BOX_NEW_SD``
+    posterior sds each side, and the posterior is sampled again from the posterior means.
+    """
+    key_sur, key_sample = keys
+    names, bounds = search.free, search.bounds()
+    notes: list[str] = []
+    t0 = time.perf_counter()
+    fractions = _box_fractions(search, population, data, optimum, settings)
+    forward = _PartialForward.build(search.system, population, names, optimum.held)
+    timings = {"sensitivity": time.perf_counter() - t0, "surrogate": 0.0, "sampling": 0.0}
+    centre = optimum.theta
     for stage in range(settings.box_moves + 1):
         t0 = time.perf_counter()
-        box = box_around(
-            jnp.asarray(centre), jnp.asarray(bounds[0]), jnp.asarray(bounds[1]), fractions
-        )
-        surrogate = fit_surrogate(
-            forward,
-            jnp.asarray(box[0]),
-            jnp.asarray(box[1]),
-            key=jax.random.fold_in(key_sur, stage),
-            n_train=settings.train_per_term * n_terms,
-            n_test=settings.n_test,
-            workers=settings.workers,
+        box, surrogate = _surrogate_in_box(
+            forward, centre, fractions, bounds, settings, jax.random.fold_in(key_sur, stage)
         )
         surrogate_rms = float(np.sqrt(np.mean(np.asarray(surrogate.error_variance))))
         timings["surrogate"] += time.perf_counter() - t0
         t0 = time.perf_counter()
-        inside = box[0] + np.clip((centre - box[0]) / (box[1] - box[0]), 0.02, 0.98) * (
-            box[1] - box[0]
+        model, init, note = _whitened_model(names, data, surrogate, box, centre, start, error)
+        if note is not None:
+            notes.append(note)
+        idata = sampler.sample(
+            model, key=jax.random.fold_in(key_sample, stage), init_values=init, progress=progress
         )
-        transform = SamplingTransform.box(free, box[0].tolist(), box[1].tolist())
-
-        def density(
-            th, sigma=sigma_init, rho=rho_init, forward=surrogate, length=length_init, tau=tau_init
-        ):
-            return log_likelihood(
-                th,
-                sigma,
-                data,
-                forward,
-                run_scatter=rho,
-                shared=error.shared,
-                correlation_length=length,
-                common=tau,
-            )
-
-        try:
-            transform = transform.whitened_at(density, jnp.asarray(inside))
-        except ValueError as err:
-            notes.append(f"Laplace whitening failed ({err}); sampling in plain logit coordinates")
-        model = make_model(data, surrogate, transform, error)
-        init = {"z": transform.to_sampling(jnp.asarray(inside)), _sigma_site(error): sigma_init}
-        if error.shared:
-            init["run_scatter"] = rho_init
-        if error.infer_correlation:
-            init["discrepancy_length"] = jnp.asarray(length_init)
-        if tau_init is not None:
-            init["sigma_common"] = tau_init
-        if method == "nuts":
-            idata = sample_nuts(
-                model,
-                key=jax.random.fold_in(key_sample, stage),
-                init_values=init,
-                num_warmup=settings.num_warmup,
-                num_samples=settings.num_samples,
-                num_chains=settings.num_chains,
-                target_accept=settings.target_accept,
-                chain_method=settings.chain_method,
-                progress=progress,
-            )
-        else:
-            idata = sample_emcee(
-                model,
-                key=jax.random.fold_in(key_sample, stage),
-                init_values=init,
-                n_walkers=settings.emcee_walkers,
-                n_steps=settings.emcee_steps,
-                max_steps=settings.emcee_max_steps,
-                burn=settings.emcee_burn,
-                thin=settings.emcee_thin,
-                init_scale=0.1,
-                progress=progress,
-            )
         timings["sampling"] += time.perf_counter() - t0
         post = idata["posterior"]
-        draws = np.stack([np.asarray(post[n].values).reshape(-1) for n in free], axis=-1)
-        room = _box_room(draws, box, bounds)
-        edge = surrogate.edge_fraction(jnp.asarray(draws), bounds)
-        cut = [
-            f"{n} ({r:.1f} sd, {100 * e:.0f} % of the draws at the face)"
-            for n, r, e in zip(free, room, edge, strict=True)
-            if r < _BOX_ROOM_SD or e > 0.05
-        ]
+        draws = np.stack([np.asarray(post[n].values).reshape(-1) for n in names], axis=-1)
+        cut = _box_cuts(names, draws, box, bounds, surrogate)
         if not cut:
             break
         message = (
@@ -1431,50 +1674,74 @@ def fit_campaign(
                 f"{_BOX_NEW_SD:g} sds each side, and the posterior resampled"
             )
             centre = draws.mean(axis=0)
-            span = bounds[1] - bounds[0]
-            wider = np.minimum(1.0, _BOX_NEW_SD * draws.std(axis=0) / span)
+            wider = np.minimum(1.0, _BOX_NEW_SD * draws.std(axis=0) / (bounds[1] - bounds[0]))
             fractions = jnp.maximum(fractions, jnp.asarray(wider))
-            sigma = np.asarray(post[_sigma_site(error)].values)
-            sigma_init = jnp.asarray(sigma.reshape(-1, *sigma.shape[2:]).mean(axis=0))
-            if error.shared:
-                rho = np.asarray(post["run_scatter"].values)
-                rho_init = jnp.asarray(rho.reshape(-1, rho.shape[-1]).mean(axis=0))
-            if error.infer_correlation:
-                length_init = float(np.mean(post["discrepancy_length"].values))
-            if error.common:
-                tau = np.asarray(post["sigma_common"].values)
-                tau_init = jnp.asarray(tau.reshape(-1, tau.shape[-1]).mean(axis=0))
+            start = start.moved(post, error)
         else:
             message += "; raise box_fraction or box_moves"
-            warnings.warn(message, UserWarning, stacklevel=2)
+            # stacklevel 3: the caller of fit_campaign
+            warnings.warn(message, UserWarning, stacklevel=3)
         notes.append(message)
+    return _Posterior(idata, model, draws, box, surrogate_rms, tuple(notes), timings)
 
+
+@dataclasses.dataclass(frozen=True)
+class _Summary:
+    """The posterior's gates, its mean as the point (held parameters included), J there."""
+
+    diagnostics: SamplingDiagnostics
+    point: dict[str, float]
+    j: float
+    notes: tuple[str, ...]
+
+
+def _summarise(
+    posterior: _Posterior,
+    search: _SearchSpace,
+    population: _Population,
+    data: CalibrationData,
+    optimum: _Optimum,
+    settings: FitSettings,
+    key: jax.Array,
+) -> _Summary:
+    """The sampling gates (their warnings passed on when they fail), the posterior predictive
+    draws added to ``posterior.idata``, the posterior mean and its J (exact simulator)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        diagnostics = diagnose_sampling(idata)
+        diagnostics = diagnose_sampling(posterior.idata)
+    notes: tuple[str, ...] = ()
     if not diagnostics.passed:
-        notes.extend(f"SAMPLING GATES FAILED: {m}" for m in diagnostics.messages)
+        notes = tuple(f"SAMPLING GATES FAILED: {m}" for m in diagnostics.messages)
         for w in caught:
-            warnings.warn(w.message, w.category, stacklevel=2)
+            # stacklevel 3: the caller of fit_campaign
+            warnings.warn(w.message, w.category, stacklevel=3)
+    _add_predictive(posterior.idata, posterior.model, settings.predictive_draws, key)
+    names = search.free
+    point = {n: float(np.mean(posterior.draws[:, i])) for i, n in enumerate(names)}
+    point.update(optimum.held)
+    x_mean = _full(search.system, np.array([point[n] for n in names]), names, optimum.held)
+    j = float(_j(*_simulate(population, x_mean, optimum.chunk), data)[0])
+    return _Summary(diagnostics, point, j, notes)
 
-    _add_predictive(idata, model, settings.predictive_draws, key_pred)
-    record_system(idata, system.describe())
-    point = {n: float(np.mean(draws[:, i])) for i, n in enumerate(free)}
-    point.update(held)
-    x_mean = _full(system, np.array([point[n] for n in free]), free, held)
-    j = float(_j(*_simulate(population, x_mean, chunk), data)[0])
-    return FitResult(
-        method=method,
-        point=point,
-        j=j,
-        idata=idata,
-        diagnostics=diagnostics,
-        surrogate_box=box,
-        surrogate_rms=surrogate_rms,
-        notes=tuple(notes),
-        timings=timings,
-        **common,  # type: ignore[arg-type]
-    )
+
+#: the samplers of the posterior, by the method's name
+_SAMPLERS: dict[str, Callable[[FitSettings], _Sampler]] = {
+    "nuts": lambda s: _NUTS(
+        num_warmup=s.num_warmup,
+        num_samples=s.num_samples,
+        num_chains=s.num_chains,
+        target_accept=s.target_accept,
+        chain_method=s.chain_method,
+    ),
+    "emcee": lambda s: _Emcee(
+        n_walkers=s.emcee_walkers,
+        n_steps=s.emcee_steps,
+        max_steps=s.emcee_max_steps,
+        burn=s.emcee_burn,
+        thin=s.emcee_thin,
+        init_scale=0.1,
+    ),
+}
 
 
 def _add_predictive(idata: az.InferenceData, model, n_draws: int, key: jax.Array) -> None:

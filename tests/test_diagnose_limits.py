@@ -13,7 +13,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.stats
-from test_system_plugin import CATALOGUE, CHANNELS, ToyFan, _HumRecipe, fan_campaign
+from test_system_plugin import (
+    CATALOGUE,
+    CHANNELS,
+    FS,
+    TRUE,
+    ToyFan,
+    _HumRecipe,
+    fan_campaign,
+)
 
 from bayesdoor.diagnose import (
     LIMIT_POWER,
@@ -30,7 +38,9 @@ from bayesdoor.diagnose._limits import (
     bin_variance_factor,
     expected_differences,
     naming_probability,
+    size_spectra,
 )
+from bayesdoor.diagnose._refit import RefitSetup, Spectra, exact_signals
 from bayesdoor.inference import fit_campaign
 
 
@@ -108,12 +118,44 @@ SIZED = Catalogue(
 SEEDS = range(300, 310)
 
 
+def test_the_spectra_at_any_size_are_the_welch_estimates_of_the_simulated_signals():
+    # a Welch PSD is quadratic in the signal: three estimates give every size exactly
+    fan = ToyFan()
+    campaign = fan_campaign(test=False, seed=298)
+    speeds = np.asarray(campaign["speed"].values, dtype=float)
+    t0, t1 = (np.asarray(campaign[k].values, dtype=float) for k in ("t_start", "t_stop"))
+    result = fan.simulate_values(TRUE, speeds)
+    signals = np.asarray(result.signals)
+    spectra = Spectra.of_measured(
+        np.asarray(campaign["acceleration"].values), FS, t0, t1, (5.0, 200.0), nperseg=256
+    )
+    setup = RefitSetup(
+        system=fan,
+        point=TRUE,
+        operating=speeds,
+        duration=signals.shape[-1] / FS,
+        time=np.asarray(result.time),
+        base_signals=signals,
+        spectra=spectra,
+    )
+    probe = _SizedHum().size(band=(5.0, 200.0)).probes[0]
+    at = size_spectra(setup, probe)
+    runs = np.arange(len(speeds))
+    for size in (0.0, 0.003, 0.07):
+        direct = spectra.model(
+            exact_signals(setup, probe.proposal, probe.values(size, len(runs)), runs), runs
+        )
+        assert np.allclose(at(size), direct, atol=1e-8), size
+
+
 @pytest.fixture(scope="module")
 def fan_fit():
     campaign = fan_campaign(test=False, seed=299)
     return campaign, fit_campaign(ToyFan(), campaign, seed=0, quick=True, progress=False)
 
 
+#: 21 diagnoses of the fan: 184 s measured on the shared 2-CPU machine (about 8 processes)
+@pytest.mark.long
 def test_a_hum_at_its_limit_is_named_as_often_as_stated(fan_fit):
     campaign, fit = fan_fit
     fan = ToyFan()
@@ -141,6 +183,8 @@ def test_a_hum_at_its_limit_is_named_as_often_as_stated(fan_fit):
     assert named[1.5] >= 0.7 and named[0.5] <= 0.3, (limit.size, named)
 
 
+#: the fan's fit (39 s measured on the shared machine) and a plan (2 s)
+@pytest.mark.long
 def test_the_plan_names_the_hum_it_plans_for(fan_fit):
     campaign, fit = fan_fit
     fan = ToyFan()

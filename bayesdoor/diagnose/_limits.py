@@ -25,12 +25,13 @@ signature's gate), and the base fit may absorb part of a cause; both only lower 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
 from .._types import Float
+from ..features import LOG_FLOOR
 from ._gain import (
     capped_t,
     changed_bins,
@@ -43,6 +44,8 @@ from ._refit import SMOOTH_BINS, CauseSize, RefitSetup, SizeProbe, exact_signals
 
 #: the probability of naming a cause that defines its detection limit
 LIMIT_POWER = 0.8
+#: the smallest PSD a size's spectra take (the features' floor of a log10 PSD)
+_PSD_FLOOR = LOG_FLOOR
 #: sizes scanned per configuration (log-spaced over the cause's declared range)
 _GRID = 33
 
@@ -269,6 +272,29 @@ def probe_changes(
     return zero, (at - zero) / probe.reference
 
 
+def size_spectra(
+    setup: RefitSetup, probe: SizeProbe
+) -> Callable[[float], Float[np.ndarray, "run channel freq"]]:
+    """The probe's log10 spectra of every run as a function of its size, from one simulation
+    and three Welch estimates: the signals are ``z + s c`` and a Welch PSD is quadratic in
+    the signal, so ``P(s) = P(z) + u (P(z + r c) - P(z - r c)) / 2 + u^2 ((P(z + r c) +
+    P(z - r c)) / 2 - P(z))`` with ``u = s / r`` exactly (``r`` the probe's reference)."""
+    zero, per_unit = probe_changes(setup, probe)
+    runs = np.arange(len(setup.operating))
+    r = probe.reference
+    p0, up, down = (
+        10.0 ** setup.spectra.model(x, runs)
+        for x in (zero, zero + r * per_unit, zero - r * per_unit)
+    )
+    linear, quadratic = (up - down) / 2.0, (up + down) / 2.0 - p0
+
+    def at(size: float) -> np.ndarray:
+        u = float(size) / r
+        return np.log10(np.maximum(p0 + u * linear + u * u * quadratic, _PSD_FLOOR))
+
+    return at
+
+
 def power_curve(
     setup: RefitSetup,
     probe: SizeProbe,
@@ -280,14 +306,12 @@ def power_curve(
 ) -> PowerCurve:
     """The probability that the rule names the probe's cause at each size, in these runs."""
     noise = _noise(setup) if noise is None else noise
-    n = len(setup.operating)
-    zero, per_unit = probe_changes(setup, probe)
-    runs = np.arange(n)
+    spectra = size_spectra(setup, probe)
     welch = np.asarray(setup.spectra.log_variance)
     p = len(probe.proposal.free)
     means, variances = [], []
     for s in sizes:
-        extended = setup.spectra.model(zero + float(s) * per_unit, runs)
+        extended = spectra(float(s))
         m, q = expected_differences(
             noise.base, extended, noise.variance, welch, p, noise.correlation
         )

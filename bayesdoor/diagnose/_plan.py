@@ -27,7 +27,7 @@ from ._limits import (
     _noise,
     expected_differences,
     naming_probability,
-    probe_changes,
+    size_spectra,
 )
 from ._rank import Catalogue
 from ._refit import SizeProbe
@@ -257,9 +257,7 @@ def plan_campaign(
 def _per_run(setup: Any, probe: SizeProbe, size: float) -> tuple[np.ndarray, np.ndarray]:
     """Each run's expected held-out difference and its variance at ``size``."""
     noise = _noise(setup)
-    zero, per_unit = probe_changes(setup, probe)
-    runs = np.arange(len(setup.operating))
-    extended = setup.spectra.model(zero + float(size) * per_unit, runs)
+    extended = size_spectra(setup, probe)(float(size))
     return expected_differences(
         noise.base,
         extended,

@@ -55,7 +55,9 @@ def test_the_expected_difference_matches_simulated_spectra():
     delta[:, :, 10:16] = rng.uniform(0.2, 0.8, (runs, channels, 6))
     welch = np.full(runs, 0.04)
     variance = np.full(base.shape, 0.05)
-    mean, var = expected_differences(base, base + delta, variance, welch, parameters=0)
+    mean, var = expected_differences(
+        base, base + delta, variance, welch, parameters=0, smooth_bins=None
+    )
     changed = changed_bins(base, base + delta, welch)
     d2 = np.where(changed, delta**2, 0.0)
     vb = variance + d2.sum(axis=(0, 2), keepdims=True) / changed.sum(axis=(0, 2), keepdims=True)
@@ -70,6 +72,19 @@ def test_the_expected_difference_matches_simulated_spectra():
     d = lpd(base + delta, variance) - lpd(base, vb)
     assert np.allclose(mean, d.mean(axis=0), rtol=0.03), (mean, d.mean(axis=0))
     assert np.allclose(var, d.var(axis=0), rtol=0.1), (var, d.var(axis=0))
+
+
+def test_a_broad_change_is_taken_by_the_smooth_discrepancy_and_a_narrow_one_is_not():
+    base = np.zeros((6, 1, 200))
+    welch, variance = np.full(6, 0.01), np.full(base.shape, 0.02)
+    broad = base + 0.5  # a level change of the whole band: both models' smooth part takes it
+    mean, _ = expected_differences(base, broad, variance, welch, parameters=0)
+    assert np.allclose(mean, 0.0, atol=1e-9)
+    narrow = base.copy()
+    narrow[..., 100:103] = 0.5
+    mean, _ = expected_differences(base, narrow, variance, welch, parameters=0)
+    whole, _ = expected_differences(base, narrow, variance, welch, parameters=0, smooth_bins=None)
+    assert np.allclose(mean, whole) and np.all(mean > 1.0)
 
 
 def test_the_parameters_cost_their_estimation_error():

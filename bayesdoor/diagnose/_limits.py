@@ -10,7 +10,8 @@ in the changed bins the judgement estimates as ``v_b = v + mean(Delta^2)`` (per 
     m = log(v_b / v) / 2 + (Delta^2 + v) / (2 v_b) - 1/2        (expectation)
     q = Delta^2 v / v_b^2 + (1 - v / v_b)^2 / 2                  (variance)
 
-summed over the bins the extension changes (:func:`~bayesdoor.diagnose._gain.changed_bins`),
+summed over the bins the extension changes (:func:`~bayesdoor.diagnose._gain.changed_bins`;
+``Delta`` less its broad part, which each model's smooth discrepancy takes alike),
 less ``p / n`` per held-out run for the ``p`` parameters fitted on the other half of ``n``
 runs (the expected excess loss of an estimate, ``p / 2`` per fold's ``n / 2`` training runs).
 The per-run differences are drawn ``N(m_r, q_r)`` and judged by the decision rule itself
@@ -41,6 +42,7 @@ from ._gain import (
 )
 from ._rank import Catalogue
 from ._refit import SMOOTH_BINS, CauseSize, RefitSetup, SizeProbe, exact_signals
+from ._residual import smooth_discrepancy
 
 #: the probability of naming a cause that defines its detection limit
 LIMIT_POWER = 0.8
@@ -205,11 +207,19 @@ def expected_differences(
     welch: Float[np.ndarray, " run"],
     parameters: int,
     correlation: float = 1.0,
+    smooth_bins: int | None = SMOOTH_BINS,
 ) -> tuple[Float[np.ndarray, " run"], Float[np.ndarray, " run"]]:
     """Mean and variance of each run's held-out log-density difference when ``extended`` is
     the truth (the module's formulas), ``parameters`` fitted on the other half of the runs;
-    the variance times ``correlation`` (:func:`bin_variance_factor`)."""
+    the variance times ``correlation`` (:func:`bin_variance_factor`).
+
+    Each model is judged with its own smooth discrepancy (the running median over
+    ``2 smooth_bins + 1`` bins of its run-mean residual), which takes the broad part of a
+    change into both models alike: the change that tells them apart is ``Delta`` less the
+    running median of its run mean (``None``: the whole change)."""
     delta = np.asarray(extended) - np.asarray(base)
+    if smooth_bins is not None:
+        delta = delta - smooth_discrepancy(delta.mean(axis=0), smooth_bins)
     changed = changed_bins(base, extended, welch)
     d2 = np.where(changed, delta**2, 0.0)
     count = np.maximum(changed.sum(axis=(0, 2), keepdims=True), 1)

@@ -91,7 +91,7 @@ class CampaignPlan:
             )
         return (
             f"{self.runs_per_condition} runs at each of {len(self.conditions)} conditions "
-            f"({where}; {self.runs} runs of {self.record_s:g} s) name {self.cause} at "
+            f"({where}; {self.runs} runs of {self.record_s:.3g} s) name {self.cause} at "
             f"{self.size:g} {self.unit} ({self.configuration}) with "
             f"{100 * self.probability:.0f} % probability (this campaign: "
             f"{100 * self.current:.0f} %)"

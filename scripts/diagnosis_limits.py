@@ -231,7 +231,7 @@ def figure(limits: dict[str, Any], rows: list[dict[str, Any]], path: Path) -> No
             ax.errorbar(
                 size * scale,
                 k / len(at),
-                yerr=[[k / len(at) - lo], [hi - k / len(at)]],
+                yerr=[[max(k / len(at) - lo, 0.0)], [max(hi - k / len(at), 0.0)]],
                 fmt="o",
                 color="C3",
                 capsize=3,

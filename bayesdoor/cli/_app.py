@@ -438,3 +438,34 @@ def diagnose(
     from ._diagnose import diagnose as run_diagnosis
 
     run_diagnosis(path, out, posterior=posterior, seed=seed, quick=quick, force=force, json=json)
+
+
+@app.command()
+def plan(
+    path: Annotated[Path, typer.Argument(help="campaign file (.nc)")],
+    cause: Annotated[str, typer.Option("--cause", help="a catalogue cause (frame_mode, ...)")],
+    size: Annotated[float, typer.Option("--size", help="its size, in the cause's unit")],
+    posterior: Annotated[
+        Path | None,
+        typer.Option("--posterior", help="the --out folder of 'bayesdoor fit' (else fit here)"),
+    ] = None,
+    configuration: Annotated[
+        int, typer.Option(help="which of the cause's configurations (0: the typical one)")
+    ] = 0,
+    seed: Annotated[int, typer.Option(help="seed of the draws (and of a fit here)")] = 0,
+    json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
+) -> None:
+    """The campaign (runs per condition, conditions, record length) that names a cause of
+    this size with 80 % probability, and its cost in runs."""
+    configure_jax()
+    from ._plan import plan as run_plan
+
+    run_plan(
+        path,
+        cause=cause,
+        size=size,
+        posterior=posterior,
+        configuration=configuration,
+        seed=seed,
+        json=json,
+    )

@@ -98,6 +98,13 @@ def summary_lines(payload: dict[str, Any]) -> list[str]:
                 "     gain: "
                 + ", ".join(f"{k} = {parameter_text(v)}" for k, v in gain_entries(gain).items())
             )
+    confirmed = payload.get("confirmed") or []
+    if len(confirmed) > 1:
+        lines.append("confirmed, strongest held-out evidence first: " + ", ".join(confirmed))
+    limits = payload.get("limits") or {}
+    if limits:
+        lines.append("limits (a cause smaller than its limit would not be named):")
+        lines += [f"  - {limit.get('words', name)}" for name, limit in limits.items()]
     lines.append(f"report: {payload['report']}")
     return lines
 

@@ -21,7 +21,12 @@ The public names are what a user calls:
   (:class:`AbstractRefit`, whose ``propose`` returns :class:`ExtensionProposal` objects;
   ``LOCAL_BINS``, the main lobe of the spectra a recipe's ``explains`` reads);
 - the decision rule: ``RULE`` in words, :func:`rule_thresholds`, :func:`rule_passes` and the
-  capped statistic :func:`capped_t`.
+  capped statistic :func:`capped_t`;
+- what a campaign could not have shown: each cause's size (:class:`CauseSize` of
+  :class:`SizeProbe` configurations, declared by its recipe's ``size``) and its
+  :class:`CauseLimit` (:class:`PowerCurve` per configuration) from :func:`detection_limits`
+  at the power :data:`LIMIT_POWER`; :func:`plan_campaign` (a :class:`CampaignPlan`): the
+  campaign that would name a cause of a given size.
 
 The tuning constants and the internal steps stay in their private modules.
 """
@@ -49,7 +54,13 @@ from ._job import Cause as Cause
 from ._job import Diagnosis as Diagnosis
 from ._job import DiagnosisSettings as DiagnosisSettings
 from ._job import diagnose_campaign as diagnose_campaign
+from ._limits import LIMIT_POWER as LIMIT_POWER
+from ._limits import CauseLimit as CauseLimit
+from ._limits import PowerCurve as PowerCurve
+from ._limits import detection_limits as detection_limits
 from ._order import OrderSpectra as OrderSpectra
+from ._plan import CampaignPlan as CampaignPlan
+from ._plan import plan_campaign as plan_campaign
 from ._rank import NONE as NONE
 from ._rank import Candidate as Candidate
 from ._rank import Catalogue as Catalogue
@@ -57,7 +68,9 @@ from ._rank import CauseScore as CauseScore
 from ._rank import Ranking as Ranking
 from ._rank import rank_causes as rank_causes
 from ._refit import AbstractRefit as AbstractRefit
+from ._refit import CauseSize as CauseSize
 from ._refit import ExtensionProposal as ExtensionProposal
+from ._refit import SizeProbe as SizeProbe
 from ._residual import Region as Region
 from ._residual import ResidualMap as ResidualMap
 from ._residual import RunPeaks as RunPeaks

@@ -104,6 +104,77 @@ class ExtensionProposal:
     gains: Mapping[str, str] = dataclasses.field(default_factory=dict)
 
 
+@dataclasses.dataclass(frozen=True)
+class SizeProbe:
+    """One configuration of a cause at which its detectable size is computed.
+
+    Attributes
+    ----------
+    label
+        The configuration in words (``"typical: 50 Hz"``).
+    proposal
+        The extension and the values of its other parameters (in ``start``).
+    scales
+        Each free parameter of ``proposal`` as a multiple of the size (a mains line of
+        amplitude ``s`` on every channel: 1 each). The cause's signal change must be affine
+        in the size (amplitudes, participations, leak fractions): the probe is simulated at
+        size 0 and at ``reference`` and scaled between.
+    reference
+        The size simulated (inside the parameters' bounds).
+    off_at_zero
+        Whether the extension at size 0 is the base model (its signals the base model's),
+        so that only the size ``reference`` is simulated.
+    """
+
+    label: str
+    proposal: ExtensionProposal
+    scales: Mapping[str, float]
+    reference: float
+    off_at_zero: bool = True
+
+    def values(self, size: float, runs: int) -> dict[str, np.ndarray]:
+        """Every free parameter at ``size``, one value per run."""
+        return {
+            n: np.full(runs, float(self.scales.get(n, 0.0)) * float(size))
+            for n in self.proposal.free
+        }
+
+
+@dataclasses.dataclass(frozen=True)
+class CauseSize:
+    """A catalogue cause's key size: what it is, its unit, the range scanned for its
+    detection limit, and the configurations of its other parameters to scan it at (the
+    first the typical one).
+
+    Attributes
+    ----------
+    quantity
+        The size in words (``"wheel run-out"``).
+    unit
+        Its SI unit (``"m"``, ``"m/s^2"``, ``"-"``).
+    low, high
+        The sizes scanned (log-spaced between them).
+    probes
+        The configurations, the typical one first.
+    display
+        A unit to show the size in and its factor from ``unit`` (``("um", 1e6)``).
+    """
+
+    quantity: str
+    unit: str
+    low: float
+    high: float
+    probes: tuple[SizeProbe, ...]
+    display: tuple[str, float] = ("", 1.0)
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.low < self.high) or not self.probes:
+            raise ValueError(
+                f"CauseSize {self.quantity!r}: need 0 < low < high and at least one probe, got "
+                f"low={self.low!r}, high={self.high!r}, {len(self.probes)} probes"
+            )
+
+
 class AbstractRefit(eqx.Module):
     """A catalogue candidate's recipe: extensions to refit from its signature's estimate."""
 
@@ -158,6 +229,12 @@ class AbstractRefit(eqx.Module):
         them, from the refitted ``values`` and their Laplace ``sd``; missing ones are
         reported without one. The default recipe gives none."""
         return {}
+
+    def size(self, *, band: tuple[float, float]) -> CauseSize | None:
+        """The cause's key size, its unit, the range to scan and the configurations to scan
+        it at, for its detection limit (:func:`~bayesdoor.diagnose.detection_limits`);
+        ``band`` is the analysed band (Hz). The default recipe declares none (no limit)."""
+        return None
 
     def alternatives(self, parameters: Mapping[str, Any]) -> tuple[str, ...]:
         """Other catalogue causes that would give the same symptom as this refitted cause,
@@ -978,6 +1055,36 @@ def refit_extension(
     return _result(setup, proposal, model, optimum, sd, train, spectra, evaluations, lower, upper)
 
 
+def exact_signals(
+    setup: RefitSetup,
+    proposal: ExtensionProposal,
+    values: Mapping[str, Float[np.ndarray, " r"]],
+    runs: Int[np.ndarray, " r"],
+) -> Float[np.ndarray, "r channel time"]:
+    """The extended model's exact signals of ``runs``, each run at its own parameter values
+    (one simulation of all the runs together; the signals of :func:`exact_spectra`)."""
+    extended, free, _, _, fixed = _boxes(setup.system, proposal)
+    model = _Model(setup, proposal, extended, fixed, {})
+    runs = np.asarray(runs, dtype=int)
+    missing = [n for n in free if n not in values]
+    if missing:
+        raise ValueError(f"values lacks the free parameters {missing} of the proposal")
+    vals = {k: np.full((1, len(runs)), v) for k, v in fixed.items()}
+    vals.update({n: np.asarray(values[n], dtype=float).reshape(1, len(runs)) for n in free})
+    if model.output_only:
+        base = setup.base_signals[runs][None]
+        signals = np.asarray(
+            extended.apply_output_extensions(
+                jnp.asarray(base),
+                jnp.asarray(setup.time),
+                {k: jnp.asarray(v) for k, v in vals.items()},
+            )
+        )
+    else:
+        signals = model.solve(vals, runs)
+    return signals[0]
+
+
 def exact_spectra(
     setup: RefitSetup,
     proposal: ExtensionProposal,
@@ -1006,23 +1113,5 @@ def exact_spectra(
     spectra
         log10 PSDs of the runs, as :meth:`Spectra.model` gives them.
     """
-    extended, free, _, _, fixed = _boxes(setup.system, proposal)
-    model = _Model(setup, proposal, extended, fixed, {})
     runs = np.asarray(runs, dtype=int)
-    missing = [n for n in free if n not in values]
-    if missing:
-        raise ValueError(f"values lacks the free parameters {missing} of the proposal")
-    vals = {k: np.full((1, len(runs)), v) for k, v in fixed.items()}
-    vals.update({n: np.asarray(values[n], dtype=float).reshape(1, len(runs)) for n in free})
-    if model.output_only:
-        base = setup.base_signals[runs][None]
-        signals = np.asarray(
-            extended.apply_output_extensions(
-                jnp.asarray(base),
-                jnp.asarray(setup.time),
-                {k: jnp.asarray(v) for k, v in vals.items()},
-            )
-        )
-    else:
-        signals = model.solve(vals, runs)
-    return setup.spectra.model(signals[0], runs)
+    return setup.spectra.model(exact_signals(setup, proposal, values, runs), runs)

@@ -7,6 +7,7 @@ signature's estimate).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
@@ -18,6 +19,7 @@ from ..diagnose import (
     AbstractRefit,
     Candidate,
     Catalogue,
+    CauseSize,
     CrossAxisCoherence,
     ExtensionProposal,
     FirstOf,
@@ -25,6 +27,7 @@ from ..diagnose import (
     HarmonicComb,
     NoResidual,
     RestLine,
+    SizeProbe,
     SpeedTracking,
 )
 from . import _geometry as g
@@ -210,6 +213,28 @@ class FrameModeRefit(AbstractRefit):
             words = f"the refitted mode peaks at {where}, inside {low:.2f}-{high:.2f} Hz; {words}"
         return bool(ratio < _SYMPTOM_SHARE), words
 
+    def size(self, *, band: tuple[float, float]) -> CauseSize:
+        """The mode's participation on every channel (the share of its relative acceleration
+        each channel reads), an output mode of damping ratio 0.015 (the middle of the rig's
+        0.005-0.03): typically at 55 Hz, the middle of the frame's installed modes, and at
+        the band's ends (25 Hz, 90 Hz)."""
+        probes = []
+        for label, f in (("typical: 55 Hz", 55.0), ("25 Hz", 25.0), ("90 Hz", 90.0)):
+            f = float(np.clip(f, band[0] + 2.0, band[1] - 2.0))
+            start = {"frame_mode.frequency_hz": f, "frame_mode.damping_ratio": 0.015}
+            parts = {f"frame_mode.participation_{c}": 1.0 for c in g.CHANNELS}
+            probes.append(
+                SizeProbe(
+                    label=label,
+                    proposal=ExtensionProposal(
+                        extension=FrameMode(), start=start, free=tuple(parts)
+                    ),
+                    scales=parts,
+                    reference=0.1,
+                )
+            )
+        return CauseSize("frame-mode participation", "-", 1e-4, 3.0, tuple(probes))
+
     def derived(self, proposal, system, values):
         """For a mode that carries the rail, its installed frequency: the rail's lift couples
         it to the door's wheel contact, which moves the peak a measurement shows away from
@@ -260,6 +285,32 @@ class WheelRefit(AbstractRefit):
             )
             for wheel in ("left", "right")
         )
+
+    def size(self, *, band: tuple[float, float]) -> CauseSize:
+        """The wheel's run-out: the radius amplitude ``s`` of its first harmonic, the k-th at
+        ``s / k`` (k = 1..6, the rig's profile), phases at their nominal values; typically
+        the left wheel, also a wheel out of round at its fourth harmonic alone (amplitude
+        ``s / 4``). Each harmonic's amplitude acts linearly (``linear``)."""
+        probes = []
+        for label, wheel, harmonics in (
+            ("typical: left wheel, harmonics 1-6 at s / k", "left", range(1, 7)),
+            ("left wheel, harmonic 4 alone at s / 4", "left", (4,)),
+        ):
+            scales = {f"wheel_eccentricity.amplitude_{k}": 1.0 / k for k in harmonics}
+            probes.append(
+                SizeProbe(
+                    label=label,
+                    proposal=ExtensionProposal(
+                        extension=WheelEccentricity(wheel=wheel, harmonics=max(harmonics)),
+                        start={n: 10e-6 * k for n, k in scales.items()},
+                        free=tuple(scales),
+                        linear=tuple(scales),
+                    ),
+                    scales=scales,
+                    reference=10e-6,
+                )
+            )
+        return CauseSize("wheel run-out", "m", 0.3e-6, 1e-3, tuple(probes), display=("um", 1e6))
 
     def alternatives(self, parameters: Mapping[str, Any]) -> tuple[str, ...]:
         """With one harmonic ``k`` found, a rail irregularity of period 2 pi R / k under one
@@ -342,6 +393,25 @@ class RailRefit(AbstractRefit):
                 held={"rail_waviness.wavelength_m": (lam, sd)},
             ),
         )
+
+    def size(self, *, band: tuple[float, float]) -> CauseSize:
+        """The irregularity's amplitude under both wheels (one phase): typically at 25 mm
+        (the geometric middle of the rig's 8-80 mm), also at 10 mm and 70 mm."""
+        probes = tuple(
+            SizeProbe(
+                label=label,
+                proposal=ExtensionProposal(
+                    extension=RailWaviness(),
+                    start={"rail_waviness.wavelength_m": lam, "rail_waviness.amplitude_m": 5e-6},
+                    free=("rail_waviness.amplitude_m",),
+                    linear=("rail_waviness.amplitude_m",),
+                ),
+                scales={"rail_waviness.amplitude_m": 1.0},
+                reference=5e-6,
+            )
+            for label, lam in (("typical: 25 mm", 25e-3), ("10 mm", 10e-3), ("70 mm", 70e-3))
+        )
+        return CauseSize("rail waviness amplitude", "m", 0.03e-6, 1e-3, probes, display=("um", 1e6))
 
     def derived(self, proposal, system, values):
         """For independent phases, the irregularity's amplitude under each wheel,
@@ -456,6 +526,27 @@ class CrossAxisRefit(AbstractRefit):
                 )
         return tuple(out)
 
+    def size(self, *, band: tuple[float, float]) -> CauseSize:
+        """The fraction of the other axis one channel reads: every direction of every pair,
+        the first pair's X reading Z the typical one."""
+        probes = []
+        for pair in self.pairs:
+            for into, other in (pair, pair[::-1]):
+                probes.append(
+                    SizeProbe(
+                        label=f"{into} reads {other}",
+                        proposal=ExtensionProposal(
+                            extension=SensorCrossAxis(sensor=into[:-1], into=into[-1]),
+                            start={},
+                            free=("sensor_cross_axis.fraction",),
+                        ),
+                        scales={"sensor_cross_axis.fraction": 1.0},
+                        reference=0.05,
+                    )
+                )
+        probes[0] = dataclasses.replace(probes[0], label=f"typical: {probes[0].label}")
+        return CauseSize("cross-axis leak fraction", "-", 1e-4, 3.0, tuple(probes))
+
 
 class MainsRefit(AbstractRefit):
     """Lines at the matched mains frequency and its harmonics inside the band, every channel.
@@ -479,6 +570,29 @@ class MainsRefit(AbstractRefit):
                 key=tuple(f"mains_hum.amplitude_{c}" for c in g.CHANNELS),
                 label=f"{f0:g} Hz mains",
             ),
+        )
+
+    def size(self, *, band: tuple[float, float]) -> CauseSize:
+        """The fundamental's amplitude, the same on every channel, with harmonics at 0.3 of
+        it inside the band: at 50 Hz (typical) and at 60 Hz."""
+        probes = []
+        for f0 in MAINS_HZ:
+            harmonics = max(1, min(3, int(band[1] // f0)))
+            scales = {f"mains_hum.amplitude_{c}": 1.0 for c in g.CHANNELS}
+            probes.append(
+                SizeProbe(
+                    label=("typical: " if f0 == MAINS_HZ[0] else "") + f"{f0:g} Hz",
+                    proposal=ExtensionProposal(
+                        extension=MainsHum(frequency_hz=f0, harmonics=harmonics),
+                        start={f"mains_hum.ratio_{h}": 0.3 for h in range(2, harmonics + 1)},
+                        free=tuple(scales),
+                    ),
+                    scales=scales,
+                    reference=0.01,
+                )
+            )
+        return CauseSize(
+            "mains hum amplitude", "m/s^2", 1e-5, 1.0, tuple(probes), display=("mm/s^2", 1e3)
         )
 
 

@@ -437,6 +437,51 @@ def gain_figure(
     return H.png(fig, dpi=90)
 
 
+def power_figure(limits: Mapping[str, Mapping[str, Any]]) -> bytes | None:
+    """Each cause's power curve: the probability that the decision rule names it against its
+    size, in its typical configuration (one panel per cause, the sizes in the cause's
+    display unit when its words give one), the limit's power dashed. ``None`` when no cause
+    has a curve."""
+    shown = [
+        (name, limit)
+        for name, limit in limits.items()
+        if isinstance(limit, Mapping) and limit.get("configurations")
+    ]
+    if not shown:
+        return None
+    fig = _figure(3.2 * len(shown), 3.0)
+    axes = np.atleast_1d(fig.subplots(1, len(shown), sharey=True))
+    for ax, (name, limit) in zip(axes, shown, strict=True):
+        for k, curve in enumerate(limit["configurations"]):
+            x = np.asarray(curve["sizes"], dtype=float)
+            ax.semilogx(x, curve["probability"], "-" if k == 0 else ":", label=curve["label"])
+        ax.axhline(float(limit.get("power", 0.8)), color="0.5", lw=0.8, ls="--")
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel(f"{limit.get('quantity', 'size')} ({limit.get('unit', '')})", fontsize=8)
+        ax.legend(fontsize=6, frameon=False)
+    axes[0].set_ylabel("probability of naming")
+    axes[0].set_ylim(-0.02, 1.02)
+    return H.png(fig, dpi=90)
+
+
+def limit_rows(limits: Mapping[str, Mapping[str, Any]]) -> tuple[list[str], list[list[str]]]:
+    """The limits table: per cause its size, unit, the typical configuration's limit, the
+    worst over its configurations, and the limit in words."""
+    rows = [
+        [
+            name,
+            str(limit.get("quantity", "")),
+            str(limit.get("unit", "")),
+            "above the range" if limit.get("size") is None else _number(limit["size"]),
+            "above the range" if limit.get("worst") is None else _number(limit["worst"]),
+            str(limit.get("words", "")),
+        ]
+        for name, limit in limits.items()
+        if isinstance(limit, Mapping)
+    ]
+    return ["cause", "size", "unit", "limit (typical)", "limit (worst)", "in words"], rows
+
+
 def gain_rows(causes: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[list[str]]]:
     """The gain table: one row per cause that reports a gain, one column per gain entry."""
     kept = [
@@ -572,6 +617,26 @@ def diagnosis_page(
                 ""
                 if figure is None
                 else H.img(figure, "gain per run", "held-out gain of each run against its speed"),
+            )
+        )
+    limits = diagnosis.get("limits") or {}
+    if limits:
+        limit_header, limit_table = limit_rows(limits)
+        power = power_figure(limits)
+        parts.append(
+            H.section(
+                "Limits: what these runs could not have shown",
+                H.note(
+                    "Per cause, the size of its key parameter that the decision rule would "
+                    "name with the stated probability in these runs, from the expected "
+                    "held-out gain of the extension at that size against the Welch variance "
+                    "and the base model's error (docs/diagnosis.md, Limits). A cause smaller "
+                    "than its limit is not excluded by a verdict of none."
+                ),
+                H.table(limit_header, limit_table),
+                ""
+                if power is None
+                else H.img(power, "power curves", "probability of naming against size"),
             )
         )
     if fit is not None:

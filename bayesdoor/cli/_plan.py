@@ -1,0 +1,48 @@
+"""``bayesdoor plan``: the campaign that would name a cause of a given size."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+from ._common import emit_json, fail, system_named
+
+_err = Console(stderr=True)
+
+
+def plan(
+    path: Path,
+    *,
+    cause: str,
+    size: float,
+    posterior: Path | None,
+    configuration: int,
+    seed: int,
+    json: bool,
+) -> None:
+    """The ``plan`` command: load the campaign and its fit (or fit here), plan, print."""
+    from ..diagnose import plan_campaign
+    from ..inference import fit_campaign
+    from ._diagnose import load_fit
+    from ._run import load
+
+    campaign = load(path)
+    system = system_named(campaign)
+    if posterior is None:
+        if not json:
+            _err.print(f"fitting {path.name} ({system.name}) first (a quick CMA-ES fit)")
+        fit = fit_campaign(system, campaign, method="cmaes", seed=seed, quick=True, progress=False)
+    else:
+        fit = load_fit(posterior, system)
+    try:
+        result = plan_campaign(
+            system, campaign, cause, size, fit=fit, configuration=configuration, seed=seed
+        )
+    except ValueError as err:
+        raise fail(str(err).replace("\n", " ")) from None
+    if json:
+        emit_json({"file": str(path), **result.to_json()})
+    else:
+        typer.echo(result.describe())

@@ -1,0 +1,79 @@
+"""``bayesdoor plan``: the campaign that would name a cause of a given size (the planning
+itself is tested in test_diagnose_limits.py; here the command's contract, with a stand-in)."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import pytest
+from test_cli_diagnose import door_file, fake_fit_folder, invoke, one_line_failure
+
+from bayesdoor.diagnose import CampaignPlan
+from bayesdoor.door import ElevatorDoor
+
+PLAN = CampaignPlan(
+    cause="wheel_eccentricity",
+    size=15e-6,
+    unit="m",
+    configuration="typical: left wheel",
+    power=0.8,
+    conditions=(0.3, 0.35),
+    runs_per_condition=10,
+    probability=0.83,
+    record_s=4.0,
+    current=0.2,
+)
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    seen = []
+
+    def plan_campaign(system, campaign, cause, size, *, fit, configuration, seed):
+        seen.append(SimpleNamespace(cause=cause, size=size, fit=fit, configuration=configuration))
+        if cause == "nothing":
+            raise ValueError("no cause 'nothing';\nthe catalogue holds [...]")
+        return PLAN
+
+    monkeypatch.setattr("bayesdoor.diagnose.plan_campaign", plan_campaign)
+    return seen
+
+
+@pytest.fixture
+def posterior(tmp_path, monkeypatch):
+    folder, fit = fake_fit_folder(tmp_path, monkeypatch, ElevatorDoor().nominal())
+    return folder, fit
+
+
+def test_the_plan_as_json(calls, posterior, tmp_path):
+    campaign = door_file(tmp_path / "door.nc", ["healthy"] * 4)
+    folder, fit = posterior
+    result = invoke(
+        "plan", campaign, "--cause", "wheel_eccentricity", "--size", "15e-6",
+        "--posterior", folder, "--json",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    assert payload["runs"] == 20 and payload["runs_per_condition"] == 10
+    assert payload["conditions"] == [0.3, 0.35] and payload["unit"] == "m"
+    assert payload["file"] == str(campaign)
+    assert calls[0].size == pytest.approx(15e-6) and calls[0].fit is fit
+
+
+def test_the_plan_in_words(calls, posterior, tmp_path):
+    campaign = door_file(tmp_path / "door.nc", ["healthy"] * 4)
+    result = invoke(
+        "plan", campaign, "--cause", "wheel_eccentricity", "--size", "15e-6",
+        "--posterior", posterior[0],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "10 runs at each of 2 conditions" in result.stdout and "20 runs" in result.stdout
+
+
+def test_an_unknown_cause_is_refused_in_one_line(calls, posterior, tmp_path):
+    campaign = door_file(tmp_path / "door.nc", ["healthy"] * 4)
+    result = invoke(
+        "plan", campaign, "--cause", "nothing", "--size", "1", "--posterior", posterior[0]
+    )
+    one_line_failure(result, "no cause 'nothing'")

@@ -6,9 +6,10 @@ Usage: python scripts/contact_laws.py [--out FILE]
 from __future__ import annotations
 
 import argparse
+import datetime
 from pathlib import Path
 
-from _cases import write_results
+from _cases import code_version, write_results
 
 from bayesdoor.door.contact import CONTACT_LAWS, LATCH_FLOOR, single_impact
 
@@ -57,7 +58,8 @@ def main() -> None:
     lines = [
         "# Delivered restitution of the contact laws",
         "",
-        "Command: `python scripts/contact_laws.py` (a few seconds).",
+        "Command: `python scripts/contact_laws.py` (a few seconds), "
+        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC, {code_version()}.",
         "",
         "One impact of a point mass (30 kg, half the panel) on a rigid flat through the law, with",
         "`bayesdoor.door.contact.single_impact` (scipy DOP853, rtol 1e-12, terminal event at",

@@ -1216,6 +1216,7 @@ def fit_campaign(
     optimum = _optimise(search, population, data, settings, x0=x0, seed=seed, progress=progress)
     timings["cmaes"] = optimum.seconds
     notes = list(optimum.notes)
+    described = system.describe()
     sigma_point, scatter_point = _point_error(optimum.residual, data, error)
     common = dict(
         held=optimum.held,
@@ -1230,7 +1231,7 @@ def fit_campaign(
         runs=runs,
         duration=duration,
         seed=seed,
-        system=system.describe(),
+        system=described,
     )
     if method == "cmaes":
         return FitResult(
@@ -1264,7 +1265,7 @@ def fit_campaign(
     notes.extend(posterior.notes)
     summary = _summarise(posterior, search, population, data, optimum, settings, key_pred)
     notes.extend(summary.notes)
-    record_system(posterior.idata, system.describe())
+    record_system(posterior.idata, described)
     return FitResult(
         method=method,
         point=summary.point,

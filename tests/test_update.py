@@ -402,7 +402,7 @@ def test_a_fit_saves_loads_and_refuses_to_overwrite(cmaes_fit, tmp_path):
 
 
 #: what the rig's calibration runs identify, measured on the demo campaign (full fit, law 3,
-#: shared discrepancy; docs/inference.md): posterior sd over the uniform prior's sd 0.03-0.1
+#: shared discrepancy; results/inference.md): posterior sd over the uniform prior's sd 0.03-0.1
 #: for c_r, K and MF, 0.2-0.45 for C and n; mu_d and mu_s keep most of the prior's spread
 #: (0.86 and 0.96), the features barely move them. The 90 % intervals must cover these:
 COVERED = ("n", "c_r", "C")
@@ -481,7 +481,7 @@ def test_posterior_covers_the_rigs_truth_and_predicts_held_out_runs(demo_fit):
     strict=True,
     reason="K and MF come out as the reduced model's effective values, 2.4 posterior sds "
     "above the rig's; CMA-ES on all 110 healthy rig runs stays at K +5.4 %, MF +4.1 % "
-    "(scripts/pseudo_true.py, docs/inference.md): a model-form gap no likelihood closes",
+    "(scripts/pseudo_true.py, results/inference.md): a model-form gap no likelihood closes",
 )
 def test_posterior_covers_the_rigs_stiffness_and_mass_factor(demo_fit):
     _, truth, _, _, rows = demo_fit

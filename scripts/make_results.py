@@ -130,6 +130,12 @@ STEPS: tuple[Step, ...] = (
         quick_args=("--draws", "20000"),
         out=("--results", "decision_rule.md"),
     ),
+    Step(
+        "order_segment",
+        "scripts/order_segment.py",
+        quick_args=("--campaigns", "10", "--comb-campaigns", "5"),
+        out=("--results", "order_segment.md"),
+    ),
     *(
         Step(name, f"benchmarks/{name}.py", ("--json",), ("--quick",) if quick else (), name)
         for name, quick in (

@@ -604,8 +604,11 @@ def door_speed(v_max: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 DOOR_CATALOGUE = Catalogue(
-    #: order spectra of 0.5 m segments: 2 cycles per metre, 2-3 segments over the 0.8 m
-    #: stroke (0.25 m located a rail tone 3.7 % off on the rig; 0.5 m within 0.1 %)
+    #: order spectra of 0.5 m segments (2 cycles per metre, 2 segments over the 0.79 m
+    #: resampled): the shortest segment that, at the residual map's detection limit, locates a
+    #: rail tone within a quarter cycle over the stroke in at least 95 % of the campaigns and
+    #: finds the wheel comb within one standard error of the best segment's rate at the comb's
+    #: (results/order_segment.md)
     speed_profile=door_speed,
     order_segment_m=0.5,
     candidates=(

@@ -256,3 +256,27 @@ def test_run_extend_reaches_the_job_and_its_summary(tmp_path, monkeypatch):
     assert "never informed the diagnosis" in lines[4]
     none = extension_lines({**base, "diagnosis": {"verdict": "none"}, "extended": None})
     assert none == ["with the diagnosed extension: nothing was extended (verdict none)"]
+
+
+def test_a_kept_diagnosis_extends_the_door_as_the_diagnosis_itself(tmp_path):
+    """The stage pickles the diagnosis without its fit; read back, it gives the same system."""
+    from test_diagnosis_gain import stand_in
+
+    from bayesdoor.diagnose import extend_system
+    from bayesdoor.door import ElevatorDoor
+    from bayesdoor.pipeline._diagnose import keep_diagnosis, kept_diagnosis
+
+    diagnosis = stand_in(
+        "sensor_cross_axis", 0, label=None, values={"sensor_cross_axis.fraction": 0.07}
+    )
+    assert diagnosis.verdict == "sensor_cross_axis"
+    assert keep_diagnosis(dataclasses.replace(diagnosis, fit="the job's fit"), tmp_path)
+    back = kept_diagnosis(tmp_path)
+    assert back.fit is None  # the job keeps its fit in OUT/fit
+    door = ElevatorDoor()
+    expected = extend_system(door, diagnosis).describe()
+    assert extend_system(door, back).describe() == expected
+    assert expected["held"] == {"sensor_cross_axis.fraction": 0.07}
+    (tmp_path / "diagnosis.pkl").write_bytes(b"not a pickle")
+    with pytest.raises(ValueError, match="cannot be read back"):
+        kept_diagnosis(tmp_path)

@@ -136,6 +136,13 @@ def run(
     ] = None,
     method: Annotated[str, typer.Option(help="fit method: nuts, emcee or cmaes")] = "nuts",
     force: Annotated[bool, typer.Option(help="replace a finished job of other settings")] = False,
+    extend: Annotated[
+        bool,
+        typer.Option(
+            help="when the diagnosis names a cause, run the job again on the model extended by "
+            "it (in OUT/extended) and compare"
+        ),
+    ] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
     """The main job: fit, simulate training data, train, classify the test runs, report.
@@ -154,6 +161,7 @@ def run(
         method=method,
         force=force,
         json=json,
+        extend=extend,
     )
 
 

@@ -80,8 +80,35 @@ def gates_line(diagnostics: dict[str, Any] | None, *, quick: bool = False) -> st
     return text
 
 
-def print_summary(result: dict[str, Any], console: Console, *, quick: bool = False) -> None:
-    """The posterior summary, the accuracy and calibration, the diagnosis, the report's path."""
+def extension_lines(result: dict[str, Any]) -> list[str]:
+    """The summary's lines on the job with the diagnosed extension (``run --extend``)."""
+    from ..report import EXTENSION_PROVENANCE
+
+    extended = result.get("extended")
+    if extended is None:
+        verdict = (result.get("diagnosis") or {}).get("verdict")
+        why = "no verdict" if verdict is None else f"verdict {verdict}"
+        return [f"with the diagnosed extension: nothing was extended ({why})"]
+    held = ", ".join(f"{k} = {_fmt(v)}" for k, v in (extended.get("held") or {}).items())
+    lines = [
+        f"with the diagnosed extension: {extended['verdict']} ({extended.get('configuration')}),"
+        f" held at {held or 'no values'} ({extended['out']})"
+    ]
+    before, after = result.get("metrics") or {}, extended.get("metrics") or {}
+    for label, key in (("accuracy", "accuracy"), ("ECE", "ece")):
+        lines.append(f"  {label}: {_fmt(before.get(key), 3)} -> {_fmt(after.get(key), 3)}")
+    trust_before = (result.get("trust") or {}).get("verdict")
+    trust_after = (extended.get("trust") or {}).get("verdict")
+    lines.append(f"  trust: {_fmt(trust_before)} -> {_fmt(trust_after)}")
+    lines.append(f"  {EXTENSION_PROVENANCE}")
+    return lines
+
+
+def print_summary(
+    result: dict[str, Any], console: Console, *, quick: bool = False, extend: bool = False
+) -> None:
+    """The posterior summary, the accuracy and calibration, the diagnosis, the report's path
+    (and with ``extend`` the job with the diagnosed extension beside it)."""
     fit = result.get("fit")
     if fit is not None:
         table = Table(title=f"model updating ({fit['method']}, J = {_fmt(fit['j'])})")
@@ -138,6 +165,9 @@ def print_summary(result: dict[str, Any], console: Console, *, quick: bool = Fal
             console.print(f"discrepancy diagnosis not made: {diagnosis['error']}")
         else:
             console.print(f"discrepancy diagnosis: {shown} ({diagnosis['report']})")
+    if extend:
+        for line in extension_lines(result):
+            console.print(line, markup=False, highlight=False)
     console.print(f"report: {result['report']}")
 
 
@@ -151,8 +181,12 @@ def run(
     method: str,
     force: bool,
     json: bool,
+    extend: bool = False,
 ) -> None:
-    """Run the job, print its summary (or its JSON); ``source`` ``None``: the method's default."""
+    """Run the job, print its summary (or its JSON); ``source`` ``None``: the method's default.
+
+    ``extend``: when the diagnosis names a cause, the job on the extended system as well.
+    """
     from ..pipeline import (
         SOURCES,
         Source,
@@ -204,6 +238,7 @@ def run(
                 report=stages,
                 overwrite=force,
                 diagnose=functools.partial(default_diagnose, catalogue=system.catalogue),
+                extend=extend,
             )
     except FileExistsError as err:
         raise fail(str(err)) from None
@@ -213,4 +248,4 @@ def run(
     if json:
         emit_json(payload)
     else:
-        print_summary(payload, Console(), quick=quick)
+        print_summary(payload, Console(), quick=quick, extend=extend)

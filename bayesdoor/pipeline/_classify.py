@@ -33,7 +33,7 @@ from ..datagen._points import point_key
 from ..features import CNNInputSpec
 from ..io import atomic_write, system_of
 from ..io import operating as campaign_operating
-from ..report import diagnosis_section, write_damage_report
+from ..report import diagnosis_section, extension_section, write_damage_report
 from ..systems import AbstractSystem
 from ._bands import PredictiveBands
 from ._fit import FitSummary
@@ -455,12 +455,15 @@ def report_stage(
     diagnosis: dict[str, Any] | None = None,
     adequacy: dict[str, Any] | None = None,
     trust: dict[str, Any] | None = None,
+    extension: dict[str, Any] | None = None,
 ) -> None:
     """Write the HTML damage reports from a classification and its model folder.
 
     With the ``diagnosis`` JSON of the job (its ``report`` the HTML's path), the campaign page
     shows its verdict and links it. With the job's ``adequacy`` and ``trust`` JSON, the page
-    opens with them (and says so plainly when the classification cannot be trusted).
+    opens with them (and says so plainly when the classification cannot be trusted). With
+    ``extension`` (:func:`bayesdoor.report.extension_section`), it compares the job on the
+    system extended by the diagnosis's verdict, or says why nothing was extended.
     """
     classification = json.loads((classified / "classification.json").read_text())
     with np.load(classified / "features.npz", allow_pickle=False) as f:
@@ -488,7 +491,10 @@ def report_stage(
         title=title,
         adequacy=adequacy,
         trust=trust,
-        sections=() if diagnosis is None else (diagnosis_section(diagnosis, _sibling(diagnosis)),),
+        sections=(
+            *(() if diagnosis is None else (diagnosis_section(diagnosis, _sibling(diagnosis)),)),
+            *(() if extension is None else (extension_section(extension),)),
+        ),
     )
 
 

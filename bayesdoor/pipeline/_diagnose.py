@@ -9,12 +9,19 @@ job (``OUT/diagnose/``), so both write the same two files:
     ``parameters`` and ``gain``; plus ``report``, the HTML's file name (next to the JSON).
 ``diagnosis.html``
     :func:`bayesdoor.report.write_diagnosis_report`.
+
+The job's stage keeps the diagnosis object too (``diagnosis.pkl``, without the fit, which the
+job keeps in ``OUT/fit/``): extending the system by the verdict
+(:func:`bayesdoor.diagnose.extend_system`, the job's ``extend``) needs the refit's chosen
+configuration, which the JSON gives only in words.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+import pickle
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
@@ -30,6 +37,8 @@ from ..systems import AbstractSystem
 
 DIAGNOSIS_JSON = "diagnosis.json"
 DIAGNOSIS_HTML = "diagnosis.html"
+#: the diagnosis object the job's stage keeps beside the JSON (pickled, without its fit)
+DIAGNOSIS_OBJECT = "diagnosis.pkl"
 #: the files a diagnosis writes into its folder
 DIAGNOSIS_FILES = (DIAGNOSIS_JSON, DIAGNOSIS_HTML)
 
@@ -178,10 +187,12 @@ def diagnosis_stage(
     progress: bool,
     fit: Mapping[str, Any] | None = None,
 ) -> None:
-    """The job's ``diagnose`` stage: diagnose the campaign under the job's fit, write both files.
+    """The job's ``diagnose`` stage: diagnose the campaign under the job's fit, write both files
+    and keep the diagnosis object (:data:`DIAGNOSIS_OBJECT`).
 
     ``diagnose`` is called as ``diagnose(system, campaign, fit_folder, seed=, quick=,
-    progress=)`` (:func:`default_diagnose` in a job).
+    progress=)`` (:func:`default_diagnose` in a job). A diagnosis that cannot be pickled (a
+    stand-in of local classes) leaves no object: the job then cannot extend the system by it.
     """
     diagnosis = diagnose(system, campaign, fit_folder, seed=seed, quick=quick, progress=progress)
     save_diagnosis(
@@ -192,3 +203,38 @@ def diagnosis_stage(
         title=f"{system.name}: discrepancy diagnosis",
         overwrite=True,
     )
+    keep_diagnosis(diagnosis, folder)
+
+
+def keep_diagnosis(diagnosis: Any, folder: Path) -> bool:
+    """Pickle ``diagnosis`` (its ``fit`` left out) into ``folder``; ``False`` when it cannot be."""
+    if dataclasses.is_dataclass(diagnosis) and not isinstance(diagnosis, type):
+        if any(f.name == "fit" for f in dataclasses.fields(diagnosis)):
+            diagnosis = dataclasses.replace(diagnosis, fit=None)  # type: ignore[call-arg]
+    try:
+        data = pickle.dumps(diagnosis)
+    except (pickle.PicklingError, AttributeError, TypeError):
+        return False
+    atomic_write(folder / DIAGNOSIS_OBJECT, lambda tmp: tmp.write_bytes(data), overwrite=True)
+    return True
+
+
+def kept_diagnosis(folder: Path) -> Any:
+    """The diagnosis object :func:`keep_diagnosis` kept in ``folder``.
+
+    Raises
+    ------
+    FileNotFoundError
+        When the folder keeps none.
+    ValueError
+        When it cannot be read back (made by another version of the library).
+    """
+    path = Path(folder) / DIAGNOSIS_OBJECT
+    data = path.read_bytes()
+    try:
+        return pickle.loads(data)  # the job's own file, written by keep_diagnosis
+    except (pickle.UnpicklingError, AttributeError, ImportError, TypeError, EOFError) as err:
+        raise ValueError(
+            f"{path} cannot be read back ({type(err).__name__}: {err}): delete "
+            f"{path.parent} to diagnose again"
+        ) from None

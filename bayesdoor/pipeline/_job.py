@@ -9,7 +9,9 @@ Folder of a job::
     OUT/train/      the calibrated ensemble (ensemble.eqx), training.json, bands.npz
     OUT/classify/   classification.json (docs/data.md) and features.npz
     OUT/trust/      trust.json: whether the classification can be trusted, and why not
-    OUT/diagnose/   diagnosis.json (docs/data.md) and diagnosis.html
+    OUT/diagnose/   diagnosis.json (docs/data.md), diagnosis.html and diagnosis.pkl (the object)
+    OUT/extended/   with ``extend``: the same job on the system extended by the diagnosis's
+                    verdict (a job folder of its own, without a diagnosis)
     OUT/report/     index.html (the campaign, linking the diagnosis) and runs/run-NNNN.html
     OUT/job.json    the job's settings, the stages' hashes and the headline numbers
 """
@@ -41,13 +43,21 @@ from ..datagen import (
     describe_system,
     generate,
 )
+from ..diagnose import NONE, extend_system, verdict_extension
 from ..features import CNNInputSpec
 from ..inference import calibration_runs, fit_campaign
 from ..io import atomic_write
 from ..io import operating as campaign_operating
 from ..systems import AbstractSystem
 from ._classify import classify_stage, ood_model_error, report_stage, train_stage
-from ._diagnose import DIAGNOSIS_HTML, DIAGNOSIS_JSON, default_diagnose, diagnosis_stage
+from ._diagnose import (
+    DIAGNOSIS_HTML,
+    DIAGNOSIS_JSON,
+    DIAGNOSIS_OBJECT,
+    default_diagnose,
+    diagnosis_stage,
+    kept_diagnosis,
+)
 from ._fit import FitSummary
 from ._stages import StageRecord, configuration_hash, run_stage
 from ._trust import (
@@ -65,6 +75,8 @@ SOURCES: tuple[str, ...] = ("posterior", "posterior+model_error", "gaussian")
 #: the training source of a job on a sampled fit: the posterior's draws with the model error
 #: the fit measured (results/transfer.md: the source that transfers to doors the model lacks)
 DEFAULT_SOURCE: Source = "posterior+model_error"
+#: the folder of the job on the extended system, inside the job's (``extend``)
+EXTENDED = "extended"
 #: the stages of a job, in order (each one a folder of the job)
 STAGES: tuple[str, ...] = (
     "fit",
@@ -146,6 +158,16 @@ class JobResult:
     trust
         The trust JSON (``verdict`` ``"trusted"`` or ``"not trusted"``, ``reasons``,
         ``flagged_runs``; :mod:`bayesdoor.pipeline._trust`).
+    extended
+        With ``extend``: the same job on the system extended by the diagnosis's verdict (in
+        ``out/extended``); ``None`` when the job was run without ``extend`` or nothing was
+        extended (:attr:`extension` says why).
+    extends
+        Of a job on an extended system: the ``verdict`` it extends, the refit's
+        ``configuration`` and the ``held`` values.
+    extension
+        With ``extend``: :attr:`extends` of the extended job, or ``reason``, why nothing was
+        extended (``None`` without ``extend``).
     """
 
     out: Path
@@ -156,9 +178,13 @@ class JobResult:
     diagnosis: dict[str, Any] | None = None
     adequacy: dict[str, Any] | None = None
     trust: dict[str, Any] | None = None
+    extended: JobResult | None = None
+    extends: dict[str, Any] | None = None
+    extension: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """The job's JSON: the fit's summary, the classification, the diagnosis, the stages."""
+        """The job's JSON: the fit's summary, the classification, the diagnosis, the stages,
+        and ``extended``: the job on the extended system (``null`` when there is none)."""
         return {
             "out": str(self.out),
             "report": None if self.report is None else str(self.report),
@@ -166,11 +192,29 @@ class JobResult:
             "trust": self.trust,
             **self.classification,
             "diagnosis": self.diagnosis,
-            "stages": [
-                {"name": s.name, "reused": s.reused, "seconds": s.seconds, "hash": s.config_hash}
-                for s in self.stages
-            ],
+            "stages": _stages_json(self.stages),
+            "extended": None if self.extended is None else self.extended.extended_json(),
         }
+
+    def extended_json(self) -> dict[str, Any]:
+        """The ``extended`` entry of the base job's JSON: what this job extends (``verdict``,
+        ``configuration``, ``held``), its folder, report, fit, metrics, trust and stages."""
+        return {
+            **(self.extends or {}),
+            "out": str(self.out),
+            "report": None if self.report is None else str(self.report),
+            "fit": {**self.fit.to_json(), "adequacy": self.adequacy},
+            "metrics": self.classification.get("metrics"),
+            "trust": self.trust,
+            "stages": _stages_json(self.stages),
+        }
+
+
+def _stages_json(stages: tuple[StageRecord, ...]) -> list[dict[str, Any]]:
+    return [
+        {"name": s.name, "reused": s.reused, "seconds": s.seconds, "hash": s.config_hash}
+        for s in stages
+    ]
 
 
 def digest_runs(campaign: xr.Dataset) -> str:
@@ -229,7 +273,7 @@ def _check_folder(out: Path, settings: dict[str, Any], job_hash: str, overwrite:
                 "folder"
             )
         return
-    known = {*STAGES, "job.json"}
+    known = {*STAGES, EXTENDED, "job.json"}
     foreign = sorted(
         p.name for p in out.iterdir() if p.name not in known and not p.name.startswith(".")
     )
@@ -338,6 +382,7 @@ def run_job(
     html: bool = True,
     diagnosis: bool | None = None,
     diagnose: Callable[..., Any] | None = None,
+    extend: bool = False,
 ) -> JobResult:
     """Fit on the calibration runs, simulate training data, train, classify the test runs, report.
 
@@ -403,6 +448,14 @@ def run_job(
         campaign it cannot diagnose, for example too few runs), the job goes on: the
         diagnosis JSON holds ``error`` and no verdict, the report says why, and the next run
         tries again.
+    extend
+        After the diagnosis, when its verdict names a cause: run the same job (seeds, sizes,
+        source, method, fit; no diagnosis) on :func:`bayesdoor.diagnose.extend_system` of
+        the system and the diagnosis (the cause held at its refitted values) in
+        ``out/extended``, its stages reused alike; the report and :attr:`JobResult.extended`
+        compare the two. It needs the diagnosis (``diagnosis=None`` turns it on). The
+        diagnosis sees the healthy calibration runs only: the test runs score both jobs and
+        inform neither.
     overwrite
         Let a job of other settings replace the finished job in ``out`` (stages whose
         configuration did not change are still reused).
@@ -414,12 +467,19 @@ def run_job(
     Raises
     ------
     ValueError
-        For a campaign without a healthy run to fit on, an unknown source, or a source the fit
-        cannot serve.
+        For a campaign without a healthy run to fit on, an unknown source, a source the fit
+        cannot serve, or ``extend`` with ``diagnosis=False``.
     FileExistsError
         When ``out`` holds a finished job of other settings (and ``overwrite`` is false), or
         files that are not a job's; nothing is written then.
     """
+    if extend and diagnosis is False:
+        raise ValueError(
+            "extend=True extends the system by the diagnosis's verdict, but diagnosis=False "
+            "skips the diagnosis: pass diagnosis=True (or None) with extend=True"
+        )
+    if extend:
+        diagnosis = True
     source = default_source(method) if source is None else source
     if source not in SOURCES:
         raise ValueError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
@@ -466,8 +526,11 @@ def run_job(
         key=jax.random.key(seed),
         html=html,
         diagnosis=html if diagnosis is None else diagnosis,
+        extend=extend,
     )
     for stage in JOB_STAGES:
+        if stage.name == "report" and extend:
+            job.extension = _extension(job)
         job.run(stage)
     products = job.products
     adequacy, trust = products["adequacy"], products["trust"]
@@ -481,6 +544,8 @@ def run_job(
         diagnosis=diagnosis_json,
         adequacy=adequacy,
         trust=trust,
+        extended=None if job.extension is None else job.extension.result,
+        extension=None if job.extension is None else job.extension.summary,
     )
     record = {
         "job_hash": job_hash,
@@ -493,6 +558,14 @@ def run_job(
         "trust_reasons": trust["reasons"],
         "verdict": None if diagnosis_json is None else diagnosis_json.get("verdict"),
         "report": None if result.report is None else str(result.report),
+        "extended": None
+        if result.extended is None
+        else {
+            **(result.extended.extends or {}),
+            "out": str(result.extended.out),
+            "metrics": result.extended.classification.get("metrics"),
+            "trust": (result.extended.trust or {}).get("verdict"),
+        },
     }
     text = json.dumps(record, indent=1, default=float) + "\n"
     atomic_write(out / "job.json", lambda tmp: tmp.write_text(text), overwrite=True)
@@ -526,11 +599,14 @@ class _Job:
     key: jax.Array
     html: bool
     diagnosis: bool
+    extend: bool = False
     records: dict[str, StageRecord] = dataclasses.field(default_factory=dict)
     products: dict[str, Any] = dataclasses.field(default_factory=dict)
     #: the configuration hash a stage that could not be made stands in with (its reason's)
     failed: dict[str, str] = dataclasses.field(default_factory=dict)
     _generation: Generation | None = None
+    #: with ``extend``: the job on the extended system, or why there is none
+    extension: _Extension | None = None
 
     def run(self, stage: JobStage) -> None:
         """Run ``stage`` (or reuse it), keep its record and product."""
@@ -604,6 +680,81 @@ class _Job:
         """The positions of the test runs in the campaign."""
         found = np.isin(self.campaign["run"].values, self.test["run"].values)
         return [int(i) for i in np.flatnonzero(found)]
+
+
+class _Extension(NamedTuple):
+    """The job on the system extended by the diagnosis's verdict, or why there is none."""
+
+    #: the extended job (``None`` when nothing was extended)
+    result: JobResult | None
+    #: ``verdict``, ``configuration``, ``held`` of the extension, or ``reason``
+    summary: dict[str, Any]
+
+    def config(self) -> dict[str, Any]:
+        """What the base job's report shows of it (for the report's configuration hash)."""
+        stages = {} if self.result is None else {s.name: s.config_hash for s in self.result.stages}
+        return {**self.summary, "stages": stages}
+
+
+def _not_extended(diagnosis: Mapping[str, Any] | None) -> str | None:
+    """Why a diagnosis extends nothing (``None`` when its verdict names a cause)."""
+    if diagnosis is None:
+        return "the job has no diagnosis"
+    if diagnosis.get("error"):
+        return f"the diagnosis could not be made ({diagnosis['error']})"
+    verdict = diagnosis.get("verdict")
+    if verdict is None:
+        return "no cause of the diagnosis has decisive held-out evidence (no verdict)"
+    if verdict == NONE:
+        return "the diagnosis's verdict is none: the model explains the healthy calibration runs"
+    return None
+
+
+def _extension(job: _Job) -> _Extension:
+    """Run the job on the system extended by the diagnosis's verdict (``out/extended``)."""
+    reason = _not_extended(job.products.get("diagnose"))
+    if reason is not None:
+        job.report(f"extend: nothing extended: {reason}")
+        return _Extension(None, {"reason": reason})
+    folder = job.path("diagnose")
+    if not (folder / DIAGNOSIS_OBJECT).is_file():
+        reason = (
+            f"{folder} keeps no diagnosis object ({DIAGNOSIS_OBJECT}) to extend the system by "
+            "(the diagnosis function returned one that cannot be pickled)"
+        )
+        job.report(f"extend: nothing extended: {reason}")
+        return _Extension(None, {"reason": reason})
+    diagnosis = kept_diagnosis(folder)
+    found = verdict_extension(job.system, diagnosis)
+    if found is None:  # the JSON's verdict is the object's: a hand-edited folder
+        raise ValueError(f"{folder}: {DIAGNOSIS_OBJECT} and {DIAGNOSIS_JSON} disagree")
+    extends = {
+        "verdict": found.name,
+        "configuration": found.proposal.label,
+        "held": dict(found.values),
+    }
+    held = ", ".join(f"{k} = {v:.4g}" for k, v in found.values.items())
+    job.report(f"extend: {found.name} ({found.proposal.label}), held at {held}")
+    result = run_job(
+        extend_system(job.system, diagnosis),
+        job.campaign,
+        job.out / EXTENDED,
+        quick=job.quick,
+        seed=job.seed,
+        source=job.source,
+        method=job.method,
+        fit_seed=job.fit_seed,
+        sizes=job.sizes,
+        fit=job.fit,
+        fit_options=job.options,
+        progress=job.progress,
+        report=lambda line: job.report(f"{EXTENDED}/{line}"),
+        # the folder is this job's: it follows the diagnosis, whatever it held before
+        overwrite=True,
+        html=job.html,
+        diagnosis=False,
+    )
+    return _Extension(dataclasses.replace(result, extends=extends), extends)
 
 
 def _always(job: _Job) -> bool:
@@ -801,6 +952,9 @@ def _diagnose_config(job: _Job) -> dict[str, Any]:
         "seed": job.seed,
         "quick": job.quick,
         "versions": job.versions,
+        # the object beside the JSON (what extending the system reads): a diagnosis made
+        # without it is made again
+        "keeps": DIAGNOSIS_OBJECT,
     }
 
 
@@ -829,13 +983,16 @@ def _no_diagnosis(reason: str) -> dict[str, Any]:
 
 
 def _report_config(job: _Job) -> dict[str, Any]:
-    return {
+    config = {
         "classification": job.hash("classify"),
         "fit": job.hash("fit"),
         "diagnosis": job.hash("diagnose"),
         "trust": job.hash("trust"),
         "versions": job.versions,
     }
+    if job.extension is not None:
+        config["extended"] = job.extension.config()
+    return config
 
 
 def _report(job: _Job, folder: Path) -> None:
@@ -848,7 +1005,36 @@ def _report(job: _Job, folder: Path) -> None:
         diagnosis=job.products.get("diagnose"),
         adequacy=job.products["adequacy"],
         trust=job.products["trust"],
+        extension=None if job.extension is None else _extension_report(job),
     )
+
+
+def _extension_report(job: _Job) -> dict[str, Any]:
+    """What the report's section on the extension shows: before and after, or why not."""
+    assert job.extension is not None
+
+    def scores(classification, trust, report):
+        metrics = classification.get("metrics") or {}
+        return {
+            "accuracy": metrics.get("accuracy"),
+            "ece": metrics.get("ece"),
+            "trust": (trust or {}).get("verdict"),
+            "report": report,
+        }
+
+    extended = job.extension.result
+    # links are relative: the report is written in a temporary sibling of its folder
+    return {
+        **job.extension.summary,
+        "before": scores(job.products["classify"], job.products["trust"], None),
+        "after": None
+        if extended is None
+        else scores(
+            extended.classification,
+            extended.trust,
+            None if extended.report is None else f"../{EXTENDED}/report/{extended.report.name}",
+        ),
+    }
 
 
 #: the main job, in order: each stage reads only the products of the stages before it

@@ -6,11 +6,13 @@ from ._damage import confusion_figure as confusion_figure
 from ._damage import probability_bars as probability_bars
 from ._damage import uncertainty_figure as uncertainty_figure
 from ._damage import write_damage_report as write_damage_report
+from ._diagnosis import EXTENSION_PROVENANCE as EXTENSION_PROVENANCE
 from ._diagnosis import cause_figures as cause_figures
 from ._diagnosis import coherence_figure as coherence_figure
 from ._diagnosis import diagnosis_page as diagnosis_page
 from ._diagnosis import diagnosis_section as diagnosis_section
 from ._diagnosis import excess_figure as excess_figure
+from ._diagnosis import extension_section as extension_section
 from ._diagnosis import gain_entries as gain_entries
 from ._diagnosis import gain_figure as gain_figure
 from ._diagnosis import parameter_text as parameter_text

@@ -700,6 +700,53 @@ def diagnosis_section(diagnosis: Mapping[str, Any], href: str | None) -> str:
     )
 
 
+#: the section's statement of what the diagnosis saw (the extension's scores are fair)
+EXTENSION_PROVENANCE = (
+    "The test runs never informed the diagnosis: it saw the healthy calibration runs only, "
+    "under the job's fit. Both jobs are scored on the same test runs."
+)
+
+
+def extension_section(extension: Mapping[str, Any]) -> str:
+    """The section "with the diagnosed extension" of a job's campaign page.
+
+    Parameters
+    ----------
+    extension
+        ``verdict``, ``configuration`` and ``held`` (the extension's parameters and the values
+        they are held at), ``before`` and ``after`` (each ``accuracy``, ``ece``, ``trust``;
+        ``after``'s ``report`` the extended job's report relative to the page); or ``reason``,
+        why nothing was extended (``after`` then ``None``).
+    """
+    title = "With the diagnosed extension"
+    after = extension.get("after")
+    if after is None:
+        reason = extension.get("reason") or "the diagnosis names no cause"
+        return H.section(title, H.note(f"Nothing was extended: {reason}."))
+    held = extension.get("held") or {}
+    said = ", ".join(f"{name} = {_number(value)}" for name, value in held.items())
+    before = extension.get("before") or {}
+    rows = [
+        (label, _number(before.get(key)), _number(after.get(key)))
+        for label, key in (("accuracy", "accuracy"), ("ECE", "ece"), ("trust", "trust"))
+    ]
+    link = after.get("report")
+    anchor = ""
+    if link:
+        anchor = f'<p><a href="{html.escape(link)}">the extended job&#39;s report</a></p>'
+
+    return H.section(
+        title,
+        H.note(
+            f"The same job on the model extended by the verdict {extension.get('verdict')} "
+            f"({extension.get('configuration')}), held at its refitted values: "
+            f"{said or 'no parameters'}. {EXTENSION_PROVENANCE}"
+        ),
+        H.table(("", "the model", "with the extension"), rows),
+        anchor,
+    )
+
+
 def write_diagnosis_report(
     path: str | Path,
     diagnosis: Mapping[str, Any],

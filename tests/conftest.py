@@ -72,10 +72,12 @@ def _release_compiled_programs() -> None:
 
     Each compiled CPU program holds about 18 memory mappings (measured: 200 small programs
     took a process from 424 to 3,995 mappings, ``jax.clear_caches()`` brought it back to 515).
-    A worker of ``pytest -n 2`` runs test after test in one process; in the long tier it
-    passed 20,000 mappings within one module, and at Linux's default limit of 65,530
-    (``vm.max_map_count``) XLA's next compilation aborts the worker ("Fatal Python error:
-    Aborted" in ``backend_compile_and_load``).
+    A worker of ``pytest -n 2`` runs test after test in one process; in the long tier one
+    module alone took it past 20,000 mappings. At Linux's default limit of 65,530
+    (``vm.max_map_count``) XLA cannot compile any more ("LLVM compilation error: Cannot
+    allocate memory", then the process dies: measured by filling a process's mappings to
+    the limit before a ``jax.jit`` call), which is how long-tier workers died in
+    ``backend_compile_and_load`` without this release.
     """
     jax.clear_caches()
     gc.collect()

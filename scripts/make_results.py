@@ -124,6 +124,31 @@ STEPS: tuple[Step, ...] = (
         quick_args=("--doors", "2", "--demo-seeds", "0"),
         out=("--results", "transfer.md"),
     ),
+    # after "transfer": the doors' campaigns and fits are read from its work folder
+    Step(
+        "transfer_extended",
+        "scripts/transfer_extend.py",
+        args=("--only", "12", "13", "14", "15", "16"),
+        quick_args=(),
+        out=("--results", "transfer_extended.md"),
+    ),
+    Step(
+        "diagnosis_limits",
+        "scripts/diagnosis_limits.py",
+        args=("--seeds", "10"),
+        quick_args=("--seeds", "2"),
+        out=("--results", "diagnosis_limits.md"),
+    ),
+    Step(
+        "cwru",
+        "scripts/cwru.py",
+        args=(
+            *("--data", "../shared/data/cwru", "--quick", "--runs-per-state", "200"),
+            *("--more-seeds", "1", "2"),
+        ),
+        quick_args=("--jobs", "cmaes"),
+        out=("--results", "cwru.md"),
+    ),
     Step(
         "decision_rule",
         "scripts/decision_rule.py",

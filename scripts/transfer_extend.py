@@ -118,6 +118,7 @@ def run_door(seed: int, work: str) -> dict[str, Any]:
         {
             "seed": seed,
             "frame_mode_hz": truth["frame_mode"]["frequency_hz"],
+            "mounting_deg": truth["mounting_deg"],
             "verdict": diagnosis.verdict,
             "confirmed": [c.name for c in diagnosis.confirmed],
             "held": {} if found is None else found.values,
@@ -129,6 +130,7 @@ def run_door(seed: int, work: str) -> dict[str, Any]:
             "base": base,
             "extended": extended,
             "diagnose_seconds": diagnose_seconds,
+            "computed": f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {code_version()}",
         }
     )
     save_json(folder / "extended.json", row)
@@ -147,20 +149,24 @@ def markdown(rows: list[dict[str, Any]], command: str, wall: float) -> str:
     lines = [
         "# The other doors with the diagnosed extension",
         "",
-        f"Made by `{command}` ({code_version()}; {wall / 60:.0f} min wall for the doors computed "
-        "in this call).",
+        f"Made by `{command}` (the table written with {code_version()}; each door's row was "
+        f"computed when and at the commit its last column says; {wall / 60:.0f} min wall in this "
+        "call).",
         "",
         "Each door is `OtherDoor.from_seed(seed)` of `scripts/transfer.py` (docs/transfer.md); "
-        "every door has one structural mode the reduced model lacks (its frequency below), "
-        "besides sensor, drive, friction and noise changes. The base job is the quick main job "
+        "every door has one structural mode the reduced model lacks (its frequency below) and "
+        "sensors whose X-Z axes are rotated (the angle per sensor below: a cross-axis leak of "
+        "sin(angle)), besides gain, drive, friction and noise changes. The base job is the "
+        "quick main job "
         f"with the default source (`{DEFAULT_SOURCE}`) on the reduced door; the diagnosis "
         "(quick) sees the 10 healthy calibration runs under that job's fit; the extended job "
         "is the same job on `extend_system(door, diagnosis)`. Accuracy and ECE on the door's "
         "60 test runs (20 per state).",
         "",
-        "| seed | frame mode (Hz) | verdict | held values | held-out gain | base accuracy / ECE / "
-        "trust | extended accuracy / ECE / trust |",
-        "|---|---|---|---|---|---|---|",
+        "| seed | frame mode (Hz) | sensor mounting (deg) | verdict | held values | held-out "
+        "gain | base accuracy / ECE / "
+        "trust | extended accuracy / ECE / trust | computed |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in sorted(rows, key=lambda r: r["seed"]):
         held = ", ".join(f"{k} {v:.4g}" for k, v in r["held"].items()) or "-"
@@ -173,16 +179,29 @@ def markdown(rows: list[dict[str, Any]], command: str, wall: float) -> str:
             else (f"{e['accuracy']:.3f} / {e['ece']:.3f} / {e['trust']}")
         )
         lines.append(
-            f"| {r['seed']} | {r['frame_mode_hz']:.1f} | {r['verdict']} | {held} | {gain_text} | "
-            f"{b['accuracy']:.3f} / {b['ece']:.3f} / {b['trust']} | {ext} |"
+            f"| {r['seed']} | {r['frame_mode_hz']:.1f} | "
+            f"{' '.join(f'{a:+.1f}' for a in r['mounting_deg'])} | {r['verdict']} | {held} | "
+            f"{gain_text} | "
+            f"{b['accuracy']:.3f} / {b['ece']:.3f} / {b['trust']} | {ext} | "
+            f"{r.get('computed', '-')} |"
         )
     extended = [dict(r, extended=r["extended"] or r["base"]) for r in rows]
+    paired = sorted((r for r in rows if r["extended"]), key=lambda r: r["seed"])
+    changes = {
+        key: [r["extended"][key] - r["base"][key] for r in paired] for key in ("accuracy", "ece")
+    }
+    named = len(paired)
     lines += [
         "",
         f"Median (range) over {len(rows)} doors: accuracy {_share(rows, 'accuracy', 'base')} -> "
         f"{_share(extended, 'accuracy', 'extended')}; ECE {_share(rows, 'ece', 'base')} -> "
         f"{_share(extended, 'ece', 'extended')} (a door whose verdict is `none` keeps its base "
-        "figures).",
+        f"figures). Paired change over the {named} doors with a named cause: accuracy "
+        + ", ".join(f"{d:+.3f}" for d in changes["accuracy"])
+        + "; ECE "
+        + ", ".join(f"{d:+.3f}" for d in changes["ece"])
+        + f". One test run of {rows[0]['base']['runs']} is {1 / rows[0]['base']['runs']:.3f} of "
+        "accuracy.",
         "",
     ]
     return "\n".join(lines)

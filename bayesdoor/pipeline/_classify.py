@@ -230,7 +230,7 @@ def classify_stage(
 ) -> None:
     """Classify every run of ``campaign`` with the ensemble in ``model``.
 
-    Writes ``classification.json`` (DESIGN.md section 5: per run ``predicted``,
+    Writes ``classification.json`` (docs/cli.md, the job's JSON: per run ``predicted``,
     ``probabilities``, ``entropy``, ``mutual_information``, ``ood``; ``metrics`` over the
     runs whose true state is one of the classes) and ``features.npz``. A run whose record is
     not finite, or whose features cannot be computed, is reported with its ``problem`` and no

@@ -97,12 +97,6 @@ def _profiles(fs: float) -> tuple[np.ndarray, dict[float, np.ndarray]]:
     return t, {float(v): row for v, row in zip(SPEEDS, table, strict=True)}
 
 
-def _distance(v: np.ndarray, fs: float) -> np.ndarray:
-    """Travelled distance of each run (trapezoids, as ``order_log_psd`` integrates)."""
-    steps = 0.5 * (v[:, 1:] + v[:, :-1]) / fs
-    return np.concatenate([np.zeros((v.shape[0], 1)), np.cumsum(steps, axis=1)], axis=1)
-
-
 def _tone(v: np.ndarray, peaks: np.ndarray, z: np.ndarray, kappa: float, snr_db: float, fs, rng):
     """A tone of ``kappa`` cycles per metre at the stated SNR per cycle per metre at cruise."""
     a = np.sqrt(4.0 * 10 ** (snr_db / 10) * peaks / fs)
@@ -114,7 +108,7 @@ def simulate(campaigns: int, comb_campaigns: int, seed: int):
     """Run the Monte Carlo; return the rail cells, detection counts and comb tallies."""
     from bayesdoor.diagnose import find_features
     from bayesdoor.diagnose._comb import harmonic_comb
-    from bayesdoor.diagnose._order import order_log_psd
+    from bayesdoor.diagnose._order import order_log_psd, travelled_distance
     from bayesdoor.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE
     from bayesdoor.door import _geometry as g
     from bayesdoor.door._profile import motion_duration
@@ -145,7 +139,7 @@ def simulate(campaigns: int, comb_campaigns: int, seed: int):
 
     for _ in range(campaigns):
         peaks, v, t0, t1, noise, predictive, orders_kw = campaign()
-        z = _distance(v, fs)
+        z = travelled_distance(v, fs)
         lam = float(np.exp(rng.uniform(*np.log(WAVELENGTHS_M))))
         for snr in SNRS_DB:
             x = noise[0] + _tone(v, peaks, z, 1.0 / lam, snr, fs, rng)[:, None, :]
@@ -182,7 +176,7 @@ def simulate(campaigns: int, comb_campaigns: int, seed: int):
 
     for _ in range(comb_campaigns):
         peaks, v, t0, t1, noise, predictive, orders_kw = campaign()
-        z = _distance(v, fs)
+        z = travelled_distance(v, fs)
         for snr in COMB_SNRS_DB:
             tones = sum(
                 _tone(v, peaks, z, k / WHEEL_CIRCUMFERENCE, snr, fs, rng) for k in COMB_HARMONICS

@@ -48,6 +48,14 @@ class OrderSpectra:
     travel_m: Float[np.ndarray, " run"]
 
 
+def travelled_distance(speed: Float[np.ndarray, "... time"], fs: float) -> np.ndarray:
+    """Distance travelled from the first sample, m: the speed (m/s, sampled at ``fs``)
+    integrated by trapezoids along its last axis."""
+    v = np.asarray(speed, dtype=float)
+    steps = np.cumsum(0.5 * (v[..., 1:] + v[..., :-1]) / fs, axis=-1)
+    return np.concatenate([np.zeros((*v.shape[:-1], 1)), steps], axis=-1)
+
+
 def order_log_psd(
     signals: Float[np.ndarray, "run channel time"],
     fs: float,
@@ -114,7 +122,7 @@ def order_log_psd(
     psds, log_var, travel = [], [], []
     wavenumbers = np.zeros(0)
     for r in range(n_runs):
-        distance = np.concatenate([[0.0], np.cumsum(0.5 * (v[r, 1:] + v[r, :-1]) / fs)])
+        distance = travelled_distance(v[r], fs)
         moving = (t >= t0[r]) & (t <= t1[r]) & (v[r] >= MOVING_FRACTION * peak[r])
         idx = np.flatnonzero(moving)
         z0, z1 = distance[idx[0]], distance[idx[-1]]

@@ -14,8 +14,10 @@ import hashlib
 import json
 import multiprocessing
 import os
+import pickle
 import subprocess
 import sys
+import time
 import traceback
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from pathlib import Path
@@ -91,6 +93,37 @@ def attempt(run_case: Callable[..., dict[str, Any]], effect: str, seed: int, *ar
             "error": f"{type(err).__name__}: {err}",
             "traceback": traceback.format_exc(),
         }
+
+
+def saved_diagnosis(
+    campaign, fit_folder: Path, path: Path, *, quick: bool, seed: int
+) -> tuple[Any, tuple[float, float]]:
+    """The door's diagnosis of ``campaign`` under the fit saved in ``fit_folder``: made once
+    and pickled to ``path`` (through a rename), then read; with its wall and CPU seconds
+    (zero when read)."""
+    from bayesdoor.diagnose import diagnose_campaign
+    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
+    from bayesdoor.inference import FitResult
+
+    if path.is_file():
+        with open(path, "rb") as f:
+            return pickle.load(f), (0.0, 0.0)
+    start, cpu = time.perf_counter(), time.process_time()
+    diagnosis = diagnose_campaign(
+        ElevatorDoor(),
+        campaign,
+        fit=FitResult.load(fit_folder),
+        seed=seed,
+        quick=quick,
+        progress=False,
+        catalogue=DOOR_CATALOGUE,
+    )
+    seconds = (time.perf_counter() - start, time.process_time() - cpu)
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "wb") as f:
+        pickle.dump(diagnosis, f)
+    os.replace(tmp, path)
+    return diagnosis, seconds
 
 
 def save_json(path: Path, row: Mapping[str, Any]) -> None:

@@ -32,7 +32,6 @@ import argparse
 import dataclasses
 import json
 import os
-import pickle
 import platform
 import sys
 import time
@@ -51,6 +50,7 @@ from _cases import (
     hidden_effect,
     run_cases,
     save_json,
+    saved_diagnosis,
     setup_jax,
     write_results,
 )
@@ -154,33 +154,6 @@ def job(system, campaign, out: Path, settings: Settings, seed: int, label: str):
     }
 
 
-def diagnose(campaign, fit_folder: Path, path: Path, settings: Settings, seed: int):
-    """The diagnosis under the base job's fit (made once, then read) and its wall time."""
-    from bayesdoor.diagnose import diagnose_campaign
-    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
-    from bayesdoor.inference import FitResult
-
-    if path.is_file():
-        with open(path, "rb") as f:
-            return pickle.load(f), (0.0, 0.0)
-    start, cpu = time.perf_counter(), time.process_time()
-    diagnosis = diagnose_campaign(
-        ElevatorDoor(),
-        campaign,
-        fit=FitResult.load(fit_folder),
-        seed=seed,
-        quick=settings.diagnosis == "quick",
-        progress=False,
-        catalogue=DOOR_CATALOGUE,
-    )
-    seconds = (time.perf_counter() - start, time.process_time() - cpu)
-    tmp = path.with_suffix(".tmp")
-    with open(tmp, "wb") as f:
-        pickle.dump(diagnosis, f)
-    os.replace(tmp, path)
-    return diagnosis, seconds
-
-
 def run_case(effect: str, seed: int, settings: Settings, folder: Path) -> dict[str, Any]:
     """Record, base job, diagnosis, extended job: the case's row."""
     setup_jax()
@@ -196,8 +169,12 @@ def run_case(effect: str, seed: int, settings: Settings, folder: Path) -> dict[s
     recorded = (time.perf_counter() - start, time.process_time() - cpu)
     door = ElevatorDoor()
     base = job(door, campaign, folder / "base", settings, seed, f"{name} base")
-    diagnosis, diagnose_seconds = diagnose(
-        campaign, folder / "base" / "fit" / "result", folder / "diagnosis.pkl", settings, seed
+    diagnosis, diagnose_seconds = saved_diagnosis(
+        campaign,
+        folder / "base" / "fit" / "result",
+        folder / "diagnosis.pkl",
+        quick=settings.diagnosis == "quick",
+        seed=seed,
     )
     found = verdict_extension(door, diagnosis)
     if found is None:

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import pickle
 import statistics
 import time
 from pathlib import Path
@@ -37,6 +36,7 @@ from _cases import (
     command_line,
     run_cases,
     save_json,
+    saved_diagnosis,
     setup_jax,
     write_results,
 )
@@ -78,9 +78,8 @@ def _job(system, campaign, out: Path, label: str) -> dict[str, Any]:
 def run_door(seed: int, work: str) -> dict[str, Any]:
     """Base job, diagnosis, extended job of door ``seed``: its row."""
     setup_jax()
-    from bayesdoor.diagnose import diagnose_campaign, extend_system, verdict_extension
+    from bayesdoor.diagnose import extend_system, verdict_extension
     from bayesdoor.door import ElevatorDoor
-    from bayesdoor.inference import FitResult
     from bayesdoor.io import load_campaign
     from bayesdoor.pipeline import json_safe
 
@@ -93,21 +92,13 @@ def run_door(seed: int, work: str) -> dict[str, Any]:
     truth = json.loads((folder / "truth.json").read_text())["other_door"]
     door = ElevatorDoor()
     base = _job(door, campaign, folder / DEFAULT_SOURCE, f"door {seed} base")
-    saved = folder / "diagnosis.pkl"
-    start = time.perf_counter()
-    if saved.is_file():
-        diagnosis = pickle.loads(saved.read_bytes())
-    else:
-        diagnosis = diagnose_campaign(
-            door,
-            campaign,
-            fit=FitResult.load(folder / DEFAULT_SOURCE / "fit" / "result"),
-            seed=0,
-            quick=True,
-            progress=False,
-        )
-        saved.write_bytes(pickle.dumps(diagnosis))
-    diagnose_seconds = time.perf_counter() - start
+    diagnosis, (diagnose_seconds, _) = saved_diagnosis(
+        campaign,
+        folder / DEFAULT_SOURCE / "fit" / "result",
+        folder / "diagnosis.pkl",
+        quick=True,
+        seed=0,
+    )
     found = verdict_extension(door, diagnosis)
     if found is None:
         extended = None

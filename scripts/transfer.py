@@ -137,7 +137,7 @@ def _jobs(args, campaign, folder: Path, seed: int, label: str):
         yield source, result, time.perf_counter() - t0
 
 
-def _job_row(result, source: str, seconds: float) -> dict[str, Any]:
+def job_row(result, source: str, seconds: float) -> dict[str, Any]:
     payload = result.to_json()
     metrics = payload["metrics"]
     adequacy = (payload.get("fit") or {}).get("adequacy") or {}
@@ -168,7 +168,7 @@ def run_demo(args, seed: int) -> list[dict[str, Any]]:
     campaign = load_demo_campaign()
     folder = args.out / f"demo-seed{seed}"
     return [
-        {"seed": seed, **_job_row(result, source, seconds)}
+        {"seed": seed, **job_row(result, source, seconds)}
         for source, result, seconds in _jobs(args, campaign, folder, seed, f"demo {seed}")
     ]
 
@@ -202,7 +202,7 @@ def run_door(args, seed: int) -> list[dict[str, Any]]:
     }
     # every door is fitted and trained with seed 0: the doors differ, not the seeds
     return [
-        {"seed": seed, **_job_row(result, source, seconds), "door": door}
+        {"seed": seed, **job_row(result, source, seconds), "door": door}
         for source, result, seconds in _jobs(args, campaign, folder, 0, f"door {seed}")
     ]
 

@@ -40,12 +40,12 @@ from _cases import (
     setup_jax,
     write_results,
 )
-
-DEFAULT_SOURCE = "posterior+model_error"
+from transfer import DEFAULT_SOURCE, job_row
 
 
 def _job(system, campaign, out: Path, label: str) -> dict[str, Any]:
-    """The quick main job (no diagnosis, no HTML) with the default source: its scores."""
+    """The quick main job (no diagnosis, no HTML) with the default source: its row as
+    ``scripts/transfer.py`` records one, and the stages it reused."""
     from bayesdoor.pipeline import run_job
 
     start = time.perf_counter()
@@ -62,17 +62,8 @@ def _job(system, campaign, out: Path, label: str) -> dict[str, Any]:
         diagnosis=False,
         overwrite=True,
     )
-    payload = result.to_json()
-    metrics, trust = payload["metrics"], payload.get("trust") or {}
-    return {
-        "accuracy": metrics["accuracy"],
-        "ece": metrics["ece"],
-        "runs": metrics["runs"],
-        "j": payload["fit"].get("j"),
-        "trust": trust.get("verdict"),
-        "seconds": time.perf_counter() - start,
-        "reused": [s.name for s in result.stages if s.reused],
-    }
+    row = job_row(result, DEFAULT_SOURCE, time.perf_counter() - start)
+    return {**row, "reused": [s.name for s in result.stages if s.reused]}
 
 
 def run_door(seed: int, work: str) -> dict[str, Any]:

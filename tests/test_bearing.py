@@ -97,10 +97,14 @@ def test_features_cover_the_resonance_region(system):
     ranges = {p.name: (p.lower, p.upper) for p in system.parameters}
     assert edges[0] < ranges["resonance_1_hz"][0] and edges[-1] > ranges["resonance_2_hz"][0]
     classifier = CNNInputSpec(
-        fmax=system.features.classifier_fmax, nperseg=system.features.classifier_nperseg
+        fmax=system.features.classifier_fmax,
+        nperseg=system.features.classifier_nperseg,
+        envelope_band=system.features.classifier_envelope_band,
     )
     freqs = classifier.frequencies(fs)
-    assert len(freqs) == 461 and freqs[-1] <= 5400.0
+    assert len(freqs) == 205 and freqs[-1] <= 600.0
+    # the third harmonic of the fastest fault line at the fastest training speed is kept
+    assert 3 * system.fault_frequencies(1800.0)["bpfi"] < freqs[-1]
     # the bins resolve the fault lines: BPFO, 2 BSF and BPFI lie more than a bin apart
     hz = system.fault_frequencies(RPM)
     lines = sorted([hz["bpfo"], 2 * hz["bsf"], hz["bpfi"]])

@@ -10,6 +10,7 @@ import scipy.signal
 from bayesdoor.features import (
     LOG_FLOOR,
     CNNInputSpec,
+    band_envelope,
     band_features,
     cnn_input,
     log_psd,
@@ -216,6 +217,43 @@ def test_cnn_input_spec_options():
         CNNInputSpec(nperseg=1)
     with pytest.raises(ValueError, match="fmax must be positive"):
         CNNInputSpec(fmax=0.0)
+
+
+def test_band_envelope_recovers_an_amplitude_modulation_and_matches_scipy_hilbert():
+    fs, n = 12000.0, 12000
+    t = np.arange(n) / fs
+    rng = np.random.default_rng(3)
+    modulation = 1.0 + 0.5 * np.cos(2 * np.pi * 107.0 * t)
+    # a 3 kHz carrier, modulated at 107 Hz, beside a strong 500 Hz tone outside the band
+    x = modulation * np.sin(2 * np.pi * 3000.0 * t) + 4.0 * np.sin(2 * np.pi * 500.0 * t)
+    x = x + 0.01 * rng.standard_normal(n)
+    env = np.asarray(band_envelope(jnp.asarray(x), fs, (2000.0, 4500.0)))
+    np.testing.assert_allclose(env[500:-500], modulation[500:-500], atol=0.03)
+    # the same ideal band-pass, then scipy's Hilbert transform
+    spectrum = np.fft.rfft(x)
+    f = np.fft.rfftfreq(n, 1 / fs)
+    passed = np.fft.irfft(np.where((f >= 2000.0) & (f <= 4500.0), spectrum, 0.0), n)
+    np.testing.assert_allclose(env, np.abs(scipy.signal.hilbert(passed)), atol=1e-10)
+    spec = CNNInputSpec(fmax=600.0, nperseg=4096, envelope_band=(2000.0, 4500.0))
+    features = np.asarray(_cnn(jnp.asarray(x[None]), fs, spec))[0]
+    freqs = spec.frequencies(fs)
+    assert features.shape == freqs.shape == (205,)
+    peak = np.argmax(features[5:]) + 5  # above the window's leakage of the mean
+    assert abs(freqs[peak] - 107.0) <= fs / 4096
+    # the plain spectrum of the same signal peaks at the out-of-band tone, not at 107 Hz
+    plain = np.asarray(_cnn(jnp.asarray(x[None]), fs, CNNInputSpec(fmax=600.0, nperseg=4096)))
+    assert abs(freqs[np.argmax(plain[0])] - 500.0) <= fs / 4096
+
+
+def test_envelope_spec_settings_round_trip_and_bad_bands_raise():
+    spec = CNNInputSpec(fmax=600.0, nperseg=4096, envelope_band=[2000, 4500])
+    assert spec.envelope_band == (2000.0, 4500.0)
+    assert CNNInputSpec(**spec.to_dict()) == spec
+    assert "envelope_band" not in CNNInputSpec().to_dict()  # plain specs keep their settings
+    with pytest.raises(ValueError, match="envelope_band must be"):
+        CNNInputSpec(envelope_band=(4500.0, 2000.0))
+    with pytest.raises(ValueError, match="reaches above the Nyquist"):
+        CNNInputSpec(fmax=100.0, envelope_band=(2000.0, 4500.0)).frequencies(FS)
 
 
 def test_jit_and_vmap_agree_with_eager_and_do_not_recompile():

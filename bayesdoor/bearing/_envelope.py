@@ -13,8 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
-#: the default analysis band, Hz: the resonance region of the CWRU drive-end records
-BAND_HZ = (2000.0, 4500.0)
+from ._system import BAND_HZ
 
 
 def envelope_spectrum(

@@ -105,19 +105,27 @@ CONDITIONS = (
 TRAINING_SPEEDS_RPM = (1700.0, 1750.0, 1800.0)
 TRAINING_LOADS_HP = (0.0, 3.0)
 
+#: the resonance region of the CWRU drive-end records, Hz: the band whose envelope the
+#: classifier and the envelope rule read (the real fault records put their energy at
+#: 2.5-3.75 kHz and about 5 kHz; the anti-alias filter cuts above 5.4 kHz)
+BAND_HZ = (2000.0, 4500.0)
+
 #: what the fit and the classifier compare (docs/bearing.md, "Features"): the fit, log10 Welch
 #: PSDs (480 samples, 25 Hz bins) in 39 bands of 100 Hz from 1.5 to 5.4 kHz, the resonance
 #: region the model describes (below it the real healthy record holds lines the model lacks,
 #: above it the recorder's anti-alias filter cuts the spectrum); the classifier, the log10
-#: Welch PSD of 1024-sample segments from 0 Hz to 5.4 kHz (461 bins of 11.7 Hz, fine enough
-#: to put BPFO, 2 BSF and BPFI, 107, 141 and 162 Hz at 1797 rpm, in different bins)
+#: Welch PSD of the envelope of the resonance band 2-4.5 kHz (the envelope rule's band) with
+#: 4096-sample segments from 0 to 600 Hz (205 bins of 2.9 Hz: the fault lines' fundamentals,
+#: BPFO, 2 BSF and BPFI, 107, 141 and 162 Hz at 1797 rpm, lie 7 or more bins apart, and their
+#: second and third harmonics lie below 600 Hz at every training speed)
 FEATURES = SpectralFeatures(
     f_low=1500.0,
     f_high=5375.0,
     band_width=100.0,
     nperseg=480,
-    classifier_fmax=5400.0,
-    classifier_nperseg=1024,
+    classifier_fmax=600.0,
+    classifier_nperseg=4096,
+    classifier_envelope_band=BAND_HZ,
 )
 
 

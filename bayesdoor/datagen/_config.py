@@ -149,11 +149,7 @@ class GenerationConfig(eqx.Module):
             "validation_fraction": self.validation_fraction,
             "chunk_size": self.chunk_size,
             "duration": self.duration,
-            "spec": {
-                "fmax": self.spec.fmax,
-                "nperseg": self.spec.nperseg,
-                "log": self.spec.log,
-            },
+            "spec": self.spec.to_dict(),
             "on_failure": self.on_failure,
             "max_redraws": self.max_redraws,
         }

@@ -4,6 +4,7 @@ motion window."""
 from ._motion import motion_window as motion_window
 from ._spectra import LOG_FLOOR as LOG_FLOOR
 from ._spectra import CNNInputSpec as CNNInputSpec
+from ._spectra import band_envelope as band_envelope
 from ._spectra import band_features as band_features
 from ._spectra import cnn_input as cnn_input
 from ._spectra import log_psd as log_psd

@@ -87,12 +87,22 @@ def band_features(
     return log_psd(means) if log else means
 
 
+def _band_or_none(band) -> tuple[float, float] | None:
+    return None if band is None else tuple(float(f) for f in band)  # type: ignore[return-value]
+
+
 class CNNInputSpec(eqx.Module):
     """How the classifier's input is made from the sensor signals (the paper's 4 x 25 image).
 
     Welch PSD of each channel (Hann window, ``nperseg`` samples, half overlap), the bins from
     0 Hz up to ``fmax`` inclusive, as log10 by default. With 2048 Hz sampling and the
     defaults, the bins are 0, 4, ..., 96 Hz: 25 per channel.
+
+    With ``envelope_band`` the Welch PSD is that of each channel's *envelope* in the band
+    (:func:`band_envelope`): the classic input of rolling-element bearing diagnostics, where a
+    localised fault shows as lines at its impact rate and harmonics, whatever the transfer
+    path that shapes the resonance band (Randall and Antoni, "Rolling element bearing
+    diagnostics - A tutorial", MSSP 25, 2011, 485-520).
 
     Parameters
     ----------
@@ -102,17 +112,30 @@ class CNNInputSpec(eqx.Module):
         Samples per Welch segment; the bin spacing is ``fs / nperseg``.
     log
         Return log10 PSD (through :func:`log_psd`) rather than the PSD.
+    envelope_band
+        ``(low, high)`` Hz: the input is the spectrum of the envelope of this band rather than
+        the spectrum of the signal; ``None`` (the default) for the signal's own spectrum.
     """
 
     fmax: float = eqx.field(static=True, default=96.0)
     nperseg: int = eqx.field(static=True, default=512)
     log: bool = eqx.field(static=True, default=True)
+    envelope_band: tuple[float, float] | None = eqx.field(
+        static=True, default=None, converter=_band_or_none
+    )
 
     def __check_init__(self):
         if not self.fmax > 0:
             raise ValueError(f"fmax must be positive (Hz), got {self.fmax!r}")
         if isinstance(self.nperseg, bool) or not isinstance(self.nperseg, int) or self.nperseg < 2:
             raise ValueError(f"nperseg must be an integer >= 2, got {self.nperseg!r}")
+        if self.envelope_band is not None:
+            lo, hi = self.envelope_band
+            if not 0 <= lo < hi:
+                raise ValueError(
+                    f"envelope_band must be (low, high) Hz with 0 <= low < high, got "
+                    f"{self.envelope_band!r}"
+                )
 
     def frequencies(self, fs: float) -> np.ndarray:
         """The bin frequencies (Hz) of the input at sampling rate ``fs``.
@@ -120,16 +143,59 @@ class CNNInputSpec(eqx.Module):
         Raises
         ------
         ValueError
-            When ``fmax`` lies above the Nyquist frequency ``fs / 2``.
+            When ``fmax`` or the envelope band lies above the Nyquist frequency ``fs / 2``.
         """
         if self.fmax > fs / 2:
             raise ValueError(
                 f"fmax={self.fmax} Hz lies above the Nyquist frequency {fs / 2} Hz of "
                 f"fs={fs} Hz: lower fmax or sample faster"
             )
+        if self.envelope_band is not None and self.envelope_band[1] > fs / 2:
+            raise ValueError(
+                f"envelope_band={self.envelope_band} Hz reaches above the Nyquist frequency "
+                f"{fs / 2} Hz of fs={fs} Hz"
+            )
         # the tiny slack keeps fmax itself when it falls on a bin (96 Hz = 24 x 4 Hz)
         n_bins = int(np.floor(self.fmax * self.nperseg / fs + 1e-9)) + 1
         return np.arange(n_bins) * (fs / self.nperseg)
+
+    def to_dict(self) -> dict:
+        """JSON-able settings; ``envelope_band`` only where it is set, so that the settings
+        (and the hashes made from them) of a plain spectrum read as they always did."""
+        out: dict = {"fmax": self.fmax, "nperseg": self.nperseg, "log": self.log}
+        if self.envelope_band is not None:
+            out["envelope_band"] = list(self.envelope_band)
+        return out
+
+
+def band_envelope(
+    signals: Float[Array, "*batch time"], fs: float, band: tuple[float, float]
+) -> Float[Array, "*batch time"]:
+    """The envelope of each signal in a frequency band: the modulus of its analytic signal.
+
+    The band-pass and the Hilbert transform are one step on the DFT of the whole record:
+    the bins inside ``[low, high]`` Hz on the positive side, doubled, the others zero; the
+    modulus of the inverse DFT is the envelope (an ideal band-pass, circular over the record).
+
+    Parameters
+    ----------
+    signals
+        Signals, time last.
+    fs
+        Sampling rate, Hz.
+    band
+        ``(low, high)`` Hz.
+
+    Returns
+    -------
+    envelope
+        Same shape as ``signals``, in their units.
+    """
+    n = signals.shape[-1]
+    f = np.fft.fftfreq(n, 1.0 / fs)
+    spectrum = jnp.fft.fft(signals, axis=-1)
+    keep = jnp.asarray(np.where((f >= band[0]) & (f <= band[1]), 2.0, 0.0), spectrum.dtype)
+    return jnp.abs(jnp.fft.ifft(spectrum * keep, axis=-1))
 
 
 def cnn_input(
@@ -139,7 +205,8 @@ def cnn_input(
     *,
     segment_weights: Float[Array, "*#batch segment"] | None = None,
 ) -> Float[Array, "*batch channel freq"]:
-    """The classifier's input: low-frequency (log) PSD of every channel.
+    """The classifier's input: low-frequency (log) PSD of every channel, or of its envelope
+    in a band (``spec.envelope_band``).
 
     Parameters
     ----------
@@ -168,6 +235,8 @@ def cnn_input(
     """
     spec = CNNInputSpec() if spec is None else spec
     n_bins = spec.frequencies(fs).size
+    if spec.envelope_band is not None:
+        signals = band_envelope(signals, fs, spec.envelope_band)
     _, psd = welch_psd(signals, fs, nperseg=spec.nperseg, segment_weights=segment_weights)
     psd = psd[..., :n_bins]
     return log_psd(psd) if spec.log else psd

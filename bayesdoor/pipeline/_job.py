@@ -349,7 +349,9 @@ def generation_settings(
         validation_fraction=sizes.validation_fraction,
         chunk_size=sizes.chunk_size,
         spec=CNNInputSpec(
-            fmax=system.features.classifier_fmax, nperseg=system.features.classifier_nperseg
+            fmax=system.features.classifier_fmax,
+            nperseg=system.features.classifier_nperseg,
+            envelope_band=system.features.classifier_envelope_band,
         ),
     )
     stage = {

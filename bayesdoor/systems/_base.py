@@ -76,8 +76,10 @@ class SpectralFeatures:
     from ``f_low`` to ``f_high`` in bands of ``band_width`` Hz
     (:class:`bayesdoor.inference.FeatureSpec`); the classifier sees each channel's log10
     Welch PSD from 0 Hz to ``classifier_fmax`` with ``classifier_nperseg`` samples per segment
-    (:class:`bayesdoor.features.CNNInputSpec`). The defaults are the elevator door paper's:
-    4-96 Hz in 4 Hz bands at 2048 Hz sampling.
+    (:class:`bayesdoor.features.CNNInputSpec`), or, with ``classifier_envelope_band``
+    (``(low, high)`` Hz), the log10 Welch PSD of each channel's envelope in that band (the
+    input of rolling-element bearing diagnostics). The defaults are the elevator door
+    paper's: 4-96 Hz in 4 Hz bands at 2048 Hz sampling.
     """
 
     f_low: float = 4.0
@@ -86,6 +88,7 @@ class SpectralFeatures:
     nperseg: int = 512
     classifier_fmax: float = 96.0
     classifier_nperseg: int = 512
+    classifier_envelope_band: tuple[float, float] | None = None
 
 
 @dataclasses.dataclass(frozen=True)

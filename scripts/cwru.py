@@ -227,7 +227,7 @@ def _job_result(method: str, source: str, job, runs, wall: float) -> dict[str, A
             "record": runs[r["run"]]["record"],
             "predicted": r["predicted"],
             "probabilities": r["probabilities"],
-            "flagged": r["predicted"] is None or bool(r["ood"]),
+            "flagged": r["predicted"] is None or bool(r["ood"]) or bool(r.get("uncertain")),
         }
         for r in c["runs"]
     ]
@@ -408,7 +408,7 @@ def _classifier_text(result, runs, files) -> str:
     lines = [f"## {result['name']}", ""]
     lines += [f"- {n}" for n in result["notes"]]
     lines += [
-        f"- segments flagged (out-of-distribution or not classified): "
+        f"- segments flagged (out-of-distribution, uncertain or not classified): "
         f"{s['flagged_segments']} of {len(result['segments'])}"
         if result["kind"] == "job"
         else "- the rule flags nothing: it always names a state",
@@ -416,7 +416,8 @@ def _classifier_text(result, runs, files) -> str:
         (
             "Per record (predicted: the majority of its segments' calls, a tie broken by the "
             "mean probability; mean probability: of the predicted state over its segments; "
-            "flagged: more than half of its segments out-of-distribution):"
+            "flagged: more than half of its segments out-of-distribution, uncertain (the "
+            "probability of a wrong call above 0.1) or not classified):"
             if result["kind"] == "job"
             else "Per record (predicted: the majority of its segments' calls, a tie broken by "
             "the larger mean standardised indicator; z: each family's mean standardised "

@@ -552,7 +552,9 @@ def test_classification_votes_per_record(finished, tmp_path):
         for c in classes:
             mean = np.mean([m["probabilities"][c] for m in members])
             assert entry["mean_probabilities"][c] == pytest.approx(mean)
-        share = np.mean([bool(m["ood"]) for m in members])
+        for m in members:
+            assert m["uncertain"] == (max(m["probabilities"].values()) < 1 - payload["max_error"])
+        share = np.mean([bool(m["ood"]) or m["uncertain"] for m in members])
         assert entry["share_flagged"] == pytest.approx(share)
         assert entry["flagged"] == (share > 0.5)
     metrics = payload["record_metrics"]
@@ -560,6 +562,7 @@ def test_classification_votes_per_record(finished, tmp_path):
     assert metrics["records"] == len(right)
     assert metrics["accuracy"] == pytest.approx(np.mean(right))
     assert np.sum(metrics["confusion"]) == len(right)
+    assert payload["n_uncertain"] == sum(r["uncertain"] for r in runs)
 
 
 def test_record_votes_ties_unclassified_runs_and_balanced_accuracy():
@@ -567,9 +570,15 @@ def test_record_votes_ties_unclassified_runs_and_balanced_accuracy():
 
     classes = ["a", "b"]
 
-    def run(state, predicted, pa=None, ood=False):
+    def run(state, predicted, pa=None, ood=False, uncertain=False):
         probabilities = None if predicted is None else {"a": pa, "b": 1 - pa}
-        return {"state": state, "predicted": predicted, "probabilities": probabilities, "ood": ood}
+        return {
+            "state": state,
+            "predicted": predicted,
+            "probabilities": probabilities,
+            "ood": ood,
+            "uncertain": uncertain,
+        }
 
     runs = [
         run("a", "a", 0.6),
@@ -578,9 +587,13 @@ def test_record_votes_ties_unclassified_runs_and_balanced_accuracy():
         run("b", None),
         run("b", "a", 0.9, ood=True),
         run("a", "a", 0.8),
+        run("b", "b", 0.45, uncertain=True),  # in distribution, but a guess
+        run("b", "b", 0.4, uncertain=True),
+        run("b", "b", 0.0),
     ]
-    record = np.array(["r1", "r1", "r2", "r2", "r2", "r3"])
-    r1, r2, r3 = record_votes(runs, record, classes)
+    record = np.array(["r1", "r1", "r2", "r2", "r2", "r3", "r4", "r4", "r4"])
+    r1, r2, r3, r4 = record_votes(runs, record, classes)
+    assert (r4["majority"], r4["share_flagged"], r4["flagged"]) == ("b", 2 / 3, True)
     assert r1["votes"] == {"a": 1, "b": 1} and r1["majority"] == "b"
     assert r1["mean_probabilities"]["a"] == pytest.approx(0.35)
     assert (r2["runs"], r2["classified"], r2["share_flagged"], r2["flagged"]) == (3, 2, 1.0, True)

@@ -132,6 +132,10 @@ def print_summary(
         table.add_row("Brier", _fmt(metrics["brier"], 3))
         table.add_row("runs with a known state", str(metrics["runs"]))
     table.add_row("flagged out-of-distribution", str(result["n_ood"]))
+    if "n_uncertain" in result:
+        table.add_row(
+            f"uncertain (call wrong with p > {result['max_error']:g})", str(result["n_uncertain"])
+        )
     if result["n_failed"]:
         table.add_row("not classified (bad records)", str(result["n_failed"]))
     console.print(table)

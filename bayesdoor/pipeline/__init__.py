@@ -2,6 +2,7 @@
 
 from ..inference import calibration_runs as calibration_runs
 from ._bands import PredictiveBands as PredictiveBands
+from ._classify import MAX_ERROR as MAX_ERROR
 from ._classify import classify_stage as classify_stage
 from ._classify import model_file as model_file
 from ._classify import ood_model_error as ood_model_error

@@ -42,6 +42,12 @@ ENSEMBLE = "ensemble.eqx"
 BANDS = "bands.npz"
 
 
+#: the largest probability of a wrong call a run may carry and still count as placed: a run
+#: whose calibrated probability of its predicted state is below 1 - MAX_ERROR is flagged
+#: ``uncertain`` (with calibrated probabilities, 1 - p is the chance that the call is wrong)
+MAX_ERROR = 0.1
+
+
 def _write_json(path: Path, payload: Any) -> None:
     text = json.dumps(payload, indent=1, default=float, allow_nan=False) + "\n"
     atomic_write(path, lambda tmp: tmp.write_text(text), overwrite=True)
@@ -227,12 +233,16 @@ def classify_stage(
     *,
     run_index: list[int] | None = None,
     system: AbstractSystem | None = None,
+    max_error: float = MAX_ERROR,
 ) -> None:
     """Classify every run of ``campaign`` with the ensemble in ``model``.
 
     Writes ``classification.json`` (docs/cli.md, the job's JSON: per run ``predicted``,
-    ``probabilities``, ``entropy``, ``mutual_information``, ``ood``; ``metrics`` over the
-    runs whose true state is one of the classes) and ``features.npz``. A run whose record is
+    ``probabilities``, ``entropy``, ``mutual_information``, ``ood``, ``uncertain``;
+    ``metrics`` over the runs whose true state is one of the classes) and ``features.npz``.
+    A run is ``uncertain`` when its call would be wrong with a probability above
+    ``max_error``: the calibrated probability of the predicted state is below
+    ``1 - max_error`` (:data:`MAX_ERROR`; docs/classification.md). A run whose record is
     not finite, or whose features cannot be computed, is reported with its ``problem`` and no
     prediction; it does not stop the others. Each run's operating conditions are reported
     under their names (``system``: the campaign's; ``None``: the registered one it names).
@@ -308,6 +318,7 @@ def classify_stage(
             "mutual_information": None,
             "ood": None,
             "ood_score": None,
+            "uncertain": None,
             "problem": problems[i],
         }
         if ok[i]:
@@ -319,6 +330,7 @@ def classify_stage(
                 mutual_information=_clean(info["mi"][i]),
                 ood=bool(flags[i]) if ensemble.ood is not None else None,
                 ood_score=_clean(info["score"][i]),
+                uncertain=bool(np.max(probabilities[i]) < 1.0 - max_error),
             )
         runs.append(entry)
     known = ok & np.isin(states, classes)
@@ -340,6 +352,8 @@ def classify_stage(
         "n_runs": n_run,
         "n_failed": int((~ok).sum()),
         "n_ood": int(flags.sum()),
+        "max_error": max_error,
+        "n_uncertain": sum(bool(r["uncertain"]) for r in runs),
         "runs": runs,
         "metrics": metrics,
     }
@@ -384,8 +398,8 @@ def record_votes(
         called each class); ``majority`` (the class with most votes, a tie broken by the
         higher mean probability; ``None`` when no run is classified); ``mean_probabilities``
         (the classified runs' mean probability of each class); ``share_flagged`` (runs flagged
-        out-of-distribution or not classified, per run); ``flagged`` (more than half of its
-        runs flagged: the record's vote is not to be relied on).
+        out-of-distribution or uncertain, or not classified, per run); ``flagged`` (more than
+        half of its runs flagged: the record's vote is not to be relied on).
     """
     order = list(dict.fromkeys(str(r) for r in record))
     out = []
@@ -401,7 +415,9 @@ def record_votes(
         majority = (
             None if mean is None else max(classes, key=lambda c: (votes[c], mean[c]))  # type: ignore[index]
         )
-        flagged = sum(m["predicted"] is None or bool(m["ood"]) for m in members)
+        flagged = sum(
+            m["predicted"] is None or bool(m["ood"]) or bool(m.get("uncertain")) for m in members
+        )
         states = {m["state"] for m in members}
         out.append(
             {

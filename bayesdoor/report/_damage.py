@@ -459,6 +459,8 @@ def _summary(inputs: _Inputs) -> list[str]:
         ]
     n_ood = sum(1 for r in valid if r["ood"])
     headline.append(("flagged OOD", str(n_ood), "bad" if n_ood else "good"))
+    n_uncertain = sum(1 for r in valid if r.get("uncertain"))
+    headline.append(("uncertain", str(n_uncertain), "bad" if n_uncertain else "good"))
     if inputs.n_failed:
         headline.append(("not classified", str(inputs.n_failed), "bad"))
     parts = [H.cards(headline)]

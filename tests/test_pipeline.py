@@ -8,6 +8,7 @@ to seconds; the door end to end is under ``slow``.
 from __future__ import annotations
 
 import base64
+import dataclasses
 import json
 import re
 import shutil
@@ -500,8 +501,12 @@ def test_model_error_source_needs_the_fit_to_have_one(finished):
     summary = FitSummary.load(out / "fit")
     from bayesdoor.pipeline import parameter_source
 
-    _, model_error = parameter_source(SYSTEM, summary, "posterior+model_error", 0.05)
-    assert model_error is not None
+    # the default source draws the posterior; its model error is the measured discrepancy
+    draws = parameter_source(SYSTEM, summary, "posterior+model_error", 0.05)
+    assert draws.describe() == parameter_source(SYSTEM, summary, "posterior", 0.05).describe()
+    no_error = dataclasses.replace(summary, sigma_model=None)
+    with pytest.raises(ValueError, match="needs the model-error posterior"):
+        parameter_source(SYSTEM, no_error, "posterior+model_error", 0.05)
     point_only = FitSummary("cmaes", summary.point, summary.point, 0.1, {}, None)
     with pytest.raises(ValueError, match="posterior draws"):
         parameter_source(SYSTEM, point_only, "posterior", 0.05)

@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import Any, Literal, NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
@@ -37,7 +36,6 @@ from ..datagen import (
     AbstractParameterSource,
     GaussianScatter,
     GenerationConfig,
-    ModelErrorDraws,
     PosteriorDraws,
     TrainingData,
     describe_system,
@@ -286,34 +284,41 @@ def _check_folder(out: Path, settings: dict[str, Any], job_hash: str, overwrite:
 
 def parameter_source(
     system: AbstractSystem, fit: FitSummary, source: Source, gaussian_sd: float
-) -> tuple[AbstractParameterSource, ModelErrorDraws | None]:
-    """The parameter source (and model-error draws) of the training data for ``source``.
+) -> AbstractParameterSource:
+    """The parameter source of the training data for ``source``.
+
+    ``posterior`` and ``posterior+model_error`` draw the same posterior; the latter's model
+    error is the discrepancy the healthy calibration runs measure, added to every training
+    run at the training stage (:func:`bayesdoor.datagen.with_measured_discrepancy`), and the
+    fit's model-error posterior sets the OOD detector's reference. Its simulations carry no
+    level offsets drawn from the model-error scale besides: the measured discrepancy already
+    puts each channel's level where the machine has it, and offsets at the fitted scale
+    (about 0.9 decades on the other doors of results/transfer.md, where the measured runs'
+    levels scatter by 0.05-0.08 decades) would count the model error twice and bury the
+    small faults' signatures (docs/transfer.md).
 
     Raises
     ------
     ValueError
         For an unknown ``source``, posterior sources on a fit without posterior draws, or
-        model-error draws on a fit without a model-error posterior.
+        ``posterior+model_error`` on a fit without a model-error posterior.
     """
     if source not in SOURCES:
         raise ValueError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
     if source == "gaussian":
-        return GaussianScatter.around(system, fit.optimum, gaussian_sd), None
+        return GaussianScatter.around(system, fit.optimum, gaussian_sd)
     if not fit.draws:
         raise ValueError(
             f"source={source!r} needs posterior draws, but the {fit.method} fit holds a point "
             "only: fit with method 'nuts' or 'emcee', or use source='gaussian'"
         )
     fixed = {k: v for k, v in fit.point.items() if k not in fit.draws}
-    posterior = PosteriorDraws(fit.draws, fixed=fixed)
-    if source == "posterior":
-        return posterior, None
-    if fit.sigma_model is None:
+    if source == "posterior+model_error" and fit.sigma_model is None:
         raise ValueError(
             f"source={source!r} needs the model-error posterior, but the {fit.method} fit has "
             "none: use source='posterior'"
         )
-    return posterior, ModelErrorDraws(jnp.asarray(fit.sigma_model))
+    return PosteriorDraws(fit.draws, fixed=fixed)
 
 
 class Generation(NamedTuple):
@@ -321,7 +326,6 @@ class Generation(NamedTuple):
 
     config: dict[str, Any]
     source: AbstractParameterSource
-    model_error: ModelErrorDraws | None
     generation: GenerationConfig
 
 
@@ -340,7 +344,7 @@ def generation_settings(
     extended by the system (:meth:`~bayesdoor.systems.AbstractSystem.training_points`); the
     parameters come from :func:`parameter_source`.
     """
-    params, model_error = parameter_source(system, fit, source, sizes.gaussian_sd)
+    params = parameter_source(system, fit, source, sizes.gaussian_sd)
     points = np.unique(campaign_operating(campaign, system), axis=0)
     finite = np.isfinite(points.reshape(len(points), -1)).all(axis=1)
     config = GenerationConfig(
@@ -358,11 +362,11 @@ def generation_settings(
         "fit": fit_hash,
         "source": source,
         "parameters": params.describe(),
-        "model_error": None if model_error is None else model_error.describe(),
+        "model_error": None,
         "generation": config.to_dict(),
         "seed": seed,
     }
-    return Generation(stage, params, model_error, config)
+    return Generation(stage, params, config)
 
 
 def run_job(
@@ -838,7 +842,6 @@ def _generate(job: _Job, folder: Path) -> None:
         job.generation.generation,
         folder / "data",
         key=jax.random.fold_in(job.key, 1),
-        model_error=job.generation.model_error,
         progress=job.progress,
     )
 

@@ -1179,7 +1179,10 @@ def extension_gain(
     """
     settings = DiagnosisSettings.quick() if quick else DiagnosisSettings()
     measured = _Measured.of(system, campaign, calibration_runs(campaign))
-    folds = held_out_folds(measured.operating, settings.folds)
+    catalogue = system.catalogue if catalogue is None else catalogue
+    known = catalogue if isinstance(catalogue, Catalogue) else None
+    order = measured.operating if known is None else _fold_order(known, measured.operating)
+    folds = held_out_folds(order, settings.folds)
     if not folds:
         raise ValueError(
             f"{len(measured.runs)} healthy calibration runs: need at least 4 to fit on half "
@@ -1188,8 +1191,10 @@ def extension_gain(
     sims, ok, sample_times = _simulate_rows(system, measured, [dict(fit.point)])
     if not ok[0]:
         raise RuntimeError("the base model failed to simulate the runs at the fit's point")
-    setup = measured.setup(system, fit.point, sims[0], sample_times, _band(fit), features)
-    catalogue = system.catalogue if catalogue is None else catalogue
+    speeds = None if known is None else known.speeds(measured.operating)
+    setup = measured.setup(
+        system, fit.point, sims[0], sample_times, _band(fit, known), features, speeds
+    )
     ext = proposal.extension
     name = ext if isinstance(ext, str) else getattr(ext, "name", None)
     signatures = (

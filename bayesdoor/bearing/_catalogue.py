@@ -12,16 +12,21 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+import equinox as eqx
 import numpy as np
 
 from ..diagnose import (
     AbstractRefit,
     Candidate,
     Catalogue,
+    Check,
     ExtensionProposal,
+    Features,
     FixedFrequency,
     ListedFrequency,
+    Match,
     NoResidual,
+    Region,
     SpeedTracking,
 )
 from ._extensions import (
@@ -39,9 +44,10 @@ from ._extensions import (
 SHAFT_HARMONICS = tuple(range(1, MAX_SHAFT_HARMONICS + 1))
 #: "wavelengths" of the shaft lines in revolutions (speed in rev/s over frequency in Hz)
 SHAFT_PERIODS = tuple(1.0 / k for k in SHAFT_HARMONICS)
-#: a tone within this relative distance of k x 1X is that harmonic: less than half the
-#: 1 / (2 K) = 5 % between the 10th and 11th, and more than a 1 Hz bin at 1X (30 Hz)
-SHAFT_MATCH = 0.04
+#: a line within this many Hz of k x 1X is that harmonic: two 1 Hz bins (1 s records; a
+#: line's peak refined between bins lies within one of its frequency, and the record's
+#: stated rpm within 1 rpm, 0.17 Hz at 10x, of the shaft's)
+SHAFT_TOLERANCE_HZ = 2.0
 #: supply harmonics m = 1..6 attributed to the supply: the line and the stator field's pull
 #: at 2 f0, and the force harmonics of a three-phase supply's 3rd and 5th voltage
 #: harmonics up to 6 f0
@@ -63,32 +69,136 @@ def shaft_rev_per_s(operating: np.ndarray) -> np.ndarray:
     return op[:, 0] / 60.0
 
 
+def _peaks(region: Region, speeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The peak frequency (Hz) and the shaft frequency (rev/s) of each affected run (of
+    every searched run when none is affected)."""
+    f = region.runs.frequency_hz
+    use = region.runs.affected if region.runs.affected.any() else np.isfinite(f)
+    return f[use], speeds[use]
+
+
+class ShaftLines(SpeedTracking):
+    """Shaft-synchronous lines: residual regions at k x the runs' shaft frequency, k in
+    ``labels``, in excess or in deficit.
+
+    The generic :class:`~bayesdoor.diagnose.SpeedTracking` examines excess only; the base
+    model has shaft lines of its own (1x-3x at fixed ratios, their amplitude a parameter that
+    the fit's 1.5-5.4 kHz band does not see), which the measurement can show weaker: a
+    deficit at a shaft harmonic is the same cause, its extension's amplitude negative. Each
+    region of either sign, in either map, is matched by its peak in the affected runs: the
+    nearest harmonic k of each run's shaft frequency, within ``tolerance_hz`` in every run.
+    Checks: at a shaft harmonic; the frequency follows the speed (as SpeedTracking's check:
+    it fails where the speeds cannot decide, so a fixed line at the same frequency ties);
+    in most runs. Parameters: ``label`` (k), ``labels_found`` (every k with a matching
+    region, either sign), ``deficits`` (the k found in deficit only), ``wavelength_m``
+    (1 / k revolution).
+    """
+
+    tolerance_hz: float = eqx.field(static=True, default=SHAFT_TOLERANCE_HZ)
+
+    def _harmonic(self, region: Region, speeds: np.ndarray) -> tuple[int, float]:
+        """The nearest listed harmonic of the region's peaks and the largest distance (Hz)
+        of a run's peak from it; ``(0, inf)`` without peaks."""
+        f, v = _peaks(region, speeds)
+        if not f.size or not np.all(np.isfinite(f)):
+            return 0, float("inf")
+        ks = np.asarray(self.labels, dtype=int)
+        k = int(ks[np.argmin(np.abs(np.median(f / v) - ks))])
+        return k, float(np.max(np.abs(f - k * v)))
+
+    def match(self, features: Features) -> Match | None:
+        res = features.residuals
+        if res.speeds is None:
+            return None
+        speeds = np.asarray(res.speeds, dtype=float)
+        matched = [(r, *self._harmonic(r, speeds)) for r in res.regions]
+        at = [(r, k) for r, k, off in matched if k and off <= self.tolerance_hz]
+        found = sorted({k for _, k in at})
+        excess = {k for r, k in at if r.sign > 0}
+        deficits = tuple(k for k in found if k not in excess)
+        out = []
+        for region, k, off in matched:
+            checks = (
+                Check(
+                    "at a shaft harmonic",
+                    bool(k) and off <= self.tolerance_hz,
+                    f"{k} x 1X, {off:.2f} Hz off in the worst run" if k else "no peak",
+                ),
+                Check(
+                    "frequency follows the speed",
+                    region.speed.preferred == "tracking",
+                    f"across runs: {region.speed.preferred}",
+                ),
+                Check(
+                    "in most runs",
+                    2 * region.runs_present >= features.n_runs,
+                    f"{region.runs_present} of {features.n_runs}",
+                ),
+            )
+            out.append(
+                Match(
+                    feature=region.describe(),
+                    checks=checks,
+                    parameters={
+                        "label": k,
+                        "labels_found": tuple(found),
+                        "deficits": deficits,
+                        "wavelength_m": 1.0 / k if k else float("nan"),
+                    },
+                    strength=abs(region.z),
+                )
+            )
+        return max(out, key=lambda m: (m.score, m.strength), default=None)
+
+
 class ShaftRefit(AbstractRefit):
     """Lines at the shaft harmonics the residual shows: each found harmonic's amplitude free.
 
-    The amplitudes act linearly on the signal (``linear``): one simulation per harmonic.
-    Nothing is proposed when no tone lies at a shaft harmonic.
+    The amplitudes act linearly on the signal (``linear``): one simulation per harmonic. A
+    harmonic in deficit takes from the base model's own line (started negative); one in
+    excess adds a line (above the base model's 3x its sign is its phase, which the spectra
+    do not see: searched from 0). When the residual shows both, the lines in deficit alone,
+    those in excess alone and all together are proposed, and the refit keeps the one that
+    fits the training runs best: each harmonic is a free parameter, and a search over many at
+    once within the refit's budget is poorer than over the few of one kind. Nothing is
+    proposed when no line lies at a shaft harmonic.
     """
+
+    def _proposal(self, harmonics: list[int], deficits: set[int]) -> ExtensionProposal:
+        start = {
+            f"shaft_harmonics.amplitude_{k}": -0.05 if k in deficits else 0.05 for k in harmonics
+        }
+        bounds = {f"shaft_harmonics.amplitude_{k}": (0.0, 2.0) for k in harmonics if k > 3}
+        kind = (
+            "in deficit"
+            if set(harmonics) <= deficits
+            else "in excess"
+            if not set(harmonics) & deficits
+            else "all"
+        )
+        return ExtensionProposal(
+            extension=ShaftHarmonics(harmonics=max(harmonics)),
+            start=start,
+            free=tuple(start),
+            bounds=bounds,
+            key=tuple(start),
+            linear=tuple(start),
+            label=f"shaft lines at {', '.join(f'{k}x' for k in harmonics)} ({kind})",
+        )
 
     def propose(
         self, parameters: Mapping[str, Any], *, band: tuple[float, float]
     ) -> tuple[ExtensionProposal, ...]:
-        found = [int(k) for k in parameters.get("labels_found", ())]
-        if "label" in parameters and int(parameters["label"]) not in found:
-            found.append(int(parameters["label"]))
+        found = sorted({int(k) for k in parameters.get("labels_found", ())} - {0})
+        label = int(parameters.get("label", 0))
+        if label >= 1 and label not in found:
+            found = sorted([*found, label])
         if not found:
             return ()
-        start = {f"shaft_harmonics.amplitude_{k}": 0.05 for k in sorted(found)}
-        return (
-            ExtensionProposal(
-                extension=ShaftHarmonics(harmonics=max(found)),
-                start=start,
-                free=tuple(start),
-                key=tuple(start),
-                linear=tuple(start),
-                label=f"shaft lines at {', '.join(f'{k}x' for k in sorted(found))}",
-            ),
-        )
+        deficits = {int(k) for k in parameters.get("deficits", ())} & set(found)
+        excess = [k for k in found if k not in deficits]
+        groups = [sorted(deficits), excess, found] if deficits and excess else [found]
+        return tuple(self._proposal(g, deficits) for g in groups)
 
 
 class ModeRefit(AbstractRefit):
@@ -171,9 +281,7 @@ BEARING_CATALOGUE = Catalogue(
             name="shaft_harmonics",
             description="shaft-synchronous lines the model lacks (unbalance, misalignment, "
             "looseness): tones at k x the shaft frequency",
-            signature=SpeedTracking(
-                wavelengths=SHAFT_PERIODS, labels=SHAFT_HARMONICS, rel_tol=SHAFT_MATCH
-            ),
+            signature=ShaftLines(wavelengths=SHAFT_PERIODS, labels=SHAFT_HARMONICS),
             refit=ShaftRefit(),
         ),
         Candidate(

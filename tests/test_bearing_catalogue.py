@@ -161,6 +161,20 @@ def test_the_catalogue_declares_its_causes_band_and_speed():
     proposals = shaft.refit.propose({"labels_found": (1, 4)}, band=(10.0, 5375.0))
     assert proposals[0].extension == ShaftHarmonics(harmonics=4)
     assert proposals[0].free == ("shaft_harmonics.amplitude_1", "shaft_harmonics.amplitude_4")
+    # lines in deficit and in excess: each kind alone, and both
+    mixed = shaft.refit.propose(
+        {"labels_found": (1, 2, 5), "deficits": (1, 2)}, band=(10.0, 5375.0)
+    )
+    assert [p.free for p in mixed] == [
+        ("shaft_harmonics.amplitude_1", "shaft_harmonics.amplitude_2"),
+        ("shaft_harmonics.amplitude_5",),
+        tuple(f"shaft_harmonics.amplitude_{k}" for k in (1, 2, 5)),
+    ]
+    assert mixed[0].start["shaft_harmonics.amplitude_1"] < 0
+    # every cause declares its size, for its detection limit
+    for candidate in BEARING_CATALOGUE.candidates:
+        if candidate.refit is not None:
+            assert candidate.refit.size(band=BEARING_CATALOGUE.band).probes
 
 
 def test_folds_and_batches_take_several_operating_conditions():

@@ -19,6 +19,7 @@ from ..diagnose import (
     AbstractRefit,
     Candidate,
     Catalogue,
+    CauseSize,
     Check,
     ExtensionProposal,
     Features,
@@ -27,6 +28,7 @@ from ..diagnose import (
     Match,
     NoResidual,
     Region,
+    SizeProbe,
     SpeedTracking,
 )
 from ._extensions import (
@@ -200,6 +202,26 @@ class ShaftRefit(AbstractRefit):
         groups = [sorted(deficits), excess, found] if deficits and excess else [found]
         return tuple(self._proposal(g, deficits) for g in groups)
 
+    def size(self, *, band: tuple[float, float]) -> CauseSize:
+        """A line's amplitude added to the base model's: typically at 1x (unbalance), also at
+        2x (misalignment) and at 4x (a line the base model does not have)."""
+        probes = tuple(
+            SizeProbe(
+                label=label,
+                proposal=ExtensionProposal(
+                    extension=ShaftHarmonics(harmonics=k),
+                    start={},
+                    free=(f"shaft_harmonics.amplitude_{k}",),
+                ),
+                scales={f"shaft_harmonics.amplitude_{k}": 1.0},
+                reference=0.05,
+            )
+            for label, k in (("typical: 1x", 1), ("2x", 2), ("4x", 4))
+        )
+        return CauseSize(
+            "shaft line amplitude", "m/s^2", 1e-4, 2.0, probes, display=("mm/s^2", 1e3)
+        )
+
 
 class ModeRefit(AbstractRefit):
     """A mode at the residual's frequency: frequency (within the feature), damping, gain.
@@ -246,6 +268,27 @@ class ModeRefit(AbstractRefit):
             ),
         )
 
+    def size(self, *, band: tuple[float, float]) -> CauseSize:
+        """The mode's gain (its peak amplification minus one), damping ratio 0.005:
+        typically at 1 kHz, also at 3 kHz (the model's housing mode's region)."""
+        probes = tuple(
+            SizeProbe(
+                label=label,
+                proposal=ExtensionProposal(
+                    extension=StructuralMode(),
+                    start={
+                        "structural_mode.frequency_hz": f,
+                        "structural_mode.damping_ratio": 0.005,
+                    },
+                    free=("structural_mode.gain",),
+                ),
+                scales={"structural_mode.gain": 1.0},
+                reference=3.0,
+            )
+            for label, f in (("typical: 1 kHz", 1000.0), ("3 kHz", 3000.0))
+        )
+        return CauseSize("structural mode gain", "-", 0.01, 300.0, probes)
+
 
 class LineRefit(AbstractRefit):
     """Lines at the matched supply frequency's harmonics the residual shows, each free."""
@@ -268,6 +311,30 @@ class LineRefit(AbstractRefit):
                 key=tuple(start),
                 label=f"{f0:g} Hz supply, harmonics {sorted(found)}",
             ),
+        )
+
+    def size(self, *, band: tuple[float, float]) -> CauseSize:
+        """One line's amplitude: typically 60 Hz (the stand's supply), also 2 x 60 Hz (an
+        induction motor's electrical vibration) and 50 Hz."""
+        probes = tuple(
+            SizeProbe(
+                label=label,
+                proposal=ExtensionProposal(
+                    extension=LineFrequency(frequency_hz=f0, harmonics=m),
+                    start={},
+                    free=(f"line_frequency.amplitude_{m}",),
+                ),
+                scales={f"line_frequency.amplitude_{m}": 1.0},
+                reference=0.01,
+            )
+            for label, f0, m in (
+                ("typical: 60 Hz", 60.0, 1),
+                ("120 Hz", 60.0, 2),
+                ("50 Hz", 50.0, 1),
+            )
+        )
+        return CauseSize(
+            "supply line amplitude", "m/s^2", 1e-4, 2.0, probes, display=("mm/s^2", 1e3)
         )
 
 

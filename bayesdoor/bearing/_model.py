@@ -126,6 +126,7 @@ def run_signal(
     epsilon: float,
     ball_inner_ratio: float,
     entry_ratio: float,
+    extra_harmonics: jax.Array | None = None,
 ) -> jax.Array:
     """The signal (m/s^2, ``n_time`` samples) of one run; see the module docstring.
 
@@ -159,6 +160,10 @@ def run_signal(
         Weight of a ball's strikes on the inner race.
     entry_ratio
         Area of a defect passage's entry (unloading) per unit exit impact.
+    extra_harmonics
+        Amplitudes added to the shaft lines 1x, 2x, ... (the ``shaft_harmonics`` extension):
+        in phase with the base lines where the base has them, at phases drawn from the run's
+        key (folded with 1, so the base draws stay as they are) above.
     """
     k_phase, k_rough, k_noise, k_jitter, k_start, k_angle = jax.random.split(key, 6)
     dtype = shaft_hz.dtype
@@ -172,6 +177,19 @@ def run_signal(
         ratios[:, None] * jnp.cos(2 * jnp.pi * h[:, None] * shaft_hz * t + phases[:, None]),
         axis=0,
     )
+    if extra_harmonics is not None:
+        k_count = extra_harmonics.shape[0]
+        more = max(k_count - len(harmonics), 0)
+        extra_phases = jax.random.uniform(jax.random.fold_in(k_phase, 1), (more,), dtype=dtype) * (
+            2 * jnp.pi
+        )
+        all_phases = jnp.concatenate([phases, extra_phases])[:k_count]
+        k = jnp.arange(1, k_count + 1, dtype=dtype)
+        shaft = shaft + jnp.sum(
+            extra_harmonics.astype(dtype)[:, None]
+            * jnp.cos(2 * jnp.pi * k[:, None] * shaft_hz * t + all_phases[:, None]),
+            axis=0,
+        )
 
     second = resonance_response(f, fs, p["resonance_2_hz"], p["damping_2"])
     resonances = (

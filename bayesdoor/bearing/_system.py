@@ -18,6 +18,8 @@ is a smooth function of the parameters and ``jax.grad`` holds the draws fixed).
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -31,6 +33,8 @@ from ..systems import (
     SimulationResult,
     SpectralFeatures,
 )
+from ._catalogue import BEARING_CATALOGUE
+from ._extensions import AbstractBearingExtension, ShaftHarmonics, extension
 from ._geometry import CWRU_DRIVE_END, BearingGeometry
 from ._model import impulse_capacity, run_signal
 
@@ -151,6 +155,10 @@ class BearingSystem(AbstractSystem):
         Weight of a ball defect's strikes on the inner race (those on the outer race: 1).
     entry_ratio
         Area of a defect passage's gradual entry (unloading) per unit of its exit impact.
+    extensions
+        Model extensions of the catalogue of discrepancy causes (``ShaftHarmonics()``,
+        ``StructuralMode()``, ``LineFrequency()``), at most one of each; default none, the
+        base model. Their parameters follow the base ones in :attr:`parameters`.
 
     Examples
     --------
@@ -169,8 +177,23 @@ class BearingSystem(AbstractSystem):
     load_zone_epsilon: float = eqx.field(static=True, default=0.5)
     ball_inner_ratio: float = eqx.field(static=True, default=0.5)
     entry_ratio: float = eqx.field(static=True, default=0.3)
+    extensions: tuple[AbstractBearingExtension, ...] = eqx.field(
+        static=True, default=(), converter=tuple
+    )
 
     def __check_init__(self) -> None:
+        for e in self.extensions:
+            if not isinstance(e, AbstractBearingExtension):
+                raise ValueError(
+                    f"BearingSystem.extensions holds {e!r}, not a bearing model extension: "
+                    "pass catalogue names to BearingSystem().with_extensions(...)"
+                )
+        names = [e.name for e in self.extensions]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(
+                f"BearingSystem.extensions holds {twice} more than once: at most one of each"
+            )
         if not self.segment_s > 0:
             raise ValueError(f"segment_s must be positive, got {self.segment_s!r}")
         if not 0 < self.load_zone_epsilon:
@@ -182,7 +205,56 @@ class BearingSystem(AbstractSystem):
 
     @property
     def parameters(self) -> tuple[ParameterSpec, ...]:
-        return PARAMETERS
+        """The base parameters, then each extension's (``"<extension>.<quantity>"``)."""
+        return PARAMETERS + tuple(p for e in self.extensions for p in e.parameters)
+
+    @property
+    def catalogue(self):
+        """The bearing's catalogue of discrepancy causes (docs/bearing.md, "Diagnosis")."""
+        return BEARING_CATALOGUE
+
+    @property
+    def extension_names(self) -> tuple[str, ...]:
+        return tuple(e.name for e in self.extensions)
+
+    @property
+    def output_extensions(self) -> tuple[AbstractBearingExtension, ...]:
+        """The extensions that act on the simulated signal only (no new simulation)."""
+        return tuple(e for e in self.extensions if not e.needs_resolve)
+
+    def with_extensions(self, *extensions) -> BearingSystem:
+        """This bearing with more extensions switched on: catalogue names or built modules.
+
+        Examples
+        --------
+        >>> BearingSystem().with_extensions("shaft_harmonics").extension_names
+        ('shaft_harmonics',)
+        """
+        added = tuple(extension(e) for e in extensions)
+        return dataclasses.replace(self, extensions=self.extensions + added)
+
+    def without_output_extensions(self) -> BearingSystem:
+        """This bearing with only the extensions that act inside the simulation."""
+        kept = tuple(e for e in self.extensions if e.needs_resolve)
+        return dataclasses.replace(self, extensions=kept)
+
+    def apply_output_extensions(self, signals, time, values):
+        """Signals of :meth:`without_output_extensions` with the output extensions applied
+        (``structural_mode`` before ``line_frequency``); ``values`` names at least their
+        parameters, scalars or arrays that broadcast to the batch shape of ``signals``."""
+        outputs = self.output_extensions
+        if not outputs:
+            return signals
+        signals = jnp.asarray(signals)
+        batch = signals.shape[:-2]
+        flat = signals.reshape((-1, *signals.shape[-2:]))
+        vals = {
+            k: jnp.broadcast_to(jnp.asarray(v, dtype=signals.dtype), batch).reshape(-1)
+            for e in outputs
+            for k, v in e.full(values).items()
+        }
+        out = _apply_outputs(outputs, flat, jnp.asarray(time, dtype=signals.dtype), vals)
+        return out.reshape(signals.shape)
 
     @property
     def states(self) -> dict[str, DamageSpec]:
@@ -209,7 +281,14 @@ class BearingSystem(AbstractSystem):
         """Name, geometry and the model's fixed settings (JSON-able)."""
         return {
             "name": self.name,
-            "extensions": [],
+            "extensions": [
+                {
+                    "name": e.name,
+                    "config": {f.name: getattr(e, f.name) for f in dataclasses.fields(e)},
+                    "parameters": [p.name for p in e.parameters],
+                }
+                for e in self.extensions
+            ],
             "geometry": {
                 "n_balls": self.geometry.n_balls,
                 "ball_diameter_in": self.geometry.ball_diameter_in,
@@ -329,6 +408,11 @@ class BearingSystem(AbstractSystem):
         n_time = round((self.segment_s if duration is None else float(duration)) * FS)
         signals, status = _simulate(self, p, op, size_arr, state, n_time)
         time = jnp.arange(n_time, dtype=dtype) / FS
+        if self.output_extensions:
+            signals = self.apply_output_extensions(signals, time, p)
+            ok = jnp.all(jnp.isfinite(signals), axis=(-2, -1))
+            status = jnp.where(ok, status, 1).astype(jnp.int32)
+            signals = jnp.where(ok[:, None, None], signals, 0.0)
         return SimulationResult(signals=signals, status=status, time=time)
 
     def _check_host(self, values, op, state: str, size) -> None:
@@ -346,6 +430,20 @@ class BearingSystem(AbstractSystem):
                 )
 
 
+@eqx.filter_jit
+def _apply_outputs(extensions, signals, time, values):
+    """Output extensions on a flat batch of runs (run, channel, time), in their ``stage``
+    order."""
+
+    def one(run, vals):
+        x = run[0]
+        for e in sorted(extensions, key=lambda e: e.stage):
+            x = e.apply(x, time, vals)
+        return x[None, :]
+
+    return jax.vmap(one)(signals, values)
+
+
 def _float_bits(x: jax.Array) -> jax.Array:
     return jax.lax.bitcast_convert_type(x.astype(jnp.float32), jnp.uint32)
 
@@ -360,6 +458,8 @@ def _simulate(system: BearingSystem, p, op, size, state: str, n_time: int):
     capacity = impulse_capacity(n_time / FS, order, 1.5 * rpm_max / 60.0, slip_max)
     base = jax.random.PRNGKey(system.seed)
     runs = op.shape[0]
+
+    shaft = next((e for e in system.extensions if isinstance(e, ShaftHarmonics)), None)
 
     def one(p_run, op_run, size_run, index):
         key = jax.random.fold_in(base, index)
@@ -381,6 +481,7 @@ def _simulate(system: BearingSystem, p, op, size, state: str, n_time: int):
             epsilon=system.load_zone_epsilon,
             ball_inner_ratio=system.ball_inner_ratio,
             entry_ratio=system.entry_ratio,
+            extra_harmonics=None if shaft is None else shaft.amplitudes(p_run),
         )
 
     x = jax.vmap(one)(p, op, size, jnp.arange(runs, dtype=jnp.uint32))

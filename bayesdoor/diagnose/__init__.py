@@ -85,6 +85,7 @@ from ._signatures import CrossAxisCoherence as CrossAxisCoherence
 from ._signatures import FirstOf as FirstOf
 from ._signatures import FixedFrequency as FixedFrequency
 from ._signatures import HarmonicComb as HarmonicComb
+from ._signatures import ListedFrequency as ListedFrequency
 from ._signatures import Match as Match
 from ._signatures import NoResidual as NoResidual
 from ._signatures import RestLine as RestLine

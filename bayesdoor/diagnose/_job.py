@@ -46,6 +46,7 @@ from ._refit import (
     exact_spectra,
     held_out_spectra,
     refit_extension,
+    tile_runs,
 )
 from ._signatures import AbstractSignature, FirstOf, HarmonicComb, SpeedTracking
 
@@ -316,6 +317,7 @@ class _Measured:
         sample_times: np.ndarray,
         band: tuple[float, float],
         features: Features | None,
+        speeds: np.ndarray | None = None,
     ) -> RefitSetup:
         spectra = Spectra.of_measured(
             self.signals, self.fs, self.t_start, self.t_stop, band, nperseg=int(self.fs)
@@ -331,6 +333,7 @@ class _Measured:
             time=sample_times,
             base_signals=base_signals,
             spectra=spectra,
+            speeds=speeds,
         )
 
 
@@ -344,7 +347,7 @@ def _simulate_rows(
         for name in system.parameter_names()
     }
     result = system.simulate_values(
-        values, jnp.asarray(np.tile(measured.operating, len(rows))), duration=measured.duration
+        values, jnp.asarray(tile_runs(measured.operating, len(rows))), duration=measured.duration
     )
     ok = np.all(np.asarray(result.status).reshape(len(rows), n_runs) == 0, axis=1)
     signals = np.asarray(result.signals)[..., :n_time]
@@ -355,9 +358,19 @@ def _simulate_rows(
     )
 
 
-def _band(fit: FitResult) -> tuple[float, float]:
-    """The analysed band: the fit's feature band (where the base model was fitted)."""
+def _band(fit: FitResult, catalogue: Catalogue | None = None) -> tuple[float, float]:
+    """The analysed band: the catalogue's ``band`` when it names one, else the fit's feature
+    band (where the base model was fitted)."""
+    if catalogue is not None and catalogue.band is not None:
+        return float(catalogue.band[0]), float(catalogue.band[1])
     return float(fit.feature_spec.f_low), float(fit.feature_spec.f_high)
+
+
+def _fold_order(catalogue: Catalogue, operating: np.ndarray) -> np.ndarray:
+    """What :func:`held_out_folds` sorts the runs by: the catalogue's speed of each run, else
+    the operating point (several conditions: their columns in order)."""
+    speeds = catalogue.speeds(operating)
+    return np.asarray(operating if speeds is None else speeds, dtype=float)
 
 
 def _noise_rms(signals: np.ndarray, fs: float, t_start: np.ndarray) -> np.ndarray:
@@ -385,7 +398,7 @@ def _pairs(catalogue: Catalogue) -> tuple[tuple[str, str], ...]:
 
 
 def held_out_folds(
-    operating: Float[np.ndarray, " run"], k: int
+    operating: Float[np.ndarray, " run"] | Float[np.ndarray, "run condition"], k: int
 ) -> list[tuple[Int[np.ndarray, " train"], Int[np.ndarray, " test"]]]:
     """``k`` folds (train, test) of the held-out judgement.
 
@@ -396,7 +409,8 @@ def held_out_folds(
     Parameters
     ----------
     operating
-        Each run's operating point.
+        Each run's operating point (``(run, condition)``: sorted by the first condition,
+        ties by the next).
     k
         Number of folds.
 
@@ -417,7 +431,11 @@ def held_out_folds(
     k = min(int(k), n)
     if n - int(np.ceil(n / k)) < 2:
         return []
-    order = np.argsort(np.asarray(operating), kind="stable")
+    key = np.asarray(operating, dtype=float)
+    if key.ndim == 1:
+        order = np.argsort(key, kind="stable")
+    else:  # several conditions: the first column first, ties by the next ones
+        order = np.lexsort(key.T[::-1])
     tests = [np.sort(order[i::k]) for i in range(k)]
     return [(np.setdiff1d(np.arange(n), test), test) for test in tests]
 
@@ -546,7 +564,9 @@ def judge_folds(
     (``scripts/full_size_case.py --ceiling``).
     """
     base = setup.base_spectra
-    speeds = np.asarray(setup.operating, dtype=float) if tracking else None
+    speeds = None
+    if tracking:
+        speeds = np.asarray(setup.operating if setup.speeds is None else setup.speeds, dtype=float)
     before, after = [], []
     for model, (train, test) in zip(models, folds, strict=True):
         changed = changed_bins(base, model, setup.spectra.log_variance)
@@ -720,8 +740,11 @@ def _predictive(run: _Run) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     pick = np.unique(np.linspace(0, total - 1, min(settings.predictive_draws, total)).round())
     fixed = {k: v for k, v in fit.point.items() if k not in fit.names}
     rows = [dict(fit.point)]
+    repeat = total == 1 and run.catalogue.random_realisations
     if total > 1:
         rows += [{**fixed, **{n: float(draws[n][int(i)]) for n in fit.names}} for i in pick]
+    elif repeat:  # the point again at other batch positions: other realisations
+        rows += [dict(fit.point)] * settings.predictive_draws
     sims, ok, sample_times = _simulate_rows(run.system, measured, rows)
     if not ok[0]:
         raise RuntimeError(
@@ -729,7 +752,7 @@ def _predictive(run: _Run) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             "of this system, (b) the records are longer than the solver's max_steps allow"
         )
     base_signals = sims[0]
-    sims = sims[1:][ok[1:]] if total > 1 else sims[:1]
+    sims = sims[1:][ok[1:]] if total > 1 or repeat else sims[:1]
     sims = sims[np.resize(np.arange(len(sims)), settings.predictive_draws)]
     rng = np.random.default_rng(run.seed)
     noise = _noise_rms(measured.signals, measured.fs, measured.t_start)
@@ -743,7 +766,8 @@ def _residuals(run: _Run) -> None:
     fit, measured, catalogue = run.fit, run.measured, run.catalogue
     assert fit is not None and measured is not None
     base_signals, predictive, sample_times = _predictive(run)
-    band = _band(fit)
+    band = _band(fit, catalogue)
+    speeds = catalogue.speeds(measured.operating)
     profiles = None
     if catalogue.speed_profile is not None:
         profiles = np.asarray(
@@ -759,7 +783,7 @@ def _residuals(run: _Run) -> None:
         channels=measured.channels,
         t_start=measured.t_start,
         t_stop=measured.t_stop,
-        speeds=measured.operating,
+        speeds=speeds,
         speed_profiles=profiles,
         within_run=False,
         order_segment_m=catalogue.order_segment_m,
@@ -769,7 +793,7 @@ def _residuals(run: _Run) -> None:
     )
     run.band = band
     run.setup = measured.setup(
-        run.system, fit.point, base_signals, sample_times, band, run.features
+        run.system, fit.point, base_signals, sample_times, band, run.features, speeds
     )
 
 
@@ -792,7 +816,9 @@ def _plausible(run: _Run) -> list[CauseScore]:
     ][: run.settings.max_candidates]
     if ranking.verdict == NONE:
         return []
-    if plausible and not held_out_folds(measured.operating, run.settings.folds):
+    if plausible and not held_out_folds(
+        _fold_order(run.catalogue, measured.operating), run.settings.folds
+    ):
         run.notes.append(
             f"{len(measured.runs)} healthy runs: too few to fit on half and hold out the other "
             "half (need 4); no candidate could be confirmed"
@@ -805,7 +831,7 @@ def _refit_candidates(run: _Run) -> None:
     """Each plausible candidate's extensions refitted fold by fold and judged on held-out
     runs; a decisive one that explains its feature refitted on every run."""
     assert run.measured is not None
-    folds = held_out_folds(run.measured.operating, run.settings.folds)
+    folds = held_out_folds(_fold_order(run.catalogue, run.measured.operating), run.settings.folds)
     for rank, score in enumerate(_plausible(run)):
         cause = _refit_candidate(run, rank, score, folds)
         if cause is not None:
@@ -1153,7 +1179,10 @@ def extension_gain(
     """
     settings = DiagnosisSettings.quick() if quick else DiagnosisSettings()
     measured = _Measured.of(system, campaign, calibration_runs(campaign))
-    folds = held_out_folds(measured.operating, settings.folds)
+    catalogue = system.catalogue if catalogue is None else catalogue
+    known = catalogue if isinstance(catalogue, Catalogue) else None
+    order = measured.operating if known is None else _fold_order(known, measured.operating)
+    folds = held_out_folds(order, settings.folds)
     if not folds:
         raise ValueError(
             f"{len(measured.runs)} healthy calibration runs: need at least 4 to fit on half "
@@ -1162,8 +1191,10 @@ def extension_gain(
     sims, ok, sample_times = _simulate_rows(system, measured, [dict(fit.point)])
     if not ok[0]:
         raise RuntimeError("the base model failed to simulate the runs at the fit's point")
-    setup = measured.setup(system, fit.point, sims[0], sample_times, _band(fit), features)
-    catalogue = system.catalogue if catalogue is None else catalogue
+    speeds = None if known is None else known.speeds(measured.operating)
+    setup = measured.setup(
+        system, fit.point, sims[0], sample_times, _band(fit, known), features, speeds
+    )
     ext = proposal.extension
     name = ext if isinstance(ext, str) else getattr(ext, "name", None)
     signatures = (

@@ -35,6 +35,24 @@ class Catalogue(eqx.Module):
     points at the given sample times; with it, the diagnosis computes order spectra
     (against travelled distance, segments of ``order_segment_m`` metres) and takes the
     wavelengths of tracking features from them.
+
+    ``speed`` (optional) gives each run's speed, in the units of ``speed_profile``, from
+    its operating point (``(run,)`` or ``(run, condition)``): the speed the residual map's
+    wavenumbers, the speed fits and the held-out folds use. Without it the operating point
+    is the speed when the system has one condition, and a system with several conditions
+    has no wavenumber map (its folds follow the conditions in order).
+
+    ``band`` (optional) is the analysed band of the diagnosis, Hz; ``None``: the base fit's
+    feature band. A system whose fit compares a band where its model is complete, while
+    the causes of its catalogue show elsewhere (a machine's shaft and supply lines under its
+    resonance region), names the wider band here.
+
+    ``random_realisations``: the system's simulations are random realisations (a stochastic
+    model whose runs draw their randomness by their position in the batch), so one
+    simulation of a point is not its expected spectrum. A fit with one point (CMA-ES) then
+    gives the residual map predictive draws that are that point simulated again at other
+    positions of the batch: their spread holds the model's own scatter, which a
+    deterministic simulator does not have.
     """
 
     candidates: tuple[Candidate, ...]
@@ -42,6 +60,9 @@ class Catalogue(eqx.Module):
         static=True, default=None
     )
     order_segment_m: float = eqx.field(static=True, default=0.5)
+    speed: Callable[[np.ndarray], np.ndarray] | None = eqx.field(static=True, default=None)
+    band: tuple[float, float] | None = eqx.field(static=True, default=None)
+    random_realisations: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         names = [c.name for c in self.candidates]
@@ -49,10 +70,20 @@ class Catalogue(eqx.Module):
             raise ValueError(f"catalogue names must be unique, got {names}")
         if NONE not in names:
             raise ValueError(f"a catalogue must hold {NONE!r} (with NoResidual()), got {names}")
+        if self.band is not None and not 0 <= self.band[0] < self.band[1]:
+            raise ValueError(f"band must be (low, high) Hz with 0 <= low < high, got {self.band}")
 
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(c.name for c in self.candidates)
+
+    def speeds(self, operating: np.ndarray) -> np.ndarray | None:
+        """Each run's speed for the diagnosis (``speed``; else the operating point of a
+        system with one condition; ``None`` for several conditions without ``speed``)."""
+        operating = np.asarray(operating, dtype=float)
+        if self.speed is not None:
+            return np.asarray(self.speed(operating), dtype=float).reshape(len(operating))
+        return operating if operating.ndim == 1 else None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -351,15 +351,19 @@ class RefitSetup:
         The base model's signals of every run at ``point`` (cut to the measured length).
     spectra
         The measured spectra and the analysis.
+    speeds
+        Each run's speed for an effect that tracks it (the catalogue's
+        :meth:`~bayesdoor.diagnose.Catalogue.speeds`); ``None``: ``operating``.
     """
 
     system: AbstractSystem
     point: Mapping[str, float]
-    operating: Float[np.ndarray, " run"]
+    operating: Float[np.ndarray, " run"] | Float[np.ndarray, "run condition"]
     duration: float
     time: Float[np.ndarray, " time"]
     base_signals: Float[np.ndarray, "run channel time"]
     spectra: Spectra
+    speeds: Float[np.ndarray, " run"] | None = None
 
     @property
     def base_spectra(self) -> Float[np.ndarray, "run channel freq"]:
@@ -457,6 +461,13 @@ def _boxes(
     return extended, list(proposal.free), lower, upper, fixed
 
 
+def tile_runs(operating: np.ndarray, n: int) -> np.ndarray:
+    """The runs' operating points repeated ``n`` times along the run axis (``(run,)`` or
+    ``(run, condition)``): the operating points of ``n`` rows of a batch of those runs."""
+    operating = np.asarray(operating)
+    return np.tile(operating, (n,) + (1,) * (operating.ndim - 1))
+
+
 class _Model:
     """The extended model's signals for rows of free parameters, and the solves it spent.
 
@@ -536,7 +547,7 @@ class _Model:
         flat.update(
             {k: jnp.full(pop * n_runs, float(v), dtype=float) for k, v in self.setup.point.items()}
         )
-        return flat, jnp.asarray(np.tile(self.setup.operating[runs], pop))
+        return flat, jnp.asarray(tile_runs(self.setup.operating[runs], pop))
 
     def solve(self, vals: Mapping[str, np.ndarray], runs: np.ndarray) -> np.ndarray:
         """Signals (row, run, channel, time) of a direct solve; NaN where it failed."""
@@ -1069,8 +1080,15 @@ def exact_signals(
     missing = [n for n in free if n not in values]
     if missing:
         raise ValueError(f"values lacks the free parameters {missing} of the proposal")
+    # the runs in ascending order, so that a campaign's runs simulated together sit where the
+    # base signals had them (a simulator may draw its randomness by position in the batch)
+    order = np.argsort(runs, kind="stable")
+    back = np.argsort(order, kind="stable")
+    runs = runs[order]
     vals = {k: np.full((1, len(runs)), v) for k, v in fixed.items()}
-    vals.update({n: np.asarray(values[n], dtype=float).reshape(1, len(runs)) for n in free})
+    vals.update(
+        {n: np.asarray(values[n], dtype=float).reshape(1, len(runs))[:, order] for n in free}
+    )
     if model.output_only:
         base = setup.base_signals[runs][None]
         signals = np.asarray(
@@ -1082,7 +1100,7 @@ def exact_signals(
         )
     else:
         signals = model.solve(vals, runs)
-    return signals[0]
+    return signals[0][back]
 
 
 def exact_spectra(

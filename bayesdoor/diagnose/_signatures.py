@@ -614,6 +614,94 @@ class RestLine(AbstractSignature):
         return _best(matches)
 
 
+class ListedFrequency(AbstractSignature):
+    """A line at a listed fixed frequency, seen while the system runs (no rest needed).
+
+    For a machine that never stops during a record (a motor's supply lines): each excess
+    region of the frequency map is matched to the nearest harmonic ``m f0`` of the
+    ``fundamentals`` (m = 1..``harmonics``). Checks: its peak lies within ``tolerance_hz`` of
+    one; the frequency does not move with the speed (as :class:`FixedFrequency`'s check:
+    it fails where the speeds cannot decide, so the two tie); it is in most runs; and, with
+    ``excluded`` wavelengths (spatial periods of another cause, in the units of the runs'
+    speeds over Hz), no affected run's speed puts one of them within ``tolerance_hz`` of
+    the peak (n/a without the runs' speeds): a line that lies on another cause's tone at
+    every run's speed cannot be told from it. Parameters: ``frequency_hz`` (the matched
+    fundamental), ``harmonic``, ``line_frequency_hz`` (the region's peak) and ``harmonics_found``
+    (every harmonic of that fundamental with a matching region).
+    """
+
+    fundamentals: tuple[float, ...] = eqx.field(static=True)
+    harmonics: int = eqx.field(static=True, default=3)
+    tolerance_hz: float = eqx.field(static=True, default=1.0)
+    excluded: tuple[float, ...] = eqx.field(static=True, default=())
+
+    def __check_init__(self):
+        if not self.fundamentals or any(f <= 0 for f in self.fundamentals):
+            raise ValueError(f"fundamentals must be positive frequencies, got {self.fundamentals}")
+        if self.harmonics < 1:
+            raise ValueError(f"harmonics must be at least 1, got {self.harmonics}")
+        if not self.tolerance_hz > 0 or any(w <= 0 for w in self.excluded):
+            raise ValueError("tolerance_hz and the excluded wavelengths must be positive")
+
+    def _nearest(self, f: float) -> tuple[float, float, int]:
+        return min(
+            (abs(f - m * f0), f0, m)
+            for f0 in self.fundamentals
+            for m in range(1, self.harmonics + 1)
+        )
+
+    def match(self, features: Features) -> Match | None:
+        res = features.residuals
+        regions = [r for r in res.regions if r.domain == FREQUENCY and r.sign > 0]
+        tol = max(self.tolerance_hz, res.resolution_hz)
+        matches = []
+        for region in regions:
+            f = float(region.frequency_hz)
+            error, f0, m = self._nearest(f)
+            found = sorted(
+                {
+                    mm
+                    for r in regions
+                    for err, ff, mm in [self._nearest(float(r.frequency_hz))]
+                    if err <= tol and ff == f0
+                }
+            )
+            checks = [
+                Check("at a listed frequency", error <= tol, f"{f:.2f} Hz vs {m} x {f0:g} Hz"),
+                _speed_check(features, region, FIXED),
+                _in_most_runs(region, features.n_runs),
+            ]
+            if self.excluded:
+                speeds = res.speeds
+                if speeds is None:
+                    checks.append(Check("not another cause's tone", None, "no speeds"))
+                else:
+                    runs = region.runs.affected if region.runs.affected.any() else slice(None)
+                    tones = np.asarray(speeds)[runs][:, None] / np.asarray(self.excluded)[None]
+                    close = float(np.min(np.abs(tones - f)))
+                    checks.append(
+                        Check(
+                            "not another cause's tone",
+                            close > tol,
+                            f"nearest excluded tone {close:.2f} Hz away",
+                        )
+                    )
+            matches.append(
+                Match(
+                    feature=region.describe(),
+                    checks=tuple(checks),
+                    parameters={
+                        "frequency_hz": float(f0),
+                        "harmonic": int(m),
+                        "line_frequency_hz": f,
+                        "harmonics_found": tuple(found),
+                    },
+                    strength=abs(region.z),
+                )
+            )
+        return _best(matches)
+
+
 class NoResidual(AbstractSignature):
     """The model explains the data: no significant region, coherence excess or rest line."""
 

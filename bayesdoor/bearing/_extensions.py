@@ -1,0 +1,267 @@
+"""Model extensions of the bearing: the catalogue of discrepancy causes as code.
+
+Each extension is a frozen module whose fields are static configuration (how many shaft
+harmonics, which supply frequency); its fitted quantities are
+:class:`~bayesdoor.systems.ParameterSpec` s named ``"<catalogue name>.<quantity>"``. Every
+extension is inert at its nominal values (amplitudes and gains of zero), so an extended
+bearing at its nominal parameters is the base bearing. The prior of every parameter is
+uniform on its bounds (the generic fit's).
+
+Two kinds, as the door's:
+
+- ``shaft_harmonics`` needs the run's shaft speed, so it acts inside
+  :meth:`BearingSystem.simulate_values` (``needs_resolve``); its amplitudes act linearly;
+- ``structural_mode`` and ``line_frequency`` act on the simulated signal only (output
+  extensions): they are refitted on the base signals simulated once.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Mapping
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .._types import Array, Float
+from ..systems import ParameterSpec
+from ._model import resonance_response
+
+#: the sampling rate of the modelled records, Hz (the system's)
+_FS = 12000.0
+#: the supply frequencies an electrical line may have, Hz
+SUPPLY_FREQUENCIES_HZ = (50.0, 60.0)
+#: the band a structural mode the model lacks may lie in, Hz: above the shaft-rate lines
+#: (10 x 1X is 300-320 Hz at 1800-1900 rpm) and under the recorder's anti-alias cut
+MODE_BAND_HZ = (500.0, 5400.0)
+#: the most shaft harmonics an extension carries
+MAX_SHAFT_HARMONICS = 10
+
+
+def _spec(
+    owner: str, quantity: str, unit: str, nominal: float, lower: float, upper: float, text: str
+) -> ParameterSpec:
+    return ParameterSpec(f"{owner}.{quantity}", unit, nominal, lower, upper, text)
+
+
+class AbstractBearingExtension(eqx.Module):
+    """One model extension of the bearing: a catalogue name, configuration, parameters."""
+
+    name: ClassVar[str]
+    needs_resolve: ClassVar[bool]
+    #: order in which output extensions act: structure, then the measurement chain
+    stage: ClassVar[int] = 0
+
+    @property
+    @abc.abstractmethod
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        """The fitted parameters, names prefixed with ``"<name>."``; nominal values are inert."""
+
+    def local(self, values: Mapping[str, Array | float]) -> dict[str, Array | float]:
+        """This extension's values by unprefixed name.
+
+        Raises
+        ------
+        ValueError
+            When a parameter of this extension is missing from ``values``.
+        """
+        names = [p.name for p in self.parameters]
+        missing = [n for n in names if n not in values]
+        if missing:
+            raise ValueError(
+                f"values lack the {self.name} parameters {missing}: pass every parameter of "
+                "the extension (its nominal values switch it off)"
+            )
+        prefix = len(self.name) + 1
+        return {n[prefix:]: values[n] for n in names}
+
+    def full(self, values: Mapping[str, Array | float]) -> dict[str, Array | float]:
+        """This extension's values by full name."""
+        return {f"{self.name}.{k}": v for k, v in self.local(values).items()}
+
+    def apply(
+        self, signal: Float[Array, " time"], time: Float[Array, " time"], values: Mapping
+    ) -> Float[Array, " time"]:
+        """One run's signal with this extension's effect (output extensions)."""
+        return signal
+
+
+class ShaftHarmonics(AbstractBearingExtension):
+    """Shaft-synchronous lines the model lacks (``shaft_harmonics``): unbalance, misalignment.
+
+    Adds ``a_k cos(2 pi k f_r t + phi_k)`` for k = 1..``harmonics`` to the run, f_r the run's
+    shaft frequency (``shaft_speed / 60``). For k up to the base model's own shaft lines
+    (1x-3x) phi_k is that line's phase, so ``a_k`` adds to its amplitude (a negative one
+    takes from it); above, phi_k is drawn from the run's key like the base phases. Unbalance
+    shows at 1x, misalignment at 2x and 3x (and 1x), mechanical looseness as a series of
+    harmonics up to about 10x (Randall, "Vibration-based condition monitoring", Wiley 2011,
+    ch. 2): ``harmonics`` is at most :data:`MAX_SHAFT_HARMONICS`.
+
+    Parameters: ``shaft_harmonics.amplitude_<k>`` (m/s^2, -2 to 2, the bound of the base
+    model's ``shaft_amplitude``; 0 is off).
+    """
+
+    name: ClassVar[str] = "shaft_harmonics"
+    needs_resolve: ClassVar[bool] = True
+
+    harmonics: int = eqx.field(static=True, default=3)
+
+    def __check_init__(self):
+        if not 1 <= self.harmonics <= MAX_SHAFT_HARMONICS:
+            raise ValueError(
+                f"ShaftHarmonics.harmonics={self.harmonics!r} must lie in 1..{MAX_SHAFT_HARMONICS}"
+            )
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        return tuple(
+            _spec(
+                self.name,
+                f"amplitude_{k}",
+                "m/s^2",
+                0.0,
+                -2.0,
+                2.0,
+                f"amplitude added to the {k}x shaft line",
+            )
+            for k in range(1, self.harmonics + 1)
+        )
+
+    def amplitudes(self, values: Mapping[str, Array]) -> Float[Array, " harmonic"]:
+        """The amplitudes 1x..Kx as one array."""
+        v = self.local(values)
+        return jnp.stack([jnp.asarray(v[f"amplitude_{k}"]) for k in range(1, self.harmonics + 1)])
+
+
+class StructuralMode(AbstractBearingExtension):
+    """A structural resonance the model lacks (``structural_mode``), an output extension.
+
+    The signal x(t) (the base model's: its broadband background and measurement noise are
+    the excitation, as the stand's broadband excitation is a real mode's) is filtered by the
+    mode's ring-down e^(-zeta w t) sin(w_d t), normalised to unit gain and zero phase at the
+    natural frequency, and added ``gain`` times: x + g (h * x), computed on the record's DFT
+    grid as the base model's resonances are (a circular convolution). At the mode's frequency
+    the spectrum rises by (1 + g)^2; away from it the signal is unchanged (the filtered part
+    is in quadrature there, so it only adds); half-power width about 2 zeta f.
+
+    Parameters: ``structural_mode.frequency_hz`` (Hz, :data:`MODE_BAND_HZ`),
+    ``structural_mode.damping_ratio`` (0.001-0.1) and ``structural_mode.gain`` (0-300, the
+    peak amplification minus one; 0 is off).
+    """
+
+    name: ClassVar[str] = "structural_mode"
+    needs_resolve: ClassVar[bool] = False
+    stage: ClassVar[int] = 1
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        return (
+            _spec(
+                self.name,
+                "frequency_hz",
+                "Hz",
+                1000.0,
+                *MODE_BAND_HZ,
+                "natural frequency of the missing mode",
+            ),
+            _spec(self.name, "damping_ratio", "-", 0.01, 0.001, 0.1, "its damping ratio"),
+            _spec(self.name, "gain", "-", 0.0, 0.0, 300.0, "its peak amplification minus one"),
+        )
+
+    def apply(self, signal, time, values):
+        v = self.local(values)
+        n = signal.shape[-1]
+        dtype = signal.dtype
+        f = jnp.arange(n // 2 + 1, dtype=dtype) * (_FS / n)
+        fn = jnp.asarray(v["frequency_hz"], dtype)
+        zeta = jnp.asarray(v["damping_ratio"], dtype)
+        response = resonance_response(f, _FS, fn, zeta)
+        # unit gain and zero phase at the natural frequency: the mode adds to the signal there
+        at_mode = resonance_response(fn[None], _FS, fn, zeta)[0]
+        filtered = jnp.fft.irfft(jnp.fft.rfft(signal) * (response / at_mode), n=n)
+        return signal + jnp.asarray(v["gain"], dtype) * filtered
+
+
+class LineFrequency(AbstractBearingExtension):
+    """An electrical line at the supply frequency and its harmonics (``line_frequency``).
+
+    Adds ``sum_m a_m cos(2 pi m f0 t)`` for m = 1..``harmonics``, f0 = ``frequency_hz`` (50
+    or 60 Hz): electrical interference in the measurement chain, or the motor's
+    electromagnetic forces (the stator field's pull pulsates at 2 f0: an induction motor's
+    classic electrical vibration), whatever the shaft speed. The phases are fixed at zero:
+    the spectra do not see them.
+
+    Parameters: ``line_frequency.amplitude_<m>`` (m/s^2, 0-2; 0 is off).
+    """
+
+    name: ClassVar[str] = "line_frequency"
+    needs_resolve: ClassVar[bool] = False
+    stage: ClassVar[int] = 2
+
+    frequency_hz: float = eqx.field(static=True, default=60.0)
+    harmonics: int = eqx.field(static=True, default=6)
+
+    def __check_init__(self):
+        if self.frequency_hz not in SUPPLY_FREQUENCIES_HZ:
+            raise ValueError(
+                f"LineFrequency.frequency_hz={self.frequency_hz!r}: the supply is 50.0 or 60.0 Hz"
+            )
+        top = int(_FS / 2.0 // self.frequency_hz)
+        if not 1 <= self.harmonics <= top:
+            raise ValueError(f"LineFrequency.harmonics={self.harmonics!r} must lie in 1..{top}")
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        return tuple(
+            _spec(
+                self.name,
+                f"amplitude_{m}",
+                "m/s^2",
+                0.0,
+                0.0,
+                2.0,
+                f"amplitude of the line at {m} x {self.frequency_hz:g} Hz",
+            )
+            for m in range(1, self.harmonics + 1)
+        )
+
+    def apply(self, signal, time, values):
+        v = self.local(values)
+        dtype = signal.dtype
+        phase = 2.0 * np.pi * self.frequency_hz * time.astype(dtype)
+        line = jnp.zeros_like(signal)
+        for m in range(1, self.harmonics + 1):
+            line = line + jnp.asarray(v[f"amplitude_{m}"], dtype) * jnp.cos(m * phase)
+        return signal + line
+
+
+#: the extension class of every catalogue name (``none`` is the base model: no class)
+EXTENSIONS: dict[str, type[AbstractBearingExtension]] = {
+    cls.name: cls for cls in (ShaftHarmonics, StructuralMode, LineFrequency)
+}
+
+
+def extension(name_or_module: str | AbstractBearingExtension, **config) -> AbstractBearingExtension:
+    """The extension of a catalogue name (default configuration, or ``config``), or the module.
+
+    Raises
+    ------
+    ValueError
+        For a name outside the catalogue, or ``"none"``.
+    """
+    if isinstance(name_or_module, AbstractBearingExtension):
+        if config:
+            raise ValueError(
+                f"configuration {sorted(config)} was given with a built extension "
+                f"{name_or_module!r}: pass the catalogue name instead"
+            )
+        return name_or_module
+    if name_or_module not in EXTENSIONS:
+        hint = " ('none' is the base model: pass no extension)" if name_or_module == "none" else ""
+        raise ValueError(
+            f"unknown model extension {name_or_module!r}{hint}: the bearing's catalogue has "
+            f"{', '.join(EXTENSIONS)}"
+        )
+    return EXTENSIONS[name_or_module](**config)

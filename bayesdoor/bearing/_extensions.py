@@ -17,7 +17,6 @@ Two kinds, as the door's:
 
 from __future__ import annotations
 
-import abc
 from collections.abc import Mapping
 from typing import ClassVar
 
@@ -26,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._types import Array, Float
-from ..systems import ParameterSpec
+from ..systems import AbstractExtension, ParameterSpec, build_extension
 from ._model import resonance_response
 
 #: the sampling rate of the modelled records, Hz (the system's)
@@ -46,46 +45,12 @@ def _spec(
     return ParameterSpec(f"{owner}.{quantity}", unit, nominal, lower, upper, text)
 
 
-class AbstractBearingExtension(eqx.Module):
-    """One model extension of the bearing: a catalogue name, configuration, parameters."""
+class AbstractBearingExtension(AbstractExtension):
+    """One model extension of the bearing (:class:`bayesdoor.systems.AbstractExtension`).
 
-    name: ClassVar[str]
-    needs_resolve: ClassVar[bool]
-    #: order in which output extensions act: structure, then the measurement chain
-    stage: ClassVar[int] = 0
-
-    @property
-    @abc.abstractmethod
-    def parameters(self) -> tuple[ParameterSpec, ...]:
-        """The fitted parameters, names prefixed with ``"<name>."``; nominal values are inert."""
-
-    def local(self, values: Mapping[str, Array | float]) -> dict[str, Array | float]:
-        """This extension's values by unprefixed name.
-
-        Raises
-        ------
-        ValueError
-            When a parameter of this extension is missing from ``values``.
-        """
-        names = [p.name for p in self.parameters]
-        missing = [n for n in names if n not in values]
-        if missing:
-            raise ValueError(
-                f"values lack the {self.name} parameters {missing}: pass every parameter of "
-                "the extension (its nominal values switch it off)"
-            )
-        prefix = len(self.name) + 1
-        return {n[prefix:]: values[n] for n in names}
-
-    def full(self, values: Mapping[str, Array | float]) -> dict[str, Array | float]:
-        """This extension's values by full name."""
-        return {f"{self.name}.{k}": v for k, v in self.local(values).items()}
-
-    def apply(
-        self, signal: Float[Array, " time"], time: Float[Array, " time"], values: Mapping
-    ) -> Float[Array, " time"]:
-        """One run's signal with this extension's effect (output extensions)."""
-        return signal
+    Output extensions act on a run's signals (channel, time) in ``stage`` order: structure,
+    then the measurement chain.
+    """
 
 
 class ShaftHarmonics(AbstractBearingExtension):
@@ -251,17 +216,4 @@ def extension(name_or_module: str | AbstractBearingExtension, **config) -> Abstr
     ValueError
         For a name outside the catalogue, or ``"none"``.
     """
-    if isinstance(name_or_module, AbstractBearingExtension):
-        if config:
-            raise ValueError(
-                f"configuration {sorted(config)} was given with a built extension "
-                f"{name_or_module!r}: pass the catalogue name instead"
-            )
-        return name_or_module
-    if name_or_module not in EXTENSIONS:
-        hint = " ('none' is the base model: pass no extension)" if name_or_module == "none" else ""
-        raise ValueError(
-            f"unknown model extension {name_or_module!r}{hint}: the bearing's catalogue has "
-            f"{', '.join(EXTENSIONS)}"
-        )
-    return EXTENSIONS[name_or_module](**config)
+    return build_extension(name_or_module, EXTENSIONS, "the bearing", **config)

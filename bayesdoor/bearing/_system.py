@@ -32,6 +32,7 @@ from ..systems import (
     ParameterSpec,
     SimulationResult,
     SpectralFeatures,
+    apply_output_extensions,
 )
 from ._catalogue import BEARING_CATALOGUE
 from ._extensions import AbstractBearingExtension, ShaftHarmonics, extension
@@ -242,19 +243,7 @@ class BearingSystem(AbstractSystem):
         """Signals of :meth:`without_output_extensions` with the output extensions applied
         (``structural_mode`` before ``line_frequency``); ``values`` names at least their
         parameters, scalars or arrays that broadcast to the batch shape of ``signals``."""
-        outputs = self.output_extensions
-        if not outputs:
-            return signals
-        signals = jnp.asarray(signals)
-        batch = signals.shape[:-2]
-        flat = signals.reshape((-1, *signals.shape[-2:]))
-        vals = {
-            k: jnp.broadcast_to(jnp.asarray(v, dtype=signals.dtype), batch).reshape(-1)
-            for e in outputs
-            for k, v in e.full(values).items()
-        }
-        out = _apply_outputs(outputs, flat, jnp.asarray(time, dtype=signals.dtype), vals)
-        return out.reshape(signals.shape)
+        return apply_output_extensions(self.extensions, signals, time, values)
 
     @property
     def states(self) -> dict[str, DamageSpec]:
@@ -428,20 +417,6 @@ class BearingSystem(AbstractSystem):
                 raise ValueError(
                     f"fault_size_in={s.ravel().tolist()} is outside its range [{lo}, {hi}] in"
                 )
-
-
-@eqx.filter_jit
-def _apply_outputs(extensions, signals, time, values):
-    """Output extensions on a flat batch of runs (run, channel, time), in their ``stage``
-    order."""
-
-    def one(run, vals):
-        x = run[0]
-        for e in sorted(extensions, key=lambda e: e.stage):
-            x = e.apply(x, time, vals)
-        return x[None, :]
-
-    return jax.vmap(one)(signals, values)
 
 
 def _float_bits(x: jax.Array) -> jax.Array:

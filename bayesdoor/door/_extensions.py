@@ -24,7 +24,6 @@ make test data; these are the reduced model's own, simpler and differentiable, v
 
 from __future__ import annotations
 
-import abc
 from collections.abc import Mapping
 from types import ModuleType
 from typing import ClassVar
@@ -35,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._types import Array, Float
-from ..systems import ParameterSpec
+from ..systems import AbstractExtension, ParameterSpec, build_extension
 from . import _geometry as g
 
 #: the door's two accelerometers and wheels (static choices of the extensions)
@@ -66,48 +65,13 @@ def _mode_specs(
     )
 
 
-class AbstractDoorExtension(eqx.Module):
-    """One model extension: a catalogue name, static configuration and fitted parameters.
+class AbstractDoorExtension(AbstractExtension):
+    """One model extension of the door (:class:`bayesdoor.systems.AbstractExtension`).
 
     Concrete extensions implement either :meth:`surface` (they act inside the solve,
-    ``needs_resolve = True``) or :meth:`apply` (they act on the sensor signals).
+    ``needs_resolve = True``) or :meth:`apply` (they act on the sensor signals; ``stage``
+    orders them: structure, then sensor, then measurement chain).
     """
-
-    name: ClassVar[str]
-    needs_resolve: ClassVar[bool]
-    #: order in which output extensions act: structure, then sensor, then measurement chain
-    stage: ClassVar[int] = 0
-
-    @property
-    @abc.abstractmethod
-    def parameters(self) -> tuple[ParameterSpec, ...]:
-        """The fitted parameters, names prefixed with ``"<name>."``; nominal values are inert."""
-
-    def local(self, values: Mapping[str, Array | float]) -> dict[str, Array | float]:
-        """This extension's values from a mapping of full names, keyed by the unprefixed names.
-
-        Raises
-        ------
-        ValueError
-            When a parameter of this extension is missing from ``values``.
-        """
-        names = [p.name for p in self.parameters]
-        missing = [n for n in names if n not in values]
-        if missing:
-            raise ValueError(
-                f"values lack the {self.name} parameters {missing}: pass every parameter of "
-                f"the extension (its nominal values switch it off)"
-            )
-        prefix = len(self.name) + 1
-        return {n[prefix:]: values[n] for n in names}
-
-    def full(self, values: Mapping[str, Array | float]) -> dict[str, Array | float]:
-        """This extension's values from a mapping of full names, keyed by the full names."""
-        return {f"{self.name}.{k}": v for k, v in self.local(values).items()}
-
-    def nominal(self) -> dict[str, float]:
-        """Nominal value of every parameter by full name (the extension switched off)."""
-        return {p.name: p.nominal for p in self.parameters}
 
     def surface(
         self,
@@ -122,15 +86,6 @@ class AbstractDoorExtension(eqx.Module):
         when this extension does not touch that wheel (or acts on outputs only).
         """
         return None
-
-    def apply(
-        self,
-        signals: Float[Array, "channel time"],
-        time: Float[Array, " time"],
-        values: Mapping[str, Array],
-    ) -> Float[Array, "channel time"]:
-        """The sensor signals of one run with this extension's effect (output extensions)."""
-        return signals
 
     #: coordinates this extension adds to the door's equations of motion (each with its
     #: velocity in the state); they act through :meth:`wheel_lift`, :meth:`dof_accelerations`
@@ -609,17 +564,4 @@ def extension(name_or_module: str | AbstractDoorExtension, **config) -> Abstract
     >>> extension("mains_hum", frequency_hz=60.0)
     MainsHum(frequency_hz=60.0)
     """
-    if isinstance(name_or_module, AbstractDoorExtension):
-        if config:
-            raise ValueError(
-                f"configuration {sorted(config)} was given with a built extension "
-                f"{name_or_module!r}: pass the catalogue name instead"
-            )
-        return name_or_module
-    if name_or_module not in EXTENSIONS:
-        hint = " ('none' is the base model: pass no extension)" if name_or_module == "none" else ""
-        raise ValueError(
-            f"unknown model extension {name_or_module!r}{hint}: the door's catalogue has "
-            f"{', '.join(EXTENSIONS)}"
-        )
-    return EXTENSIONS[name_or_module](**config)
+    return build_extension(name_or_module, EXTENSIONS, "the door", **config)

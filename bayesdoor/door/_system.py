@@ -11,7 +11,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._types import Array, Float
-from ..systems import AbstractSystem, ConditionSpec, DamageSpec, ParameterSpec, SimulationResult
+from ..systems import (
+    AbstractSystem,
+    ConditionSpec,
+    DamageSpec,
+    ParameterSpec,
+    SimulationResult,
+    apply_output_extensions,
+)
 from . import _geometry as g
 from ._catalogue import DOOR_CATALOGUE
 from ._extensions import AbstractDoorExtension, extension
@@ -51,18 +58,6 @@ def check_speed(v_max) -> None:
                 f"(the S-curve of a {g.STROKE} m stroke with a = {g.ACCELERATION} m/s^2 and "
                 f"j = {g.JERK} m/s^3 has no cruise phase above {hi} m/s)"
             )
-
-
-@eqx.filter_jit
-def _apply_outputs(extensions, signals, time, values):
-    """Output extensions on a flat batch of runs, in their physical order (see ``stage``)."""
-
-    def one(run, vals):
-        for e in sorted(extensions, key=lambda e: e.stage):
-            run = e.apply(run, time, vals)
-        return run
-
-    return jax.vmap(one)(signals, values)
 
 
 class ElevatorDoor(AbstractSystem):
@@ -206,19 +201,7 @@ class ElevatorDoor(AbstractSystem):
         >>> door.apply_output_extensions(sim.signals, sim.time, values).shape
         (1, 4, 6349)
         """
-        outputs = self.output_extensions
-        if not outputs:
-            return signals
-        signals = jnp.asarray(signals)
-        batch = signals.shape[:-2]
-        flat = signals.reshape((-1, *signals.shape[-2:]))
-        vals = {
-            k: jnp.broadcast_to(jnp.asarray(v, dtype=signals.dtype), batch).reshape(-1)
-            for e in outputs
-            for k, v in e.full(values).items()
-        }
-        out = _apply_outputs(outputs, flat, jnp.asarray(time, dtype=signals.dtype), vals)
-        return out.reshape(signals.shape)
+        return apply_output_extensions(self.extensions, signals, time, values)
 
     @property
     def states(self) -> Mapping[str, DamageSpec]:

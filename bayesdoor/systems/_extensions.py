@@ -1,0 +1,151 @@
+"""The model-extension interface a system's catalogue of discrepancy causes builds on.
+
+An extension adds one physical effect the base model lacks (a structural mode, a line, a
+sensor's cross-axis leak, ...) with parameters whose nominal values switch it off. It acts
+either inside the simulation (``needs_resolve = True``: refitting it needs new solves) or on
+the simulated sensor signals only (an *output* extension, :meth:`AbstractExtension.apply`):
+those can be refitted on signals simulated once (:func:`apply_output_extensions`).
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Mapping, Sequence
+from typing import ClassVar, TypeVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .._types import Array, Float
+from ._base import ParameterSpec
+
+E = TypeVar("E", bound="AbstractExtension")
+
+
+class AbstractExtension(eqx.Module):
+    """One model extension: a catalogue name, static configuration and fitted parameters.
+
+    Its parameters are named ``"<name>.<quantity>"``; at their nominal values the extension
+    has no effect. An output extension (``needs_resolve = False``) implements :meth:`apply`;
+    output extensions act in the order of their ``stage`` (structure before sensor before
+    the measurement chain), whatever the order they were switched on in.
+    """
+
+    name: ClassVar[str]
+    needs_resolve: ClassVar[bool]
+    #: the order in which output extensions act
+    stage: ClassVar[int] = 0
+
+    @property
+    @abc.abstractmethod
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        """The fitted parameters, names prefixed with ``"<name>."``; nominal values are inert."""
+
+    def local(self, values: Mapping[str, Array | float]) -> dict[str, Array | float]:
+        """This extension's values from a mapping of full names, keyed by the unprefixed names.
+
+        Raises
+        ------
+        ValueError
+            When a parameter of this extension is missing from ``values``.
+        """
+        names = [p.name for p in self.parameters]
+        missing = [n for n in names if n not in values]
+        if missing:
+            raise ValueError(
+                f"values lack the {self.name} parameters {missing}: pass every parameter of "
+                f"the extension (its nominal values switch it off)"
+            )
+        prefix = len(self.name) + 1
+        return {n[prefix:]: values[n] for n in names}
+
+    def full(self, values: Mapping[str, Array | float]) -> dict[str, Array | float]:
+        """This extension's values from a mapping of full names, keyed by the full names."""
+        return {f"{self.name}.{k}": v for k, v in self.local(values).items()}
+
+    def nominal(self) -> dict[str, float]:
+        """Nominal value of every parameter by full name (the extension switched off)."""
+        return {p.name: p.nominal for p in self.parameters}
+
+    def apply(
+        self,
+        signals: Float[Array, "channel time"],
+        time: Float[Array, " time"],
+        values: Mapping[str, Array],
+    ) -> Float[Array, "channel time"]:
+        """The sensor signals of one run with this extension's effect (output extensions)."""
+        return signals
+
+
+def build_extension(
+    name_or_module: str | E, catalogue: Mapping[str, type[E]], owner: str, **config
+) -> E:
+    """The extension of a catalogue name (default configuration, or ``config``), or the module.
+
+    Parameters
+    ----------
+    name_or_module
+        A name of ``catalogue`` or a built extension.
+    catalogue
+        The system's extension class of every catalogue name.
+    owner
+        The system, in words, for the messages (``"the door"``).
+
+    Raises
+    ------
+    ValueError
+        For a name outside the catalogue, ``"none"`` (the base model has no extension), or
+        configuration given with a built extension.
+    """
+    if isinstance(name_or_module, AbstractExtension):
+        if config:
+            raise ValueError(
+                f"configuration {sorted(config)} was given with a built extension "
+                f"{name_or_module!r}: pass the catalogue name instead"
+            )
+        return name_or_module
+    if name_or_module not in catalogue:
+        hint = " ('none' is the base model: pass no extension)" if name_or_module == "none" else ""
+        raise ValueError(
+            f"unknown model extension {name_or_module!r}{hint}: {owner}'s catalogue has "
+            f"{', '.join(catalogue)}"
+        )
+    return catalogue[name_or_module](**config)
+
+
+@eqx.filter_jit
+def _apply_in_stage_order(extensions, signals, time, values):
+    def one(run, vals):
+        for e in sorted(extensions, key=lambda e: e.stage):
+            run = e.apply(run, time, vals)
+        return run
+
+    return jax.vmap(one)(signals, values)
+
+
+def apply_output_extensions(
+    extensions: Sequence[AbstractExtension],
+    signals: Float[Array, "*batch channel time"],
+    time: Float[Array, " time"],
+    values: Mapping[str, Float[Array, "*batch"] | float],
+) -> Float[Array, "*batch channel time"]:
+    """Signals with the output extensions among ``extensions`` applied, in ``stage`` order.
+
+    ``values`` names at least their parameters (others are ignored), scalars or arrays that
+    broadcast to the batch shape of ``signals``. Without output extensions the signals are
+    returned unchanged.
+    """
+    outputs = tuple(e for e in extensions if not e.needs_resolve)
+    if not outputs:
+        return signals
+    signals = jnp.asarray(signals)
+    batch = signals.shape[:-2]
+    flat = signals.reshape((-1, *signals.shape[-2:]))
+    vals = {
+        k: jnp.broadcast_to(jnp.asarray(v, dtype=signals.dtype), batch).reshape(-1)
+        for e in outputs
+        for k, v in e.full(values).items()
+    }
+    out = _apply_in_stage_order(outputs, flat, jnp.asarray(time, dtype=signals.dtype), vals)
+    return out.reshape(signals.shape)

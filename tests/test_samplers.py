@@ -17,9 +17,7 @@ from _toy_system import DURATION, FS, REST, ToySystem
 from numpyro.infer.util import potential_energy
 
 from bayesdoor.inference import (
-    POSTERIOR_GROUPS,
     SamplingGateWarning,
-    configuration_hash,
     diagnose_sampling,
     fit_campaign,
     load_posterior,
@@ -29,6 +27,7 @@ from bayesdoor.inference import (
     save_posterior,
     summary_table,
 )
+from bayesdoor.inference._posterior import POSTERIOR_GROUPS, configuration_hash
 from bayesdoor.io import make_campaign
 
 # --- the target: a conjugate model whose posterior is known in closed form -------------------

@@ -548,32 +548,9 @@ class _Emcee:
         tau = _autocorr_time(sampler, self.burn)
         if stopped == "max_steps":
             self._warn_short(sampler.iteration, tau)
-        settings = {
-            **dataclasses.asdict(self),
-            "n_walkers": n_walkers,
-            "init_values": dict(init_values) if init_values is not None else None,
-        }
-        idata = to_inference_data(
-            model,
-            **_emcee_draws(sampler, space, self.burn, _thinning(self.thin, tau)),
-            model_kwargs=model_kwargs,
-            sampler="emcee",
-            settings=settings,
-            key=key,
-            per_chain_stats={
-                "acceptance_fraction": sampler.acceptance_fraction,
-                "ensemble": np.repeat(np.arange(self.n_ensembles), n_walkers),
-            },
+        return self._inference_data(
+            model, model_kwargs, init_values, key, sampler, space, n_walkers, tau, stopped
         )
-        # emcee's own convergence measure (Goodman and Weare 2010; emcee's docs ask for runs
-        # of at least 50 autocorrelation times), per unconstrained coordinate, in steps
-        stats = idata["sample_stats"].attrs
-        stats["autocorr_time"] = json.dumps(np.asarray(tau).tolist())
-        stats["kept_steps"] = sampler.iteration - self.burn
-        stats["total_steps"] = sampler.iteration
-        stats["stopped"] = stopped
-        stats["thin"] = _thinning(self.thin, tau)
-        return idata
 
     def _run(self, sampler: emcee.EnsembleSampler, state: emcee.State, progress: bool) -> str:
         """Advance the ensembles from ``state``: a fixed run in one go to ``n_steps``; an
@@ -629,6 +606,50 @@ class _Emcee:
             # this method, sample, its dtype-promotion wrapper, sample_emcee, its caller
             stacklevel=5,
         )
+
+    def _inference_data(
+        self,
+        model: Callable[..., Any],
+        model_kwargs: Mapping[str, Any],
+        init_values: Mapping[str, Any] | None,
+        key: jax.Array,
+        sampler: emcee.EnsembleSampler,
+        space: _Unconstrained,
+        n_walkers: int,
+        tau: np.ndarray,
+        stopped: str,
+    ) -> az.InferenceData:
+        """The run as ArviZ data: the kept steps, thinned (:func:`_thinning`) and mapped back
+        (:func:`_emcee_draws`), the settings with the walker count used, each walker's
+        acceptance fraction and ensemble, and the run's length, stop and ``tau`` as
+        attributes of ``sample_stats``."""
+        every = _thinning(self.thin, tau)
+        settings = {
+            **dataclasses.asdict(self),
+            "n_walkers": n_walkers,
+            "init_values": dict(init_values) if init_values is not None else None,
+        }
+        idata = to_inference_data(
+            model,
+            **_emcee_draws(sampler, space, self.burn, every),
+            model_kwargs=model_kwargs,
+            sampler="emcee",
+            settings=settings,
+            key=key,
+            per_chain_stats={
+                "acceptance_fraction": sampler.acceptance_fraction,
+                "ensemble": np.repeat(np.arange(self.n_ensembles), n_walkers),
+            },
+        )
+        # emcee's own convergence measure (Goodman and Weare 2010; emcee's docs ask for runs
+        # of at least 50 autocorrelation times), per unconstrained coordinate, in steps
+        stats = idata["sample_stats"].attrs
+        stats["autocorr_time"] = json.dumps(np.asarray(tau).tolist())
+        stats["kept_steps"] = sampler.iteration - self.burn
+        stats["total_steps"] = sampler.iteration
+        stats["stopped"] = stopped
+        stats["thin"] = every
+        return idata
 
 
 def _emcee_draws(

@@ -1727,6 +1727,10 @@ def _summarise(
     return _Summary(diagnostics, point, j, notes)
 
 
+#: the sd of emcee's start ball in the sampled coordinates: a tenth of the posterior sd where
+#: the Laplace whitening succeeds (:func:`_whitened_model`), which makes that sd about 1
+_EMCEE_INIT_SCALE = 0.1
+
 #: the samplers of the posterior, by the method's name
 _SAMPLERS: dict[str, Callable[[FitSettings], _Sampler]] = {
     "nuts": lambda s: _NUTS(
@@ -1742,7 +1746,7 @@ _SAMPLERS: dict[str, Callable[[FitSettings], _Sampler]] = {
         max_steps=s.emcee_max_steps,
         burn=s.emcee_burn,
         thin=s.emcee_thin,
-        init_scale=0.1,
+        init_scale=_EMCEE_INIT_SCALE,
     ),
 }
 

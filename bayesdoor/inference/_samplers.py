@@ -321,6 +321,9 @@ def sample_nuts(
     )
 
 
+# ---------------------------------------------------------------------------------------------
+# emcee: independent ensembles on the unconstrained space
+
 #: draws mapped back to constrained values per compiled call: the jitted ``postprocess_fn``
 #: is compiled once for this batch size, so memory stays bounded whatever the run length
 _CONVERT_CHUNK = 4096
@@ -516,6 +519,7 @@ class _Emcee:
 
     @property
     def _length_name(self) -> str:
+        """The name of the argument that sets :attr:`_length`."""
         return "max_steps" if self.n_steps is None else "n_steps"
 
     @_standard_promotion

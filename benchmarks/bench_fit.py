@@ -49,8 +49,8 @@ from bayesdoor.inference import (
     campaign_data,
     fit_campaign,
     run_features,
-    simulation_horizon,
 )
+from bayesdoor.inference._update import simulation_horizon
 
 ROOT = Path(__file__).resolve().parent.parent
 configure_jax(os.environ.get("BAYESDOOR_JAX_CACHE", ROOT / ".jax_cache"))

@@ -4,7 +4,8 @@ import cma
 import numpy as np
 import pytest
 
-from bayesdoor.inference import CMAESResult, cmaes_options, minimize_cmaes, plot_cmaes_history
+from bayesdoor.inference import CMAESResult, minimize_cmaes, plot_cmaes_history
+from bayesdoor.inference._cmaes import cmaes_options
 
 
 def sphere(X):

@@ -17,9 +17,7 @@ from _toy_system import DURATION, FS, REST, ToySystem
 from numpyro.infer.util import potential_energy
 
 from bayesdoor.inference import (
-    POSTERIOR_GROUPS,
     SamplingGateWarning,
-    configuration_hash,
     diagnose_sampling,
     fit_campaign,
     load_posterior,
@@ -29,6 +27,7 @@ from bayesdoor.inference import (
     save_posterior,
     summary_table,
 )
+from bayesdoor.inference._posterior import POSTERIOR_GROUPS, configuration_hash
 from bayesdoor.io import make_campaign
 
 # --- the target: a conjugate model whose posterior is known in closed form -------------------
@@ -480,6 +479,72 @@ def test_every_emcee_draw_is_converted_whole_and_in_place(n_steps):
     )
     # sqrt of a sum of two squares, compiled or in numpy: a few units in the last place
     np.testing.assert_allclose(norm, np.sqrt(np.sum(x**2, axis=-1)), rtol=1e-14, atol=0)
+
+
+# --- the draws of a seed, pinned ---------------------------------------------------------------
+# Recorded from this code; a change to the samplers' code that leaves their behaviour alone
+# leaves these draws alone. emcee's draws are bit for bit the same whether or not XLA optimises
+# (the log density only decides acceptances, and its last bits never flip one here); NUTS's
+# move by about 1e-10 relative between the two (the reordered float64 sums of 70 iterations of
+# leapfrog steps), so NUTS is compared to 1e-8. A draw from another random sequence differs by
+# the posterior's spread, order 1. An upgrade of jax, numpyro or emcee may change them
+# legitimately: then record them again.
+PINNED = {
+    "emcee": (
+        [1.1718149887204266, -0.04306789532089396, -1.2125292962892418],
+        [0.4403936456042866, -0.39336791426402734, 0.5375666837379733],
+        2.2752811922428107,
+        -26850.25706456702,
+    ),
+    "nuts": (
+        [1.3409730692652861, 0.6250429787499622, -0.038931568710116694],
+        [0.9952739060694102, -0.0976125024601044, -0.8912595212861542],
+        3.4825873687905555,
+        -2084.257335894077,
+    ),
+}
+
+
+@pytest.mark.filterwarnings("ignore:More chains")
+def test_a_seed_gives_the_pinned_draws():
+    """An adaptive emcee run that stops by itself and thins by its tau (2 ensembles of 10
+    walkers, 300 steps, every 10th kept) and a short NUTS run: their first walker's last
+    draw, last walker's first draw, last ``lam`` and the sum of ``lp`` equal the pinned ones."""
+    emcee_run = sample_emcee(
+        conjugate_model,
+        key=jax.random.key(21),
+        model_kwargs=KWARGS,
+        init_values={"theta": MU0, "lam": 2.0},
+        n_ensembles=2,
+        max_steps=400,
+        check_every=100,
+        min_autocorr_lengths=5,
+        tau_tolerance=0.5,
+        burn=50,
+        thin=None,
+        progress=False,
+    )
+    stats = emcee_run.sample_stats.attrs
+    assert (stats["stopped"], stats["total_steps"], stats["thin"]) == ("converged", 300, 10)
+    nuts_run = sample_nuts(
+        conjugate_model,
+        key=jax.random.key(22),
+        model_kwargs=KWARGS,
+        num_warmup=50,
+        num_samples=20,
+        num_chains=2,
+        progress=False,
+    )
+    for name, idata, rtol in (("emcee", emcee_run, 0.0), ("nuts", nuts_run, 1e-8)):
+        theta = idata.posterior["theta"].values
+        got = (
+            theta[0, -1],
+            theta[-1, 0],
+            idata.posterior["lam"].values[-1, -1],
+            idata.sample_stats["lp"].values.sum(),
+        )
+        for value, pinned in zip(got, PINNED[name], strict=True):
+            np.testing.assert_allclose(value, pinned, rtol=rtol, atol=0, err_msg=name)
 
 
 # --- gates -------------------------------------------------------------------------------------

@@ -21,10 +21,9 @@ from bayesdoor.inference import (
     run_sbc,
     sample_nuts,
     save_sbc,
-    sbc_ranks,
     sbc_uniformity,
-    thin_evenly,
 )
+from bayesdoor.inference._sbc import sbc_ranks, thin_evenly
 
 # --- the array core ----------------------------------------------------------------------------
 

@@ -21,11 +21,10 @@ from bayesdoor.inference import (
     calibration_runs,
     campaign_data,
     fit_campaign,
-    j_standard_error,
     posterior_predictive,
     run_features,
-    welch_j_standard_error,
 )
+from bayesdoor.inference._update import j_standard_error, welch_j_standard_error
 from bayesdoor.io import make_campaign
 from bayesdoor.systems import ParameterSpec
 

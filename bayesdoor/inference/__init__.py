@@ -2,7 +2,6 @@
 
 from ._cmaes import CMAESHistory as CMAESHistory
 from ._cmaes import CMAESResult as CMAESResult
-from ._cmaes import cmaes_options as cmaes_options
 from ._cmaes import minimize_cmaes as minimize_cmaes
 from ._cmaes import plot_cmaes_history as plot_cmaes_history
 from ._diagnostics import SamplingDiagnostics as SamplingDiagnostics
@@ -27,8 +26,6 @@ from ._likelihood import log_likelihood as log_likelihood
 from ._likelihood import make_model as make_model
 from ._likelihood import predictive_normal as predictive_normal
 from ._parameterisation import SamplingTransform as SamplingTransform
-from ._posterior import POSTERIOR_GROUPS as POSTERIOR_GROUPS
-from ._posterior import configuration_hash as configuration_hash
 from ._posterior import load_posterior as load_posterior
 from ._posterior import posterior_system as posterior_system
 from ._posterior import record_system as record_system
@@ -41,9 +38,7 @@ from ._sbc import load_sbc as load_sbc
 from ._sbc import plot_sbc_ranks as plot_sbc_ranks
 from ._sbc import run_sbc as run_sbc
 from ._sbc import save_sbc as save_sbc
-from ._sbc import sbc_ranks as sbc_ranks
 from ._sbc import sbc_uniformity as sbc_uniformity
-from ._sbc import thin_evenly as thin_evenly
 from ._surrogate import QuadraticSurrogate as QuadraticSurrogate
 from ._surrogate import box_around as box_around
 from ._surrogate import box_from_samples as box_from_samples
@@ -55,7 +50,4 @@ from ._update import FitSettings as FitSettings
 from ._update import calibration_runs as calibration_runs
 from ._update import campaign_data as campaign_data
 from ._update import fit_campaign as fit_campaign
-from ._update import j_standard_error as j_standard_error
 from ._update import posterior_predictive as posterior_predictive
-from ._update import simulation_horizon as simulation_horizon
-from ._update import welch_j_standard_error as welch_j_standard_error

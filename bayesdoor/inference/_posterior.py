@@ -230,7 +230,8 @@ def save_posterior(idata: az.InferenceData, path: str | Path, *, overwrite: bool
     Parameters
     ----------
     idata
-        The posterior, holding at least the groups of :data:`POSTERIOR_GROUPS`.
+        The posterior, holding at least the groups ``posterior``, ``sample_stats``,
+        ``log_likelihood`` and ``observed_data``.
     path
         Target file (``.nc``); its folder is created.
     overwrite
@@ -276,8 +277,8 @@ def load_posterior(path: str | Path) -> az.InferenceData:
     FileNotFoundError
         If ``path`` does not exist.
     ValueError
-        If a group of :data:`POSTERIOR_GROUPS` is missing (not a bayesdoor posterior, or
-        truncated).
+        If one of the groups ``posterior``, ``sample_stats``, ``log_likelihood`` and
+        ``observed_data`` is missing (not a bayesdoor posterior, or truncated).
     """
     path = Path(path)
     if not path.is_file():

@@ -128,7 +128,117 @@ class _IndependentEnsembles(emcee.moves.StretchMove):
         return state, accepted
 
 
-@_standard_promotion
+# ---------------------------------------------------------------------------------------------
+# one interface: a sampler is its settings, and one call samples a model's posterior
+
+
+class _Sampler(Protocol):
+    """A posterior sampler of a numpyro model: its settings fixed, one call returns the draws
+    of the model's sites and the sampler's statistics as :class:`arviz.InferenceData`
+    (``posterior``, ``sample_stats``, ``log_likelihood``, ``observed_data``)."""
+
+    def sample(
+        self,
+        model: Callable[..., Any],
+        *,
+        key: jax.Array,
+        init_values: Mapping[str, Any] | None,
+        progress: bool,
+        model_kwargs: Mapping[str, Any] | None = None,
+    ) -> az.InferenceData: ...
+
+
+# ---------------------------------------------------------------------------------------------
+# NUTS (numpyro)
+
+
+@dataclasses.dataclass(frozen=True)
+class _NUTS:
+    """NUTS with its settings checked and fixed (the parameters of :func:`sample_nuts`)."""
+
+    num_warmup: int = 1000
+    num_samples: int = 1000
+    num_chains: int = 4
+    dense_mass: bool = False
+    target_accept: float = 0.8
+    max_tree_depth: int = 10
+    chain_method: str = "vectorized"
+    jit_model_args: bool = False
+
+    def __post_init__(self) -> None:
+        for name, value in (("num_samples", self.num_samples), ("num_chains", self.num_chains)):
+            _positive(name, value)
+        _positive("num_warmup", self.num_warmup, 0)
+        _positive("max_tree_depth", self.max_tree_depth)
+        if not 0.0 < self.target_accept < 1.0:
+            raise ValueError(
+                f"target_accept={self.target_accept} must lie in (0, 1), e.g. 0.8 or 0.95"
+            )
+        if self.chain_method not in ("vectorized", "sequential"):
+            raise ValueError(
+                f"chain_method={self.chain_method!r}: use 'vectorized' or 'sequential' "
+                "(one CPU device)"
+            )
+
+    @_standard_promotion
+    def sample(
+        self,
+        model: Callable[..., Any],
+        *,
+        key: jax.Array,
+        init_values: Mapping[str, Any] | None,
+        progress: bool,
+        model_kwargs: Mapping[str, Any] | None = None,
+    ) -> az.InferenceData:
+        """Run numpyro's :class:`~numpyro.infer.MCMC` with NUTS, see :func:`sample_nuts`."""
+        model_kwargs = dict(model_kwargs or {})
+        kernel = NUTS(
+            model,
+            init_strategy=_init_strategy(model, model_kwargs, init_values),
+            dense_mass=self.dense_mass,
+            target_accept_prob=self.target_accept,
+            max_tree_depth=self.max_tree_depth,
+        )
+        mcmc = MCMC(
+            kernel,
+            num_warmup=self.num_warmup,
+            num_samples=self.num_samples,
+            num_chains=self.num_chains,
+            chain_method=self.chain_method,
+            progress_bar=_show_progress(progress),
+            jit_model_args=self.jit_model_args,
+        )
+        mcmc.run(key, extra_fields=_NUTS_FIELDS, **model_kwargs)
+        settings = {
+            **dataclasses.asdict(self),
+            "init_values": dict(init_values) if init_values is not None else None,
+        }
+        return to_inference_data(
+            model,
+            samples=mcmc.get_samples(group_by_chain=True),
+            sample_stats=_nuts_stats(mcmc.get_extra_fields(group_by_chain=True)),
+            model_kwargs=model_kwargs,
+            sampler="nuts",
+            settings=settings,
+            key=key,
+        )
+
+
+def _nuts_stats(fields: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """ArviZ's ``sample_stats`` of NUTS from numpyro's extra fields (:data:`_NUTS_FIELDS`)."""
+    fields = {k: np.asarray(v) for k, v in fields.items()}
+    return {
+        "diverging": fields["diverging"].astype(bool),
+        "energy": fields["energy"],
+        # a full tree of depth d takes 2**d - 1 leapfrog steps
+        "tree_depth": np.floor(np.log2(np.maximum(fields["num_steps"], 1))).astype(int) + 1,
+        "n_steps": fields["num_steps"],
+        "step_size": fields["adapt_state.step_size"],
+        "lp": -fields["potential_energy"],
+        "acceptance_rate": fields["accept_prob"],
+    }
+
+
 def sample_nuts(
     model: Callable[..., Any],
     *,
@@ -196,66 +306,23 @@ def sample_nuts(
     ----------
     M. D. Hoffman and A. Gelman, "The No-U-Turn Sampler", JMLR 15 (2014).
     """
-    for name, value in (("num_samples", num_samples), ("num_chains", num_chains)):
-        _positive(name, value)
-    _positive("num_warmup", num_warmup, 0)
-    _positive("max_tree_depth", max_tree_depth)
-    if not 0.0 < target_accept < 1.0:
-        raise ValueError(f"target_accept={target_accept} must lie in (0, 1), e.g. 0.8 or 0.95")
-    if chain_method not in ("vectorized", "sequential"):
-        raise ValueError(
-            f"chain_method={chain_method!r}: use 'vectorized' or 'sequential' (one CPU device)"
-        )
-    model_kwargs = dict(model_kwargs or {})
-    kernel = NUTS(
-        model,
-        init_strategy=_init_strategy(model, model_kwargs, init_values),
-        dense_mass=dense_mass,
-        target_accept_prob=target_accept,
-        max_tree_depth=max_tree_depth,
-    )
-    mcmc = MCMC(
-        kernel,
+    sampler = _NUTS(
         num_warmup=num_warmup,
         num_samples=num_samples,
         num_chains=num_chains,
+        dense_mass=dense_mass,
+        target_accept=target_accept,
+        max_tree_depth=max_tree_depth,
         chain_method=chain_method,
-        progress_bar=_show_progress(progress),
         jit_model_args=jit_model_args,
     )
-    mcmc.run(key, extra_fields=_NUTS_FIELDS, **model_kwargs)
-    fields = {k: np.asarray(v) for k, v in mcmc.get_extra_fields(group_by_chain=True).items()}
-    stats = {
-        "diverging": fields["diverging"].astype(bool),
-        "energy": fields["energy"],
-        # a full tree of depth d takes 2**d - 1 leapfrog steps
-        "tree_depth": np.floor(np.log2(np.maximum(fields["num_steps"], 1))).astype(int) + 1,
-        "n_steps": fields["num_steps"],
-        "step_size": fields["adapt_state.step_size"],
-        "lp": -fields["potential_energy"],
-        "acceptance_rate": fields["accept_prob"],
-    }
-    settings = {
-        "num_warmup": num_warmup,
-        "num_samples": num_samples,
-        "num_chains": num_chains,
-        "dense_mass": dense_mass,
-        "target_accept": target_accept,
-        "max_tree_depth": max_tree_depth,
-        "chain_method": chain_method,
-        "jit_model_args": jit_model_args,
-        "init_values": dict(init_values) if init_values is not None else None,
-    }
-    return to_inference_data(
-        model,
-        samples=mcmc.get_samples(group_by_chain=True),
-        sample_stats=stats,
-        model_kwargs=model_kwargs,
-        sampler="nuts",
-        settings=settings,
-        key=key,
+    return sampler.sample(
+        model, key=key, init_values=init_values, progress=progress, model_kwargs=model_kwargs
     )
 
+
+# ---------------------------------------------------------------------------------------------
+# emcee: independent ensembles on the unconstrained space
 
 #: draws mapped back to constrained values per compiled call: the jitted ``postprocess_fn``
 #: is compiled once for this batch size, so memory stays bounded whatever the run length
@@ -303,7 +370,310 @@ def _run_length_reached(
     return bool(kept >= lengths * np.max(tau) and settled)
 
 
-@_standard_promotion
+@dataclasses.dataclass(frozen=True)
+class _Unconstrained:
+    """A numpyro model on its unconstrained space, as one flat vector: the start point, the
+    log density of a batch of walkers and the map of one point back to the constrained sites
+    (deterministic sites included)."""
+
+    z0: jax.Array
+    log_density: Callable[[np.ndarray], np.ndarray]
+    constrain: Callable[[jax.Array], Mapping[str, jax.Array]]
+
+    @classmethod
+    def of(
+        cls,
+        model: Callable[..., Any],
+        model_kwargs: Mapping[str, Any],
+        init_values: Mapping[str, Any] | None,
+        key: jax.Array,
+    ) -> _Unconstrained:
+        """numpyro's ``potential_fn`` and ``postprocess_fn`` of ``model``, started at
+        ``init_values`` (else the prior median). The log density is ``-potential_fn`` (priors,
+        likelihood and the Jacobians of the transforms), jitted and vmapped over walkers, in
+        float64; a NaN (a failed simulation) is ``-inf``, so emcee rejects the proposal."""
+        info = initialize_model(
+            key,
+            model,
+            init_strategy=_init_strategy(model, model_kwargs, init_values),
+            model_kwargs=model_kwargs,
+        )
+        z0, unravel = ravel_pytree(info.param_info.z)
+        batched = jax.jit(jax.vmap(lambda z: -info.potential_fn(unravel(z))))
+
+        def log_density(walkers: np.ndarray) -> np.ndarray:
+            lp = np.asarray(batched(jnp.asarray(walkers, dtype=z0.dtype)), dtype=np.float64)
+            return np.where(np.isnan(lp), -np.inf, lp)
+
+        return cls(z0, log_density, lambda z: info.postprocess_fn(unravel(z)))
+
+    @property
+    def ndim(self) -> int:
+        """The number of unconstrained dimensions."""
+        return int(self.z0.size)
+
+
+def _walkers_per_ensemble(n_walkers: int | None, ndim: int) -> int:
+    """``n_walkers``, checked against the fewest the stretch move needs in ``ndim``
+    dimensions (``2 * ndim + 2``); ``None``: that fewest."""
+    fewest = 2 * ndim + 2
+    if n_walkers is None:
+        return fewest
+    if isinstance(n_walkers, bool) or not isinstance(n_walkers, int | np.integer):
+        raise ValueError(f"n_walkers={n_walkers!r} must be an integer >= {fewest}, or None")
+    if n_walkers < fewest:
+        raise ValueError(
+            f"n_walkers={n_walkers} is too few for {ndim} unconstrained dimensions: the stretch "
+            f"move needs at least 2 * ndim + 2 = {fewest} walkers per ensemble (each half must "
+            f"span every direction); pass n_walkers >= {fewest}, or None for {fewest}"
+        )
+    return n_walkers
+
+
+def _initial_walkers(
+    space: _Unconstrained,
+    total: int,
+    init_scale: float,
+    key_ball: jax.Array,
+    key_numpy: jax.Array,
+) -> emcee.State:
+    """emcee's start state: ``total`` walkers drawn (``key_ball``) from a Gaussian ball of
+    standard deviation ``init_scale`` around the start point, their log densities, and the
+    state of NumPy's generator that emcee's moves draw from, seeded by ``key_numpy``.
+
+    Raises
+    ------
+    ValueError
+        If a walker starts at a non-finite log density.
+    """
+    z0 = space.z0
+    ball = np.asarray(z0 + init_scale * jax.random.normal(key_ball, (total, space.ndim), z0.dtype))
+    lp0 = space.log_density(ball)
+    if not np.all(np.isfinite(lp0)):
+        raise ValueError(
+            f"{int(np.sum(~np.isfinite(lp0)))} of {total} walkers start with a non-finite "
+            f"log density (init_scale={init_scale}): (a) start closer to the posterior mode "
+            "(e.g. a CMA-ES optimum), (b) shrink init_scale, (c) check the model at init_values"
+        )
+    seed = int(jax.random.randint(key_numpy, (), 0, np.iinfo(np.int32).max))
+    return emcee.State(ball, log_prob=lp0, random_state=np.random.RandomState(seed).get_state())
+
+
+def _autocorr_time(sampler: emcee.EnsembleSampler, burn: int) -> np.ndarray:
+    """emcee's integrated autocorrelation time of every unconstrained coordinate on the
+    steps after ``burn``, in steps; NaN for a run too short to estimate it."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return sampler.get_autocorr_time(discard=burn, tol=0)
+
+
+def _thinning(thin: int | None, tau: np.ndarray) -> int:
+    """The thinning interval: ``thin``, or for ``None`` emcee's recipe ``max(1, min(tau) //
+    2)`` (1 when tau could not be estimated)."""
+    if thin is not None:
+        return thin
+    if np.all(np.isfinite(tau)):
+        return max(1, int(np.min(tau)) // 2)
+    return 1
+
+
+@dataclasses.dataclass(frozen=True)
+class _Emcee:
+    """Independent emcee ensembles with their settings checked and fixed (the parameters of
+    :func:`sample_emcee`)."""
+
+    n_walkers: int | None = None
+    n_ensembles: int = 4
+    n_steps: int | None = None
+    max_steps: int = 40000
+    check_every: int = 500
+    min_autocorr_lengths: float = 50.0
+    tau_tolerance: float = 0.01
+    burn: int = 1000
+    thin: int | None = 1
+    init_scale: float = 1e-2
+
+    def __post_init__(self) -> None:
+        _positive(self._length_name, self._length)
+        _positive("n_ensembles", self.n_ensembles)
+        _positive("check_every", self.check_every)
+        _positive("burn", self.burn, 0)
+        if self.thin is not None:
+            _positive("thin", self.thin)
+        if self.burn >= self._length:
+            raise ValueError(
+                f"burn={self.burn} must be smaller than {self._length_name}={self._length}"
+            )
+        if not self.init_scale > 0:
+            raise ValueError(f"init_scale={self.init_scale} must be positive, e.g. 1e-2")
+        if not self.min_autocorr_lengths > 0 or not 0 < self.tau_tolerance < 1:
+            raise ValueError(
+                f"min_autocorr_lengths={self.min_autocorr_lengths} must be positive and "
+                f"tau_tolerance={self.tau_tolerance} in (0, 1): emcee's documentation uses "
+                "50 and 0.01"
+            )
+
+    @property
+    def _length(self) -> int:
+        """The most steps: ``n_steps`` for a fixed run, else ``max_steps``."""
+        return self.max_steps if self.n_steps is None else self.n_steps
+
+    @property
+    def _length_name(self) -> str:
+        """The name of the argument that sets :attr:`_length`."""
+        return "max_steps" if self.n_steps is None else "n_steps"
+
+    @_standard_promotion
+    def sample(
+        self,
+        model: Callable[..., Any],
+        *,
+        key: jax.Array,
+        init_values: Mapping[str, Any] | None,
+        progress: bool,
+        model_kwargs: Mapping[str, Any] | None = None,
+    ) -> az.InferenceData:
+        """Run the ensembles, see :func:`sample_emcee`: the start ball, the run to its
+        length, the autocorrelation time and the thinning, the draws mapped back to the
+        constrained sites."""
+        model_kwargs = dict(model_kwargs or {})
+        key_init, key_ball, key_numpy = jax.random.split(key, 3)
+        space = _Unconstrained.of(model, model_kwargs, init_values, key_init)
+        n_walkers = _walkers_per_ensemble(self.n_walkers, space.ndim)
+        total = self.n_ensembles * n_walkers
+        state = _initial_walkers(space, total, self.init_scale, key_ball, key_numpy)
+        sampler = emcee.EnsembleSampler(
+            total,
+            space.ndim,
+            space.log_density,
+            moves=_IndependentEnsembles(self.n_ensembles),
+            vectorize=True,
+        )
+        stopped = self._run(sampler, state, _show_progress(progress))
+        tau = _autocorr_time(sampler, self.burn)
+        if stopped == "max_steps":
+            self._warn_short(sampler.iteration, tau)
+        return self._inference_data(
+            model, model_kwargs, init_values, key, sampler, space, n_walkers, tau, stopped
+        )
+
+    def _run(self, sampler: emcee.EnsembleSampler, state: emcee.State, progress: bool) -> str:
+        """Advance the ensembles from ``state``: a fixed run in one go to ``n_steps``; an
+        adaptive one in blocks of ``check_every`` steps, checked after each
+        (:meth:`_long_enough`), up to ``max_steps``. Returns why it stopped: ``"n_steps"``,
+        ``"converged"`` or ``"max_steps"``. The blocks do not change the draws."""
+        length = self._length
+        previous: np.ndarray | None = None
+        while sampler.iteration < length:
+            block = length - sampler.iteration if self.n_steps is not None else self.check_every
+            state = sampler.run_mcmc(
+                state, min(block, length - sampler.iteration), progress=progress
+            )
+            if self.n_steps is None and sampler.iteration > self.burn:
+                done, previous = self._long_enough(sampler, previous)
+                if done:
+                    return "converged"
+        return "n_steps" if self.n_steps is not None else "max_steps"
+
+    def _long_enough(
+        self, sampler: emcee.EnsembleSampler, previous: np.ndarray | None
+    ) -> tuple[bool, np.ndarray]:
+        """The stopping check of an adaptive run after a block: whether the kept steps reach
+        ``min_autocorr_lengths`` x every tau with tau settled to ``tau_tolerance`` since the
+        ``previous`` check (:func:`_run_length_reached`), and the tau this check estimated.
+
+        The check thins long chains to about :data:`_CHECK_ROWS` steps (its cost grows with
+        the steps, the estimate of a tau of many thinning intervals barely moves), and a stop
+        is confirmed on the full chain, the estimate the length gate of
+        :func:`diagnose_sampling` reads. ``tol=0``: emcee's own length check is this rule, not
+        a logged warning.
+        """
+        kept = sampler.iteration - self.burn
+        step = max(1, kept // _CHECK_ROWS)
+        tau = sampler.get_autocorr_time(discard=self.burn, thin=step, tol=0)
+        lengths = self.min_autocorr_lengths
+        if _run_length_reached(tau, previous, kept, lengths, self.tau_tolerance):
+            full = tau if step == 1 else sampler.get_autocorr_time(discard=self.burn, tol=0)
+            return bool(kept >= lengths * np.max(full)), tau
+        return False, tau
+
+    def _warn_short(self, steps: int, tau: np.ndarray) -> None:
+        """Warn that ``max_steps`` stopped an adaptive run before its length, with the
+        ``max_steps`` that would reach it (the caller of :func:`sample_emcee` is named)."""
+        burn, lengths = self.burn, self.min_autocorr_lengths
+        warnings.warn(
+            f"emcee stopped at max_steps={self.max_steps} before its adaptive length: "
+            f"{steps - burn} kept steps = {(steps - burn) / np.max(tau):.1f} autocorrelation "
+            f"times (largest tau {np.max(tau):.0f} steps; {lengths:g} asked, tau settled to "
+            f"{self.tau_tolerance:g}): raise max_steps to about "
+            f"{burn + int(np.ceil(lengths * np.max(tau) * 1.2))}, or use NUTS",
+            UserWarning,
+            # this method, sample, its dtype-promotion wrapper, sample_emcee, its caller
+            stacklevel=5,
+        )
+
+    def _inference_data(
+        self,
+        model: Callable[..., Any],
+        model_kwargs: Mapping[str, Any],
+        init_values: Mapping[str, Any] | None,
+        key: jax.Array,
+        sampler: emcee.EnsembleSampler,
+        space: _Unconstrained,
+        n_walkers: int,
+        tau: np.ndarray,
+        stopped: str,
+    ) -> az.InferenceData:
+        """The run as ArviZ data: the kept steps, thinned (:func:`_thinning`) and mapped back
+        (:func:`_emcee_draws`), the settings with the walker count used, each walker's
+        acceptance fraction and ensemble, and the run's length, stop and ``tau`` as
+        attributes of ``sample_stats``."""
+        every = _thinning(self.thin, tau)
+        settings = {
+            **dataclasses.asdict(self),
+            "n_walkers": n_walkers,
+            "init_values": dict(init_values) if init_values is not None else None,
+        }
+        idata = to_inference_data(
+            model,
+            **_emcee_draws(sampler, space, self.burn, every),
+            model_kwargs=model_kwargs,
+            sampler="emcee",
+            settings=settings,
+            key=key,
+            per_chain_stats={
+                "acceptance_fraction": sampler.acceptance_fraction,
+                "ensemble": np.repeat(np.arange(self.n_ensembles), n_walkers),
+            },
+        )
+        # emcee's own convergence measure (Goodman and Weare 2010; emcee's docs ask for runs
+        # of at least 50 autocorrelation times), per unconstrained coordinate, in steps
+        stats = idata["sample_stats"].attrs
+        stats["autocorr_time"] = json.dumps(np.asarray(tau).tolist())
+        stats["kept_steps"] = sampler.iteration - self.burn
+        stats["total_steps"] = sampler.iteration
+        stats["stopped"] = stopped
+        stats["thin"] = every
+        return idata
+
+
+def _emcee_draws(
+    sampler: emcee.EnsembleSampler, space: _Unconstrained, burn: int, every: int
+) -> dict[str, dict[str, np.ndarray]]:
+    """The kept steps (after ``burn``, every ``every``-th) as :func:`to_inference_data`'s
+    ``samples`` (constrained sites by walker and draw, :func:`_constrained_draws`) and
+    ``sample_stats`` (``lp``)."""
+    chain = sampler.get_chain(discard=burn, thin=every)  # (draw, walker, ndim)
+    draws, walkers = chain.shape[:2]
+    flat = np.swapaxes(chain, 0, 1).reshape(walkers * draws, space.ndim).astype(space.z0.dtype)
+    constrained = _constrained_draws(space.constrain, flat)
+    return {
+        "samples": {
+            name: v.reshape((walkers, draws, *v.shape[1:])) for name, v in constrained.items()
+        },
+        "sample_stats": {"lp": sampler.get_log_prob(discard=burn, thin=every).T},
+    }
+
+
 def sample_emcee(
     model: Callable[..., Any],
     *,
@@ -428,225 +798,18 @@ def sample_emcee(
     CAMCoS 5 (2010); emcee's documentation, "Autocorrelation analysis & convergence" and
     "Saving & monitoring progress".
     """
-    length = max_steps if n_steps is None else n_steps
-    _positive("n_steps" if n_steps is not None else "max_steps", length)
-    _positive("n_ensembles", n_ensembles)
-    _positive("check_every", check_every)
-    _positive("burn", burn, 0)
-    if thin is not None:
-        _positive("thin", thin)
-    if burn >= length:
-        name = "n_steps" if n_steps is not None else "max_steps"
-        raise ValueError(f"burn={burn} must be smaller than {name}={length}")
-    if not init_scale > 0:
-        raise ValueError(f"init_scale={init_scale} must be positive, e.g. 1e-2")
-    if not min_autocorr_lengths > 0 or not 0 < tau_tolerance < 1:
-        raise ValueError(
-            f"min_autocorr_lengths={min_autocorr_lengths} must be positive and "
-            f"tau_tolerance={tau_tolerance} in (0, 1): emcee's documentation uses 50 and 0.01"
-        )
-    model_kwargs = dict(model_kwargs or {})
-    key_init, key_ball, key_numpy = jax.random.split(key, 3)
-    info = initialize_model(
-        key_init,
-        model,
-        init_strategy=_init_strategy(model, model_kwargs, init_values),
-        model_kwargs=model_kwargs,
+    sampler = _Emcee(
+        n_walkers=n_walkers,
+        n_ensembles=n_ensembles,
+        n_steps=n_steps,
+        max_steps=max_steps,
+        check_every=check_every,
+        min_autocorr_lengths=min_autocorr_lengths,
+        tau_tolerance=tau_tolerance,
+        burn=burn,
+        thin=thin,
+        init_scale=init_scale,
     )
-    z0, unravel = ravel_pytree(info.param_info.z)
-    ndim = z0.size
-    fewest = 2 * ndim + 2
-    if n_walkers is None:
-        n_walkers = fewest
-    elif isinstance(n_walkers, bool) or not isinstance(n_walkers, int | np.integer):
-        raise ValueError(f"n_walkers={n_walkers!r} must be an integer >= {fewest}, or None")
-    elif n_walkers < fewest:
-        raise ValueError(
-            f"n_walkers={n_walkers} is too few for {ndim} unconstrained dimensions: the stretch "
-            f"move needs at least 2 * ndim + 2 = {fewest} walkers per ensemble (each half must "
-            f"span every direction); pass n_walkers >= {fewest}, or None for {fewest}"
-        )
-
-    batched = jax.jit(jax.vmap(lambda z: -info.potential_fn(unravel(z))))
-
-    def log_prob(walkers: np.ndarray) -> np.ndarray:
-        lp = np.asarray(batched(jnp.asarray(walkers, dtype=z0.dtype)), dtype=np.float64)
-        return np.where(np.isnan(lp), -np.inf, lp)
-
-    total = n_ensembles * n_walkers
-    ball = np.asarray(z0 + init_scale * jax.random.normal(key_ball, (total, ndim), z0.dtype))
-    lp0 = log_prob(ball)
-    if not np.all(np.isfinite(lp0)):
-        raise ValueError(
-            f"{int(np.sum(~np.isfinite(lp0)))} of {total} walkers start with a non-finite "
-            f"log density (init_scale={init_scale}): (a) start closer to the posterior mode "
-            "(e.g. a CMA-ES optimum), (b) shrink init_scale, (c) check the model at init_values"
-        )
-    seed = int(jax.random.randint(key_numpy, (), 0, np.iinfo(np.int32).max))
-    sampler = emcee.EnsembleSampler(
-        total, ndim, log_prob, moves=_IndependentEnsembles(n_ensembles), vectorize=True
+    return sampler.sample(
+        model, key=key, init_values=init_values, progress=progress, model_kwargs=model_kwargs
     )
-    state = emcee.State(ball, log_prob=lp0, random_state=np.random.RandomState(seed).get_state())
-    stopped = "n_steps" if n_steps is not None else "max_steps"
-    previous: np.ndarray | None = None
-    shown = _show_progress(progress)
-    while sampler.iteration < length:
-        block = length - sampler.iteration if n_steps is not None else check_every
-        state = sampler.run_mcmc(state, min(block, length - sampler.iteration), progress=shown)
-        if n_steps is None and sampler.iteration > burn:
-            kept = sampler.iteration - burn
-            # tol=0: emcee's own length check is the rule below, not a logged warning; the
-            # check thins long chains (its cost grows with the steps, the estimate of a tau
-            # of many thinning intervals barely moves), and a stop is confirmed on the full
-            # chain, the estimate the length gate of diagnose_sampling reads
-            step = max(1, kept // _CHECK_ROWS)
-            tau = sampler.get_autocorr_time(discard=burn, thin=step, tol=0)
-            if _run_length_reached(tau, previous, kept, min_autocorr_lengths, tau_tolerance):
-                full = tau if step == 1 else sampler.get_autocorr_time(discard=burn, tol=0)
-                if kept >= min_autocorr_lengths * np.max(full):
-                    stopped = "converged"
-                    break
-            previous = tau
-    steps = sampler.iteration
-
-    with np.errstate(invalid="ignore", divide="ignore"):  # NaN for too short runs
-        tau = sampler.get_autocorr_time(discard=burn, tol=0)
-    if stopped == "max_steps":
-        warnings.warn(
-            f"emcee stopped at max_steps={max_steps} before its adaptive length: {steps - burn} "
-            f"kept steps = {(steps - burn) / np.max(tau):.1f} autocorrelation times (largest "
-            f"tau {np.max(tau):.0f} steps; {min_autocorr_lengths:g} asked, tau settled to "
-            f"{tau_tolerance:g}): raise max_steps to about "
-            f"{burn + int(np.ceil(min_autocorr_lengths * np.max(tau) * 1.2))}, or use NUTS",
-            UserWarning,
-            stacklevel=3,
-        )
-
-    if thin is not None:
-        every = thin
-    elif np.all(np.isfinite(tau)):
-        every = max(1, int(np.min(tau)) // 2)
-    else:
-        every = 1
-    chain = sampler.get_chain(discard=burn, thin=every)  # (draw, walker, ndim)
-    draws = chain.shape[0]
-    flat = np.swapaxes(chain, 0, 1).reshape(total * draws, ndim).astype(z0.dtype)
-    constrained = _constrained_draws(lambda z: info.postprocess_fn(unravel(z)), flat)
-    samples = {name: v.reshape((total, draws, *v.shape[1:])) for name, v in constrained.items()}
-    settings = {
-        "n_walkers": n_walkers,
-        "n_ensembles": n_ensembles,
-        "n_steps": n_steps,
-        "max_steps": max_steps,
-        "check_every": check_every,
-        "min_autocorr_lengths": min_autocorr_lengths,
-        "tau_tolerance": tau_tolerance,
-        "burn": burn,
-        "thin": thin,
-        "init_scale": init_scale,
-        "init_values": dict(init_values) if init_values is not None else None,
-    }
-    idata = to_inference_data(
-        model,
-        samples=samples,
-        sample_stats={"lp": sampler.get_log_prob(discard=burn, thin=every).T},
-        model_kwargs=model_kwargs,
-        sampler="emcee",
-        settings=settings,
-        key=key,
-        per_chain_stats={
-            "acceptance_fraction": sampler.acceptance_fraction,
-            "ensemble": np.repeat(np.arange(n_ensembles), n_walkers),
-        },
-    )
-    # emcee's own convergence measure (Goodman and Weare 2010; emcee's docs ask for runs of
-    # at least 50 autocorrelation times), per unconstrained coordinate, in steps
-    stats = idata["sample_stats"].attrs
-    stats["autocorr_time"] = json.dumps(np.asarray(tau).tolist())
-    stats["kept_steps"] = steps - burn
-    stats["total_steps"] = steps
-    stats["stopped"] = stopped
-    stats["thin"] = every
-    return idata
-
-
-# ---------------------------------------------------------------------------------------------
-# one interface for the fit: a sampler chosen by name, its sizes fixed
-
-
-class _Sampler(Protocol):
-    """A posterior sampler of a numpyro model: draws (and the sampler's statistics) of its
-    sites from ``init_values``, as :class:`arviz.InferenceData`."""
-
-    def sample(
-        self,
-        model: Callable[..., Any],
-        *,
-        key: jax.Array,
-        init_values: Mapping[str, Any],
-        progress: bool,
-    ) -> az.InferenceData: ...
-
-
-@dataclasses.dataclass(frozen=True)
-class _NUTS:
-    """:func:`sample_nuts` with its run sizes fixed."""
-
-    num_warmup: int
-    num_samples: int
-    num_chains: int
-    target_accept: float
-    chain_method: str
-
-    def sample(
-        self,
-        model: Callable[..., Any],
-        *,
-        key: jax.Array,
-        init_values: Mapping[str, Any],
-        progress: bool,
-    ) -> az.InferenceData:
-        return sample_nuts(
-            model,
-            key=key,
-            init_values=init_values,
-            num_warmup=self.num_warmup,
-            num_samples=self.num_samples,
-            num_chains=self.num_chains,
-            target_accept=self.target_accept,
-            chain_method=self.chain_method,
-            progress=progress,
-        )
-
-
-@dataclasses.dataclass(frozen=True)
-class _Emcee:
-    """:func:`sample_emcee` with its run sizes fixed."""
-
-    n_walkers: int | None
-    n_steps: int | None
-    max_steps: int
-    burn: int
-    thin: int | None
-    init_scale: float
-
-    def sample(
-        self,
-        model: Callable[..., Any],
-        *,
-        key: jax.Array,
-        init_values: Mapping[str, Any],
-        progress: bool,
-    ) -> az.InferenceData:
-        return sample_emcee(
-            model,
-            key=key,
-            init_values=init_values,
-            n_walkers=self.n_walkers,
-            n_steps=self.n_steps,
-            max_steps=self.max_steps,
-            burn=self.burn,
-            thin=self.thin,
-            init_scale=self.init_scale,
-            progress=progress,
-        )

@@ -73,7 +73,7 @@ def sbc_ranks(
     truth
         The prior draw each data set was simulated from.
     draws
-        ``L`` posterior draws per data set (thinned, see :func:`thin_evenly`).
+        ``L`` posterior draws per data set (evenly spaced over the fit's draws).
 
     Returns
     -------
@@ -183,7 +183,8 @@ def sbc_uniformity(
     Parameters
     ----------
     ranks
-        Ranks from :func:`sbc_ranks`, in ``0..n_rank_draws``.
+        Ranks of the truth among the posterior draws (``SBCResult.ranks``), in
+        ``0..n_rank_draws``.
     n_rank_draws
         The number ``L`` of posterior draws each rank was taken among.
     names

@@ -61,6 +61,8 @@ from ._surrogate import box_around, fit_surrogate, map_padded_chunks
 
 Method = Literal["cmaes", "nuts", "emcee"]
 METHODS: tuple[str, ...] = ("cmaes", "nuts", "emcee")
+"""The values of :func:`fit_campaign`'s ``method``: the CMA-ES optimum alone, or a posterior
+sampled with NUTS or emcee."""
 
 #: smallest model-error scale (decades) used to start the sampler and for a CMA-ES point
 _SIGMA_FLOOR = 0.01
@@ -87,10 +89,10 @@ class FitSettings:
         converges only costs time).
     cmaes_tolerance
         CMA-ES stops when its best J of the last iterations spans less than this fraction of
-        J's standard error from the run-to-run scatter (:func:`j_standard_error`; pycma's
+        J's standard error from the run-to-run scatter (pycma's
         ``tolfun`` and ``tolfunhist``): a finer optimum of J is below what the data resolve.
         A campaign without replicate runs takes the standard error from the Welch scatter
-        alone (:func:`welch_j_standard_error`, a lower bound, so a tighter stop), and says
+        alone (a lower bound, so a tighter stop), and says
         so in the fit's notes. ``None``: pycma's default tolerances (1e-11 and 1e-12), so
         the budget stops it.
     workers
@@ -1725,6 +1727,10 @@ def _summarise(
     return _Summary(diagnostics, point, j, notes)
 
 
+#: the sd of emcee's start ball in the sampled coordinates: a tenth of the posterior sd where
+#: the Laplace whitening succeeds (:func:`_whitened_model`), which makes that sd about 1
+_EMCEE_INIT_SCALE = 0.1
+
 #: the samplers of the posterior, by the method's name
 _SAMPLERS: dict[str, Callable[[FitSettings], _Sampler]] = {
     "nuts": lambda s: _NUTS(
@@ -1740,7 +1746,7 @@ _SAMPLERS: dict[str, Callable[[FitSettings], _Sampler]] = {
         max_steps=s.emcee_max_steps,
         burn=s.emcee_burn,
         thin=s.emcee_thin,
-        init_scale=0.1,
+        init_scale=_EMCEE_INIT_SCALE,
     ),
 }
 

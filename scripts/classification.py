@@ -1,7 +1,7 @@
 """Accuracy and calibration on the demo campaign's 300 test runs -> results/classification.md.
 
 For each training-data source (the paper's Gaussian scatter around the CMA-ES optimum,
-posterior draws, posterior draws plus model-error offsets) and each seed, the main job
+posterior draws, posterior draws plus the measured discrepancy) and each seed, the main job
 (``bayesdoor.pipeline.run_job``) simulates training data, trains and calibrates the ensemble on
 simulations only, and classifies the test runs. One fit on the 10 calibration runs (seed 0)
 serves every job: its stage folder is copied into each job folder, where the stage's
@@ -45,7 +45,7 @@ STATES = ("healthy", "D1", "D2")
 LABELS = {
     "gaussian": "Gaussian scatter around the CMA-ES optimum (paper's baseline, 5 %)",
     "posterior": "posterior draws",
-    "posterior+model_error": "posterior draws + model-error offsets",
+    "posterior+model_error": "posterior draws + the measured discrepancy (the default)",
 }
 #: the channel each channel reads when the two sensors' cables are swapped
 SENSOR_SWAP = {"A1X": "A2X", "A1Z": "A2Z", "A2X": "A1X", "A2Z": "A1Z"}

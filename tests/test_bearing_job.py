@@ -22,7 +22,9 @@ from bayesdoor.pipeline import Sizes, run_job
 
 pytestmark = pytest.mark.long
 
-SYSTEM = BearingSystem(segment_s=0.25)
+# half-second segments: short, yet one Welch segment of the classifier's 4096 samples long
+SYSTEM = BearingSystem(segment_s=0.5)
+N_TIME = round(SYSTEM.segment_s * SYSTEM.sampling_rate_hz)
 SIZES = Sizes(
     runs_per_state=8,
     chunk_size=8,
@@ -43,7 +45,7 @@ def _campaign() -> tuple:
         signals.append(np.asarray(result.signals[0]))
     n = len(rows)
     campaign = make_campaign(
-        np.stack(signals) + 0.01 * np.random.default_rng(0).standard_normal((n, 1, 3000)),
+        np.stack(signals) + 0.01 * np.random.default_rng(0).standard_normal((n, 1, N_TIME)),
         channels=["DE"],
         fs=SYSTEM.sampling_rate_hz,
         state=[r[0] for r in rows],
@@ -51,7 +53,7 @@ def _campaign() -> tuple:
         split=[r[1] for r in rows],
         record=[r[2] for r in rows],
         t_start=np.zeros(n),
-        t_stop=np.full(n, 2999 / SYSTEM.sampling_rate_hz),
+        t_stop=np.full(n, (N_TIME - 1) / SYSTEM.sampling_rate_hz),
         shaft_speed=np.full(n, 1797.0),
         load_hp=np.zeros(n),
     )

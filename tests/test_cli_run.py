@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 
 from bayesdoor.cli import app
 from bayesdoor.io import make_campaign, save_campaign
+from bayesdoor.pipeline import STAGES
 
 runner = CliRunner()
 #: the names of the door's catalogue of discrepancy causes (docs/model.md)
@@ -149,7 +150,8 @@ def test_demo_quick_end_to_end_and_reuse(tmp_path):
     payload = json.loads(first.stdout)
     assert len(payload["runs"]) == 300
     assert {"accuracy", "ece", "nll", "brier", "confusion"} <= set(payload["metrics"])
-    assert [s["reused"] for s in payload["stages"]] == [False] * 6
+    assert [s["name"] for s in payload["stages"]] == list(STAGES)
+    assert [s["reused"] for s in payload["stages"]] == [False] * len(STAGES)
     assert payload["diagnosis"]["verdict"] in ("none", None, *DESIGN_CAUSES)
     assert (out / "report" / "index.html").is_file()
     assert (out / "diagnose" / "diagnosis.html").is_file()
@@ -157,7 +159,7 @@ def test_demo_quick_end_to_end_and_reuse(tmp_path):
     second = invoke("demo", "--quick", "--out", out, "--json")
     assert second.exit_code == 0
     again = json.loads(second.stdout)
-    assert [s["reused"] for s in again["stages"]] == [True] * 6
+    assert [s["reused"] for s in again["stages"]] == [True] * len(STAGES)
     assert again["metrics"] == payload["metrics"]
     refused = invoke("demo", "--out", out)
     assert refused.exit_code == 2 and "--force" in refused.output

@@ -158,6 +158,28 @@ def test_a_low_expected_accuracy_limits_the_verdict():
     assert ok["verdict"] == "trusted" and ok["warnings"] == []
 
 
+def test_many_more_uncertain_runs_than_the_simulations_have_limit_the_verdict():
+    adequacy = {"verdict": "reproduces", "summary": "fine"}
+    training = _training()  # validation: every run at probability 0.99, none uncertain
+
+    def classified(n_uncertain, n=30):
+        runs = _runs(["D1"] * n)
+        for r in runs["runs"]:
+            r["uncertain"] = r["run"] < n_uncertain
+        return {**runs, "max_error": 0.1}
+
+    # one uncertain run of 30 against a simulated share of 0.5 / 61: not improbable at 1 %
+    one = judge_trust(adequacy, _runs(["healthy"] * 10), classified(1), training, [])
+    assert one["verdict"] == "trusted", one["warnings"]
+    assert one["checks"]["uncertain"]["simulated_share"] == pytest.approx(0.5 / 61)
+    ten = judge_trust(adequacy, _runs(["healthy"] * 10), classified(10), training, [])
+    assert ten["verdict"] == "limited" and ten["reasons"] == []
+    assert "10 of 30 runs are uncertain" in ten["warnings"][0]
+    # a classification without the flag (an older job's JSON) is not judged on it
+    older = judge_trust(adequacy, _runs(["healthy"] * 10), _runs(["D1"] * 30), training, [])
+    assert "uncertain" not in older["checks"]
+
+
 def test_trust_fails_on_an_inadequate_fit_and_on_many_ood_runs():
     bad = {"verdict": "does not reproduce", "summary": "A 0-16 Hz off by +3.0 dB"}
     verdict = judge_trust(bad, None, _runs(["D1"] * 30), _training(), [])

@@ -28,6 +28,11 @@ its reasons; the report then leads with them instead of a confident table.
    measurements. Below the required accuracy (:data:`REQUIRED_ACCURACY`, a requirement, not
    a fitted threshold) the verdict is ``"limited"``: the states overlap at this machine's
    measured floor, and faults of the smaller severities are expected to be missed.
+
+5. **Uncertain rate**: a run is uncertain when its calibrated probability of a wrong call
+   exceeds the classification's ``max_error``; many more uncertain test runs than the
+   simulated validation's share (binomial, one-sided) is a warning: the measurements are
+   harder to place than the simulations the calibration was fitted on.
 """
 
 from __future__ import annotations
@@ -254,6 +259,7 @@ def judge_trust(
             f"{len(unlike_healthy)} of {called_healthy} runs called {KNOWN_STATE} are unlike "
             f"the simulated {KNOWN_STATE} runs at their speed (p = {p_h:.1e})"
         )
+    _uncertain_rate(classification, training, runs, checks, warnings, alpha)
     if n and len(flagged) > n / 2:
         reasons.append(f"most runs are flagged ({len(flagged)} of {n})")
     expected = (training.get("validation", {}).get("calibrated") or {}).get("accuracy")
@@ -275,6 +281,42 @@ def judge_trust(
         "flagged_runs": sorted(flagged),
         "unlike_healthy_runs": sorted(unlike_healthy),
     }
+
+
+def _uncertain_rate(
+    classification: dict[str, Any],
+    training: dict[str, Any],
+    runs: list[dict[str, Any]],
+    checks: dict[str, Any],
+    warnings: list[str],
+    alpha: float,
+) -> None:
+    """Check 5: many more uncertain runs than the simulated validation has (binomial,
+    one-sided) means the measurements are harder to place than the simulations: their
+    calibration, fitted on the simulations, promises more than they hold."""
+    max_error = classification.get("max_error")
+    probabilities = (training.get("validation") or {}).get("probabilities")
+    if max_error is None or not probabilities or not runs:
+        return
+    top = np.max(np.asarray(probabilities, dtype=float), axis=1)
+    # the simulated share, shrunk away from 0 (Jeffreys' centre), as the recall above
+    share = (float(np.sum(top < 1.0 - max_error)) + 0.5) / (top.size + 1.0)
+    uncertain = sum(bool(r.get("uncertain")) for r in runs)
+    p_value = _binomial_high(uncertain, len(runs), share)
+    checks["uncertain"] = {
+        "runs": len(runs),
+        "uncertain": uncertain,
+        "max_error": max_error,
+        "simulated_share": share,
+        "p_value": p_value,
+    }
+    if uncertain and p_value < alpha:
+        warnings.append(
+            f"{uncertain} of {len(runs)} runs are uncertain (a wrong call more probable than "
+            f"{max_error:g}), against {100 * share:.1f} % of the simulated validation runs "
+            f"(p = {p_value:.1e}): the measurements are harder to place than the simulations, "
+            "so the probabilities promise more than they hold"
+        )
 
 
 def trust_stage(

@@ -221,6 +221,8 @@ def _check_split(runs: list[dict[str, Any]]) -> None:
 
 def _job_result(method: str, source: str, job, runs, wall: float) -> dict[str, Any]:
     """A job's segment calls, record votes, metrics and timings, in the script's form."""
+    from bayesdoor.pipeline._classify import run_flagged
+
     c = job.classification
     classes = list(c["classes"])
     segments = [
@@ -230,7 +232,7 @@ def _job_result(method: str, source: str, job, runs, wall: float) -> dict[str, A
             "record": runs[r["run"]]["record"],
             "predicted": r["predicted"],
             "probabilities": r["probabilities"],
-            "flagged": r["predicted"] is None or bool(r["ood"]) or bool(r.get("uncertain")),
+            "flagged": run_flagged(r),
         }
         for r in c["runs"]
     ]

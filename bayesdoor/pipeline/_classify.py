@@ -375,6 +375,13 @@ def classify_stage(
     atomic_write(folder / "features.npz", write, overwrite=True)
 
 
+def run_flagged(run: dict[str, Any]) -> bool:
+    """Whether a run of ``classification.json`` is flagged: not classified, out of
+    distribution, or uncertain (a classification without the ``uncertain`` key counts
+    none)."""
+    return run["predicted"] is None or bool(run["ood"]) or bool(run.get("uncertain"))
+
+
 def record_votes(
     runs: list[dict[str, Any]], record: np.ndarray, classes: list[str]
 ) -> list[dict[str, Any]]:
@@ -415,9 +422,7 @@ def record_votes(
         majority = (
             None if mean is None else max(classes, key=lambda c: (votes[c], mean[c]))  # type: ignore[index]
         )
-        flagged = sum(
-            m["predicted"] is None or bool(m["ood"]) or bool(m.get("uncertain")) for m in members
-        )
+        flagged = sum(run_flagged(m) for m in members)
         states = {m["state"] for m in members}
         out.append(
             {

@@ -162,6 +162,12 @@ def _adequacy(
     return payload
 
 
+def _jeffreys_centre(k: int, n: int) -> float:
+    """A rate of ``k`` in ``n`` shrunk away from 0 and 1: the centre ``(k + 1/2) / (n + 1)``
+    of the Jeffreys posterior."""
+    return (k + 0.5) / (n + 1.0)
+
+
 def _binomial_low(k: int, n: int, p: float) -> float:
     """P(X <= k) for X ~ Binomial(n, p)."""
     return float(stats.binom.cdf(k, n, p))
@@ -211,9 +217,9 @@ def judge_trust(
         h = classes.index(KNOWN_STATE)
         own = labels == h
         hits = int(np.sum(np.argmax(probs[own], axis=1) == h))
-        # the simulated recall, shrunk away from 1 (Jeffreys' centre): a perfect validation
-        # of a few dozen runs does not make one miss impossible
-        recall = (hits + 0.5) / (int(own.sum()) + 1.0)
+        # the simulated recall, shrunk away from 1: a perfect validation of a few dozen runs
+        # does not make one miss impossible
+        recall = _jeffreys_centre(hits, int(own.sum()))
         called = [r["predicted"] for r in known["runs"] if r["predicted"] is not None]
         k = sum(p == KNOWN_STATE for p in called)
         p_value = _binomial_low(k, len(called), recall)
@@ -299,8 +305,8 @@ def _uncertain_rate(
     if max_error is None or not probabilities or not runs:
         return
     top = np.max(np.asarray(probabilities, dtype=float), axis=1)
-    # the simulated share, shrunk away from 0 (Jeffreys' centre), as the recall above
-    share = (float(np.sum(top < 1.0 - max_error)) + 0.5) / (top.size + 1.0)
+    # the simulated share, shrunk away from 0, as the recall of the known runs
+    share = _jeffreys_centre(int(np.sum(top < 1.0 - max_error)), top.size)
     uncertain = sum(bool(r.get("uncertain")) for r in runs)
     p_value = _binomial_high(uncertain, len(runs), share)
     checks["uncertain"] = {

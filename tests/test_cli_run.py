@@ -64,6 +64,7 @@ def test_classify_json_and_report(model, tone_file, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["classify", "report"]
 
 
+@pytest.mark.long
 def test_classify_reuses_and_refuses_to_overwrite(model, tone_file, tmp_path):
     out = tmp_path / "report"
     assert invoke("classify", tone_file, "--model", model, "--out", out).exit_code == 0

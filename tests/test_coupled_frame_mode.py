@@ -78,6 +78,7 @@ def test_without_lift_the_mode_rings_as_a_damped_oscillator():
     np.testing.assert_allclose(np.asarray(states)[STATE_SIZE], exact, rtol=0, atol=1e-6 * p0)
 
 
+@pytest.mark.long
 def test_the_coupling_through_the_wheels_is_conservative_and_as_calculated():
     """At rest the stiffness between the panel's height y and the mode p is one symmetric
     coupling (a potential exists: the contact's spring energy of the gap lambda p - y):

@@ -84,6 +84,7 @@ def _comb_spectra(tones: dict[float, float], seed: int, draws: int = 3):
     return measured, predictive
 
 
+@pytest.mark.long
 def test_comb_finds_wheel_harmonics_and_is_calibrated_without_them():
     measured, predictive = _comb_spectra({3 / PERIOD: 0.08, 5 / PERIOD: 0.08}, seed=0)
     comb = harmonic_comb(measured, predictive, PERIOD, range(1, 9))

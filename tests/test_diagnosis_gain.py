@@ -257,6 +257,7 @@ def test_diagnose_refuses_a_posterior_of_an_extended_door(base_fit, tmp_path, mo
     assert not (tmp_path / "d" / "diagnosis.json").exists()
 
 
+@pytest.mark.long
 def test_run_refuses_a_job_folder_of_the_base_system_for_an_extended_one(tmp_path):
     from test_pipeline import SIZES, SYSTEM, stand_in_fit, tone_campaign
 

@@ -141,6 +141,7 @@ def test_model_error_refuses_common_without_sharing_or_with_correlation():
     assert ModelError(common=True).common
 
 
+@pytest.mark.long
 def test_numpyro_model_density_is_the_dense_marginal(key):
     """make_model with ModelError(common=True): the log density less its priors (now with
     sigma_common ~ HalfNormal(scale)) is the dense joint of the reference above, the pointwise

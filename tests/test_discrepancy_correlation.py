@@ -172,6 +172,7 @@ def _params(transform, extra=()):
     return theta, params
 
 
+@pytest.mark.long
 def test_correlation_zero_is_todays_likelihood_exactly(key):
     """ModelError(correlation=0) is the default: the same numpyro density and pointwise terms
     bit for bit (the independent-bands code path)."""

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from test_diagnose_extend import _door_setup
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))
@@ -15,6 +16,7 @@ from full_size_case import ceiling_gain
 from bayesdoor.diagnose._job import held_out_folds
 
 
+@pytest.mark.long
 def test_the_ceiling_of_a_leak_is_the_measurement_and_of_nothing_is_zero():
     # A2Z reads 8 % of A2X in the "measurement"; the clean record is the base model's own
     # signals, so the ceiling's model is the measured spectra themselves

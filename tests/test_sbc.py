@@ -193,6 +193,7 @@ def test_nuts_on_a_conjugate_target_passes_sbc():
     assert result.ess_bulk[0] > result.n_rank_draws
 
 
+@pytest.mark.long
 def test_an_overconfident_likelihood_fails_sbc():
     """Fitted with y's sd halved, mu's posterior sd is 0.22 instead of 0.41: a U shape."""
     test, _ = nuts_sbc(0.5)

@@ -229,6 +229,7 @@ def test_a_gross_mismatch_makes_the_job_warn_instead_of_answering_confidently(tm
     assert page.index("Can these results be trusted?") < page.index("Class probabilities")
 
 
+@pytest.mark.long
 def test_the_default_source_carries_a_consistent_gain_error_and_says_so(tmp_path):
     # the same wrong gain on every run: the default source adds the measured discrepancy to
     # the simulations, so the training data reproduce the runs (each run left out of its

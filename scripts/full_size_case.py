@@ -18,8 +18,7 @@ spectra, a model that knows the effect exactly, and that model is judged on the 
 own setup and folds by its own held-out rule (changed bins, local scatter, the tracking flag
 of the effect's candidate). A refit that gains less than its ceiling leaves something to
 find; a ceiling under the rule's 4 standard errors says the effect is too weak for the
-judgement at this size, whatever a refit does (results/diagnosis_rig_cases.md has the ceilings at 8
-runs).
+judgement at this size, whatever a refit does (results/diagnosis_full_size.md has the ceilings).
 
 Writes ``OUT/NAME-SEED.json`` (with the base fit's point, so that a case can be judged again
 without fitting) and prints ``NAME SEED VERDICT PASSED SECONDS`` (and the effect's refit and

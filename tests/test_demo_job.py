@@ -6,9 +6,9 @@ Long tier (CI runs it after the default suite): the campaign is recorded on firs
 ``~/.cache/bayesdoor``), and the job takes 1.5-4 minutes. Without the check that a
 refitted frame mode peaks on its feature, the diagnosis names ``frame_mode`` on this
 campaign, where nothing is hidden: a rail-carrying mode that ends off its feature
-(results/diagnosis_frame_mode.md). The verdict below is the regression check of that false
-alarm on this one campaign and seed; the nothing-hidden cases of ``test_diagnose_job`` are the
-check over seeds.
+(docs/diagnosis.md, "Checks on a confirmed cause"). The verdict below is the regression check
+of that false alarm on this one campaign and seed; the nothing-hidden cases of
+``test_diagnose_job`` are the check over seeds.
 """
 
 import json

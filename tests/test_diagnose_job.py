@@ -143,7 +143,7 @@ def check_parameters(name: str, cause, recording, rig) -> None:
 
 
 #: cases measured to fail at this size (8 runs, under this file's shared base fit): the rig's
-#: wheel eccentricity leaves no residual feature in 1 Hz spectra (results/diagnosis_rig_cases.md)
+#: wheel eccentricity leaves no residual feature in 1 Hz spectra (results/diagnosis_strength.md)
 _MEASURED_FAILING = {
     ("wheel_eccentricity", 0): "wheel tones about 20 dB under the vibration: no feature",
     # verdict none, the refits' held-out gain not decisive at this size
@@ -558,7 +558,7 @@ _FULL_SIZE_FAILING: dict[tuple[str, int], str] = {
     ("frame_mode", 5): "verdict right (+673 +- 113 nats), but the bare frequency 79.32 Hz "
     "against the rig's 80.38 (1.06 Hz off; installed 80.47), the rail lift at its 0.3 bound",
     ("rail_waviness", 4): "verdict none: a 70 mm rail, tones at 3.6-7.1 Hz at the band's "
-    "low edge; no rail feature at all (as at 8 runs, results/diagnosis_rig_cases.md); the rig's "
+    "low edge; no rail feature at all; the rig's "
     "own rail added to the base model gains 2.2 SE",
     ("sensor_cross_axis", 6): "verdict none: the rig's A1 reads 8.2 % of X in Z; the pair's "
     "coherence shows it (max Z 6.8, 12 % of the bins) but its transfer is not flat (relative "

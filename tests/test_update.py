@@ -401,7 +401,7 @@ def test_a_fit_saves_loads_and_refuses_to_overwrite(cmaes_fit, tmp_path):
 
 
 #: what the rig's calibration runs identify, measured on the demo campaign (full fit, law 3,
-#: shared discrepancy; results/inference.md): posterior sd over the uniform prior's sd 0.03-0.1
+#: shared discrepancy; `demo_fit` prints them): posterior sd over the uniform prior's sd 0.03-0.1
 #: for c_r, K and MF, 0.2-0.45 for C and n; mu_d and mu_s keep most of the prior's spread
 #: (0.86 and 0.96), the features barely move them. The 90 % intervals must cover these:
 COVERED = ("n", "c_r", "C")

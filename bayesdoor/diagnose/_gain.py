@@ -579,8 +579,7 @@ def estimate_tracking_change_discrepancy(
     tone, whatever the speeds. What it does not serve: the bins such an extension changes
     can also hold errors that stay at their frequency (a door mode the base model misplaces
     slightly, which the tone passes and excites); a window in wavenumber gathers those from
-    other frequencies (results/diagnosis_judgement.md measures both this and the larger of the two
-    windows).
+    other frequencies.
 
     The window is ``LOCAL_BINS`` bins of each training run's own spectrum: the Hann main lobe
     is fixed in frequency, so its width in wavenumber scales with each run's speed. At equal

@@ -628,9 +628,9 @@ def verdict_order(evidence: float, score: float) -> tuple[float, float]:
     description, not how much of the data an extension explains, and ordering by it first
     named a frame mode confirmed at 14.8 SE before a cross-axis leak confirmed at 18.9 SE
     (the leak hidden, on an independent implementation of the door). An extension can still
-    absorb the symptoms of another cause and gain more than it (on the rig at 8 runs, a leak
-    beside a missing mode both channels of its sensor feel; results/diagnosis_judgement.md):
-    then both are confirmed and both are listed, and the notes say so.
+    absorb the symptoms of another cause and gain more than it (a leak beside a missing mode
+    that both channels of its sensor feel): then both are confirmed and both are listed, and
+    the notes say so.
 
     Parameters
     ----------

@@ -339,26 +339,15 @@ class RailRefit(AbstractRefit):
     speeds, with its standard error): the spectra locate a tone to a fraction of a bin, while
     a refit of the wavelength would be pulled by the interference of the two wheels 0.7 m
     apart (20 periods of a 35 mm wavelength: 1 % changes their relative phase by a fifth of a
-    cycle) more than by the tone's frequency. Measured at 8 runs
-    (results/diagnosis_rail_wheel.md): a +-8 % grid of wavelengths profiled per fold names
-    rail seed 1 (26.00 mm for the rig's 26.00,
-    +6.7 SE, where the signature's 27.79 mm gives 3.8 SE) but loses seed 3 (the folds'
-    wavelengths averaging 9.79 mm for the rig's 9.74: 3.8 SE, against 5.7 SE held at the
-    signature's 9.67 mm), so the wavelength stays held. With each wheel's phase free (same
-    cases): profiled per fold it loses seed 1 (2.3 SE); profiled on all runs after the
-    judgement it reports seeds 0, 1, 2, 3, 7, 8 at 0.4, 2.4, 0.4, 0.3, 2.3, 0.3 % off where
-    the signature is 0.1, 6.9, 0.2, 0.7, 0.5, 0.1 % off.
+    cycle) more than by the tone's frequency: a wavelength profiled on each fold's training
+    runs picks the level the interference gives, and the folds' choices scatter.
 
     ``independent`` (the catalogue's choice): each wheel meets the
     irregularity at its own phase, four quadrature parts (``RailWaviness(independent=True)``),
     all linear (micrometres on a contact preloaded by a fraction of a millimetre): four
     solves per run. The two wheels' relative phase is then fitted instead of fixed by a
-    wavelength known to a fraction of a percent. Measured on rail seeds 0-9 at 8 runs under
-    the tests' shared base fit (results/diagnosis_rail_wheel.md): 6 of 10 named (seeds 0, 1,
-    2, 3, 7, 8; seed 1 at the signature's 7 % off wavelength) where one amplitude at phase 0
-    (``independent=False``: one solve per run) names 4 (2, 3, 7, 8); nothing hidden, seeds
-    0-5: `none` in every case either way. One phase common to both wheels, fitted as two
-    quadrature parts, names 4 of 10 too.
+    wavelength known to a fraction of a percent (``independent=False``: one amplitude at
+    phase 0, one solve per run).
     """
 
     independent: bool = eqx.field(static=True, default=False)

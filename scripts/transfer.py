@@ -47,6 +47,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--test-per-state", type=int, default=20)
     parser.add_argument("--sources", nargs="+", default=list(SOURCES))
     parser.add_argument("--full", action="store_true", help="the paper's sizes, not --quick")
+    parser.add_argument(
+        "--full-training",
+        action="store_true",
+        help="the paper's generation and training sizes with the quick fit (reused from --out)",
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "transfer")
     parser.add_argument("--results", type=Path, default=ROOT / "results" / "transfer.md")
     parser.add_argument("--only", type=int, nargs="*", default=None, help="run these seeds only")
@@ -110,7 +115,7 @@ def _jobs(args, campaign, folder: Path, seed: int, label: str):
     (the first job's fit stage is copied into the others, whose configuration hash reuses it);
     yields the source, the job's result and its seconds."""
     from bayesdoor.door import ElevatorDoor
-    from bayesdoor.pipeline import run_job
+    from bayesdoor.pipeline import Sizes, run_job
 
     shared_fit = folder / "fit"
     for source in args.sources:
@@ -124,6 +129,7 @@ def _jobs(args, campaign, folder: Path, seed: int, label: str):
             campaign,
             job,
             quick=not args.full,
+            sizes=Sizes() if args.full_training else None,
             seed=seed,
             source=source,
             progress=False,
@@ -222,7 +228,8 @@ def markdown(args, rows: list[dict[str, Any]], argv) -> str:
         f"Command: `{command_line('transfer.py', argv)}`  ",
         f"Date: {time.strftime('%Y-%m-%d')}  ",
         f"Code: {code_version()}  ",
-        f"Machine: {sys.platform}, the job's `--quick` sizes: {not args.full}",
+        f"Machine: {sys.platform}, the job's `--quick` sizes: {not args.full}"
+        + (", the paper's generation and training sizes" if args.full_training else ""),
         "",
         "Each door is `OtherDoor.from_seed(seed)` (docs/transfer.md): the rig varied in ways the "
         "reduced model lacks. "

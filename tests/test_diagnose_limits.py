@@ -10,6 +10,8 @@ of seeds, at 0.5 times in at most 30 % (a reduced-size version of the door's che
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.stats
@@ -273,8 +275,10 @@ def test_after_a_none_the_report_and_the_summary_plan_a_campaign_per_cause():
         "words": "rail_waviness: a rail waviness amplitude under 2 um would not be named",
         "plan": PLAN.to_json(),
     }
-    words = "9 runs at each of 2 conditions (0.3, 0.4; 18 runs of 2 s) name rail_waviness at 1 um"
+    words = "9 runs at each of 2 conditions (0.3, 0.4) (18 runs of 2 s in all) name rail_waviness"
     assert words in PLAN.describe()
+    one = dataclasses.replace(PLAN, conditions=(0.3,))
+    assert "9 runs at 0.3 (9 runs of 2 s in all)" in one.describe()
     for verdict, shown in (("none", True), ("frame_mode", False)):
         payload = {"verdict": verdict, "causes": [], "limits": {"rail_waviness": limit}}
         page = diagnosis_page(payload)

@@ -174,9 +174,14 @@ class CampaignPlan:
                 f"conditions names {self.cause} at {self.shown_size} with "
                 f"{100 * self.power:.0f} % probability (best {100 * self.probability:.0f} %)"
             )
+        at = (
+            f"at {where}"
+            if len(self.conditions) == 1
+            else f"at each of {len(self.conditions)} conditions ({where})"
+        )
         return (
-            f"{self.runs_per_condition} runs at each of {len(self.conditions)} conditions "
-            f"({where}; {self.runs} runs of {self.record_s:.3g} s) name {self.cause} at "
+            f"{self.runs_per_condition} runs {at} ({self.runs} runs of "
+            f"{self.record_s:.3g} s in all) name {self.cause} at "
             f"{self.shown_size} ({self.configuration}) with "
             f"{100 * self.probability:.0f} % probability (this campaign: "
             f"{100 * self.current:.0f} %)"

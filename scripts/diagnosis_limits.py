@@ -273,7 +273,7 @@ def main(argv: list[str] | None = None) -> None:
                 continue
             for factor in args.factors:
                 size = float(factor * limit.size)
-                path = args.work / f"{cause}-{factor:g}-{seed}.json"
+                path = args.work / f"{cause}-{factor:g}-{size:.4g}-{seed}.json"
                 if path.is_file():
                     row = json.loads(path.read_text())
                 else:
@@ -298,14 +298,16 @@ def table(args, limits, limit_s, rows, wall, png) -> str:
         f"The limits of every cause on the nothing-hidden 12-run campaign (rig key "
         f"{args.base_key}; computed in {limit_s:.1f} s, the base simulation included):",
         "",
-        "| cause | size | configuration | limit (80 %) | other configurations |",
-        "|---|---|---|---|---|",
+        "| cause | size | configuration | limit (80 %) | other configurations | "
+        "campaign for half the limit |",
+        "|---|---|---|---|---|---|",
     ]
     for name, limit in limits.items():
         others = "; ".join(f"{c.label}: {limit.shown(c.limit)}" for c in limit.curves[1:])
+        plan = "-" if limit.plan is None else limit.plan.describe()
         lines.append(
             f"| {name} | {limit.quantity} | {limit.curves[0].label} | "
-            f"{limit.shown(limit.size)} | {others or '-'} |"
+            f"{limit.shown(limit.size)} | {others or '-'} | {plan} |"
         )
     lines += [
         "",
@@ -313,8 +315,9 @@ def table(args, limits, limit_s, rows, wall, png) -> str:
         "Wilson 95 % intervals; the computed power at that size beside it):",
         "",
         "| cause | factor x limit | size | named | rate (95 % CI) | computed power | "
-        "mean evidence (SE) |" + (" full diagnosis: verdict = cause |" if args.full else ""),
-        "|---|---|---|---|---|---|---|" + ("---|" if args.full else ""),
+        "computed evidence (SE) | mean evidence (SE) |"
+        + (" full diagnosis: verdict = cause |" if args.full else ""),
+        "|---|---|---|---|---|---|---|---|" + ("---|" if args.full else ""),
     ]
     for name in args.causes:
         limit = limits[name]
@@ -329,7 +332,7 @@ def table(args, limits, limit_s, rows, wall, png) -> str:
             line = (
                 f"| {name} | {factor:g} | {limit.shown(size)} | {k} of {n} | "
                 f"{k / n:.2f} ({lo:.2f}-{hi:.2f}) | {limit.curves[0].at(size):.2f} | "
-                f"{np.mean(ev):.1f} |"
+                f"{_evidence_at(limit.curves[0], size):.1f} | {np.mean(ev):.1f} |"
             )
             if args.full:
                 v = sum(r.get("verdict") == name for r in at)
@@ -337,6 +340,12 @@ def table(args, limits, limit_s, rows, wall, png) -> str:
             lines.append(line)
     lines += ["", f"![power curves and observed naming rates]({png.name})", ""]
     return "\n".join(lines)
+
+
+def _evidence_at(curve: Any, size: float) -> float:
+    """The computed expected held-out gain in standard errors at ``size`` (interpolated in
+    log size)."""
+    return float(np.interp(np.log(size), np.log(curve.sizes), curve.evidence))
 
 
 if __name__ == "__main__":

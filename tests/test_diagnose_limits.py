@@ -10,6 +10,8 @@ of seeds, at 0.5 times in at most 30 % (a reduced-size version of the door's che
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.stats
@@ -33,6 +35,7 @@ from bayesdoor.diagnose import (
     diagnose_campaign,
     plan_campaign,
 )
+from bayesdoor.diagnose._design import CampaignPlan, estimation_cost, fold_labels
 from bayesdoor.diagnose._gain import DECISIVE_SE, changed_bins
 from bayesdoor.diagnose._limits import (
     bin_variance_factor,
@@ -240,3 +243,97 @@ def test_the_report_shows_the_limits_and_their_power_curves():
     assert "Limits" not in bare and "Limits" in page
     assert "above the range" in page and "a rail waviness amplitude under 2 um" in page
     assert page.count("data:image/png") == bare.count("data:image/png") + 1
+
+
+PLAN = CampaignPlan(
+    cause="rail_waviness",
+    size=1e-6,
+    unit="m",
+    configuration="typical",
+    power=0.8,
+    conditions=(0.3, 0.4),
+    runs_per_condition=9,
+    probability=0.82,
+    record_s=2.0,
+    current=0.3,
+    display=("um", 1e6),
+)
+
+
+def test_after_a_none_the_report_and_the_summary_plan_a_campaign_per_cause():
+    from bayesdoor.cli._diagnose import summary_lines
+    from bayesdoor.report import diagnosis_page, diagnosis_section
+
+    limit = {
+        "quantity": "rail waviness amplitude",
+        "unit": "m",
+        "power": 0.8,
+        "size": 2e-6,
+        "worst": 2e-6,
+        "runs": 12,
+        "configurations": [],
+        "words": "rail_waviness: a rail waviness amplitude under 2 um would not be named",
+        "plan": PLAN.to_json(),
+    }
+    words = "9 runs at each of 2 conditions (0.3, 0.4) (18 runs of 2 s in all) name rail_waviness"
+    assert words in PLAN.describe()
+    one = dataclasses.replace(PLAN, conditions=(0.3,))
+    assert "9 runs at 0.3 (9 runs of 2 s in all)" in one.describe()
+    for verdict, shown in (("none", True), ("frame_mode", False)):
+        payload = {"verdict": verdict, "causes": [], "limits": {"rail_waviness": limit}}
+        page = diagnosis_page(payload)
+        section = diagnosis_section(payload, None)
+        lines = summary_lines({**payload, "report": "diagnosis.html"})
+        assert ("Campaigns that would see smaller causes" in page) is shown
+        assert (words in page) is shown and (words in section) is shown
+        assert any(words in line for line in lines) is shown
+        assert any("under 2 um" in line for line in lines)
+
+
+def test_the_refits_estimation_costs_kappa_p_over_2_per_fold():
+    # a fold's runs share one chi2_p draw: with the folds equally informative they lose
+    # kappa p / 2 together in expectation, each run in proportion to its information
+    rng = np.random.default_rng(0)
+    runs, p, kappa = 8, 3, 1.9
+    information = np.tile(rng.uniform(0.5, 2.0, runs // 2), 2)  # the folds alike
+    folds = np.repeat([0, 1], runs // 2)
+    chi2 = rng.chisquare(p, (100_000, 2))
+    cost = estimation_cost(information, folds, chi2, kappa)
+    for f in (0, 1):
+        mine = folds == f
+        lost = cost[:, mine].sum(axis=1) / 2.0
+        assert lost.mean() == pytest.approx(kappa * p / 2.0, rel=0.02)
+        share = information[mine] / information[mine].sum()
+        assert np.allclose(cost[:, mine] / 2.0, lost[:, None] * share)
+
+
+def test_the_folds_are_the_judgements():
+    from bayesdoor.diagnose._job import held_out_folds
+
+    order = np.array([0.4, 0.25, 0.3, 0.3, 0.5, 0.45, 0.35])
+    labels = fold_labels(order)
+    for f, (_, test) in enumerate(held_out_folds(order, 2)):
+        assert np.array_equal(np.flatnonzero(labels == f), test)
+
+
+def test_the_estimation_lowers_the_probability_of_naming():
+    runs = 12
+    rng = np.random.default_rng(1)
+    normals = rng.standard_normal((4000, runs))
+    mean, variance = np.full(runs, 3.0), np.full(runs, 4.0)
+    truth = float(naming_probability(mean, variance, normals))
+    costs = [
+        float(
+            naming_probability(
+                mean,
+                variance,
+                normals,
+                estimation_cost(
+                    np.ones(runs), np.arange(runs) % 2, rng.chisquare(p, (4000, 2)), 1.9
+                ),
+                1.9,
+            )
+        )
+        for p in (1, 6)
+    ]
+    assert truth > costs[0] > costs[1]

@@ -104,7 +104,11 @@ def summary_lines(payload: dict[str, Any]) -> list[str]:
     limits = payload.get("limits") or {}
     if limits:
         lines.append("limits (a cause smaller than its limit would not be named):")
-        lines += [f"  - {limit.get('words', name)}" for name, limit in limits.items()]
+        for name, limit in limits.items():
+            lines.append(f"  - {limit.get('words', name)}")
+            plan = limit.get("plan")
+            if verdict == "none" and isinstance(plan, dict) and plan.get("words"):
+                lines.append(f"    planned at half the limit: {plan['words']}")
     lines.append(f"report: {payload['report']}")
     return lines
 

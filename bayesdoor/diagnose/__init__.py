@@ -37,6 +37,7 @@ from ..features import windowed_log_psd as windowed_log_psd
 from ._coherence import CoherenceMap as CoherenceMap
 from ._coherence import PairCoherence as PairCoherence
 from ._coherence import coherence_map as coherence_map
+from ._design import CampaignPlan as CampaignPlan
 from ._extend import HeldExtension as HeldExtension
 from ._extend import VerdictExtension as VerdictExtension
 from ._extend import extend_system as extend_system
@@ -59,7 +60,6 @@ from ._limits import CauseLimit as CauseLimit
 from ._limits import PowerCurve as PowerCurve
 from ._limits import detection_limits as detection_limits
 from ._order import OrderSpectra as OrderSpectra
-from ._plan import CampaignPlan as CampaignPlan
 from ._plan import plan_campaign as plan_campaign
 from ._rank import NONE as NONE
 from ._rank import Candidate as Candidate

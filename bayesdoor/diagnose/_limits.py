@@ -11,15 +11,22 @@ in the changed bins the judgement estimates as ``v_b = v + mean(Delta^2)`` (per 
     q = Delta^2 v / v_b^2 + (1 - v / v_b)^2 / 2                  (variance)
 
 summed over the bins the extension changes (:func:`~bayesdoor.diagnose._gain.changed_bins`;
-``Delta`` less its broad part, which each model's smooth discrepancy takes alike),
-less ``p / n`` per held-out run for the ``p`` parameters fitted on the other half of ``n``
-runs (the expected excess loss of an estimate, ``p / 2`` per fold's ``n / 2`` training runs).
-The per-run differences are drawn ``N(m_r, q_r)`` and judged by the decision rule itself
-(:func:`~bayesdoor.diagnose.rule_passes`' statistics and thresholds): the share named is the
-power at ``s``; the limit is the smallest ``s`` with power at least :data:`LIMIT_POWER`.
+``Delta`` less its broad part, which each model's smooth discrepancy takes alike). The refit
+does not know the cause's values: it fits its ``p`` free parameters on the other fold's runs,
+which costs each held-out run ``c_r / 2`` of its difference and adds ``kappa c_r`` to its
+variance, ``c_r`` drawn per fold from the estimate's sandwich covariance
+(:mod:`~bayesdoor.diagnose._design`: ``kappa p / 2`` per fold in expectation, ``kappa`` the
+Welch bins' correlation factor, :func:`bin_variance_factor`). The per-run differences are
+drawn so and judged by the decision rule itself (:func:`~bayesdoor.diagnose.rule_passes`'
+statistics and thresholds): the share named is the power at ``s``; the limit is the smallest
+``s`` with power at least :data:`LIMIT_POWER`. Beside each limit, the campaign that would
+name the cause at :data:`PLAN_FACTOR` times it (:func:`~bayesdoor.diagnose._design.
+design_campaign`, as :func:`~bayesdoor.diagnose.plan_campaign` plans).
 
 What it leaves out: the residual features must show the cause before it is refitted (the
-signature's gate), and the base fit may absorb part of a cause; both only lower the power
+signature's gate), the base fit may absorb part of a cause, and the base model may carry the
+cause to the sensors other than the system does (the computation takes the model's
+``Delta`` for the truth); the first two only lower the power, the third either way
 (``results/diagnosis_limits.md`` measures it on the rig).
 """
 
@@ -33,13 +40,16 @@ import numpy as np
 
 from .._types import Float
 from ..features import LOG_FLOOR
-from ._gain import (
-    capped_t,
-    changed_bins,
-    estimate_discrepancy,
-    rule_thresholds,
-    t_statistic,
+from ._design import (
+    FOLDS,
+    CampaignPlan,
+    RunGains,
+    design_campaign,
+    estimation_cost,
+    fold_labels,
+    naming_probability,
 )
+from ._gain import changed_bins, estimate_discrepancy
 from ._rank import Catalogue
 from ._refit import SMOOTH_BINS, CauseSize, RefitSetup, SizeProbe, exact_signals
 from ._residual import smooth_discrepancy
@@ -50,6 +60,9 @@ LIMIT_POWER = 0.8
 _PSD_FLOOR = LOG_FLOOR
 #: sizes scanned per configuration (log-spaced over the cause's declared range)
 _GRID = 33
+#: the size, as a multiple of a cause's limit, that the campaign beside the limit is planned
+#: for: the campaign that would see a cause half the size these runs can
+PLAN_FACTOR = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,6 +115,9 @@ class CauseLimit:
         The held-out runs the rule would judge.
     curves
         One power curve per configuration, the typical one first.
+    plan
+        The campaign that would name the cause at :data:`PLAN_FACTOR` times its limit in the
+        typical configuration (``None``: not planned, or no limit in the range).
     """
 
     cause: str
@@ -111,6 +127,7 @@ class CauseLimit:
     power: float
     runs: int
     curves: tuple[PowerCurve, ...]
+    plan: CampaignPlan | None = None
 
     @property
     def size(self) -> float | None:
@@ -160,6 +177,7 @@ class CauseLimit:
                 for c in self.curves
             ],
             "words": self.describe(),
+            "plan": None if self.plan is None else self.plan.to_json(),
         }
 
 
@@ -210,8 +228,10 @@ def expected_differences(
     smooth_bins: int | None = SMOOTH_BINS,
 ) -> tuple[Float[np.ndarray, " run"], Float[np.ndarray, " run"]]:
     """Mean and variance of each run's held-out log-density difference when ``extended`` is
-    the truth (the module's formulas), ``parameters`` fitted on the other half of the runs;
-    the variance times ``correlation`` (:func:`bin_variance_factor`).
+    the truth (the module's formulas), the variance times ``correlation``
+    (:func:`bin_variance_factor`); ``parameters`` fitted on the other half of the runs cost
+    the mean their expectation, ``correlation p / n`` per run (:mod:`~bayesdoor.diagnose.
+    _design`; the power draws it instead, with ``parameters=0`` here).
 
     Each model is judged with its own smooth discrepancy (the running median over
     ``2 smooth_bins + 1`` bins of its run-mean residual), which takes the broad part of a
@@ -228,21 +248,28 @@ def expected_differences(
     m = np.where(changed, 0.5 * np.log(vb / v) + 0.5 * (d2 + v) / vb - 0.5, 0.0)
     q = np.where(changed, d2 * v / vb**2 + 0.5 * (1.0 - v / vb) ** 2, 0.0)
     n = base.shape[0]
-    return m.sum(axis=(1, 2)) - parameters / n, correlation * q.sum(axis=(1, 2))
+    return m.sum(axis=(1, 2)) - correlation * parameters / n, correlation * q.sum(axis=(1, 2))
 
 
-def naming_probability(
-    mean: Float[np.ndarray, "*size run"],
-    variance: Float[np.ndarray, "*size run"],
-    normals: Float[np.ndarray, "draw run"],
-) -> Float[np.ndarray, "*size"]:
-    """The share of draws ``d = mean + sqrt(variance) z`` that the rule's statistics pass (the
-    plain or the capped over its threshold for as many held-out runs)."""
-    mean, variance = np.asarray(mean, dtype=float), np.asarray(variance, dtype=float)
-    on_t, on_capped = rule_thresholds(mean.shape[-1])
-    d = mean[..., None, :] + np.sqrt(variance)[..., None, :] * normals
-    named = (t_statistic(d) > on_t) | (capped_t(d) > on_capped)
-    return named.mean(axis=-1)
+def information(
+    spectra: Callable[[float], Float[np.ndarray, "run channel freq"]],
+    size: float,
+    base: Float[np.ndarray, "run channel freq"],
+    variance: Float[np.ndarray, "run channel freq"],
+    welch: Float[np.ndarray, " run"],
+    smooth_bins: int | None = SMOOTH_BINS,
+) -> Float[np.ndarray, " run"]:
+    """Each run's information about the size at ``size``: ``sum J^2 / v`` over the bins the
+    extension changes, ``J`` the derivative of its log10 spectra in the size (central, 1 %
+    of the size; less the running median of its run mean, as ``Delta`` in
+    :func:`expected_differences`)."""
+    step = 0.01 * float(size)
+    up, down = spectra(float(size) + step), spectra(float(size) - step)
+    slope = (up - down) / (2.0 * step)
+    if smooth_bins is not None:
+        slope = slope - smooth_discrepancy(slope.mean(axis=0), smooth_bins)
+    changed = changed_bins(base, spectra(float(size)), welch)
+    return np.where(changed, slope**2 / variance, 0.0).sum(axis=(1, 2))
 
 
 def _evidence(mean: np.ndarray, variance: np.ndarray) -> np.ndarray:
@@ -305,6 +332,31 @@ def size_spectra(
     return at
 
 
+def run_gains(
+    setup: RefitSetup,
+    probe: SizeProbe,
+    size: float,
+    *,
+    noise: _Noise | None = None,
+    spectra: Callable[[float], np.ndarray] | None = None,
+) -> RunGains:
+    """Each run's expected held-out difference at ``size`` with the probe's extension at its
+    true values, its variance and its information about the size."""
+    noise = _noise(setup) if noise is None else noise
+    spectra = size_spectra(setup, probe) if spectra is None else spectra
+    welch = np.asarray(setup.spectra.log_variance)
+    m, q = expected_differences(
+        noise.base, spectra(float(size)), noise.variance, welch, 0, noise.correlation
+    )
+    h = information(spectra, float(size), noise.base, noise.variance, welch)
+    return RunGains(m, q, h, len(probe.proposal.free), noise.correlation)
+
+
+def fold_order(setup: RefitSetup) -> np.ndarray:
+    """What the judgement's folds sort the runs by: their speeds, else operating points."""
+    return np.asarray(setup.operating if setup.speeds is None else setup.speeds, dtype=float)
+
+
 def power_curve(
     setup: RefitSetup,
     probe: SizeProbe,
@@ -312,28 +364,33 @@ def power_curve(
     *,
     power: float = LIMIT_POWER,
     normals: Float[np.ndarray, "draw run"],
+    chi2: Float[np.ndarray, "draw fold"] | None = None,
     noise: _Noise | None = None,
+    spectra: Callable[[float], np.ndarray] | None = None,
 ) -> PowerCurve:
-    """The probability that the rule names the probe's cause at each size, in these runs."""
+    """The probability that the rule names the probe's cause at each size, in these runs,
+    its free parameters refitted on the other fold (``chi2``: the estimate's ``chi2_p``
+    draws per fold, ``p`` the probe's free parameters; ``None``: judged at the truth)."""
     noise = _noise(setup) if noise is None else noise
-    spectra = size_spectra(setup, probe)
-    welch = np.asarray(setup.spectra.log_variance)
-    p = len(probe.proposal.free)
-    means, variances = [], []
-    for s in sizes:
-        extended = spectra(float(s))
-        m, q = expected_differences(
-            noise.base, extended, noise.variance, welch, p, noise.correlation
-        )
-        means.append(m)
-        variances.append(q)
-    mean, var = np.array(means), np.array(variances)
-    probability = naming_probability(mean, var, normals)
+    spectra = size_spectra(setup, probe) if spectra is None else spectra
+    gains = [run_gains(setup, probe, float(s), noise=noise, spectra=spectra) for s in sizes]
+    mean = np.array([g.mean for g in gains])
+    var = np.array([g.variance for g in gains])
+    kappa = noise.correlation
+    if chi2 is None:
+        cost, expected = None, np.zeros_like(mean)
+    else:
+        folds = fold_labels(fold_order(setup))
+        h = np.array([g.information for g in gains])
+        cost = estimation_cost(h, folds, chi2, kappa)
+        expected = estimation_cost(h, folds, np.full((1, chi2.shape[1]), chi2.mean()), kappa)
+        expected = expected[..., 0, :]
+    probability = naming_probability(mean, var, normals, cost, kappa)
     return PowerCurve(
         label=probe.label,
         sizes=np.asarray(sizes, dtype=float),
         probability=probability,
-        evidence=_evidence(mean, var),
+        evidence=_evidence(mean - expected / 2.0, var + kappa * expected),
         limit=_limit(np.asarray(sizes, dtype=float), probability, power),
     )
 
@@ -358,6 +415,7 @@ def detection_limits(
     seed: int = 0,
     causes: tuple[str, ...] | None = None,
     band: tuple[float, float] | None = None,
+    plan_factor: float | None = PLAN_FACTOR,
 ) -> Mapping[str, CauseLimit]:
     """Each catalogue cause's detection limit in a campaign: the smallest size of its key
     parameter that the decision rule names with probability ``power`` (the module's
@@ -380,6 +438,9 @@ def detection_limits(
     band
         The analysed band (Hz) the causes' sizes are declared for (``None``: the spectra's
         first and last bin).
+    plan_factor
+        Plan, beside each limit, the campaign that names the cause at this multiple of its
+        typical configuration's limit (``CauseLimit.plan``; ``None``: no plan).
 
     Returns
     -------
@@ -396,15 +457,47 @@ def detection_limits(
         declared = {k: v for k, v in declared.items() if k in causes}
     if n < 4 or not declared:
         return {}
-    normals = np.random.default_rng(seed).standard_normal((draws, n))
+    rng = np.random.default_rng(seed)
+    normals = rng.standard_normal((draws, n))
     noise = _noise(setup)
     out = {}
     for name, size in declared.items():
         sizes = np.geomspace(size.low, size.high, _GRID)
-        curves = tuple(
-            power_curve(setup, probe, sizes, power=power, normals=normals, noise=noise)
-            for probe in size.probes
-        )
+        curves, typical = [], None
+        for probe in size.probes:
+            spectra = size_spectra(setup, probe)
+            typical = spectra if typical is None else typical
+            p = len(probe.proposal.free)
+            curves.append(
+                power_curve(
+                    setup,
+                    probe,
+                    sizes,
+                    power=power,
+                    normals=normals,
+                    chi2=_chi2(p, draws, seed),
+                    noise=noise,
+                    spectra=spectra,
+                )
+            )
+        plan = None
+        limit = curves[0].limit
+        if plan_factor is not None and limit is not None and np.ndim(setup.operating) == 1:
+            target = plan_factor * limit
+            plan = design_campaign(
+                run_gains(setup, size.probes[0], target, noise=noise, spectra=typical),
+                np.asarray(setup.operating, dtype=float),
+                fold_order(setup),
+                cause=name,
+                size=target,
+                unit=size.unit,
+                configuration=size.probes[0].label,
+                power=power,
+                record_s=setup.duration,
+                display=size.display,
+                draws=draws,
+                seed=seed,
+            )
         out[name] = CauseLimit(
             cause=name,
             quantity=size.quantity,
@@ -412,6 +505,15 @@ def detection_limits(
             display=size.display,
             power=power,
             runs=n,
-            curves=curves,
+            curves=tuple(curves),
+            plan=plan,
         )
     return out
+
+
+def _chi2(p: int, draws: int, seed: int) -> np.ndarray | None:
+    """``chi2_p`` draws per fold of the judgement, the same for every probe of ``p`` free
+    parameters (``None`` for none)."""
+    if p < 1:
+        return None
+    return np.random.default_rng([seed, p]).chisquare(float(p), (draws, FOLDS))

@@ -482,6 +482,50 @@ def limit_rows(limits: Mapping[str, Mapping[str, Any]]) -> tuple[list[str], list
     return ["cause", "size", "unit", "limit (typical)", "limit (worst)", "in words"], rows
 
 
+def plan_rows(limits: Mapping[str, Mapping[str, Any]]) -> tuple[list[str], list[list[str]]]:
+    """The plans table: per cause with a planned campaign (``limits[cause]["plan"]``), the
+    size planned for, the runs per condition and the conditions, the runs in all, the
+    probability of naming in that campaign and in this one, and the plan in words."""
+    rows = []
+    for name, limit in limits.items():
+        plan = limit.get("plan") if isinstance(limit, Mapping) else None
+        if not isinstance(plan, Mapping):
+            continue
+        per = plan.get("runs_per_condition")
+        rows.append(
+            [
+                name,
+                f"{_number(plan.get('size'))} {plan.get('unit', '')}".strip(),
+                "none reaches the power" if per is None else str(per),
+                ", ".join(_number(c) for c in plan.get("conditions", [])),
+                "-" if plan.get("runs") is None else str(plan["runs"]),
+                _number(plan.get("probability")),
+                _number(plan.get("current_probability")),
+                str(plan.get("words", "")),
+            ]
+        )
+    header = [
+        "cause",
+        "size planned for",
+        "runs per condition",
+        "conditions",
+        "runs",
+        "probability",
+        "this campaign",
+        "in words",
+    ]
+    return header, rows
+
+
+def _plan_items(limits: Mapping[str, Any]) -> list[str]:
+    """Per cause, its limit and its planned campaign in words (the causes with a plan)."""
+    return [
+        f"{limit.get('words', name)}. {str(limit['plan'].get('words', '')).capitalize()}."
+        for name, limit in limits.items()
+        if isinstance(limit, Mapping) and isinstance(limit.get("plan"), Mapping)
+    ]
+
+
 def gain_rows(causes: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[list[str]]]:
     """The gain table: one row per cause that reports a gain, one column per gain entry."""
     kept = [
@@ -639,6 +683,21 @@ def diagnosis_page(
                 else H.img(power, "power curves", "probability of naming against size"),
             )
         )
+        plan_header, plan_table = plan_rows(limits)
+        if verdict == "none" and plan_table:
+            parts.append(
+                H.section(
+                    "Campaigns that would see smaller causes",
+                    H.note(
+                        "Per cause, the cheapest campaign at this campaign's operating "
+                        "conditions that the decision rule would name the cause in, at half "
+                        "its limit here (its typical configuration), with the stated "
+                        "probability, the refit's estimation included (docs/diagnosis.md, "
+                        "Planning a campaign; bayesdoor plan for another size)."
+                    ),
+                    H.table(plan_header, plan_table),
+                )
+            )
     if fit is not None:
         parts.append(H.section("Base model", _fit_table(fit)))
     return H.page(title, f"bayesdoor diagnose, {stamp}", "".join(parts))
@@ -692,10 +751,15 @@ def diagnosis_section(diagnosis: Mapping[str, Any], href: str | None) -> str:
         for c in list(diagnosis.get("causes", []))[:3]
     ]
     link = "" if href is None else f'<p><a href="{html.escape(href)}">the diagnosis report</a></p>'
+    plans = _plan_items(diagnosis.get("limits") or {}) if verdict == "none" else []
+    listed = "".join(f"<li>{html.escape(item)}</li>" for item in plans)
     return H.section(
         "Discrepancy diagnosis",
         H.note(text),
         H.table(("cause", "score", "evidence"), rows) if rows else "",
+        H.note("What these runs could not have shown, and what would:") + f"<ul>{listed}</ul>"
+        if plans
+        else "",
         link,
     )
 

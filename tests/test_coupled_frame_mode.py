@@ -293,7 +293,9 @@ def test_the_installed_frequency_is_the_extended_doors_mode_at_rest_nearest_the_
     from bayesdoor.door.rig import FrameMode as RigFrameMode
 
     recipe = FrameModeRefit()
-    coupled, output = recipe.propose({"frequency_hz": 60.0, "channels": ("A1X",)}, band=(4, 96))
+    coupled, output = recipe.propose(
+        {"frequency_hz": 60.0, "channels": ("A1X",), "resolution_hz": 1.0}, band=(4, 96)
+    )
     door = ElevatorDoor().with_extensions(coupled.extension)
     values = {p.name: p.nominal for p in door.parameters}
     values.update(DoorParameters.paper_optimum().to_dict())

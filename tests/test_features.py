@@ -17,7 +17,9 @@ from bayesdoor.features import (
     motion_window,
     objective_j,
     segment_weights,
+    welch_csd,
     welch_psd,
+    welch_segment_count,
 )
 
 FS = 2048.0
@@ -67,6 +69,57 @@ def test_welch_matches_scipy(kind, n, nperseg, noverlap, detrend, window):
     assert psd.shape == p_ref.shape == (2, 3, nperseg // 2 + 1)
     np.testing.assert_array_equal(np.asarray(freqs), f_ref)
     _assert_matches_scipy(psd, p_ref)
+
+
+@pytest.mark.parametrize(
+    "n, nperseg, noverlap, nfft, detrend",
+    [
+        (7168, 512, None, 2048, "constant"),
+        (999, 127, 30, 509, "linear"),
+        (1001, 128, 0, None, False),
+    ],
+)
+def test_numpy_welch_and_cross_spectrum_match_scipy(n, nperseg, noverlap, nfft, detrend):
+    x = _signals("sinusoid", (2, n))
+    y = 0.3 * x + _signals("random", (2, n), seed=1)
+    kw = dict(nperseg=nperseg, noverlap=noverlap, nfft=nfft, detrend=detrend)
+    freqs, psd = welch_psd(x, FS, **kw)
+    f_csd, csd = welch_csd(x, y, FS, **kw)
+    # numpy in, numpy out: the same code run by numpy (diagnosis), without compiling
+    assert type(psd) is type(csd) is type(freqs) is np.ndarray
+    f_ref, p_ref = scipy.signal.welch(x, FS, **kw)
+    _, c_ref = scipy.signal.csd(x, y, FS, **kw)
+    assert psd.shape == p_ref.shape == ((2, (nfft or nperseg) // 2 + 1))
+    np.testing.assert_array_equal(freqs, f_ref)
+    np.testing.assert_array_equal(f_csd, f_ref)
+    _assert_matches_scipy(psd, p_ref)
+    scale = np.abs(c_ref).max(axis=-1, keepdims=True)
+    assert np.all(np.abs(csd - c_ref) <= 1e-12 * np.abs(c_ref) + 1e-14 * scale)
+    # the JAX path of the same code agrees with the numpy one
+    _, psd_jax = welch_psd(jnp.asarray(x), FS, **kw)
+    _assert_matches_scipy(psd_jax, psd)
+    # the cross spectrum of a signal with itself is its power spectrum
+    np.testing.assert_allclose(welch_csd(x, x, FS, **kw)[1].real, psd, rtol=1e-12)
+
+
+def test_segment_count_is_the_number_of_segments_averaged():
+    for n, nperseg, noverlap in [
+        (7168, 512, None),
+        (999, 127, 30),
+        (1001, 128, 0),
+        (511, 512, None),
+    ]:
+        step = nperseg - (nperseg // 2 if noverlap is None else noverlap)
+        # the whole segments, one starting every step samples
+        assert welch_segment_count(n, nperseg, noverlap) == len(range(0, n - nperseg + 1, step))
+    # scipy's segments of the same layout (a spectrogram has one column per segment)
+    x = _signals("random", (7168,))
+    ref = scipy.signal.spectrogram(x, FS, nperseg=512, noverlap=256)[2]
+    assert welch_segment_count(7168, 512) == ref.shape[-1]
+    with pytest.raises(ValueError, match="nfft must be an integer of at least nperseg=128"):
+        welch_psd(np.zeros(300), FS, nperseg=128, nfft=100)
+    with pytest.raises(ValueError, match="segment_weights sum to zero"):
+        welch_psd(np.zeros(300), FS, nperseg=128, segment_weights=np.zeros(3))
 
 
 def test_welch_along_another_axis_and_with_a_window_array():

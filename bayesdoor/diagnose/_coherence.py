@@ -6,12 +6,11 @@ import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
-import scipy.signal
 import scipy.stats
 from jaxtyping import Complex
 
 from .._types import Bool, Float
-from ..features import welch_dof
+from ..features import welch_csd, welch_dof, welch_psd, welch_segment_count
 from ._stats import benjamini_hochberg
 
 
@@ -92,9 +91,9 @@ class CoherenceMap:
 
 
 def _spectra(x: np.ndarray, y: np.ndarray, fs: float, nperseg: int):
-    _, pxx = scipy.signal.welch(x, fs, nperseg=nperseg)
-    _, pyy = scipy.signal.welch(y, fs, nperseg=nperseg)
-    freqs, pxy = scipy.signal.csd(x, y, fs, nperseg=nperseg)
+    _, pxx = welch_psd(x, fs, nperseg=nperseg)
+    _, pyy = welch_psd(y, fs, nperseg=nperseg)
+    freqs, pxy = welch_csd(x, y, fs, nperseg=nperseg)
     return freqs, pxx, pyy, pxy
 
 
@@ -106,7 +105,7 @@ def _pair_statistics(runs, a: int, b: int, fs: float, nperseg: int):
         coh.append(np.abs(pab) ** 2 / (paa * pbb))
         h_ba.append(pab / paa)
         h_ab.append(np.conj(pab) / pbb)
-        counts.append((x.shape[-1] - nperseg // 2) // (nperseg - nperseg // 2))
+        counts.append(welch_segment_count(x.shape[-1], nperseg))
     return freqs, np.array(coh), np.array(h_ba), np.array(h_ab), np.array(counts)
 
 
@@ -139,8 +138,9 @@ def coherence_map(
 ) -> CoherenceMap:
     """Where measured channels are more coherent than the model says they should be.
 
-    Per run and pair, the magnitude-squared coherence ``C`` (``scipy.signal.coherence``'s
-    estimate, Hann, 50 % overlap) is Fisher-transformed: ``atanh(sqrt(C))`` is close to normal
+    Per run and pair, the magnitude-squared coherence ``C`` (the Welch estimate of
+    :func:`bayesdoor.features.welch_csd` and :func:`bayesdoor.features.welch_psd`, Hann, 50 %
+    overlap) is Fisher-transformed: ``atanh(sqrt(C))`` is close to normal
     with variance ``1 / (2 (n - 1))`` for ``n`` independent segments (here ``n = nu / 2`` from
     the Welch degrees of freedom); its small-sample bias is the same for measured and simulated
     runs of equal length and cancels in the difference. The differences are combined over runs

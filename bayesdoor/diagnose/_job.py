@@ -15,11 +15,11 @@ from typing import TYPE_CHECKING, Any
 
 import jax.numpy as jnp
 import numpy as np
-import scipy.signal
 import xarray as xr
 
 from .._types import Float, Int
 from ..features import motion_window as detect_motion_window
+from ..features import welch_psd
 from ..inference import FitResult, calibration_runs, fit_campaign
 from ..io import operating as campaign_operating
 from ._features import Features, find_features
@@ -383,7 +383,7 @@ def _noise_rms(signals: np.ndarray, fs: float, t_start: np.ndarray) -> np.ndarra
     n = int(np.floor(np.min(t_start) * fs))
     if n < 16:
         return np.zeros(signals.shape[1])
-    _, psd = scipy.signal.welch(signals[..., :n], fs, nperseg=min(n, int(fs) // 4), axis=-1)
+    _, psd = welch_psd(signals[..., :n], fs, nperseg=min(n, int(fs) // 4))
     level = np.median(psd.mean(axis=0), axis=-1)
     return np.sqrt(level * fs / 2.0)
 

@@ -15,7 +15,7 @@ import numpy as np
 import scipy.signal
 
 from .._types import Float
-from ..features import log10_psd_variance, welch_dof
+from ..features import log10_psd_variance, welch_dof, welch_psd, welch_segment_count
 
 #: the resampled span is where the speed is at least this fraction of the run's peak speed
 MOVING_FRACTION = 0.2
@@ -134,10 +134,8 @@ def order_log_psd(
             )
         span = slice(idx[0], idx[-1] + 1)
         resampled = np.stack([np.interp(grid, distance[span], c[span]) for c in low[r]])
-        wavenumbers, psd = scipy.signal.welch(
-            resampled, fs=1.0 / step, window="hann", nperseg=nperseg, nfft=PADDING * nperseg
-        )
-        n_segments = 1 + (grid.size - nperseg) // (nperseg // 2)
+        wavenumbers, psd = welch_psd(resampled, 1.0 / step, nperseg=nperseg, nfft=PADDING * nperseg)
+        n_segments = welch_segment_count(grid.size, nperseg)
         psds.append(np.log10(np.maximum(psd, 1e-300)))
         log_var.append(float(log10_psd_variance(welch_dof(n_segments, nperseg))))
         travel.append(float(z1 - z0))

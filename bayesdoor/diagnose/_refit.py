@@ -89,6 +89,13 @@ class ExtensionProposal:
         PSD(O - P)) / 2 + s^2 ((PSD(O + P) + PSD(O - P)) / 2 - PSD(O)), each gain is fitted
         on its channel (the discrepancy is estimated channel by channel) without another
         solve.
+    admissible
+        A constraint on the free parameters besides their boxes, for a quantity that follows
+        from them (a mode that carries the rail peaks at its installed frequency, which its
+        lift moves away from the bare frequency the box holds): given the extended system and
+        every parameter's value, whether a candidate lies in the region searched. The search
+        gives the candidates it refuses no density (they are not simulated), so no refit
+        leaves the region; ``None``: the boxes alone.
     """
 
     extension: Any
@@ -102,6 +109,7 @@ class ExtensionProposal:
     held: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     measured: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     gains: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    admissible: Callable[[AbstractSystem, Mapping[str, float]], bool] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -459,6 +467,28 @@ def _boxes(
     )
     fixed = {n: float(proposal.start.get(n, s.nominal)) for n, s in specs.items()}
     return extended, list(proposal.free), lower, upper, fixed
+
+
+def _admissible_rows(
+    setup: RefitSetup, proposal: ExtensionProposal, model: _Model, x: np.ndarray
+) -> np.ndarray:
+    """Which rows of free parameters ``x`` the proposal's constraint admits (all, without
+    one; never a row that is not finite)."""
+    finite = np.all(np.isfinite(x), axis=-1)
+    if proposal.admissible is None:
+        return finite
+    base = {**setup.point, **model.fixed}
+    return np.array(
+        [
+            bool(ok)
+            and bool(
+                proposal.admissible(
+                    model.extended, {**base, **dict(zip(model.free, map(float, row), strict=True))}
+                )
+            )
+            for ok, row in zip(finite, x, strict=True)
+        ]
+    )
 
 
 def tile_runs(operating: np.ndarray, n: int) -> np.ndarray:
@@ -880,12 +910,17 @@ def _refit_with_gains(
         x = np.atleast_2d(x)
         full = np.zeros((len(x), len(free)))
         full[:, search] = x
-        off, slope = model.solve_gains(model.values(full, len(train)), train, list(proposal.gains))
+        out = np.full(len(x), np.inf)
+        admitted = np.flatnonzero(_admissible_rows(setup, proposal, model, full))
+        if admitted.size == 0:
+            return out
+        off, slope = model.solve_gains(
+            model.values(full[admitted], len(train)), train, list(proposal.gains)
+        )
         power = 10.0 ** setup.spectra.model(
             np.stack([off, off + slope, off - slope], axis=1), train
         )
-        out = np.full(len(x), np.inf)
-        for r, row in enumerate(x):
+        for r, row in zip(range(len(admitted)), x[admitted], strict=True):
             if not np.all(np.isfinite(power[r])):
                 continue
             total, gains = 0.0, {}
@@ -917,6 +952,11 @@ def _refit_with_gains(
     key = tuple(map(float, x_best))
     if key not in profiles:
         objective(x_best[None])
+    if key not in profiles:
+        raise ValueError(
+            f"no candidate of {proposal.label or proposal.extension!r} inside its search boxes "
+            "and constraint could be simulated"
+        )
     optimum = np.empty(len(free))
     optimum[search] = x_best
     for n, s in profiles[key].items():
@@ -1020,8 +1060,12 @@ def refit_extension(
             full[:, search] = x
             for n, v in point.items():
                 full[:, free.index(n)] = v
-            spectra = _batched(model, setup.spectra, full, train)
-            return -_profile_lpd(setup.spectra, spectra, train)
+            out = np.full(len(x), np.inf)
+            admitted = _admissible_rows(setup, proposal, model, full)
+            if admitted.any():
+                spectra = _batched(model, setup.spectra, full[admitted], train)
+                out[admitted] = -_profile_lpd(setup.spectra, spectra, train)
+            return out
 
         return objective
 

@@ -6,11 +6,10 @@ import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
-import scipy.signal
 import scipy.stats
 
 from .._types import Bool, Float
-from ..features import welch_dof
+from ..features import welch_dof, welch_psd, welch_segment_count
 from ._stats import benjamini_hochberg, contiguous_runs, parabolic_offset
 
 #: bins on either side of a bin whose median is its local noise floor
@@ -139,14 +138,10 @@ def _pooled_psd(segments, fs: float, nperseg: int, name: str):
         x = np.asarray(x, dtype=float)
         if x.ndim != 2:
             raise ValueError(f"{name} must hold (channel, time) arrays, got shape {x.shape}")
-        k = (
-            (x.shape[-1] - nperseg // 2) // (nperseg - nperseg // 2)
-            if x.shape[-1] >= nperseg
-            else 0
-        )
+        k = welch_segment_count(x.shape[-1], nperseg)
         if k < 1:
             continue
-        freqs, psd = scipy.signal.welch(x, fs, nperseg=nperseg)
+        freqs, psd = welch_psd(x, fs, nperseg=nperseg)
         total = k * psd if total is None else total + k * psd
         count += k
         dof += welch_dof(k, nperseg)

@@ -142,8 +142,9 @@ class FixedFrequency(AbstractSignature):
     show the mode, the strongest region of each, weighted by its statistic),
     ``damping_ratio`` (half-power width over twice the frequency; an upper bound near the
     resolution, since the width includes the window's main lobe), ``excess_db``,
-    ``channels``, ``band_hz`` (the lowest and highest significant bin of those regions, Hz)
-    and ``line_at_rest`` (whether a line lies at the frequency at rest before the motion).
+    ``channels``, ``band_hz`` (the lowest and highest significant bin of those regions, Hz),
+    ``resolution_hz`` (the residual map's bin spacing, Hz) and ``line_at_rest`` (whether a
+    line lies at the frequency at rest before the motion).
     """
 
     band: tuple[float, float] = eqx.field(static=True)
@@ -210,6 +211,7 @@ class FixedFrequency(AbstractSignature):
                             float(min(r.low for r in same)),
                             float(max(r.high for r in same)),
                         ),
+                        "resolution_hz": float(res.resolution_hz),
                         "line_at_rest": at_rest.passed is False,
                     },
                     strength=abs(region.z),

@@ -8,6 +8,7 @@ signature's estimate).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping
 from typing import Any
 
@@ -58,8 +59,6 @@ _WHEEL_WAVELENGTHS = tuple(WHEEL_CIRCUMFERENCE / k for k in WHEEL_HARMONICS)
 #: signatures' match; the order spectra of 0.5 m segments resolve 2 cycles per metre, 4 % of
 #: the wheel's sixth harmonic)
 _WHEEL_MATCH = 0.04
-#: search box of a frame mode's refit around the signature's frequency, Hz
-_FREQUENCY_BOX_HZ = 3.0
 #: largest participation of a frame mode searched (the mode's relative acceleration is about
 #: 1 / (2 zeta) times the drive at resonance, so 0.2 already exceeds any channel's own level)
 _PARTICIPATION_BOX = 0.2
@@ -77,28 +76,57 @@ _SYMPTOM_SHARE = 1.0
 _SYMPTOM_HALF_WIDTH_HZ = 1.5
 
 
-def _frequency_box(parameters: Mapping[str, Any], f: float, half: float) -> tuple[float, float]:
-    """The refit's frequency search box: ``f +- half`` widened to the residual feature's own
-    band (the signature's ``band_hz``, its lowest and highest significant bins), so a mode
-    anywhere in the feature can be reached; inside :data:`FRAME_MODE_BAND`."""
-    lo, hi = f - half, f + half
+def _feature_box(parameters: Mapping[str, Any]) -> tuple[float, float]:
+    """Where a mode that makes the residual feature peaks: the feature's own band (the
+    signature's ``band_hz``, its lowest and highest significant bins; without it, its
+    frequency) widened by the Hann main lobe (``LOCAL_BINS`` bins of ``resolution_hz`` either
+    side), which spreads a peak over that many bins; inside :data:`FRAME_MODE_BAND`. A mode
+    that peaks outside explains the spectra by something other than a resonance at the
+    feature."""
+    f = float(parameters["frequency_hz"])
+    low, high = (float(b) for b in parameters.get("band_hz", (f, f)))
+    lobe = LOCAL_BINS * float(parameters["resolution_hz"])
+    return max(low - lobe, FRAME_MODE_BAND[0]), min(high + lobe, FRAME_MODE_BAND[1])
+
+
+def _bare_box(parameters: Mapping[str, Any], f: float) -> tuple[float, float]:
+    """The bare frequencies a rail-carrying mode is searched at: ``f +- _COUPLED_BOX_HZ``
+    widened to the feature's band, inside :data:`FRAME_MODE_BAND` (its installed peak, held in
+    the feature's box by the refit's constraint, lies up to a few hertz from the bare one)."""
+    lo, hi = f - _COUPLED_BOX_HZ, f + _COUPLED_BOX_HZ
     band = parameters.get("band_hz")
     if band is not None and len(band) == 2 and np.all(np.isfinite(band)):
         lo, hi = min(lo, float(band[0])), max(hi, float(band[1]))
     return max(lo, FRAME_MODE_BAND[0]), min(hi, FRAME_MODE_BAND[1])
 
 
+def _installed_frequency(system: Any, values: Mapping[str, float]) -> float:
+    """A rail-carrying mode's peak as installed: the extended door's mode at rest
+    (:meth:`ElevatorDoor.rest_modes`) nearest its bare frequency."""
+    frequencies, _ = system.rest_modes(values)
+    bare = float(values["frame_mode.frequency_hz"])
+    return float(frequencies[np.argmin(np.abs(frequencies - bare))])
+
+
+def _installed_inside(box: tuple[float, float], system: Any, values: Mapping[str, float]) -> bool:
+    """Whether a rail-carrying mode's installed frequency lies in ``box``."""
+    return bool(box[0] <= _installed_frequency(system, values) <= box[1])
+
+
 class FrameModeRefit(AbstractRefit):
     """An extra mode at the residual's frequency, seen on every channel, in two forms.
 
     First a mode that carries the rail (``CoupledFrameMode``, solved with the door): free
-    its bare frequency (within 4 Hz of the signature's: with a strong lift the coupling
-    moves the installed peak by a few hertz), damping ratio and rail lift, searched by
-    CMA-ES, and the participation of every channel, profiled exactly at every candidate
-    (``gains``). Then an output mode (``FrameMode``, driven by the base model's channels, no
-    solve): free its frequency (within 3 Hz), damping ratio and the participation of every
-    channel (started at 0.02 on the channels that show the residual, 0 elsewhere). The
-    refit keeps the form that fits the training runs best.
+    its bare frequency (within 4 Hz of the signature's, or the feature's band: with a strong
+    lift the coupling moves the installed peak by a few hertz), damping ratio and rail lift,
+    searched by CMA-ES among the modes whose installed frequency (:meth:`derived`) lies in the
+    feature's box (the proposal's ``admissible``), and the participation of every channel,
+    profiled exactly at every candidate (``gains``). Then an output mode (``FrameMode``,
+    driven by the base model's channels, no solve): free its frequency (in the feature's
+    box), damping ratio and the participation of every channel (started at 0.02 on the
+    channels that show the residual, 0 elsewhere). The refit keeps the form that fits the
+    training runs best. The feature's box is its band widened by the main lobe
+    (:func:`_feature_box`): a mode is searched only where it would make the feature.
 
     Nothing is proposed when a line lies at the feature's frequency at rest before the
     motion (the signature's ``line_at_rest``): a resonance of the door is excited by the
@@ -116,7 +144,11 @@ class FrameModeRefit(AbstractRefit):
         f = float(parameters["frequency_hz"])
         zeta = float(np.clip(parameters.get("damping_ratio", 0.02), 0.005, 0.1))
         shown = set(parameters.get("channels", ()))
-        start = {"frame_mode.frequency_hz": f, "frame_mode.damping_ratio": zeta}
+        feature = _feature_box(parameters)
+        start = {
+            "frame_mode.frequency_hz": float(np.clip(f, *feature)),
+            "frame_mode.damping_ratio": zeta,
+        }
         start.update(
             {f"frame_mode.participation_{c}": 0.02 if c in shown else 0.0 for c in g.CHANNELS}
         )
@@ -124,7 +156,7 @@ class FrameModeRefit(AbstractRefit):
             f"frame_mode.participation_{c}": (-_PARTICIPATION_BOX, _PARTICIPATION_BOX)
             for c in g.CHANNELS
         }
-        box["frame_mode.frequency_hz"] = _frequency_box(parameters, f, _FREQUENCY_BOX_HZ)
+        box["frame_mode.frequency_hz"] = feature
         parts = {f"frame_mode.participation_{c}": c for c in g.CHANNELS}
         coupled_start = {
             "frame_mode.frequency_hz": f,
@@ -133,7 +165,7 @@ class FrameModeRefit(AbstractRefit):
             **dict.fromkeys(parts, 0.0),
         }
         coupled_box = {
-            "frame_mode.frequency_hz": _frequency_box(parameters, f, _COUPLED_BOX_HZ),
+            "frame_mode.frequency_hz": _bare_box(parameters, f),
             "frame_mode.rail_lift": _RAIL_LIFT_BOX,
         }
         key = ("frame_mode.frequency_hz", "frame_mode.damping_ratio")
@@ -146,6 +178,7 @@ class FrameModeRefit(AbstractRefit):
                 key=key,
                 label=f"a mode near {f:.1f} Hz carrying the rail",
                 gains=parts,
+                admissible=functools.partial(_installed_inside, feature),
             ),
             ExtensionProposal(
                 extension=FrameMode(),
@@ -158,21 +191,10 @@ class FrameModeRefit(AbstractRefit):
         )
 
     def explains(self, parameters, freqs, measured, base, extended, channels, refitted=()):
-        """The mode must peak on the feature that named it and take away some of its excess.
+        """The mode must take away some of the excess of the feature that named it.
 
-        Where: each fold's refitted mode peaks (a rail-carrying mode at its installed
-        frequency, ``derived``; an output mode at its frequency) inside the feature: the
-        significant bins of the regions that named it (the signature's ``band_hz``; without
-        it, the feature's centroid), widened by the Hann main lobe (``LOCAL_BINS`` bins
-        either side), which spreads a peak over that many bins of the 1 Hz spectra. A mode
-        that peaks outside explains the spectra by something else: on the rig with nothing
-        hidden (the demo campaign, a quick fit) a rail-carrying mode proposed for a one-bin
-        feature at 74 Hz ended at 70 Hz bare, damping 0.1, lift 0.27, read by the channels
-        at 0.01-0.04, one fold's installed peak at 70.95 Hz: a softer rail support that
-        reshaped the door's spectra, not a resonance at 74 Hz; it gained in every held-out
-        run and was named. The feature's extent, not its centroid: a frame mode (6 runs,
-        seed 1) showed as excess over 55-66 Hz on two channels with peaks at 58-60 Hz and a
-        centroid at 63.3 Hz; its refit put the mode at 59.3 Hz (the rig's 58.4 Hz).
+        Where it peaks needs no test: the refit searches only modes that peak in the
+        feature's box (:func:`_feature_box`), a rail-carrying mode by its installed frequency.
 
         How much: over the bins within the feature's half-power band of its frequency (at
         least 1.5 Hz either side) on the channels that show it, the mean squared residual
@@ -182,21 +204,6 @@ class FrameModeRefit(AbstractRefit):
         or makes it worse."""
         f = float(parameters["frequency_hz"])
         zeta = float(parameters.get("damping_ratio", 0.02))
-        step = float(np.mean(np.diff(freqs))) if len(freqs) > 1 else 1.0
-        low, high = (float(b) for b in parameters.get("band_hz", (f, f)))
-        low, high = low - LOCAL_BINS * step, high + LOCAL_BINS * step
-        peaks = [
-            float(v.get("frame_mode.installed_frequency_hz", v["frame_mode.frequency_hz"]))
-            for v in refitted
-            if "frame_mode.frequency_hz" in v
-        ]
-        where = f"{', '.join(f'{p:.2f}' for p in peaks)} Hz (each fold)"
-        if any(not low <= p <= high for p in peaks):
-            return False, (
-                f"the refitted mode peaks at {where}, outside the feature's {low:.2f}-"
-                f"{high:.2f} Hz (its bins and the main lobe): it explains the spectra by "
-                "something other than a resonance at the feature"
-            )
         shown = [channels.index(c) for c in parameters.get("channels", ()) if c in channels]
         rows = shown or list(range(len(channels)))
         near = np.abs(np.asarray(freqs) - f) <= max(_SYMPTOM_HALF_WIDTH_HZ, 2.0 * zeta * f)
@@ -209,8 +216,14 @@ class FrameModeRefit(AbstractRefit):
             f"near {f:.1f} Hz on {', '.join(channels[i] for i in rows)} the held-out "
             f"residual's mean square went from {before:.3g} to {after:.3g} (log10 PSD)"
         )
+        peaks = [
+            float(v.get("frame_mode.installed_frequency_hz", v["frame_mode.frequency_hz"]))
+            for v in refitted
+            if "frame_mode.frequency_hz" in v
+        ]
         if peaks:
-            words = f"the refitted mode peaks at {where}, inside {low:.2f}-{high:.2f} Hz; {words}"
+            where = ", ".join(f"{p:.2f}" for p in peaks)
+            words = f"the refitted mode peaks at {where} Hz (each fold); {words}"
         return bool(ratio < _SYMPTOM_SHARE), words
 
     def size(self, *, band: tuple[float, float]) -> CauseSize:
@@ -245,13 +258,7 @@ class FrameModeRefit(AbstractRefit):
         its frequency)."""
         if not isinstance(proposal.extension, CoupledFrameMode):
             return {}
-        frequencies, _ = system.rest_modes(values)
-        bare = float(values["frame_mode.frequency_hz"])
-        return {
-            "frame_mode.installed_frequency_hz": float(
-                frequencies[np.argmin(np.abs(frequencies - bare))]
-            )
-        }
+        return {"frame_mode.installed_frequency_hz": _installed_frequency(system, values)}
 
 
 class WheelRefit(AbstractRefit):

@@ -1,20 +1,44 @@
-"""Welch power spectral density in JAX, whole-record or weighted over a window of the record."""
+"""Welch power and cross spectral densities, whole-record or weighted over a window of the record.
+
+One implementation serves fitting (JAX: traced, batched, differentiated) and diagnosis (numpy):
+a JAX array in gives a JAX array out, anything else a numpy array; the segmentation, window,
+detrending and scaling are the same code for both.
+"""
 
 from __future__ import annotations
 
+from types import ModuleType
+from typing import TypeVar
+
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.signal
+from jaxtyping import Complex
 
 from .._types import Array, Float
+
+#: numpy arrays in give numpy arrays out, JAX arrays JAX arrays
+_A = TypeVar("_A", np.ndarray, Array)
 
 #: how far (in sample periods) a time may lie from a sample and still count as on it
 _TIME_TOLERANCE = 1e-6
 
 
-def _segment_layout(n_time: int, nperseg: int, noverlap: int | None) -> tuple[int, int]:
-    """Check the segmentation options; return (noverlap, number of segments)."""
+def welch_segment_count(n_time: int, nperseg: int, noverlap: int | None = None) -> int:
+    """How many whole segments a Welch estimate averages over a record of ``n_time`` samples.
+
+    Segments of ``nperseg`` samples start every ``nperseg - noverlap`` samples and a trailing
+    partial segment is dropped, as in :func:`welch_psd`: ``(n_time - noverlap) // (nperseg -
+    noverlap)``, 0 for a record shorter than one segment. It is the ``n_segments`` of
+    :func:`bayesdoor.features.welch_dof`.
+
+    Raises
+    ------
+    ValueError
+        For ``nperseg`` not a positive integer or ``noverlap`` outside ``[0, nperseg)``.
+    """
     if isinstance(nperseg, bool) or not isinstance(nperseg, int | np.integer) or nperseg < 1:
         raise ValueError(f"nperseg must be a positive integer, got {nperseg!r}")
     noverlap = nperseg // 2 if noverlap is None else noverlap
@@ -24,12 +48,20 @@ def _segment_layout(n_time: int, nperseg: int, noverlap: int | None) -> tuple[in
             "pass None for the default nperseg // 2"
         )
     if n_time < nperseg:
+        return 0
+    return int((n_time - noverlap) // (nperseg - noverlap))
+
+
+def _segment_layout(n_time: int, nperseg: int, noverlap: int | None) -> tuple[int, int]:
+    """Check the segmentation options; return (noverlap, number of segments)."""
+    n_segments = welch_segment_count(n_time, nperseg, noverlap)
+    if n_segments == 0:
         raise ValueError(
             f"the record has {n_time} samples, fewer than nperseg={nperseg}: pass a smaller "
             "nperseg or a longer record (scipy would silently shrink nperseg; a static JAX "
             "shape cannot)"
         )
-    return int(noverlap), (n_time - noverlap) // (nperseg - noverlap)
+    return int(nperseg // 2 if noverlap is None else noverlap), n_segments
 
 
 def _window(window, nperseg: int) -> np.ndarray:
@@ -44,22 +76,84 @@ def _window(window, nperseg: int) -> np.ndarray:
     return win
 
 
-def _detrend(segments, detrend):
+def _detrend(segments, detrend, xp):
     if detrend is False or detrend is None:
         return segments
-    centred = segments - jnp.mean(segments, axis=-1, keepdims=True)
+    centred = segments - xp.mean(segments, axis=-1, keepdims=True)
     if detrend == "constant":
         return centred
     if detrend == "linear":
         n = segments.shape[-1]
         ramp = np.arange(n) - 0.5 * (n - 1)
-        ramp = jnp.asarray(ramp / np.sqrt(np.sum(ramp * ramp)), dtype=segments.dtype)
-        return centred - jnp.sum(centred * ramp, axis=-1, keepdims=True) * ramp
+        ramp = xp.asarray(ramp / np.sqrt(np.sum(ramp * ramp)), dtype=segments.dtype)
+        return centred - xp.sum(centred * ramp, axis=-1, keepdims=True) * ramp
     raise ValueError(f"detrend must be 'constant', 'linear' or False, got {detrend!r}")
 
 
+def _namespace(*arrays) -> ModuleType:
+    """``jax.numpy`` when any input is a JAX array (or a tracer), else ``numpy``."""
+    return jnp if any(isinstance(a, jax.Array) for a in arrays) else np
+
+
+def _time_last(x, axis, xp):
+    x = xp.moveaxis(xp.asarray(x), axis, -1)
+    if not xp.issubdtype(x.dtype, xp.floating):
+        x = x.astype(xp.result_type(float))
+    return x
+
+
+def _segment_spectra(x, nperseg, noverlap, window, detrend, nfft, xp):
+    """The FFT of every detrended, windowed segment of ``x`` (time last): (..., segment, freq);
+    the window, the number of segments and the FFT length."""
+    noverlap, n_segments = _segment_layout(x.shape[-1], nperseg, noverlap)
+    nfft = nperseg if nfft is None else nfft
+    if isinstance(nfft, bool) or not isinstance(nfft, int | np.integer) or nfft < nperseg:
+        raise ValueError(f"nfft must be an integer of at least nperseg={nperseg}, got {nfft!r}")
+    win = _window(window, nperseg)
+    starts = np.arange(n_segments) * (nperseg - noverlap)
+    segments = x[..., starts[:, None] + np.arange(nperseg)]
+    segments = _detrend(segments, detrend, xp) * xp.asarray(win, dtype=x.dtype)
+    return xp.fft.rfft(segments, n=int(nfft), axis=-1), win, n_segments, int(nfft)
+
+
+def _average(power, segment_weights, layout: tuple[int, int, int | None, int], xp):
+    """Mean over the segment axis (-2), or the ``segment_weights`` average."""
+    if segment_weights is None:
+        return xp.mean(power, axis=-2)
+    n_time, nperseg, noverlap, n_segments = layout
+    w = xp.asarray(segment_weights).astype(xp.real(power).dtype)
+    if w.ndim == 0 or w.shape[-1] != n_segments:
+        raise ValueError(
+            f"segment_weights must end with an axis of {n_segments} segments (record of "
+            f"{n_time} samples, nperseg={nperseg}, noverlap={noverlap}), got shape {w.shape}"
+        )
+    total = xp.sum(w, axis=-1, keepdims=True)
+    message = (
+        "segment_weights sum to zero for some record: no segment lies inside its window; "
+        "(a) the window is shorter than nperseg, (b) t_start/t_stop lie outside the record"
+    )
+    if xp is jnp:
+        total = eqx.error_if(total, total <= 0, message)
+    elif np.any(total <= 0):
+        raise ValueError(message)
+    return xp.sum(w[..., None] * power, axis=-2) / total
+
+
+def _density(spectrum, win, nfft, fs, dtype, axis, xp):
+    """Frequencies, and the averaged periodogram scaled to a one-sided density on ``axis``."""
+    fs = float(fs)
+    # density scaling, and the one-sided doubling of all bins but DC (and Nyquist, when present)
+    scale = np.full(nfft // 2 + 1, 2.0 / (fs * np.sum(win * win)))
+    scale[0] /= 2.0
+    if nfft % 2 == 0:
+        scale[-1] /= 2.0
+    spectrum = spectrum * xp.asarray(scale, dtype=dtype)
+    freqs = xp.asarray(np.fft.rfftfreq(nfft, 1.0 / fs), dtype=dtype)
+    return freqs, xp.moveaxis(spectrum, -1, axis)
+
+
 def welch_psd(
-    x: Float[Array, "*batch time"],
+    x: Float[_A, "*batch time"],
     fs: float,
     nperseg: int = 512,
     noverlap: int | None = None,
@@ -67,14 +161,17 @@ def welch_psd(
     detrend: str | bool | None = "constant",
     axis: int = -1,
     *,
-    segment_weights: Float[Array, "*#batch segment"] | None = None,
-) -> tuple[Float[Array, " freq"], Float[Array, "*batch freq"]]:
+    segment_weights: Float[_A, "*#batch segment"] | None = None,
+    nfft: int | None = None,
+) -> tuple[Float[_A, " freq"], Float[_A, "*batch freq"]]:
     """One-sided Welch power spectral density, as ``scipy.signal.welch`` computes it.
 
     The record is cut into segments of ``nperseg`` samples that start every
     ``nperseg - noverlap`` samples (a trailing partial segment is dropped), each segment is
     detrended and windowed, and the periodograms (``scaling="density"``, one-sided) are
-    averaged. Works under ``jit``, ``grad`` and ``vmap``; the options are static.
+    averaged. Works under ``jit``, ``grad`` and ``vmap``; the options are static. A JAX
+    array in (``x`` or ``segment_weights``) gives JAX arrays out; numpy arrays in give numpy
+    arrays out, computed by numpy with the same code (no compilation for each record length).
 
     Parameters
     ----------
@@ -101,11 +198,15 @@ def welch_psd(
         with ``axis`` removed. The number of segments stays static, only the weights are
         traced, so a per-run motion window works inside ``jit`` and ``vmap``. With all
         weights equal it is plain Welch.
+    nfft
+        FFT length of each segment, at least ``nperseg``: the windowed segment is zero-padded
+        to it, which interpolates the spectrum on a finer grid without narrowing the window's
+        main lobe; ``None`` means ``nperseg``.
 
     Returns
     -------
     freqs
-        The frequencies, ``k fs / nperseg`` for ``k = 0 .. nperseg // 2``.
+        The frequencies, ``k fs / nfft`` for ``k = 0 .. nfft // 2``.
     psd
         The power spectral density in (units of ``x``)^2 / Hz.
 
@@ -113,8 +214,9 @@ def welch_psd(
     ------
     ValueError
         For a record shorter than ``nperseg``, ``noverlap`` outside ``[0, nperseg)``, an
-        unknown ``detrend``, a window of the wrong length or weights with the wrong number of
-        segments. At run time (``eqx.error_if``): for weights that sum to zero somewhere.
+        unknown ``detrend``, a window of the wrong length, ``nfft`` below ``nperseg`` or weights
+        with the wrong number of segments; for weights that sum to zero somewhere (at run
+        time, through ``eqx.error_if``, for JAX arrays).
 
     References
     ----------
@@ -129,43 +231,64 @@ def welch_psd(
     >>> float(freqs[jnp.argmax(psd)])
     100.0
     """
-    x = jnp.moveaxis(jnp.asarray(x), axis, -1)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    fs = float(fs)
-    noverlap, n_segments = _segment_layout(x.shape[-1], nperseg, noverlap)
-    win = _window(window, nperseg)
-    starts = np.arange(n_segments) * (nperseg - noverlap)
-    segments = x[..., starts[:, None] + np.arange(nperseg)]
-    segments = _detrend(segments, detrend) * jnp.asarray(win, dtype=x.dtype)
-    spectrum = jnp.fft.rfft(segments, axis=-1)
-    power = jnp.real(spectrum) ** 2 + jnp.imag(spectrum) ** 2
-    if segment_weights is None:
-        psd = jnp.mean(power, axis=-2)
-    else:
-        w = jnp.asarray(segment_weights).astype(x.dtype)
-        if w.ndim == 0 or w.shape[-1] != n_segments:
-            raise ValueError(
-                f"segment_weights must end with an axis of {n_segments} segments (record of "
-                f"{x.shape[-1]} samples, nperseg={nperseg}, noverlap={noverlap}), got shape "
-                f"{w.shape}"
-            )
-        total = jnp.sum(w, axis=-1, keepdims=True)
-        total = eqx.error_if(
-            total,
-            total <= 0,
-            "segment_weights sum to zero for some record: no segment lies inside its window; "
-            "(a) the window is shorter than nperseg, (b) t_start/t_stop lie outside the record",
-        )
-        psd = jnp.sum(w[..., None] * power, axis=-2) / total
-    # density scaling, and the one-sided doubling of all bins but DC (and Nyquist, when present)
-    scale = np.full(nperseg // 2 + 1, 2.0 / (fs * np.sum(win * win)))
-    scale[0] /= 2.0
-    if nperseg % 2 == 0:
-        scale[-1] /= 2.0
-    psd = psd * jnp.asarray(scale, dtype=x.dtype)
-    freqs = jnp.asarray(np.fft.rfftfreq(nperseg, 1.0 / fs), dtype=x.dtype)
-    return freqs, jnp.moveaxis(psd, -1, axis)
+    xp = _namespace(x, segment_weights)
+    x = _time_last(x, axis, xp)
+    spectrum, win, n_segments, nfft = _segment_spectra(
+        x, nperseg, noverlap, window, detrend, nfft, xp
+    )
+    power = xp.real(spectrum) ** 2 + xp.imag(spectrum) ** 2
+    layout = (x.shape[-1], nperseg, noverlap, n_segments)
+    psd = _average(power, segment_weights, layout, xp)
+    return _density(psd, win, nfft, fs, x.dtype, axis, xp)
+
+
+def welch_csd(
+    x: Float[_A, "*batch time"],
+    y: Float[_A, "*batch time"],
+    fs: float,
+    nperseg: int = 512,
+    noverlap: int | None = None,
+    window: str | tuple | Float[Array, " nperseg"] = "hann",
+    detrend: str | bool | None = "constant",
+    axis: int = -1,
+    *,
+    segment_weights: Float[_A, "*#batch segment"] | None = None,
+    nfft: int | None = None,
+) -> tuple[Float[_A, " freq"], Complex[_A, "*batch freq"]]:
+    """One-sided Welch cross spectral density ``P_xy``, as ``scipy.signal.csd`` computes it.
+
+    The segments, window, detrending, weights and scaling are those of :func:`welch_psd`
+    (``welch_csd(x, x, ...)`` is ``welch_psd(x, ...)`` as a complex array); each segment
+    contributes ``conj(X) Y`` of the two FFTs. With :func:`welch_psd` of both signals it gives
+    the magnitude-squared coherence ``|P_xy|^2 / (P_xx P_yy)`` and the transfer function
+    ``P_xy / P_xx``.
+
+    Parameters
+    ----------
+    x, y
+        The two signals, of one shape (or shapes that broadcast), time on ``axis``.
+    fs, nperseg, noverlap, window, detrend, axis, segment_weights, nfft
+        As in :func:`welch_psd`.
+
+    Returns
+    -------
+    freqs
+        The frequencies, ``k fs / nfft`` for ``k = 0 .. nfft // 2``.
+    csd
+        The cross spectral density in (units of ``x``)(units of ``y``) / Hz.
+
+    Raises
+    ------
+    ValueError
+        As :func:`welch_psd`.
+    """
+    xp = _namespace(x, y, segment_weights)
+    x, y = xp.broadcast_arrays(_time_last(x, axis, xp), _time_last(y, axis, xp))
+    sx, win, n_segments, nfft = _segment_spectra(x, nperseg, noverlap, window, detrend, nfft, xp)
+    sy, _, _, _ = _segment_spectra(y, nperseg, noverlap, window, detrend, nfft, xp)
+    layout = (x.shape[-1], nperseg, noverlap, n_segments)
+    cross = _average(xp.conj(sx) * sy, segment_weights, layout, xp)
+    return _density(cross, win, nfft, fs, x.dtype, axis, xp)
 
 
 def segment_weights(

@@ -39,14 +39,16 @@ MAX_RUNS_PER_CONDITION = 40
 FOLDS = 2
 
 
-def fold_labels(order: Float[np.ndarray, " run"] | Float[np.ndarray, "run k"]) -> np.ndarray:
+def fold_labels(
+    order: Float[np.ndarray, " run"] | Float[np.ndarray, "run k"], k: int = FOLDS
+) -> np.ndarray:
     """Each run's fold of the held-out judgement: the runs sorted by ``order`` (the first
-    column first, ties by the next) dealt to the :data:`FOLDS` folds in turn, as
-    :func:`~bayesdoor.diagnose._job.held_out_folds` deals them."""
+    column first, ties by the next) dealt to the ``k`` folds in turn (the dealing of
+    :func:`~bayesdoor.diagnose._job.held_out_folds`)."""
     key = np.asarray(order, dtype=float)
     ranked = np.argsort(key, kind="stable") if key.ndim == 1 else np.lexsort(key.T[::-1])
     labels = np.empty(len(key), dtype=int)
-    labels[ranked] = np.arange(len(key)) % FOLDS
+    labels[ranked] = np.arange(len(key)) % k
     return labels
 
 

@@ -22,6 +22,7 @@ from ..features import motion_window as detect_motion_window
 from ..features import welch_psd
 from ..inference import FitResult, calibration_runs, fit_campaign
 from ..io import operating as campaign_operating
+from ._design import fold_labels
 from ._features import Features, find_features
 from ._gain import (
     RULE,
@@ -431,12 +432,8 @@ def held_out_folds(
     k = min(int(k), n)
     if n - int(np.ceil(n / k)) < 2:
         return []
-    key = np.asarray(operating, dtype=float)
-    if key.ndim == 1:
-        order = np.argsort(key, kind="stable")
-    else:  # several conditions: the first column first, ties by the next ones
-        order = np.lexsort(key.T[::-1])
-    tests = [np.sort(order[i::k]) for i in range(k)]
+    labels = fold_labels(operating, k)
+    tests = [np.flatnonzero(labels == i) for i in range(k)]
     return [(np.setdiff1d(np.arange(n), test), test) for test in tests]
 
 

@@ -920,7 +920,8 @@ def _refit_with_gains(
         power = 10.0 ** setup.spectra.model(
             np.stack([off, off + slope, off - slope], axis=1), train
         )
-        for r, row in zip(range(len(admitted)), x[admitted], strict=True):
+        # power's row r is the candidate x[admitted[r]]: its value goes to that candidate's row
+        for r, (at, row) in enumerate(zip(admitted, x[admitted], strict=True)):
             if not np.all(np.isfinite(power[r])):
                 continue
             total, gains = 0.0, {}
@@ -940,7 +941,7 @@ def _refit_with_gains(
                     value = _channel_lpd(setup.spectra, np.log10(power[r][0][:, k]), train, k)
                 total += value
             profiles[tuple(map(float, row))] = gains
-            out[r] = -total
+            out[at] = -total
         return out
 
     start = np.clip([float(proposal.start.get(n, model.fixed[n])) for n in free], lower, upper)[

@@ -62,7 +62,7 @@ def test_interface(system):
     assert system.name == "bearing"
     assert system.channels == ("DE",)
     assert system.sampling_rate_hz == 12000.0
-    assert 6 <= len(system.parameters) <= 10
+    assert 6 <= len(system.parameters) <= 12
     for p in system.parameters:
         p.check(p.nominal)
         assert p.unit and p.description
@@ -147,6 +147,25 @@ def test_envelope_spectrum_peaks_at_the_fault_frequency(system, signals):
     assert _strength(signals["ball"], 2 * hz["bsf"])[1] > 5
     for target in (hz["bpfo"], hz["bpfi"], 2 * hz["bsf"]):
         assert _strength(signals["healthy"], target)[1] < 4, target
+
+
+def test_a_rotating_load_modulates_the_outer_race_strikes_at_the_shaft_speed(system):
+    """A stationary outer-race defect is struck at BPFO; an unbalance turning with the shaft
+    modulates the strikes at 1x: lines at 1x and BPFO +- 1x that the static load lacks."""
+    hz = system.fault_frequencies(RPM)
+    shaft = RPM / 60.0
+    strength = {}
+    for ratio in (0.0, 0.5):
+        values = {**system.nominal(), "unbalance_ratio": ratio}
+        x = system.simulate_values(
+            values, OPERATING, state="outer_race", severity={"fault_size_in": 0.014}
+        ).signals[0, 0]
+        strength[ratio] = [
+            _strength(np.asarray(x), f)[1] for f in (shaft, hz["bpfo"] - shaft, hz["bpfo"] + shaft)
+        ]
+        assert _strength(np.asarray(x), hz["bpfo"])[1] > 10, ratio
+    assert max(strength[0.0]) < 4, strength
+    assert min(strength[0.5]) > 4, strength
 
 
 def test_signal_levels(signals):

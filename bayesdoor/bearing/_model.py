@@ -26,11 +26,15 @@ separation). The impulses are placed at their exact times with a 16-tap windowed
 fractional delay, so the signal is differentiable in every parameter.
 
 Load zone (Stribeck's distribution, as in Randall and Antoni 2011):
-``q(theta) = max(0, 1 - (1 - cos theta) / (2 eps))^1.5`` of the angle between the defect and
-the load direction: the inner-race defect turns with the shaft (``theta = 2 pi f_r t + phi``),
-a ball with the cage (``theta = 2 pi FTF t + phi``); an outer-race defect at 6 o'clock sits
-in the middle of the load zone (``q = 1``). A ball's strikes alternate between the outer race
-(weight 1) and the inner race (weight ``ball_inner_ratio``).
+``q(theta) = |L| max(0, 1 - (1 - cos theta) / (2 eps))^1.5`` of the angle between the defect
+and the load ``L``: the inner-race defect turns with the shaft (``2 pi f_r t + phi``), a ball
+with the cage (``2 pi FTF t + phi``), an outer-race defect sits at 6 o'clock. The load is the
+static radial load (down, magnitude 1) plus a rotating load of ``unbalance_ratio`` times it
+turning with the shaft (an unbalance): it swings the load zone and its magnitude at the shaft
+frequency, so the strikes on the stationary outer-race defect are modulated at 1x (without it,
+``q = 1`` there), and those of the inner race and a ball by their angle to the moving load. A
+ball's strikes alternate between the outer race (weight 1) and the inner race (weight
+``ball_inner_ratio``).
 """
 
 from __future__ import annotations
@@ -90,6 +94,17 @@ def passage_spectrum(f: jax.Array, tau: jax.Array, entry_ratio: float) -> jax.Ar
 def load_zone(theta: jax.Array, epsilon: float) -> jax.Array:
     """Stribeck load factor (1 at the load direction) of a defect at angle ``theta``."""
     return jnp.maximum(0.0, 1 - (1 - jnp.cos(theta)) / (2 * epsilon)) ** LOAD_EXPONENT
+
+
+def radial_load(ratio: jax.Array, psi: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Magnitude (per static load) and direction (rad from 6 o'clock) of the bearing's load.
+
+    The static radial load points down (6 o'clock); a rotating load of ``ratio`` times it
+    (an unbalance turning with the shaft, at angle ``psi``) adds to it as a vector.
+    """
+    x = 1 + ratio * jnp.cos(psi)
+    y = ratio * jnp.sin(psi)
+    return jnp.sqrt(x**2 + y**2), jnp.arctan2(y, x)
 
 
 def place_impulses(times: jax.Array, weights: jax.Array, n_time: int, fs: float) -> jax.Array:
@@ -215,13 +230,20 @@ def run_signal(
     tk = t0 + jnp.concatenate([jnp.zeros(1, dtype=dtype), jnp.cumsum(spacing[:-1])])
     inside = tk < n_time / fs
     angle = jax.random.uniform(k_angle, (), dtype=dtype) * 2 * jnp.pi
+    k_unbalance = jax.random.fold_in(k_angle, 1)
+    unbalance_phase = jax.random.uniform(k_unbalance, (), dtype=dtype) * 2 * jnp.pi
+    magnitude, direction = radial_load(
+        p["unbalance_ratio"], 2 * jnp.pi * shaft_hz * tk + unbalance_phase
+    )
     if state == "inner_race":
-        q = load_zone(2 * jnp.pi * shaft_hz * tk + angle, epsilon)
+        defect = 2 * jnp.pi * shaft_hz * tk + angle
+        q = magnitude * load_zone(defect - direction, epsilon)
     elif state == "ball":
         alternate = jnp.where(jnp.arange(n_impulses) % 2 == 0, 1.0, ball_inner_ratio)
-        q = load_zone(2 * jnp.pi * ftf_order * shaft_hz * tk + angle, epsilon) * alternate
+        defect = 2 * jnp.pi * ftf_order * shaft_hz * tk + angle
+        q = magnitude * load_zone(defect - direction, epsilon) * alternate
     else:
-        q = jnp.ones_like(tk)
+        q = magnitude * load_zone(-direction, epsilon)
     amplitude = p["impulse_amplitude"] * size_in / REFERENCE_SIZE_IN
     weights = jnp.where(inside, amplitude * q, 0.0)
     train = place_impulses(jnp.where(inside, tk, 0.0), weights, n_time, fs)

@@ -70,6 +70,14 @@ PARAMETERS = (
         "ring-down amplitude of the housing mode per impulse of a 0.014 in defect",
     ),
     ParameterSpec("slip", "-", 0.01, 0.0, 0.05, "rms jitter of the impulse spacing (slip)"),
+    ParameterSpec(
+        "unbalance_ratio",
+        "-",
+        0.0,
+        0.0,
+        0.8,
+        "rotating (unbalance) load per static radial load: modulates the strikes at 1x",
+    ),
     ParameterSpec("shaft_amplitude", "m/s^2", 0.05, 0.0, 2.0, "amplitude of the 1x shaft line"),
     ParameterSpec(
         "roughness_rms", "m/s^2", 0.1, 0.0, 5.0, "rms of the broadband resonance response"

@@ -68,8 +68,18 @@ def test_interface(system):
         assert p.unit and p.description
     assert set(system.states) == {"healthy", "inner_race", "outer_race", "ball"}
     for name, spec in system.states.items():
-        expected = {} if name == "healthy" else {"fault_size_in": (0.005, 0.025)}
-        assert dict(spec.severity) == expected
+        if name == "healthy":
+            assert dict(spec.severity) == {}
+        else:
+            assert spec.severity["fault_size_in"] == (0.005, 0.025)
+            # what acts on fault runs only is the fault's own, drawn per run, not fitted
+            assert set(spec.severity) == {
+                "fault_size_in",
+                "impulse_amplitude",
+                "slip",
+                "unbalance_ratio",
+            }
+            assert not set(spec.severity) & set(system.parameter_names())
     assert system.condition_names() == ("shaft_speed", "load_hp")
     assert system.conditions[1].positive is False
     op = np.array([[1797.0, 0.0], [1772.0, 1.0], [1750.0, 2.0]])
@@ -116,9 +126,11 @@ def test_bad_inputs_raise(system):
     with pytest.raises(ValueError, match="unknown state"):
         system.simulate_values(values, OPERATING, state="cage")
     with pytest.raises(ValueError, match="missing"):
-        system.simulate_values({k: v for k, v in values.items() if k != "slip"}, OPERATING)
+        system.simulate_values({k: v for k, v in values.items() if k != "damping_1"}, OPERATING)
+    with pytest.raises(ValueError, match="damping_1"):
+        system.simulate_values({**values, "damping_1": 0.5}, OPERATING)
     with pytest.raises(ValueError, match="slip"):
-        system.simulate_values({**values, "slip": 0.5}, OPERATING)
+        system.simulate_values(values, OPERATING, state="inner_race", severity={"slip": 0.5})
     with pytest.raises(ValueError, match="shape"):
         system.simulate_values(values, [1797.0, 0.0, 1.0])
     with pytest.raises(ValueError, match="shaft_speed"):
@@ -156,9 +168,11 @@ def test_a_rotating_load_modulates_the_outer_race_strikes_at_the_shaft_speed(sys
     shaft = RPM / 60.0
     strength = {}
     for ratio in (0.0, 0.5):
-        values = {**system.nominal(), "unbalance_ratio": ratio}
         x = system.simulate_values(
-            values, OPERATING, state="outer_race", severity={"fault_size_in": 0.014}
+            system.nominal(),
+            OPERATING,
+            state="outer_race",
+            severity={"fault_size_in": 0.014, "unbalance_ratio": ratio},
         ).signals[0, 0]
         strength[ratio] = [
             _strength(np.asarray(x), f)[1] for f in (shaft, hz["bpfo"] - shaft, hz["bpfo"] + shaft)
@@ -187,27 +201,28 @@ def test_the_same_inputs_give_the_same_signal_and_size_raises_the_amplitude(syst
 
 
 def test_batches_vmap_jit_and_grad(system):
-    values = {**system.nominal(), "impulse_amplitude": jnp.array([10.0, 20.0, 40.0])}
+    values = system.nominal()
+    amplitudes = jnp.array([10.0, 20.0, 40.0])
     op = jnp.array([[1797.0, 0.0], [1772.0, 1.0], [1750.0, 2.0]])
 
     @jax.jit
     def rms(amplitude, f1):
-        vals = {**values, "impulse_amplitude": amplitude, "resonance_1_hz": f1}
+        vals = {**values, "resonance_1_hz": f1}
         result = system.simulate_values(
             vals,
             op,
             state="outer_race",
-            severity={"fault_size_in": 0.014},
+            severity={"fault_size_in": 0.014, "impulse_amplitude": amplitude},
             duration=0.25,
             check=False,
         )
         return jnp.sqrt(jnp.mean(result.signals**2, axis=(1, 2))), result.status
 
-    levels, status = rms(values["impulse_amplitude"], jnp.full(3, 3200.0))
+    levels, status = rms(amplitudes, jnp.full(3, 3200.0))
     assert levels.shape == (3,) and np.all(np.asarray(status) == 0)
     assert levels[0] < levels[1] < levels[2]
     grad = jax.grad(lambda a, f: rms(a, f)[0].sum(), argnums=(0, 1))(
-        values["impulse_amplitude"], jnp.full(3, 3200.0)
+        amplitudes, jnp.full(3, 3200.0)
     )
     for g in grad:
         assert np.all(np.isfinite(np.asarray(g)))

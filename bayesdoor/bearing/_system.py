@@ -41,9 +41,7 @@ from ._model import impulse_capacity, run_signal
 
 #: the sampling rate of the CWRU drive-end records modelled, Hz
 FS = 12000.0
-#: the fault states and the prior range of their severity ``fault_size_in``, inch
-FAULT_SIZE_RANGE = (0.005, 0.025)
-
+#: what a healthy calibration can update: the structure, the background and the sensor
 PARAMETERS = (
     ParameterSpec(
         "resonance_1_hz", "Hz", 3200.0, 2000.0, 4500.0, "natural frequency of the housing mode"
@@ -61,23 +59,6 @@ PARAMETERS = (
         3.0,
         "ring-down amplitude of the higher mode per unit of the housing mode's",
     ),
-    ParameterSpec(
-        "impulse_amplitude",
-        "m/s^2",
-        20.0,
-        0.0,
-        300.0,
-        "ring-down amplitude of the housing mode per impulse of a 0.014 in defect",
-    ),
-    ParameterSpec("slip", "-", 0.01, 0.0, 0.05, "rms jitter of the impulse spacing (slip)"),
-    ParameterSpec(
-        "unbalance_ratio",
-        "-",
-        0.0,
-        0.0,
-        0.8,
-        "rotating (unbalance) load per static radial load: modulates the strikes at 1x",
-    ),
     ParameterSpec("shaft_amplitude", "m/s^2", 0.05, 0.0, 2.0, "amplitude of the 1x shaft line"),
     ParameterSpec(
         "roughness_rms", "m/s^2", 0.1, 0.0, 5.0, "rms of the broadband resonance response"
@@ -85,17 +66,34 @@ PARAMETERS = (
     ParameterSpec("noise_rms", "m/s^2", 0.05, 0.0, 2.0, "rms of the white measurement noise"),
 )
 
+#: a localised fault's own parameters and their prior ranges (the severity of a fault state):
+#: its size, inch; the ring-down amplitude of the housing mode per impulse of a 0.014 in
+#: defect, m/s^2; the rms jitter of the impulse spacing (slip); the rotating (unbalance) load
+#: per static radial load, which modulates the strikes at 1x. They act on fault runs only, so
+#: a healthy calibration cannot update them: the training data draw them from these ranges
+FAULT_SIZE_RANGE = (0.005, 0.025)
+FAULT_PARAMETERS = {
+    "fault_size_in": FAULT_SIZE_RANGE,
+    "impulse_amplitude": (0.0, 300.0),
+    "slip": (0.0, 0.05),
+    "unbalance_ratio": (0.0, 0.8),
+}
+#: the values of a fault's parameters that a simulation is not given (the size: the middle of
+#: its range)
+FAULT_DEFAULTS = {
+    "fault_size_in": 0.5 * sum(FAULT_SIZE_RANGE),
+    "impulse_amplitude": 20.0,
+    "slip": 0.01,
+    "unbalance_ratio": 0.0,
+}
+
 STATES = {
     "healthy": DamageSpec("healthy", "no localised defect"),
-    "inner_race": DamageSpec(
-        "inner_race", "a defect on the inner race", {"fault_size_in": FAULT_SIZE_RANGE}
-    ),
+    "inner_race": DamageSpec("inner_race", "a defect on the inner race", FAULT_PARAMETERS),
     "outer_race": DamageSpec(
-        "outer_race",
-        "a defect on the outer race at 6 o'clock (in the load zone)",
-        {"fault_size_in": FAULT_SIZE_RANGE},
+        "outer_race", "a defect on the outer race at 6 o'clock (in the load zone)", FAULT_PARAMETERS
     ),
-    "ball": DamageSpec("ball", "a defect on one ball", {"fault_size_in": FAULT_SIZE_RANGE}),
+    "ball": DamageSpec("ball", "a defect on one ball", FAULT_PARAMETERS),
 }
 
 CONDITIONS = (
@@ -327,8 +325,8 @@ class BearingSystem(AbstractSystem):
     def simulate(self, theta, damage, operating, *, duration=None) -> SimulationResult:
         """Runs for parameter values ``theta`` (by name) and a damage.
 
-        ``damage`` is a state name (severity at the middle of its prior range) or a pair
-        ``(state, {"fault_size_in": ...})``.
+        ``damage`` is a state name (the fault's parameters at :data:`FAULT_DEFAULTS`) or a pair
+        ``(state, {"fault_size_in": ..., ...})``.
         """
         if isinstance(damage, str):
             state, severity = damage, None
@@ -360,7 +358,9 @@ class BearingSystem(AbstractSystem):
         state
             ``healthy``, ``inner_race``, ``outer_race`` or ``ball``.
         severity
-            ``{"fault_size_in": ...}`` for a fault (default: the middle of its prior range).
+            A fault's own parameters (:data:`FAULT_PARAMETERS`), scalars or one value per run:
+            ``{"fault_size_in": ..., "impulse_amplitude": ..., "slip": ...,
+            "unbalance_ratio": ...}``; those not given take :data:`FAULT_DEFAULTS`.
         duration
             Record length, s (default :attr:`segment_s`).
         check
@@ -397,11 +397,14 @@ class BearingSystem(AbstractSystem):
         dtype = jnp.result_type(float)
         op = op.astype(dtype)
         runs = op.shape[0]
-        size = severity.get("fault_size_in", 0.5 * sum(FAULT_SIZE_RANGE))
+        fault = {**FAULT_DEFAULTS, **severity}
         if check:
-            self._check_host(values, op, state, size)
+            self._check_host(values, op, state, fault)
         p = {k: jnp.broadcast_to(jnp.asarray(values[k], dtype=dtype), (runs,)) for k in names}
-        size_arr = jnp.broadcast_to(jnp.asarray(size, dtype=dtype), (runs,))
+        for k in FAULT_PARAMETERS:
+            if k != "fault_size_in":
+                p[k] = jnp.broadcast_to(jnp.asarray(fault[k], dtype=dtype), (runs,))
+        size_arr = jnp.broadcast_to(jnp.asarray(fault["fault_size_in"], dtype=dtype), (runs,))
         n_time = round((self.segment_s if duration is None else float(duration)) * FS)
         signals, status = _simulate(self, p, op, size_arr, state, n_time)
         time = jnp.arange(n_time, dtype=dtype) / FS
@@ -412,19 +415,20 @@ class BearingSystem(AbstractSystem):
             signals = jnp.where(ok[:, None, None], signals, 0.0)
         return SimulationResult(signals=signals, status=status, time=time)
 
-    def _check_host(self, values, op, state: str, size) -> None:
+    def _check_host(self, values, op, state: str, fault) -> None:
         for spec in self.parameters:
             v = np.asarray(values[spec.name], dtype=float)
             spec.check(float(np.nan if not np.isfinite(v).all() else v.min()))
             spec.check(float(v.max()))
         self.check_operating(np.asarray(op))
         if state != "healthy":
-            s = np.asarray(size, dtype=float)
-            lo, hi = FAULT_SIZE_RANGE
-            if not (np.isfinite(s).all() and s.min() >= lo and s.max() <= hi):
-                raise ValueError(
-                    f"fault_size_in={s.ravel().tolist()} is outside its range [{lo}, {hi}] in"
-                )
+            for name, (lo, hi) in FAULT_PARAMETERS.items():
+                s = np.asarray(fault[name], dtype=float)
+                if not (np.isfinite(s).all() and s.min() >= lo and s.max() <= hi):
+                    raise ValueError(
+                        f"{name}={s.ravel().tolist()} is outside its range [{lo}, {hi}] "
+                        f"(a fault's own parameter of {self.name})"
+                    )
 
 
 def _float_bits(x: jax.Array) -> jax.Array:
@@ -436,7 +440,7 @@ def _simulate(system: BearingSystem, p, op, size, state: str, n_time: int):
     geometry = system.geometry
     orders = geometry.orders()
     order = geometry.impulse_order(state) if state != "healthy" else 1.0
-    slip_max = next(s.upper for s in PARAMETERS if s.name == "slip")
+    slip_max = FAULT_PARAMETERS["slip"][1]
     rpm_max = CONDITIONS[0].upper
     capacity = impulse_capacity(n_time / FS, order, 1.5 * rpm_max / 60.0, slip_max)
     base = jax.random.PRNGKey(system.seed)

@@ -137,10 +137,10 @@ fig.tight_layout()
 fig.savefig(OUT / "healthy_psd.png", dpi=90)
 
 # %% [markdown]
-# Below `full` size the search is CMA-ES's quick one (about 120 evaluations of 10 parameters),
+# Below `full` size the search is CMA-ES's quick one (about 120 evaluations of 8 parameters),
 # which can stop far from the optimum: when its white measurement noise stands in for the
 # resonances, the simulated spectrum is flat and the band errors grow towards the edges of the
-# fit band. The main job's NUTS fit of the same segments reaches J = 0.43 (results/cwru.md).
+# fit band. The main job's NUTS fit of the same segments reaches J = 0.50 (results/cwru.md).
 #
 # ## 4. Envelope spectra and the physics rule
 #

@@ -77,13 +77,13 @@ def rig_effect(cause: str, size: float, seed: int):
     raise ValueError(f"{cause!r} is not validated here; use one of {VALIDATED}")
 
 
-def record(effects: Any, key: int):
+def record(effects: Any, key: int, speeds: tuple[float, ...] = SPEEDS):
     import jax
 
     from bayesdoor.door.rig import VirtualRig
 
     rig = VirtualRig(effects=effects)
-    return rig.run(["healthy"] * len(SPEEDS), list(SPEEDS), key=jax.random.key(key)).campaign
+    return rig.run(["healthy"] * len(speeds), list(speeds), key=jax.random.key(key)).campaign
 
 
 def base(work: Path, key: int) -> tuple[Any, Any, dict[str, Any], float]:
@@ -121,9 +121,9 @@ def _no_effects():
     return Effects()
 
 
-#: the base model's signals of the 12 runs at the fit's point, by record length (the same
-#: for every loop of that length: the commanded speeds are the same), simulated once each
-_BASE: dict[int, Any] = {}
+#: the base model's signals of a campaign's runs at the fit's point, by record length and
+#: commanded speeds, simulated once each
+_BASE: dict[tuple[int, tuple[float, ...]], Any] = {}
 
 
 def _judge(campaign: Any, proposal: Any, fit: Any, seed: int, tracking: bool) -> Any:
@@ -142,11 +142,12 @@ def _judge(campaign: Any, proposal: Any, fit: Any, seed: int, tracking: bool) ->
     door = ElevatorDoor()
     settings = DiagnosisSettings.quick()
     measured = _Measured.of(door, campaign, calibration_runs(campaign))
-    length = measured.signals.shape[-1]  # the rig's records differ in length between keys
-    if length not in _BASE:
+    # the rig's records differ in length between keys
+    at = (measured.signals.shape[-1], tuple(np.round(np.ravel(measured.operating), 6)))
+    if at not in _BASE:
         sims, _, times = _simulate_rows(door, measured, [dict(fit.point)])
-        _BASE[length] = (sims[0], times)
-    signals, times = _BASE[length]
+        _BASE[at] = (sims[0], times)
+    signals, times = _BASE[at]
     setup = measured.setup(door, fit.point, signals, times, _band(fit), None)
     folds = held_out_folds(measured.operating, settings.folds)
     refits, gain = _cross_validate(
@@ -162,13 +163,15 @@ def _judge(campaign: Any, proposal: Any, fit: Any, seed: int, tracking: bool) ->
     return refits, gain
 
 
-def loop(cause: str, size: float, seed: int, fit: Any, full: bool) -> dict[str, Any]:
+def loop(
+    cause: str, size: float, seed: int, fit: Any, full: bool, speeds: tuple[float, ...] = SPEEDS
+) -> dict[str, Any]:
     """One simulate-refit-judge loop: record, refit the typical extension, judge."""
     from bayesdoor.diagnose import diagnose_campaign
     from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
 
     t0 = time.perf_counter()
-    campaign = record(rig_effect(cause, size, seed), seed)
+    campaign = record(rig_effect(cause, size, seed), seed, speeds)
     candidate = next(c for c in DOOR_CATALOGUE.candidates if c.name == cause)
     band = (float(fit.feature_spec.f_low), float(fit.feature_spec.f_high))
     probe = candidate.refit.size(band=band).probes[0]
@@ -186,6 +189,7 @@ def loop(cause: str, size: float, seed: int, fit: Any, full: bool) -> dict[str, 
         "statistic": gain.statistic,
         "per_run": [float(x) for x in gain.per_run],
         "runs": [int(r) for r in gain.runs],
+        "speeds": [float(v) for v in speeds],
         "refits": [{k: float(r.values[k]) for k in proposal.free if k in r.values} for r in refits],
     }
     if full:
@@ -262,10 +266,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--full", action="store_true")
     parser.add_argument("--work", type=Path, default=ROOT / "out" / "diagnosis-limits")
     parser.add_argument("--results", type=Path, default=ROOT / "results" / "diagnosis_limits.md")
+    parser.add_argument(
+        "--follow-plan",
+        nargs=2,
+        metavar=("CAUSE", "SIZE"),
+        help="plan the campaign that names CAUSE at SIZE (its unit, e.g. 15e-6 m) from the "
+        "nothing-hidden campaign, record it on the rig with the cause hidden at SIZE, and "
+        "judge the refit, per seed",
+    )
     args = parser.parse_args(argv)
     setup_jax()
     started = time.time()
     args.work.mkdir(parents=True, exist_ok=True)
+    if args.follow_plan:
+        follow_plan(args, args.follow_plan[0], float(args.follow_plan[1]), started)
+        return
     _, fit, limits, limit_s = base(args.work, args.base_key)
     rows: list[dict[str, Any]] = []
     # seed by seed, so that a run stopped early has every cause and factor alike
@@ -288,6 +303,56 @@ def main(argv: list[str] | None = None) -> None:
     png = args.results.with_suffix(".png")
     figure(limits, rows, png)
     write_results(args.results, table(args, limits, limit_s, rows, time.time() - started, png))
+
+
+def follow_plan(args: Any, cause: str, size: float, started: float) -> None:
+    """The planned campaign for ``cause`` at ``size``, recorded by the rig and judged."""
+    from bayesdoor.diagnose import plan_campaign
+    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
+
+    campaign, fit, limits, _ = base(args.work, args.base_key)
+    plan = plan_campaign(ElevatorDoor(), campaign, cause, size, fit=fit, catalogue=DOOR_CATALOGUE)
+    print(plan.describe(), flush=True)
+    if plan.runs_per_condition is None:
+        raise SystemExit(f"no campaign names {cause} at {size}: {plan.describe()}")
+    speeds = tuple(float(c) for c in plan.conditions for _ in range(plan.runs_per_condition))
+    rows = []
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
+        path = args.work / f"plan-{cause}-{size:.4g}-{len(speeds)}-{seed}.json"
+        if path.is_file():
+            row = json.loads(path.read_text())
+        else:
+            row = loop(cause, size, seed, fit, False, speeds)
+            path.write_text(json.dumps(row))
+        row["factor"] = size / limits[cause].size
+        rows.append(row)
+        print(cause, seed, row["named"], row.get("evidence_se"), flush=True)
+    k, n = sum(r["named"] for r in rows), len(rows)
+    lo, hi = wilson(k, n)
+    limit = limits[cause]
+    lines = [
+        f"# Following the plan: {cause} at {limit.shown(size)}",
+        "",
+        f"Made by `{command_line('diagnosis_limits.py', None)}` "
+        f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {platform.node()}, "
+        f"{code_version()}; {time.time() - started:.0f} s).",
+        "",
+        f"From the nothing-hidden 12-run campaign (rig key {args.base_key}) and its base fit, "
+        f"`plan_campaign` answers: {plan.describe()}. Each loop records that campaign on the "
+        f"rig with the cause hidden at {limit.shown(size)} in its typical configuration (seeds "
+        f"{args.first_seed}-{args.first_seed + args.seeds - 1}), refits the typical extension "
+        "on half of the runs and judges it on the other half (both ways), under the base fit.",
+        "",
+        "| cause | size | planned runs | named | rate (95 % CI) | planned probability | "
+        "mean evidence (SE) |",
+        "|---|---|---|---|---|---|---|",
+        f"| {cause} | {limit.shown(size)} | {len(speeds)} | {k} of {n} | {k / n:.2f} "
+        f"({lo:.2f}-{hi:.2f}) | {plan.probability:.2f} | "
+        f"{np.mean([r['evidence_se'] for r in rows if r['evidence_se'] is not None]):.1f} |",
+        "",
+        *_per_loop(rows, limits),
+    ]
+    write_results(args.results, "\n".join(lines))
 
 
 def table(args, limits, limit_s, rows, wall, png) -> str:
@@ -374,7 +439,7 @@ def _per_loop(rows: list[dict[str, Any]], limits: dict[str, Any]) -> list[str]:
         lines.append(
             f"| {r['cause']} | {r['factor']:g} | {r['seed']} | {'yes' if r['named'] else 'no'} "
             f"| {ev} | {np.median(diffs):+.1f}, {diffs[worst]:+.1f} at run {run}: "
-            f"{SPEEDS[run]:.3f} | {fits or '-'} |"
+            f"{r.get('speeds', SPEEDS)[run]:.3f} | {fits or '-'} |"
         )
     return [*lines, ""]
 

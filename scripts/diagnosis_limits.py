@@ -311,6 +311,7 @@ def follow_plan(args: Any, cause: str, size: float, started: float) -> None:
     from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
 
     campaign, fit, limits, _ = base(args.work, args.base_key)
+    limit = limits[cause]
     plan = plan_campaign(ElevatorDoor(), campaign, cause, size, fit=fit, catalogue=DOOR_CATALOGUE)
     print(plan.describe(), flush=True)
     if plan.runs_per_condition is None:
@@ -324,12 +325,11 @@ def follow_plan(args: Any, cause: str, size: float, started: float) -> None:
         else:
             row = loop(cause, size, seed, fit, False, speeds)
             path.write_text(json.dumps(row))
-        row["factor"] = size / limits[cause].size
+        row["factor"] = size / limit.size
         rows.append(row)
         print(cause, seed, row["named"], row.get("evidence_se"), flush=True)
     k, n = sum(r["named"] for r in rows), len(rows)
     lo, hi = wilson(k, n)
-    limit = limits[cause]
     lines = [
         f"# Following the plan: {cause} at {limit.shown(size)}",
         "",
@@ -428,7 +428,7 @@ def _per_loop(rows: list[dict[str, Any]], limits: dict[str, Any]) -> list[str]:
     for r in sorted(rows, key=lambda r: (r["cause"], r["factor"], r["seed"])):
         diffs = np.asarray(r["per_run"])
         worst = int(np.argmin(diffs))
-        run = r["runs"][worst] if r.get("runs") else worst
+        run = r["runs"][worst]
         limit = limits[r["cause"]]
         scale = limit.display[1]
         fits = " / ".join(

@@ -62,7 +62,7 @@ def test_interface(system):
     assert system.name == "bearing"
     assert system.channels == ("DE",)
     assert system.sampling_rate_hz == 12000.0
-    assert 6 <= len(system.parameters) <= 12
+    assert 6 <= len(system.parameters) <= 10
     for p in system.parameters:
         p.check(p.nominal)
         assert p.unit and p.description

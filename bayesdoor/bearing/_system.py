@@ -89,11 +89,13 @@ FAULT_DEFAULTS = {
 
 STATES = {
     "healthy": DamageSpec("healthy", "no localised defect"),
-    "inner_race": DamageSpec("inner_race", "a defect on the inner race", FAULT_PARAMETERS),
+    "inner_race": DamageSpec("inner_race", "a defect on the inner race", dict(FAULT_PARAMETERS)),
     "outer_race": DamageSpec(
-        "outer_race", "a defect on the outer race at 6 o'clock (in the load zone)", FAULT_PARAMETERS
+        "outer_race",
+        "a defect on the outer race at 6 o'clock (in the load zone)",
+        dict(FAULT_PARAMETERS),
     ),
-    "ball": DamageSpec("ball", "a defect on one ball", FAULT_PARAMETERS),
+    "ball": DamageSpec("ball", "a defect on one ball", dict(FAULT_PARAMETERS)),
 }
 
 CONDITIONS = (

@@ -233,6 +233,7 @@ def _job_result(method: str, source: str, job, runs, wall: float) -> dict[str, A
             "predicted": r["predicted"],
             "probabilities": r["probabilities"],
             "flagged": run_flagged(r),
+            "not_corroborated": r.get("corroborated") is False,
         }
         for r in c["runs"]
     ]
@@ -347,7 +348,11 @@ def _scores(result: dict[str, Any], runs) -> dict[str, Any]:
         "races": len(races),
         "misnamed": wrong,
         "misnamed_flagged": [n for n in wrong if result["records"][n]["flagged"]],
+        "right_flagged": [
+            n for n, r in result["records"].items() if n not in wrong and r["flagged"]
+        ],
         "flagged_segments": sum(bool(s["flagged"]) for s in result["segments"]),
+        "uncorroborated_segments": sum(bool(s.get("not_corroborated")) for s in result["segments"]),
     }
 
 
@@ -378,6 +383,13 @@ def _setup_text(campaign, runs, files, read_s: float) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _names_in(names: list[str], lead: str) -> str:
+    """`` (lead: a, b)`` for a list of record names, nothing for none."""
+    if not names:
+        return ""
+    return f" ({lead + ': ' if lead else ''}{', '.join(names)})"
+
+
 def _summary_text(results) -> str:
     lines = [
         "## Summary",
@@ -387,8 +399,8 @@ def _summary_text(results) -> str:
         "",
         "| classifier | segment accuracy | segment balanced accuracy | segment ECE | "
         "record accuracy | record balanced accuracy | race records named | misnamed records "
-        "flagged | segments flagged | wall time (s) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "flagged | right records flagged | segments flagged | wall time (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         s = r["scores"]
@@ -396,11 +408,18 @@ def _summary_text(results) -> str:
             "- (no flag)"
             if r["kind"] == "rule"
             else f"{len(s['misnamed_flagged'])} of {len(s['misnamed'])}"
+            + _names_in(sorted(set(s["misnamed"]) - set(s["misnamed_flagged"])), "not")
+        )
+        right = (
+            "-"
+            if r["kind"] == "rule"
+            else f"{len(s['right_flagged'])} of {len(r['records']) - len(s['misnamed'])}"
+            + _names_in(s["right_flagged"], "")
         )
         lines.append(
             f"| {r['name']} | {s['segment_acc'][0]:.3f} | {s['segment_acc'][1]:.3f} | "
             f"{_num(r['ece'], '.3f')} | {s['record_acc'][0]:.3f} | {s['record_acc'][1]:.3f} | "
-            f"{s['races_named']} of {s['races']} | {flagged} | "
+            f"{s['races_named']} of {s['races']} | {flagged} | {right} | "
             f"{s['flagged_segments'] if r['kind'] == 'job' else '-'} of {len(r['segments'])} | "
             f"{r['wall']:.0f} |"
         )
@@ -413,8 +432,9 @@ def _classifier_text(result, runs, files) -> str:
     lines = [f"## {result['name']}", ""]
     lines += [f"- {n}" for n in result["notes"]]
     lines += [
-        f"- segments flagged (out-of-distribution, uncertain or not classified): "
-        f"{s['flagged_segments']} of {len(result['segments'])}"
+        f"- segments flagged (out-of-distribution, uncertain, not corroborated by their "
+        f"envelope lines, or not classified): {s['flagged_segments']} of "
+        f"{len(result['segments'])}; not corroborated: {s['uncorroborated_segments']}"
         if result["kind"] == "job"
         else "- the rule flags nothing: it always names a state",
         "",
@@ -422,7 +442,9 @@ def _classifier_text(result, runs, files) -> str:
             "Per record (predicted: the majority of its segments' calls, a tie broken by the "
             "mean probability; mean probability: of the predicted state over its segments; "
             "flagged: more than half of its segments out-of-distribution, uncertain (the "
-            "probability of a wrong call above 0.1) or not classified):"
+            "probability of a wrong call above 0.1), not corroborated (the envelope lines of "
+            "the called state absent, or for a healthy call a fault's present, at a 1 % "
+            "false-alarm rate) or not classified):"
             if result["kind"] == "job"
             else "Per record (predicted: the majority of its segments' calls, a tie broken by "
             "the larger mean standardised indicator; z: each family's mean standardised "

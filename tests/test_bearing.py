@@ -265,6 +265,38 @@ def test_envelope_rule_names_the_family_and_keeps_its_false_alarm_rate():
         EnvelopeRule.from_healthy(healthy, 12000.0, rpm, false_alarm_rate=1.5)
 
 
+def test_signature_check_agrees_with_the_family_shown_and_round_trips(system):
+    from bayesdoor.bearing import EnvelopeRule
+
+    rng = np.random.default_rng(1)
+    rpm = 1797.0
+    hz = CWRU_DRIVE_END.fault_frequencies(rpm / 60)
+    healthy = np.stack([_ringing_train(None, rng) for _ in range(30)])
+    reference = system.signature_reference(healthy[:, None, :], np.full((30, 2), [rpm, 0.0]))
+    rule = EnvelopeRule.from_json(json.loads(json.dumps(reference)))
+    assert rule == EnvelopeRule.from_healthy(
+        healthy, 12000.0, np.full(30, rpm), false_alarm_rate=0.01
+    )
+    # one family's prediction bound lies below the three families' Bonferroni bound
+    assert rule.family_threshold < rule.z_threshold
+    inner = _ringing_train(hz["bpfi"], rng)
+    quiet = _ringing_train(None, rng)
+    signals = np.stack([inner, quiet])[:, None, :]
+    rows = system.signatures(reference, signals, np.array([[rpm, 0.0], [rpm, 0.0]]))
+    assert rows[0]["inner_race"] and not rows[0]["healthy"]
+    assert rows[1]["healthy"] and not any(rows[1][k] for k in ("inner_race", "outer_race", "ball"))
+    # a segment without a family's lines shows it with about the stated rate: at most 5 of 100
+    # (1 expected; more than 5 has a binomial probability of 0.06 %)
+    shown = [
+        system.signatures(reference, _ringing_train(None, rng)[None, None, :], [[rpm, 0.0]])[0]
+        for _ in range(100)
+    ]
+    assert sum(r["outer_race"] for r in shown) <= 5
+    assert sum(not r["healthy"] for r in shown) <= 5
+    with pytest.raises(ValueError, match="unknown keys"):
+        EnvelopeRule.from_json(reference | {"threshold": 1.0})
+
+
 def test_training_points_span_the_speeds_and_loads_and_keep_the_campaigns(system):
     measured = np.array([[1796.0, 0.0], [1772.0, 1.0]])
     points = system.training_points(measured)

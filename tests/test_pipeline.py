@@ -609,3 +609,62 @@ def test_record_votes_ties_unclassified_runs_and_balanced_accuracy():
     assert metrics["accuracy"] == pytest.approx(1 / 3)
     assert metrics["balanced_accuracy"] == pytest.approx((0.5 + 0.0) / 2)
     assert (metrics["misnamed"], metrics["misnamed_flagged"]) == (2, 1)
+
+
+class _SignedTones(type(SYSTEM)):
+    """The tone system with a signature check that a test sets: it disagrees with every call
+    of ``D1`` and agrees with the others; its reference counts the healthy runs it saw."""
+
+    def signature_reference(self, signals, operating):
+        return {"healthy_runs": int(np.asarray(signals).shape[0])}
+
+    def signatures(self, reference, signals, operating):
+        assert reference["healthy_runs"] == 3
+        return [{"healthy": True, "D1": False, "D2": None} for _ in range(len(signals))]
+
+
+def test_calls_the_signal_disagrees_with_are_flagged(finished, tmp_path):
+    from bayesdoor.pipeline import classify_stage
+    from bayesdoor.pipeline._classify import SIGNATURES, signature_stage
+
+    _, out = finished
+    # a system without a check writes no reference, and its runs carry no verdict
+    signature_stage(tmp_path, calibration_runs_of(tone_campaign()), SYSTEM)
+    assert not (tmp_path / SIGNATURES).exists()
+    plain = json.loads((out / "classify" / "classification.json").read_text())
+    assert all(r["corroborated"] is None for r in plain["runs"])
+    assert plain["n_not_corroborated"] == 0
+
+    signed = _SignedTones(**{f.name: getattr(SYSTEM, f.name) for f in dataclasses.fields(SYSTEM)})
+    model = tmp_path / "train"
+    shutil.copytree(out / "train", model)
+    signature_stage(model, calibration_runs_of(tone_campaign()), signed)
+    stored = json.loads((model / SIGNATURES).read_text())
+    assert stored == {"system": "tones", "runs": 3, "reference": {"healthy_runs": 3}}
+    campaign = runs_to_classify(tone_campaign(seed=4))
+    states = campaign["state"].values.astype(str)
+    campaign = campaign.assign_coords(
+        record=("run", [f"{s}-{i % 2}" for i, s in enumerate(states)])
+    )
+    classify_stage(model, campaign, tmp_path / "c", system=signed)
+    payload = json.loads((tmp_path / "c" / "classification.json").read_text())
+    runs = payload["runs"]
+    expected = {"healthy": True, "D1": False, "D2": None}
+    assert [r["corroborated"] for r in runs] == [expected[r["predicted"]] for r in runs]
+    assert payload["n_not_corroborated"] == sum(r["predicted"] == "D1" for r in runs) > 0
+    for entry in payload["records"]:
+        members = [
+            r for r, n in zip(runs, campaign["record"].values, strict=True) if n == entry["record"]
+        ]
+        share = np.mean([r["ood"] or r["uncertain"] or r["predicted"] == "D1" for r in members])
+        assert entry["share_flagged"] == pytest.approx(share)
+    # a reference of another system is refused, with nothing written
+    stored["system"] = "other"
+    (model / SIGNATURES).write_text(json.dumps(stored))
+    with pytest.raises(ValueError, match=r"signature reference .* of system 'other'"):
+        classify_stage(model, campaign, tmp_path / "d", system=signed)
+    assert not (tmp_path / "d" / "classification.json").exists()
+
+
+def calibration_runs_of(campaign):
+    return campaign.isel(run=calibration_runs(campaign))

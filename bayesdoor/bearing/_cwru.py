@@ -24,7 +24,7 @@ import scipy.io
 from scipy import signal
 
 from ..io import make_campaign, save_campaign
-from ._system import FS
+from ._stand import FS
 
 #: standard gravity, m/s^2 per g
 G = 9.80665

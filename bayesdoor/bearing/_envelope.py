@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
-from ._system import BAND_HZ
+from ._stand import BAND_HZ
 
 
 def envelope_spectrum(
@@ -109,7 +109,7 @@ def fault_line_check(
     """
     from ._cwru import _at_campaign_rate, _record_rate, _records
     from ._geometry import CWRU_DRIVE_END
-    from ._system import FS
+    from ._stand import FS
 
     rows = []
     for record in _records(Path(folder)):
@@ -193,6 +193,12 @@ class EnvelopeRule:
     families (Bonferroni), so a healthy segment whose indicators scatter as the reference's
     (normally) is called faulty with at most that probability.
 
+    The same reference checks a call (:meth:`agrees`): a call of a fault state agrees with
+    the segment when that family's standardised indicator exceeds ``family_threshold``, the
+    prediction bound at the stated rate for that one family (a segment without the family's
+    lines exceeds it with at most that probability); a healthy call, when the rule would call
+    the segment healthy (no family above ``z_threshold``).
+
     Attributes
     ----------
     mean, sd
@@ -203,6 +209,9 @@ class EnvelopeRule:
         The stated false-alarm rate per healthy segment it was derived from.
     band
         The envelope's pass band, Hz.
+    family_threshold
+        The standardised indicator above which one given family counts as shown (``None``:
+        ``z_threshold``).
     """
 
     mean: dict[str, float]
@@ -210,6 +219,7 @@ class EnvelopeRule:
     z_threshold: float
     false_alarm_rate: float
     band: tuple[float, float] = BAND_HZ
+    family_threshold: float | None = None
 
     @classmethod
     def from_healthy(
@@ -238,7 +248,29 @@ class EnvelopeRule:
         n = len(rows)
         quantile = student.ppf(1 - false_alarm_rate / len(RULE_LINES), n - 1)
         z = float(quantile * np.sqrt(1 + 1 / n))
-        return cls(mean, sd, z, false_alarm_rate, band)
+        one = float(student.ppf(1 - false_alarm_rate, n - 1) * np.sqrt(1 + 1 / n))
+        return cls(mean, sd, z, false_alarm_rate, band, one)
+
+    def to_json(self) -> dict:
+        """The rule as a JSON-able dict (:meth:`from_json` reads it back)."""
+        return dataclasses.asdict(self) | {"band": list(self.band)}
+
+    @classmethod
+    def from_json(cls, payload: dict) -> EnvelopeRule:
+        """The rule written by :meth:`to_json`."""
+        fields = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(payload) - fields
+        if unknown:
+            raise ValueError(f"not an envelope rule: unknown keys {sorted(unknown)}")
+        return cls(**(payload | {"band": tuple(payload.get("band", BAND_HZ))}))
+
+    def agrees(self, x: np.ndarray, fs: float, shaft_speed_rpm: float) -> dict[str, bool]:
+        """Whether the segment agrees with each state: ``healthy`` when the rule calls it
+        healthy; a fault state when its family's indicator exceeds ``family_threshold``."""
+        z = self.scores(x, fs, shaft_speed_rpm)
+        one = self.z_threshold if self.family_threshold is None else self.family_threshold
+        out = {"healthy": bool(max(z.values()) <= self.z_threshold)}
+        return out | {k: bool(v > one) for k, v in z.items()}
 
     def scores(self, x: np.ndarray, fs: float, shaft_speed_rpm: float) -> dict[str, float]:
         """The standardised indicator of each fault family for one segment."""

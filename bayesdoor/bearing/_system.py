@@ -38,9 +38,8 @@ from ._catalogue import BEARING_CATALOGUE
 from ._extensions import AbstractBearingExtension, ShaftHarmonics, extension
 from ._geometry import CWRU_DRIVE_END, BearingGeometry
 from ._model import impulse_capacity, run_signal
+from ._stand import BAND_HZ, FS
 
-#: the sampling rate of the CWRU drive-end records modelled, Hz
-FS = 12000.0
 #: what a healthy calibration can update: the structure, the background and the sensor
 PARAMETERS = (
     ParameterSpec(
@@ -118,10 +117,11 @@ CONDITIONS = (
 TRAINING_SPEEDS_RPM = (1700.0, 1750.0, 1800.0)
 TRAINING_LOADS_HP = (0.0, 3.0)
 
-#: the resonance region of the CWRU drive-end records, Hz: the band whose envelope the
-#: classifier and the envelope rule read (the real fault records put their energy at
-#: 2.5-3.75 kHz and about 5 kHz; the anti-alias filter cuts above 5.4 kHz)
-BAND_HZ = (2000.0, 4500.0)
+#: the stated false-alarm rate of the signature check (the envelope rule that checks each
+#: call, :meth:`BearingSystem.signatures`): a segment without a family's envelope lines is
+#: taken to show them with at most this probability, a healthy segment to show a fault's
+#: with at most this probability over the three families
+SIGNATURE_FALSE_ALARM_RATE = 0.01
 
 #: what the fit and the classifier compare (docs/bearing.md, "Features"): the fit, log10 Welch
 #: PSDs (480 samples, 25 Hz bins) in 39 bands of 100 Hz from 1.5 to 5.4 kHz, the resonance
@@ -310,6 +310,28 @@ class BearingSystem(AbstractSystem):
     def fault_frequencies(self, shaft_speed_rpm: float) -> dict[str, float]:
         """BPFO, BPFI, FTF and BSF (Hz) at a shaft speed in rpm, from the geometry."""
         return self.geometry.fault_frequencies(shaft_speed_rpm / 60.0)
+
+    def signature_reference(self, signals, operating) -> dict:
+        """The envelope rule (:class:`~bayesdoor.bearing.EnvelopeRule`) from healthy runs'
+        ``DE`` signals, at :data:`SIGNATURE_FALSE_ALARM_RATE`, as a dict."""
+        from ._envelope import EnvelopeRule
+
+        rpm = np.atleast_2d(np.asarray(operating, dtype=float))[:, 0]
+        segments = np.asarray(signals, dtype=float)[:, 0]
+        rule = EnvelopeRule.from_healthy(
+            segments, FS, rpm, false_alarm_rate=SIGNATURE_FALSE_ALARM_RATE
+        )
+        return rule.to_json()
+
+    def signatures(self, reference, signals, operating) -> list[dict[str, bool | None]]:
+        """Per run, whether its envelope lines agree with each state
+        (:meth:`EnvelopeRule.agrees <bayesdoor.bearing.EnvelopeRule.agrees>`)."""
+        from ._envelope import EnvelopeRule
+
+        rule = EnvelopeRule.from_json(reference)
+        rpm = np.atleast_2d(np.asarray(operating, dtype=float))[:, 0]
+        segments = np.asarray(signals, dtype=float)[:, 0]
+        return [dict(rule.agrees(x, FS, float(s))) for x, s in zip(segments, rpm, strict=True)]
 
     def _runs(self, operating) -> int:
         return int(np.atleast_2d(np.asarray(operating)).shape[0])

@@ -136,6 +136,11 @@ def print_summary(
         table.add_row(
             f"uncertain (call wrong with p > {result['max_error']:g})", str(result["n_uncertain"])
         )
+    if any(r.get("corroborated") is not None for r in result["runs"]):
+        table.add_row(
+            "not corroborated (the signal disagrees with the call)",
+            str(result.get("n_not_corroborated", 0)),
+        )
     if result["n_failed"]:
         table.add_row("not classified (bad records)", str(result["n_failed"]))
     console.print(table)

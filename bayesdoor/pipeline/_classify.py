@@ -40,6 +40,8 @@ from ._fit import FitSummary
 
 ENSEMBLE = "ensemble.eqx"
 BANDS = "bands.npz"
+#: the system's signature reference beside the ensemble (systems with a signature check)
+SIGNATURES = "signatures.json"
 
 
 #: the largest probability of a wrong call a run may carry and still count as placed: a run
@@ -143,6 +145,68 @@ def train_stage(
     )
 
 
+def _system_signals(campaign: xr.Dataset, system: AbstractSystem) -> np.ndarray | None:
+    """The campaign's records ``(run, channel, time)`` in the system's channel order (``None``
+    when a channel of the system is missing)."""
+    names = [str(c) for c in campaign["channel"].values]
+    if not all(c in names for c in system.channels):
+        return None
+    acc = campaign["acceleration"].sel(channel=list(system.channels))
+    return np.asarray(acc.transpose("run", "channel", "time").values, dtype=float)
+
+
+def signature_stage(
+    folder: Path, calibration: xr.Dataset, system: AbstractSystem | None = None
+) -> None:
+    """Write the system's signature reference from the healthy calibration runs.
+
+    ``signatures.json`` beside the ensemble (``system``, ``runs``, ``reference``), read by
+    :func:`classify_stage` to check each call against the signal
+    (:meth:`~bayesdoor.systems.AbstractSystem.signatures`). Nothing is written for a system
+    without a signature check, or when its channels are not in the records.
+    """
+    system = system_of(calibration) if system is None else system
+    if system is None:
+        return
+    signals = _system_signals(calibration, system)
+    if signals is None:
+        return
+    reference = system.signature_reference(signals, campaign_operating(calibration, system))
+    if reference is None:
+        return
+    _write_json(
+        folder / SIGNATURES,
+        {"system": system.name, "runs": int(signals.shape[0]), "reference": reference},
+    )
+
+
+def _signature_agreement(
+    model_dir: Path, campaign: xr.Dataset, system: AbstractSystem | None, ok: np.ndarray
+) -> list[dict[str, bool | None] | None]:
+    """Per run, the system's signature check (``None`` for a run not checked: no reference
+    beside the ensemble, no system, a channel missing, or a run not classified)."""
+    none: list[dict[str, bool | None] | None] = [None] * len(ok)
+    path = model_dir / SIGNATURES
+    if system is None or not path.is_file() or not ok.any():
+        return none
+    stored = json.loads(path.read_text())
+    if stored["system"] != system.name:
+        raise ValueError(
+            f"the ensemble's signature reference ({path}) is of system {stored['system']!r}, "
+            f"the campaign's is {system.name!r}: classify a campaign of the system it was "
+            "trained for"
+        )
+    signals = _system_signals(campaign, system)
+    if signals is None:
+        return none
+    good = np.flatnonzero(ok)
+    operating = np.asarray(campaign_operating(campaign, system))[good]
+    checked = system.signatures(stored["reference"], signals[good], operating)
+    for i, agreement in zip(good, checked, strict=True):
+        none[i] = agreement
+    return none
+
+
 def runs_in_state(campaign: xr.Dataset, state: str) -> xr.Dataset:
     """The runs of ``campaign`` whose ``state`` is ``state``."""
     states = np.asarray(campaign["state"].values).astype(str)
@@ -238,12 +302,16 @@ def classify_stage(
     """Classify every run of ``campaign`` with the ensemble in ``model``.
 
     Writes ``classification.json`` (docs/cli.md, the job's JSON: per run ``predicted``,
-    ``probabilities``, ``entropy``, ``mutual_information``, ``ood``, ``uncertain``;
+    ``probabilities``, ``entropy``, ``mutual_information``, ``ood``, ``uncertain``,
+    ``signatures``, ``corroborated``;
     ``metrics`` over the runs whose true state is one of the classes) and ``features.npz``.
     A run is ``uncertain`` when its call would be wrong with a probability above
     ``max_error``: the calibrated probability of the predicted state is below
-    ``1 - max_error`` (:data:`MAX_ERROR`; docs/classification.md). A run whose record is
-    not finite, or whose features cannot be computed, is reported with its ``problem`` and no
+    ``1 - max_error`` (:data:`MAX_ERROR`; docs/classification.md). With a signature
+    reference beside the ensemble (:func:`signature_stage`), each run also carries the
+    system's ``signatures`` check and ``corroborated``: whether its signal agrees with the
+    call (``False`` flags the run, :func:`run_flagged`). A run whose record is not finite,
+    or whose features cannot be computed, is reported with its ``problem`` and no
     prediction; it does not stop the others. Each run's operating conditions are reported
     under their names (``system``: the campaign's; ``None``: the registered one it names).
     """
@@ -304,6 +372,7 @@ def classify_stage(
         if pred.ood is not None and pred.ood_score is not None:
             info["score"][ok] = np.asarray(pred.ood_score)
             flags[ok] = np.asarray(pred.ood)
+    agreement = _signature_agreement(path.parent, campaign, system, ok)
     runs = []
     for i in range(n_run):
         entry: dict[str, Any] = {
@@ -319,6 +388,8 @@ def classify_stage(
             "ood": None,
             "ood_score": None,
             "uncertain": None,
+            "signatures": None,
+            "corroborated": None,
             "problem": problems[i],
         }
         if ok[i]:
@@ -332,6 +403,9 @@ def classify_stage(
                 ood_score=_clean(info["score"][i]),
                 uncertain=bool(np.max(probabilities[i]) < 1.0 - max_error),
             )
+            check = agreement[i]
+            if check is not None:
+                entry.update(signatures=check, corroborated=check.get(entry["predicted"]))
         runs.append(entry)
     known = ok & np.isin(states, classes)
     metrics = None
@@ -354,6 +428,7 @@ def classify_stage(
         "n_ood": int(flags.sum()),
         "max_error": max_error,
         "n_uncertain": sum(bool(r["uncertain"]) for r in runs),
+        "n_not_corroborated": sum(r["corroborated"] is False for r in runs),
         "runs": runs,
         "metrics": metrics,
     }
@@ -377,9 +452,14 @@ def classify_stage(
 
 def run_flagged(run: dict[str, Any]) -> bool:
     """Whether a run of ``classification.json`` is flagged: not classified, out of
-    distribution, or uncertain (a classification without the ``uncertain`` key counts
-    none)."""
-    return run["predicted"] is None or bool(run["ood"]) or bool(run.get("uncertain"))
+    distribution, uncertain, or not corroborated by the system's signature check (a
+    classification without the ``uncertain`` or ``corroborated`` key counts none)."""
+    return (
+        run["predicted"] is None
+        or bool(run["ood"])
+        or bool(run.get("uncertain"))
+        or run.get("corroborated") is False
+    )
 
 
 def record_votes(

@@ -47,7 +47,13 @@ from ..inference import calibration_runs, fit_campaign
 from ..io import atomic_write
 from ..io import operating as campaign_operating
 from ..systems import AbstractSystem
-from ._classify import classify_stage, ood_model_error, report_stage, train_stage
+from ._classify import (
+    classify_stage,
+    ood_model_error,
+    report_stage,
+    signature_stage,
+    train_stage,
+)
 from ._diagnose import (
     DIAGNOSIS_HTML,
     DIAGNOSIS_JSON,
@@ -881,6 +887,7 @@ def _train_config(job: _Job) -> dict[str, Any]:
         "seed": job.seed,
         "ood": "model-error draws",
         "discrepancy": job.discrepancy_form,
+        "signatures": digest_runs(job.calibration),
     }
 
 
@@ -901,6 +908,7 @@ def _train(job: _Job, folder: Path) -> None:
             system=job.system,
         ),
     )
+    signature_stage(folder, job.calibration, job.system)
 
 
 def _classify_config(job: _Job) -> dict[str, Any]:

@@ -461,6 +461,9 @@ def _summary(inputs: _Inputs) -> list[str]:
     headline.append(("flagged OOD", str(n_ood), "bad" if n_ood else "good"))
     n_uncertain = sum(1 for r in valid if r.get("uncertain"))
     headline.append(("uncertain", str(n_uncertain), "bad" if n_uncertain else "good"))
+    if any(r.get("corroborated") is not None for r in valid):
+        n_against = sum(1 for r in valid if r.get("corroborated") is False)
+        headline.append(("not corroborated", str(n_against), "bad" if n_against else "good"))
     if inputs.n_failed:
         headline.append(("not classified", str(inputs.n_failed), "bad"))
     parts = [H.cards(headline)]

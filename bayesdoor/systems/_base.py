@@ -250,6 +250,37 @@ class AbstractSystem(eqx.Module):
         """
         return points
 
+    def signature_reference(
+        self, signals: Float[np.ndarray, "run channel time"], operating
+    ) -> dict | None:
+        """The reference of the system's physical damage signatures, from healthy runs.
+
+        A system whose damage states leave a signature that a check without learning reads
+        in the signal (a bearing's envelope lines at its kinematic fault frequencies) returns
+        what :meth:`signatures` needs, as a JSON-able dict, from the healthy calibration
+        runs' ``signals`` (in :attr:`channels` order) at their ``operating`` points. Default:
+        ``None``, no such check.
+        """
+        return None
+
+    def signatures(
+        self, reference: dict, signals: Float[np.ndarray, "run channel time"], operating
+    ) -> list[dict[str, bool | None]]:
+        """Per run, per damage state, whether the run's signal agrees with that state.
+
+        ``True``: the state's signature shows (for the healthy state: no damage signature
+        shows); ``False``: it does not, at the check's stated false-alarm rate; ``None``: the
+        check says nothing of that state. A classification whose call the signal does not
+        agree with is flagged (docs/classification.md, "Signature check"). Only called with a
+        ``reference`` from :meth:`signature_reference`.
+
+        Raises
+        ------
+        NotImplementedError
+            For a system without a signature check.
+        """
+        raise NotImplementedError(f"{self.name} has no signature check")
+
     @property
     def catalogue(self):
         """The system's catalogue of discrepancy causes, for diagnosis (a

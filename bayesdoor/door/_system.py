@@ -17,6 +17,7 @@ from ..systems import (
     DamageSpec,
     ParameterSpec,
     SimulationResult,
+    SpectralFeatures,
     apply_output_extensions,
 )
 from . import _geometry as g
@@ -36,6 +37,13 @@ from ._simulate import (
 )
 
 V_MAX_RANGE = (0.1, round(max_speed_limit(), 3))
+
+#: the top of the classifier's input band, Hz: the log PSD from 0 Hz to here (the paper's
+#: classifier read to 96 Hz). A debris bump or a wheel flat strikes the shoe or the rail; the
+#: small ones show more above 96 Hz than below it, where the 1/f floor and a door's own
+#: low modes lie; 400 Hz stays clear of the recorder's anti-aliasing band (docs/transfer.md,
+#: "The classifier's band", measured on the development doors)
+CLASSIFIER_FMAX_HZ = 400.0
 
 
 #: the door's one operating condition: the commanded peak speed of the S-curve (above the upper
@@ -107,6 +115,13 @@ class ElevatorDoor(AbstractSystem):
     def catalogue(self):
         """The door's catalogue of discrepancy causes (``docs/model.md``), for diagnosis."""
         return DOOR_CATALOGUE
+
+    @property
+    def features(self) -> SpectralFeatures:
+        """The paper's fit features (log PSD band means, 4-96 Hz in 4 Hz bands) and a
+        classifier input of the log PSD from 0 to :data:`CLASSIFIER_FMAX_HZ` (docs/transfer.md,
+        "The classifier's band")."""
+        return SpectralFeatures(classifier_fmax=CLASSIFIER_FMAX_HZ)
 
     @property
     def name(self) -> str:

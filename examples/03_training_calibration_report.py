@@ -53,7 +53,6 @@ from bayesdoor.classify import (
 )
 from bayesdoor.datagen import (
     GenerationConfig,
-    ModelErrorDraws,
     PosteriorDraws,
     campaign_features,
     fit_adequacy,
@@ -64,6 +63,7 @@ from bayesdoor.datagen import (
 )
 from bayesdoor.door import ElevatorDoor
 from bayesdoor.door.datasets import load_demo_campaign
+from bayesdoor.features import CNNInputSpec
 from bayesdoor.inference import FitResult, calibration_runs
 from bayesdoor.pipeline import PredictiveBands, classify_stage, report_stage
 
@@ -114,11 +114,11 @@ print(f"{test.sizes['run']} test runs:", dict(zip(states.tolist(), counts.tolist
 #
 # Each simulated run takes one posterior sample for all continuous parameters together (so
 # their correlations survive), the contact law the posterior was conditioned on, a damage
-# severity drawn from its state's range and a speed from the campaign's, and a level offset
-# per channel from the posterior of the model-error scale. Its features are the classifier's
-# input: log10 Welch PSD in 4 Hz bins from 0 to 96 Hz, per channel, over the motion window
-# (4 x 25 numbers). The generation is chunked and resumable: running this cell again loads
-# the finished chunks instead of simulating them.
+# severity drawn from its state's range and a speed from the campaign's. Its features are the
+# classifier's input, as the door declares it (`door.features`): log10 Welch PSD in 4 Hz bins
+# from 0 to 400 Hz, per channel, over the motion window (4 x 101 numbers). The generation is
+# chunked and resumable: running this cell again loads the finished chunks instead of
+# simulating them.
 #
 # Then every simulated run gets the discrepancy one healthy calibration run measures at its
 # speed (`with_measured_discrepancy`): what the model misses on this machine, as measured.
@@ -127,18 +127,16 @@ print(f"{test.sizes['run']} test runs:", dict(zip(states.tolist(), counts.tolist
 # %%
 fixed = {name: value for name, value in fit.point.items() if name not in fit.names}
 source = PosteriorDraws.from_inference_data(fit.idata, fit.names, fixed=fixed)
+spec = CNNInputSpec(fmax=door.features.classifier_fmax, nperseg=door.features.classifier_nperseg)
 config = GenerationConfig(
     speeds=tuple(float(v) for v in np.unique(campaign.v_max.values)),
     runs_per_state=size["runs_per_state"],
     chunk_size=min(100, size["runs_per_state"]),
+    spec=spec,
 )
-sigma = np.asarray(fit.model_error_draws())  # (sample, channel) in log10 decades
-model_error = ModelErrorDraws(jnp.asarray(sigma.reshape(sigma.shape[0], -1)))
-data = generate(
-    door, source, config, OUT / "training", key=jax.random.key(0), model_error=model_error
-)
+data = generate(door, source, config, OUT / "training", key=jax.random.key(0))
 calibration = campaign.isel(run=calibration_runs(campaign))
-cal_features = campaign_features(calibration)
+cal_features = campaign_features(calibration, spec=spec)
 cal_speeds = calibration.v_max.values
 data = with_measured_discrepancy(data, cal_features, cal_speeds, seed=0)
 train, validation = data.subset("train"), data.subset("validation")
@@ -233,7 +231,7 @@ fig.savefig(OUT / "reliability.png", dpi=120)
 # uncertainty (entropy), the members' disagreement (mutual information) and the OOD flag.
 
 # %%
-x_test = campaign_features(test)
+x_test = campaign_features(test, spec=spec)
 labels = np.array([data.states.index(s) for s in test.state.values])
 prediction = predict(ensemble, jnp.asarray(x_test))
 metrics = classification_metrics(np.asarray(prediction.probabilities), labels)

@@ -49,6 +49,16 @@ LABELS = {
 }
 #: the channel each channel reads when the two sensors' cables are swapped
 SENSOR_SWAP = {"A1X": "A2X", "A1Z": "A2Z", "A2X": "A1X", "A2Z": "A1Z"}
+
+
+def _probes_file() -> str:
+    """The probes' cache, named by the door's classifier input (a changed input makes new ones)."""
+    from bayesdoor.door import ElevatorDoor
+
+    declared = ElevatorDoor().features
+    return f"probes-{declared.classifier_fmax:g}hz-{declared.classifier_nperseg}.npz"
+
+
 #: the OOD probes, in the order of the table (the measured test runs first)
 PROBES = {
     "test": "measured test runs (known states)",
@@ -109,7 +119,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"[{time.perf_counter() - start:7.1f} s] {text}", flush=True)
 
     args.out.mkdir(parents=True, exist_ok=True)
-    probes_file = args.out / "probes.npz"
+    probes_file = args.out / _probes_file()
     if not probes_file.exists():
         line(f"OOD probes ({args.rig_probes} rig runs with a frame mode)")
         probes = ood_probes(campaign, args.rig_probes)
@@ -239,7 +249,7 @@ def run_one(settings: dict, seed: int, source: str) -> dict:
     m = result.classification["metrics"]
     training = json.loads((folder / "train" / "training.json").read_text())
     ensemble = load_ensemble(folder / "train" / "ensemble.eqx")
-    with np.load(out / "probes.npz") as probes:
+    with np.load(out / _probes_file()) as probes:
         flagged = {
             name: float(np.mean(np.asarray(predict(ensemble, jnp.asarray(probes[name])).ood)))
             for name in probes.files
@@ -264,8 +274,13 @@ def ood_probes(campaign, rig_runs: int, seed: int = 0) -> dict[str, Any]:
     import jax
 
     from bayesdoor.datagen import campaign_features
+    from bayesdoor.door import ElevatorDoor
     from bayesdoor.door.rig import Effects, FrameMode, VirtualRig
+    from bayesdoor.features import CNNInputSpec
     from bayesdoor.pipeline import runs_to_classify
+
+    declared = ElevatorDoor().features
+    spec = CNNInputSpec(fmax=declared.classifier_fmax, nperseg=declared.classifier_nperseg)
 
     test = runs_to_classify(campaign)
     acc = test["acceleration"].transpose("run", "channel", "time")
@@ -276,7 +291,7 @@ def ood_probes(campaign, rig_runs: int, seed: int = 0) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
 
     def features(x: np.ndarray) -> np.ndarray:
-        return campaign_features(test.assign(acceleration=(acc.dims, x)))
+        return campaign_features(test.assign(acceleration=(acc.dims, x)), spec=spec)
 
     def hum(amplitude: float) -> np.ndarray:
         phase = rng.uniform(0.0, 2.0 * np.pi, (len(signals), 1, 1))
@@ -301,7 +316,7 @@ def ood_probes(campaign, rig_runs: int, seed: int = 0) -> dict[str, Any]:
             )
             for i in range(rig_runs)
         ]
-        probes["frame_mode"] = np.concatenate([campaign_features(r) for r in runs])
+        probes["frame_mode"] = np.concatenate([campaign_features(r, spec=spec) for r in runs])
     return probes
 
 

@@ -122,6 +122,8 @@ TRAINING_LOADS_HP = (0.0, 3.0)
 #: taken to show them with at most this probability, a healthy segment to show a fault's
 #: with at most this probability over the three families
 SIGNATURE_FALSE_ALARM_RATE = 0.01
+#: the fewest healthy runs the signature check's reference is made from
+SIGNATURE_MIN_RUNS = 3
 
 #: what the fit and the classifier compare (docs/bearing.md, "Features"): the fit, log10 Welch
 #: PSDs (480 samples, 25 Hz bins) in 39 bands of 100 Hz from 1.5 to 5.4 kHz, the resonance
@@ -311,13 +313,16 @@ class BearingSystem(AbstractSystem):
         """BPFO, BPFI, FTF and BSF (Hz) at a shaft speed in rpm, from the geometry."""
         return self.geometry.fault_frequencies(shaft_speed_rpm / 60.0)
 
-    def signature_reference(self, signals, operating) -> dict:
+    def signature_reference(self, signals, operating) -> dict | None:
         """The envelope rule (:class:`~bayesdoor.bearing.EnvelopeRule`) from healthy runs'
-        ``DE`` signals, at :data:`SIGNATURE_FALSE_ALARM_RATE`, as a dict."""
+        ``DE`` signals, at :data:`SIGNATURE_FALSE_ALARM_RATE`, as a dict (``None``, no check,
+        from fewer than :data:`SIGNATURE_MIN_RUNS` runs: too few for a prediction bound)."""
         from ._envelope import EnvelopeRule
 
         rpm = np.atleast_2d(np.asarray(operating, dtype=float))[:, 0]
         segments = np.asarray(signals, dtype=float)[:, 0]
+        if len(segments) < SIGNATURE_MIN_RUNS:
+            return None
         rule = EnvelopeRule.from_healthy(
             segments, FS, rpm, false_alarm_rate=SIGNATURE_FALSE_ALARM_RATE
         )

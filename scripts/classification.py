@@ -51,12 +51,24 @@ LABELS = {
 SENSOR_SWAP = {"A1X": "A2X", "A1Z": "A2Z", "A2X": "A1X", "A2Z": "A1Z"}
 
 
-def _probes_file() -> str:
-    """The probes' cache, named by the door's classifier input (a changed input makes new ones)."""
+def _spec(source: str):
+    """The classifier input the job gives the door with ``source`` (the band follows whether
+    the training data carry the measured discrepancy)."""
     from bayesdoor.door import ElevatorDoor
+    from bayesdoor.features import CNNInputSpec
+    from bayesdoor.pipeline._job import MEASURED_SOURCE
 
     declared = ElevatorDoor().features
-    return f"probes-{declared.classifier_fmax:g}hz-{declared.classifier_nperseg}.npz"
+    return CNNInputSpec(
+        fmax=declared.classifier_top(source == MEASURED_SOURCE),
+        nperseg=declared.classifier_nperseg,
+    )
+
+
+def _probes_file(source: str) -> str:
+    """The probes' cache, named by the classifier input of ``source``'s job."""
+    spec = _spec(source)
+    return f"probes-{spec.fmax:g}hz-{spec.nperseg}.npz"
 
 
 #: the OOD probes, in the order of the table (the measured test runs first)
@@ -119,11 +131,12 @@ def main(argv: list[str] | None = None) -> None:
         print(f"[{time.perf_counter() - start:7.1f} s] {text}", flush=True)
 
     args.out.mkdir(parents=True, exist_ok=True)
-    probes_file = args.out / _probes_file()
-    if not probes_file.exists():
-        line(f"OOD probes ({args.rig_probes} rig runs with a frame mode)")
-        probes = ood_probes(campaign, args.rig_probes)
-        np.savez(probes_file, **probes)
+    for source in args.sources:
+        probes_file = args.out / _probes_file(source)
+        if not probes_file.exists():
+            line(f"OOD probes ({args.rig_probes} rig runs with a frame mode), {source}'s input")
+            probes = ood_probes(campaign, args.rig_probes, _spec(source))
+            np.savez(probes_file, **probes)
     settings = {k: getattr(args, k) for k in _JOB_SETTINGS}
     jobs = [(seed, source) for seed in args.seeds for source in args.sources]
     shared_fit = args.out / "shared-fit"
@@ -249,7 +262,7 @@ def run_one(settings: dict, seed: int, source: str) -> dict:
     m = result.classification["metrics"]
     training = json.loads((folder / "train" / "training.json").read_text())
     ensemble = load_ensemble(folder / "train" / "ensemble.eqx")
-    with np.load(out / _probes_file()) as probes:
+    with np.load(out / _probes_file(source)) as probes:
         flagged = {
             name: float(np.mean(np.asarray(predict(ensemble, jnp.asarray(probes[name])).ood)))
             for name in probes.files
@@ -269,18 +282,13 @@ def run_one(settings: dict, seed: int, source: str) -> dict:
     }
 
 
-def ood_probes(campaign, rig_runs: int, seed: int = 0) -> dict[str, Any]:
+def ood_probes(campaign, rig_runs: int, spec, seed: int = 0) -> dict[str, Any]:
     """Classifier features of the test runs and of inputs no training state explains."""
     import jax
 
     from bayesdoor.datagen import campaign_features
-    from bayesdoor.door import ElevatorDoor
     from bayesdoor.door.rig import Effects, FrameMode, VirtualRig
-    from bayesdoor.features import CNNInputSpec
     from bayesdoor.pipeline import runs_to_classify
-
-    declared = ElevatorDoor().features
-    spec = CNNInputSpec(fmax=declared.classifier_fmax, nperseg=declared.classifier_nperseg)
 
     test = runs_to_classify(campaign)
     acc = test["acceleration"].transpose("run", "channel", "time")

@@ -116,7 +116,7 @@ print(f"{test.sizes['run']} test runs:", dict(zip(states.tolist(), counts.tolist
 # their correlations survive), the contact law the posterior was conditioned on, a damage
 # severity drawn from its state's range and a speed from the campaign's. Its features are the
 # classifier's input, as the door declares it (`door.features`): log10 Welch PSD in 4 Hz bins
-# from 0 to 400 Hz, per channel, over the motion window (4 x 101 numbers). The generation is
+# from 0 to 96 Hz, per channel, over the motion window (4 x 25 numbers). The generation is
 # chunked and resumable: running this cell again loads the finished chunks instead of
 # simulating them.
 #

@@ -52,17 +52,12 @@ SENSOR_SWAP = {"A1X": "A2X", "A1Z": "A2Z", "A2X": "A1X", "A2Z": "A1Z"}
 
 
 def _spec(source: str):
-    """The classifier input the job gives the door with ``source`` (the band follows whether
-    the training data carry the measured discrepancy)."""
+    """The classifier input the job gives the door (the same for every ``source``)."""
     from bayesdoor.door import ElevatorDoor
     from bayesdoor.features import CNNInputSpec
-    from bayesdoor.pipeline._job import MEASURED_SOURCE
 
     declared = ElevatorDoor().features
-    return CNNInputSpec(
-        fmax=declared.classifier_top(source == MEASURED_SOURCE),
-        nperseg=declared.classifier_nperseg,
-    )
+    return CNNInputSpec(fmax=declared.classifier_fmax, nperseg=declared.classifier_nperseg)
 
 
 def _probes_file(source: str) -> str:

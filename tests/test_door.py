@@ -354,17 +354,3 @@ def test_the_batched_solve_holds_no_host_callback_so_it_can_be_cached():
     text = jax.jit(signals).lower(jnp.asarray([1500.0, 2000.0])).as_text()
     assert "solve_batch" in text  # the solve is inside what was lowered
     assert "callback" not in text
-
-
-def test_simulations_alone_train_the_classifier_only_in_the_fit_band():
-    from bayesdoor.door import ElevatorDoor
-    from bayesdoor.systems import SpectralFeatures
-
-    features = ElevatorDoor().features
-    # with the measured discrepancy the classifier reads to 400 Hz; simulations alone, only
-    # the band the fit updated the model on
-    assert features.classifier_top(True) == 400.0
-    assert features.classifier_top(False) == features.f_high == 96.0
-    # a system that declares no such band reads its whole band either way
-    plain = SpectralFeatures(classifier_fmax=200.0)
-    assert plain.classifier_top(False) == plain.classifier_top(True) == 200.0

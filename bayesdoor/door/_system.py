@@ -17,7 +17,6 @@ from ..systems import (
     DamageSpec,
     ParameterSpec,
     SimulationResult,
-    SpectralFeatures,
     apply_output_extensions,
 )
 from . import _geometry as g
@@ -37,13 +36,6 @@ from ._simulate import (
 )
 
 V_MAX_RANGE = (0.1, round(max_speed_limit(), 3))
-
-#: the top of the classifier's input band, Hz: the log PSD from 0 Hz to here (the paper's
-#: classifier read to 96 Hz). A debris bump or a wheel flat strikes the shoe or the rail; the
-#: small ones show more above 96 Hz than below it, where the 1/f floor and a door's own
-#: low modes lie; 400 Hz stays clear of the recorder's anti-aliasing band (docs/transfer.md,
-#: "The classifier's band", measured on the development doors)
-CLASSIFIER_FMAX_HZ = 400.0
 
 
 #: the door's one operating condition: the commanded peak speed of the S-curve (above the upper
@@ -115,17 +107,6 @@ class ElevatorDoor(AbstractSystem):
     def catalogue(self):
         """The door's catalogue of discrepancy causes (``docs/model.md``), for diagnosis."""
         return DOOR_CATALOGUE
-
-    @property
-    def features(self) -> SpectralFeatures:
-        """The paper's fit features (log PSD band means, 4-96 Hz in 4 Hz bands) and a
-        classifier input of the log PSD from 0 to :data:`CLASSIFIER_FMAX_HZ` when the training
-        data carry the measured discrepancy, to the fit's 96 Hz when they are simulations
-        alone (docs/transfer.md, "The classifier's band")."""
-        base = SpectralFeatures()
-        return SpectralFeatures(
-            classifier_fmax=CLASSIFIER_FMAX_HZ, classifier_fmax_simulated=base.f_high
-        )
 
     @property
     def name(self) -> str:

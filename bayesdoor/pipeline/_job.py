@@ -79,8 +79,6 @@ SOURCES: tuple[str, ...] = ("posterior", "posterior+model_error", "gaussian")
 #: the training source of a job on a sampled fit: the posterior's draws with the model error
 #: the fit measured (results/transfer.md: the source that transfers to doors the model lacks)
 DEFAULT_SOURCE: Source = "posterior+model_error"
-#: the source whose training runs carry the discrepancy the healthy calibration runs measure
-MEASURED_SOURCE: Source = "posterior+model_error"
 #: the folder of the job on the extended system, inside the job's (``extend``)
 EXTENDED = "extended"
 #: the stages of a job, in order (each one a folder of the job)
@@ -361,7 +359,7 @@ def generation_settings(
         validation_fraction=sizes.validation_fraction,
         chunk_size=sizes.chunk_size,
         spec=CNNInputSpec(
-            fmax=system.features.classifier_top(source == MEASURED_SOURCE),
+            fmax=system.features.classifier_fmax,
             nperseg=system.features.classifier_nperseg,
             envelope_band=system.features.classifier_envelope_band,
         ),
@@ -659,7 +657,7 @@ class _Job:
     def discrepancy(self) -> bool:
         """The default source carries the model error as measured: the calibration runs'
         discrepancy from the simulated healthy runs, added to every training run."""
-        return self.source == MEASURED_SOURCE
+        return self.source == "posterior+model_error"
 
     @property
     def discrepancy_form(self) -> str | None:

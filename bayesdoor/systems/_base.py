@@ -80,12 +80,6 @@ class SpectralFeatures:
     (``(low, high)`` Hz), the log10 Welch PSD of each channel's envelope in that band (the
     input of rolling-element bearing diagnostics). The defaults are the elevator door
     paper's: 4-96 Hz in 4 Hz bands at 2048 Hz sampling.
-
-    ``classifier_fmax_simulated`` (``None``: ``classifier_fmax``) is the top of the
-    classifier's band when its training data are simulations alone, without the discrepancy
-    the healthy calibration runs measure: a system whose classifier reads beyond the band the
-    fit updates the model on declares the fit's band here, so that simulations alone train
-    only where the data have checked them (:meth:`classifier_top`).
     """
 
     f_low: float = 4.0
@@ -95,14 +89,6 @@ class SpectralFeatures:
     classifier_fmax: float = 96.0
     classifier_nperseg: int = 512
     classifier_envelope_band: tuple[float, float] | None = None
-    classifier_fmax_simulated: float | None = None
-
-    def classifier_top(self, measured_discrepancy: bool) -> float:
-        """The top of the classifier's band: ``classifier_fmax`` for training data that
-        carry the measured discrepancy, else ``classifier_fmax_simulated`` when declared."""
-        if measured_discrepancy or self.classifier_fmax_simulated is None:
-            return self.classifier_fmax
-        return min(self.classifier_fmax, self.classifier_fmax_simulated)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -658,6 +658,13 @@ def test_calls_the_signal_disagrees_with_are_flagged(finished, tmp_path):
         ]
         share = np.mean([r["ood"] or r["uncertain"] or r["predicted"] == "D1" for r in members])
         assert entry["share_flagged"] == pytest.approx(share)
+    # the report's headline counts them
+    from bayesdoor.pipeline import report_stage
+
+    report_stage(tmp_path / "c", model, tmp_path / "r")
+    page = (tmp_path / "r" / "index.html").read_text()
+    assert "not corroborated" in page
+    assert "not corroborated" not in _report_without_check(out, tmp_path)
     # a reference of another system is refused, with nothing written
     stored["system"] = "other"
     (model / SIGNATURES).write_text(json.dumps(stored))
@@ -668,3 +675,10 @@ def test_calls_the_signal_disagrees_with_are_flagged(finished, tmp_path):
 
 def calibration_runs_of(campaign):
     return campaign.isel(run=calibration_runs(campaign))
+
+
+def _report_without_check(out, tmp_path):
+    from bayesdoor.pipeline import report_stage
+
+    report_stage(out / "classify", out / "train", tmp_path / "plain")
+    return (tmp_path / "plain" / "index.html").read_text()

@@ -185,10 +185,10 @@ def _signature_agreement(
 ) -> list[dict[str, bool | None] | None]:
     """Per run, the system's signature check (``None`` for a run not checked: no reference
     beside the ensemble, no system, a channel missing, or a run not classified)."""
-    none: list[dict[str, bool | None] | None] = [None] * len(ok)
+    checks: list[dict[str, bool | None] | None] = [None] * len(ok)
     path = model_dir / SIGNATURES
     if system is None or not path.is_file() or not ok.any():
-        return none
+        return checks
     stored = json.loads(path.read_text())
     if stored["system"] != system.name:
         raise ValueError(
@@ -198,13 +198,13 @@ def _signature_agreement(
         )
     signals = _system_signals(campaign, system)
     if signals is None:
-        return none
+        return checks
     good = np.flatnonzero(ok)
     operating = np.asarray(campaign_operating(campaign, system))[good]
     checked = system.signatures(stored["reference"], signals[good], operating)
     for i, agreement in zip(good, checked, strict=True):
-        none[i] = agreement
-    return none
+        checks[i] = agreement
+    return checks
 
 
 def runs_in_state(campaign: xr.Dataset, state: str) -> xr.Dataset:

@@ -51,8 +51,8 @@ LABELS = {
 SENSOR_SWAP = {"A1X": "A2X", "A1Z": "A2Z", "A2X": "A1X", "A2Z": "A1Z"}
 
 
-def _spec(source: str):
-    """The classifier input the job gives the door (the same for every ``source``)."""
+def _spec():
+    """The classifier input the job gives the door (the same for every source)."""
     from bayesdoor.door import ElevatorDoor
     from bayesdoor.features import CNNInputSpec
 
@@ -60,9 +60,9 @@ def _spec(source: str):
     return CNNInputSpec(fmax=declared.classifier_fmax, nperseg=declared.classifier_nperseg)
 
 
-def _probes_file(source: str) -> str:
-    """The probes' cache, named by the classifier input of ``source``'s job."""
-    spec = _spec(source)
+def _probes_file() -> str:
+    """The probes' cache, named by the classifier input (a changed input makes new ones)."""
+    spec = _spec()
     return f"probes-{spec.fmax:g}hz-{spec.nperseg}.npz"
 
 
@@ -126,12 +126,11 @@ def main(argv: list[str] | None = None) -> None:
         print(f"[{time.perf_counter() - start:7.1f} s] {text}", flush=True)
 
     args.out.mkdir(parents=True, exist_ok=True)
-    for source in args.sources:
-        probes_file = args.out / _probes_file(source)
-        if not probes_file.exists():
-            line(f"OOD probes ({args.rig_probes} rig runs with a frame mode), {source}'s input")
-            probes = ood_probes(campaign, args.rig_probes, _spec(source))
-            np.savez(probes_file, **probes)
+    probes_file = args.out / _probes_file()
+    if not probes_file.exists():
+        line(f"OOD probes ({args.rig_probes} rig runs with a frame mode)")
+        probes = ood_probes(campaign, args.rig_probes, _spec())
+        np.savez(probes_file, **probes)
     settings = {k: getattr(args, k) for k in _JOB_SETTINGS}
     jobs = [(seed, source) for seed in args.seeds for source in args.sources]
     shared_fit = args.out / "shared-fit"
@@ -257,7 +256,7 @@ def run_one(settings: dict, seed: int, source: str) -> dict:
     m = result.classification["metrics"]
     training = json.loads((folder / "train" / "training.json").read_text())
     ensemble = load_ensemble(folder / "train" / "ensemble.eqx")
-    with np.load(out / _probes_file(source)) as probes:
+    with np.load(out / _probes_file()) as probes:
         flagged = {
             name: float(np.mean(np.asarray(predict(ensemble, jnp.asarray(probes[name])).ood)))
             for name in probes.files

@@ -319,8 +319,7 @@ class BearingSystem(AbstractSystem):
         from fewer than :data:`SIGNATURE_MIN_RUNS` runs: too few for a prediction bound)."""
         from ._envelope import EnvelopeRule
 
-        rpm = np.atleast_2d(np.asarray(operating, dtype=float))[:, 0]
-        segments = np.asarray(signals, dtype=float)[:, 0]
+        segments, rpm = _drive_end(signals, operating)
         if len(segments) < SIGNATURE_MIN_RUNS:
             return None
         rule = EnvelopeRule.from_healthy(
@@ -334,8 +333,7 @@ class BearingSystem(AbstractSystem):
         from ._envelope import EnvelopeRule
 
         rule = EnvelopeRule.from_json(reference)
-        rpm = np.atleast_2d(np.asarray(operating, dtype=float))[:, 0]
-        segments = np.asarray(signals, dtype=float)[:, 0]
+        segments, rpm = _drive_end(signals, operating)
         return [dict(rule.agrees(x, FS, float(s))) for x, s in zip(segments, rpm, strict=True)]
 
     def _runs(self, operating) -> int:
@@ -458,6 +456,12 @@ class BearingSystem(AbstractSystem):
                         f"{name}={s.ravel().tolist()} is outside its range [{lo}, {hi}] "
                         f"(a fault's own parameter of {self.name})"
                     )
+
+
+def _drive_end(signals, operating) -> tuple[np.ndarray, np.ndarray]:
+    """The runs' ``DE`` signals ``(run, time)`` and shaft speeds (rpm)."""
+    rpm = np.atleast_2d(np.asarray(operating, dtype=float))[:, 0]
+    return np.asarray(signals, dtype=float)[:, 0], rpm
 
 
 def _float_bits(x: jax.Array) -> jax.Array:

@@ -48,6 +48,9 @@ from ..io import atomic_write
 from ..io import operating as campaign_operating
 from ..systems import AbstractSystem
 from ._classify import (
+    BANDS,
+    ENSEMBLE,
+    SIGNATURES,
     classify_stage,
     ood_model_error,
     report_stage,
@@ -887,7 +890,9 @@ def _train_config(job: _Job) -> dict[str, Any]:
         "seed": job.seed,
         "ood": "model-error draws",
         "discrepancy": job.discrepancy_form,
-        "signatures": digest_runs(job.calibration),
+        # the stage also writes the system's signature reference (from the calibration runs,
+        # which the fit's hash, through the generation's, already follows)
+        "writes": [ENSEMBLE, BANDS, SIGNATURES],
     }
 
 

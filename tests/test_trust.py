@@ -198,6 +198,27 @@ def test_trust_fails_on_an_inadequate_fit_and_on_many_ood_runs():
     assert most["reasons"] == ["most runs are flagged (16 of 30)"]
 
 
+def test_calls_the_signature_check_contradicts_count_toward_the_majority():
+    adequacy = {"verdict": "reproduces", "summary": "fine"}
+    classification = _runs(["D1"] * 30, ood=set(range(10)))
+    # a system without a check: no run carries ``corroborated``; 10 OOD of 30 is no majority
+    assert "most runs are flagged" not in " ".join(
+        judge_trust(adequacy, None, classification, _training(), [])["reasons"]
+    )
+    # the check contradicts six more calls (and one OOD run's): 16 of 30 flagged
+    for r in classification["runs"]:
+        r["corroborated"] = not 9 <= r["run"] < 16
+    verdict = judge_trust(adequacy, None, classification, _training(), [])
+    assert verdict["verdict"] == "not trusted"
+    assert verdict["reasons"] == ["most runs are flagged (16 of 30)"]
+    assert verdict["checks"]["ood"]["not_corroborated"] == 7
+    assert verdict["flagged_runs"] == list(range(16))
+    # a call the check has no word on (None) is not a contradiction
+    for r in classification["runs"]:
+        r["corroborated"] = None if 9 <= r["run"] < 16 else True
+    assert judge_trust(adequacy, None, classification, _training(), [])["reasons"] == []
+
+
 def _gain(campaign, db, runs=None):
     """``campaign`` with channel Z louder by ``db`` (all runs, or the runs ``runs``)."""
     out = campaign.copy(deep=True)

@@ -18,7 +18,8 @@ false-alarm rate (:data:`TRUST_ALPHA` per check unless said otherwise):
    extrapolate. Runs called healthy are also held against the simulated healthy runs at their
    speed (:func:`bayesdoor.datagen.healthy_outliers`, 1 % per run), and counted alike. An
    excess of either is a warning (``"limited"``, the runs listed); more than half of the
-   runs flagged fails the check.
+   runs flagged fails the check, a run whose call the system's signature check contradicts
+   (``corroborated`` false, for a system with such a check) counted flagged too.
 
 A failed fit adequacy, known-runs or majority check makes the verdict ``"not trusted"``, with
 its reasons; the report then leads with them instead of a confident table.
@@ -240,7 +241,10 @@ def judge_trust(
 
     runs = [r for r in classification["runs"] if r["predicted"] is not None]
     ood = {r["run"] for r in runs if r.get("ood")}
-    flagged = ood | set(unlike_healthy)
+    # a confident call that the system's own signature check contradicts is as unlike the
+    # simulations as an OOD run (only a system with a check has ``corroborated``)
+    contradicted = {r["run"] for r in runs if r.get("corroborated") is False}
+    flagged = ood | set(unlike_healthy) | contradicted
     nominal = 1.0 - float(training.get("ood_quantile", 0.99))
     n = len(runs)
     p_ood = _binomial_high(len(ood), n, nominal) if n else 1.0
@@ -248,6 +252,7 @@ def judge_trust(
         "runs": n,
         "flagged_ood": len(ood),
         "unlike_healthy": len(unlike_healthy),
+        "not_corroborated": len(contradicted),
         "nominal_rate": nominal,
         "p_value": p_ood,
     }

@@ -821,8 +821,9 @@ def trust_section(adequacy: Mapping[str, Any] | None, trust: Mapping[str, Any] |
         more = len(trust["flagged_runs"]) - 40
         parts.append(
             H.note(
-                f"Flagged runs (out-of-distribution, or called healthy but unlike the simulated "
-                f"healthy runs): {flagged}{f' and {more} more' if more > 0 else ''}."
+                f"Flagged runs (out-of-distribution, called healthy but unlike the simulated "
+                f"healthy runs, or called a state the system's signature check does not "
+                f"find): {flagged}{f' and {more} more' if more > 0 else ''}."
             )
         )
     return H.section("Can these results be trusted?", *parts)

@@ -219,6 +219,23 @@ def test_calls_the_signature_check_contradicts_count_toward_the_majority():
     assert judge_trust(adequacy, None, classification, _training(), [])["reasons"] == []
 
 
+def test_many_calls_the_signature_check_contradicts_limit_the_verdict():
+    adequacy = {"verdict": "reproduces", "summary": "fine"}
+    classification = _runs(["D1"] * 60)
+    for r in classification["runs"]:
+        r["corroborated"] = r["run"] >= 6  # 6 of 60 contradicted
+    plain = judge_trust(adequacy, None, classification, _training(), [])
+    assert plain["verdict"] == "trusted" and "not_corroborated" not in plain["checks"]
+    # 6 of 60 where a check contradicts 1 % of right calls: improbable (p ~ 2e-5)
+    strict = judge_trust(adequacy, None, classification, _training(), [], signature_rate=0.01)
+    assert strict["verdict"] == "limited" and strict["reasons"] == []
+    assert strict["warnings"][0].startswith("6 of 60 calls are not backed")
+    assert strict["checks"]["not_corroborated"]["p_value"] < 1e-4
+    # a check that contradicts 10 % of right calls makes 6 of 60 unremarkable
+    loose = judge_trust(adequacy, None, classification, _training(), [], signature_rate=0.1)
+    assert loose["verdict"] == "trusted"
+
+
 def _gain(campaign, db, runs=None):
     """``campaign`` with channel Z louder by ``db`` (all runs, or the runs ``runs``)."""
     out = campaign.copy(deep=True)

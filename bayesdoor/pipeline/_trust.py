@@ -34,6 +34,11 @@ its reasons; the report then leads with them instead of a confident table.
    exceeds the classification's ``max_error``; many more uncertain test runs than the
    simulated validation's share (binomial, one-sided) is a warning: the measurements are
    harder to place than the simulations the calibration was fitted on.
+
+6. **Not corroborated**: for a system whose signature check states its false-alarm rate
+   (:meth:`~bayesdoor.systems.AbstractSystem.signature_reference`), many more calls the
+   check contradicts than that rate (binomial, one-sided) is a warning: the signals do not
+   show the called states' signatures.
 """
 
 from __future__ import annotations
@@ -58,7 +63,7 @@ from ..datagen import (
 from ..datagen._points import point_key
 from ..io import operating as campaign_operating
 from ..systems import AbstractSystem
-from ._classify import _write_json, classify_stage, data_spec, runs_in_state
+from ._classify import SIGNATURES, _write_json, classify_stage, data_spec, runs_in_state
 
 ADEQUACY_JSON = "adequacy.json"
 TRUST_JSON = "trust.json"
@@ -71,7 +76,7 @@ REQUIRED_ACCURACY = 0.9
 #: what the trust stage checks, at which rates (its configuration: a change reruns it)
 TRUST_CHECKS = {
     "checks": ("adequacy", "known runs", "most flagged", "expected accuracy"),
-    "warnings": ("ood rate", "unlike healthy", "expected accuracy"),
+    "warnings": ("ood rate", "unlike healthy", "expected accuracy", "not corroborated"),
     "alpha": TRUST_ALPHA,
     "required_accuracy": REQUIRED_ACCURACY,
 }
@@ -188,6 +193,7 @@ def judge_trust(
     *,
     alpha: float = TRUST_ALPHA,
     required: float = REQUIRED_ACCURACY,
+    signature_rate: float | None = None,
 ) -> dict[str, Any]:
     """The trust verdict from the checks' evidence (see the module docstring).
 
@@ -203,6 +209,9 @@ def judge_trust(
         ``training.json`` of the ensemble (its simulated validation and OOD quantile).
     unlike_healthy
         Test runs (their ``run`` numbers) called healthy but unlike the simulated healthy runs.
+    signature_rate
+        The system's signature check's false-alarm rate (the share of right calls it
+        contradicts; ``None``: no check, or none stated).
     """
     reasons: list[str] = []
     checks: dict[str, Any] = {}
@@ -271,6 +280,21 @@ def judge_trust(
             f"the simulated {KNOWN_STATE} runs at their speed (p = {p_h:.1e})"
         )
     _uncertain_rate(classification, training, runs, checks, warnings, alpha)
+    if signature_rate is not None and n:
+        p_sig = _binomial_high(len(contradicted), n, signature_rate)
+        checks["not_corroborated"] = {
+            "runs": n,
+            "not_corroborated": len(contradicted),
+            "false_alarm_rate": signature_rate,
+            "p_value": p_sig,
+        }
+        if contradicted and p_sig < alpha:
+            warnings.append(
+                f"{len(contradicted)} of {n} calls are not backed by the system's signature "
+                f"check, which contradicts {100 * signature_rate:g} % of right calls "
+                f"(p = {p_sig:.1e}): the signals do not show the called states' signatures, "
+                "so the probabilities rest on the learned features alone"
+            )
     if n and len(flagged) > n / 2:
         reasons.append(f"most runs are flagged ({len(flagged)} of {n})")
     expected = (training.get("validation", {}).get("calibrated") or {}).get("accuracy")
@@ -385,9 +409,20 @@ def trust_stage(
         unlike = [
             int(picks[j][1]["run"]) for j, s, b in zip(at, scores, bounds, strict=True) if s > b
         ]
+    signatures = model / SIGNATURES
+    rate = None
+    if signatures.is_file():
+        rate = json.loads(signatures.read_text())["reference"].get("false_alarm_rate")
     _write_json(
         folder / TRUST_JSON,
-        judge_trust(adequacy, known, classification, training, unlike),
+        judge_trust(
+            adequacy,
+            known,
+            classification,
+            training,
+            unlike,
+            signature_rate=None if rate is None else float(rate),
+        ),
     )
 
 

@@ -259,7 +259,9 @@ class AbstractSystem(eqx.Module):
         in the signal (a bearing's envelope lines at its kinematic fault frequencies) returns
         what :meth:`signatures` needs, as a JSON-able dict, from the healthy calibration
         runs' ``signals`` (in :attr:`channels` order) at their ``operating`` points. Default:
-        ``None``, no such check.
+        ``None``, no such check. A reference that holds ``false_alarm_rate`` (the share of
+        right calls the check contradicts) lets the job's trust stage warn when many more
+        calls are contradicted than that.
         """
         return None
 

@@ -319,6 +319,38 @@ def test_mains_hum_is_a_line_at_mains_frequency_present_at_rest(surface_runs, ma
     np.testing.assert_array_equal(out[[0, 1, 3]], base[[0, 1, 3]])
 
 
+def test_mains_hum_adds_its_power_to_a_tone_of_the_signal_at_its_frequency():
+    """A signal with its own 50 Hz tone, as the door has at one speed: a hum of a fixed phase
+    interferes with it (in phase it doubles the line's amplitude, against it cancels it);
+    the extension's line is in quadrature with the signal over the record, so the powers add,
+    the expectation over a hum's chance phase. Checked on scipy's Welch spectrum (1 Hz bins):
+    at 49-51 Hz the extended power is the tone's plus the hum's alone to 1 %, on both
+    channels whose tone phases differ; the hum's amplitude is kept (least squares)."""
+    t = np.arange(int(4 * FS)) / FS
+    rng = np.random.default_rng(0)
+    tone = np.stack([0.02 * np.cos(2 * np.pi * 50.0 * t + p) for p in (0.0, 2.1, -1.0, 3.0)])
+    signals = tone + 1e-4 * rng.standard_normal(tone.shape)
+    door = ElevatorDoor().with_extensions(MainsHum(frequency_hz=50.0, harmonics=1))
+    values = _values(door, **{f"mains_hum.amplitude_{c}": 0.02 for c in ("A1X", "A2X")})
+    out = np.asarray(door.apply_output_extensions(jnp.asarray(signals), jnp.asarray(t), values))
+
+    def power(x):
+        f, p = scipy.signal.welch(x, FS, nperseg=int(FS))
+        return p[..., np.abs(f - 50.0) <= 1.0].sum(axis=-1)
+
+    hum_alone = power(0.02 * np.cos(2 * np.pi * 50.0 * t))
+    for channel in (0, 2):
+        np.testing.assert_allclose(
+            power(out[channel]), power(signals[channel]) + hum_alone, rtol=0.01
+        )
+        basis = np.stack([np.cos(2 * np.pi * 50.0 * t), np.sin(2 * np.pi * 50.0 * t)])
+        coef, *_ = np.linalg.lstsq(basis.T, out[channel] - signals[channel], rcond=None)
+        assert np.hypot(*coef) == pytest.approx(0.02, rel=1e-4)
+    # a line at phase zero on channel 0 (its tone at phase zero) would have doubled the tone
+    assert power(signals[0] + 0.02 * np.cos(2 * np.pi * 50.0 * t)) > 1.9 * power(out[0])
+    np.testing.assert_array_equal(out[[1, 3]], signals[[1, 3]])
+
+
 def test_eccentric_wheel_tone_is_at_the_rotation_frequency_and_tracks_speed(surface_runs):
     """The change the eccentric wheel makes to A1Z during the cruise, low-passed at 10 Hz, is a
     tone at v / (2 pi R): 1.59 Hz at 0.3 m/s, 2.65 Hz at 0.5 m/s. The cruise holds only 3.5

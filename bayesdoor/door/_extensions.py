@@ -330,10 +330,19 @@ class SensorCrossAxis(AbstractDoorExtension):
 class MainsHum(AbstractDoorExtension):
     """Electrical interference in the measurement chain (``mains_hum``).
 
-    Channel c receives a_c (cos(2 pi f t) + sum over h = 2..H of r_h cos(2 pi h f t)) with
-    f = ``frequency_hz`` (50 or 60 Hz) and H = ``harmonics``: lines at exactly f and its
-    harmonics, of constant amplitude, present at rest as while moving. The phases are fixed
-    at zero: the spectral features the model is fitted on do not see them.
+    Channel c receives a_c (cos(2 pi f t + phi_c1) + sum over h = 2..H of r_h cos(2 pi h f t +
+    phi_ch)) with f = ``frequency_hz`` (50 or 60 Hz) and H = ``harmonics``: lines at exactly f
+    and its harmonics, of constant amplitude, present at rest as while moving.
+
+    The mains is not synchronised with the machine, so a measured record holds the hum at a
+    phase of chance against the machine's own content at the same frequency: where that
+    content is strong (a door's line near 50 Hz at one speed), the measured change ranges
+    from a cancellation to a doubling with the phase (``results/hum_interference.md``). The
+    model holds the expectation over the phase: each line's phase ``phi_ch`` puts it in
+    quadrature with the channel's signal over the record (their inner product is zero), so
+    its power adds to the signal's, as a hum's does on average, instead of interfering with
+    one fixed phase. Where the signal holds nothing at the line's frequency the phase does
+    not matter.
 
     Parameters: ``mains_hum.amplitude_<channel>`` (0-0.1 m/s^2, the fundamental's amplitude;
     0 is off) and ``mains_hum.ratio_<h>`` (0-1) for h = 2..H.
@@ -391,11 +400,31 @@ class MainsHum(AbstractDoorExtension):
         v = self.local(values)
         dtype = signals.dtype
         phase = 2.0 * np.pi * self.frequency_hz * time.astype(dtype)
-        line = jnp.cos(phase)
+        line = _quadrature_line(signals, phase)
         for h in range(2, self.harmonics + 1):
-            line = line + jnp.asarray(v[f"ratio_{h}"], dtype) * jnp.cos(h * phase)
+            line = line + jnp.asarray(v[f"ratio_{h}"], dtype) * _quadrature_line(
+                signals, h * phase
+            )
         a = jnp.stack([jnp.asarray(v[f"amplitude_{c}"], dtype) for c in g.CHANNELS])
-        return signals + a[:, None] * line[None, :]
+        return signals + a[:, None] * line
+
+
+def _quadrature_line(
+    signals: Float[Array, "channel time"], phase: Float[Array, " time"]
+) -> Float[Array, "channel time"]:
+    """Per channel, the unit line ``cos(phase + phi)`` whose inner product with the channel's
+    signal over the record is zero: with ``A = sum s cos(phase)``, ``B = sum s sin(phase)``,
+    ``(B cos(phase) - A sin(phase)) / hypot(A, B)``; ``cos(phase)`` where the signal holds
+    nothing at the line's frequency."""
+    cos, sin = jnp.cos(phase), jnp.sin(phase)
+    a = signals @ cos
+    b = signals @ sin
+    norm2 = a * a + b * b
+    some = norm2 > 0.0
+    scale = jnp.sqrt(jnp.where(some, norm2, 1.0))
+    a_unit = jnp.where(some, a / scale, 0.0)
+    b_unit = jnp.where(some, b / scale, 1.0)
+    return b_unit[:, None] * cos[None, :] - a_unit[:, None] * sin[None, :]
 
 
 class WheelEccentricity(AbstractDoorExtension):

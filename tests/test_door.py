@@ -354,3 +354,22 @@ def test_the_batched_solve_holds_no_host_callback_so_it_can_be_cached():
     text = jax.jit(signals).lower(jnp.asarray([1500.0, 2000.0])).as_text()
     assert "solve_batch" in text  # the solve is inside what was lowered
     assert "callback" not in text
+
+
+def test_importing_the_door_leaves_the_diagnosis_and_inference_layers_out():
+    """Simulating the door needs neither the diagnosis nor the inference layers (arviz, cma):
+    its discrepancy catalogue, which does, is read on first use."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, bayesdoor.door as d\n"
+        "print(sorted(m for m in ('bayesdoor.diagnose', 'bayesdoor.inference', 'arviz', 'cma')"
+        " if m in sys.modules))\n"
+        "print(d.ElevatorDoor().catalogue is d.DOOR_CATALOGUE, 'bayesdoor.diagnose' in sys.modules)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    ).stdout.split("\n")
+    assert out[0] == "[]"
+    assert out[1] == "True True"

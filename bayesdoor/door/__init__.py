@@ -1,7 +1,7 @@
 """The reference elevator door: parameters, damage modes, equations and simulation."""
 
-from ._catalogue import DOOR_CATALOGUE as DOOR_CATALOGUE
-from ._catalogue import WHEEL_CIRCUMFERENCE as WHEEL_CIRCUMFERENCE
+from typing import TYPE_CHECKING
+
 from ._extensions import EXTENSIONS as EXTENSIONS
 from ._extensions import AbstractDoorExtension as AbstractDoorExtension
 from ._extensions import CoupledFrameMode as CoupledFrameMode
@@ -37,3 +37,19 @@ from ._simulate import static_equilibrium as static_equilibrium
 from ._system import V_MAX_RANGE as V_MAX_RANGE
 from ._system import ElevatorDoor as ElevatorDoor
 from ._system import check_speed as check_speed
+
+if TYPE_CHECKING:
+    from ._catalogue import DOOR_CATALOGUE as DOOR_CATALOGUE
+    from ._catalogue import WHEEL_CIRCUMFERENCE as WHEEL_CIRCUMFERENCE
+
+#: names read from the discrepancy catalogue on first use: it imports the diagnosis and
+#: inference layers (arviz, cma, ...), which simulating the door does not need
+_CATALOGUE_NAMES = ("DOOR_CATALOGUE", "WHEEL_CIRCUMFERENCE")
+
+
+def __getattr__(name: str):
+    if name in _CATALOGUE_NAMES:
+        from . import _catalogue
+
+        return getattr(_catalogue, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

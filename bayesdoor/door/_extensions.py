@@ -402,9 +402,7 @@ class MainsHum(AbstractDoorExtension):
         phase = 2.0 * np.pi * self.frequency_hz * time.astype(dtype)
         line = _quadrature_line(signals, phase)
         for h in range(2, self.harmonics + 1):
-            line = line + jnp.asarray(v[f"ratio_{h}"], dtype) * _quadrature_line(
-                signals, h * phase
-            )
+            line = line + jnp.asarray(v[f"ratio_{h}"], dtype) * _quadrature_line(signals, h * phase)
         a = jnp.stack([jnp.asarray(v[f"amplitude_{c}"], dtype) for c in g.CHANNELS])
         return signals + a[:, None] * line
 

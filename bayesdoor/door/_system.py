@@ -20,7 +20,6 @@ from ..systems import (
     apply_output_extensions,
 )
 from . import _geometry as g
-from ._catalogue import DOOR_CATALOGUE
 from ._extensions import AbstractDoorExtension, extension
 from ._model import make_args
 from ._params import PARAMETERS, STATES, DoorDamage, DoorParameters, check_parameter_values
@@ -106,6 +105,10 @@ class ElevatorDoor(AbstractSystem):
     @property
     def catalogue(self):
         """The door's catalogue of discrepancy causes (``docs/model.md``), for diagnosis."""
+        # imported here: the catalogue pulls in the diagnosis and inference layers, which
+        # simulating the door does not need
+        from ._catalogue import DOOR_CATALOGUE
+
         return DOOR_CATALOGUE
 
     @property

@@ -22,7 +22,9 @@ phase).
 Usage::
 
     .venv/bin/python scripts/hum_interference.py [--seeds 10] [--first-seed 5000]
-        [--size 0.002039] [--run 3] [--work out/diagnosis-limits]
+        [--size M_PER_S2] [--run 3] [--work out/diagnosis-limits]
+
+``--size`` defaults to the size of the loops at 1.5 x the hum's limit in ``--work``.
 """
 
 from __future__ import annotations
@@ -97,11 +99,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=5000)
     parser.add_argument("--base-key", type=int, default=4999)
-    parser.add_argument("--size", type=float, default=0.0020390345863177894)
+    # default: the size of the loops at 1.5 x the hum's limit in the work folder
+    parser.add_argument("--size", type=float, default=None)
     parser.add_argument("--run", type=int, default=3)
     parser.add_argument("--work", type=Path, default=ROOT / "out" / "diagnosis-limits")
     parser.add_argument("--results", type=Path, default=ROOT / "results" / "hum_interference.md")
     args = parser.parse_args(argv)
+    if args.size is None:
+        loops = sorted(args.work.glob("mains_hum-1.5-*.json"))
+        if not loops:
+            parser.error(f"no mains_hum loops at 1.5 x in {args.work}: pass --size")
+        args.size = float(json.loads(loops[0].read_text())["size"])
     setup_jax()
     started = time.time()
     from diagnosis_limits import SPEEDS

@@ -139,6 +139,20 @@ STEPS: tuple[Step, ...] = (
         quick_args=("--seeds", "2"),
         out=("--results", "diagnosis_limits.md"),
     ),
+    # after "diagnosis_limits": its base fit and loops are read from its work folder
+    Step(
+        "diagnosis_limits_hum",
+        "scripts/diagnosis_limits.py",
+        args=("--causes", "mains_hum", "--factors", "0.5", "1.5", "--seeds", "10"),
+        quick_args=("--seeds", "2"),
+        out=("--results", "diagnosis_limits_hum.md"),
+    ),
+    Step(
+        "hum_interference",
+        "scripts/hum_interference.py",
+        quick_args=("--seeds", "2"),
+        out=("--results", "hum_interference.md"),
+    ),
     Step(
         "cwru",
         "scripts/cwru.py",

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._types import Array, Float
-from ..systems import AbstractExtension, ParameterSpec, build_extension
+from ..systems import AbstractExtension, ParameterSpec, build_extension, unsynchronised_line
 from ._model import resonance_response
 
 #: the sampling rate of the modelled records, Hz (the system's)
@@ -155,8 +155,10 @@ class LineFrequency(AbstractBearingExtension):
     Adds ``sum_m a_m cos(2 pi m f0 t)`` for m = 1..``harmonics``, f0 = ``frequency_hz`` (50
     or 60 Hz): electrical interference in the measurement chain, or the motor's
     electromagnetic forces (the stator field's pull pulsates at 2 f0: an induction motor's
-    classic electrical vibration), whatever the shaft speed. The phases are fixed at zero:
-    the spectra do not see them.
+    classic electrical vibration), whatever the shaft speed. The supply is not synchronised
+    with the shaft, so a record meets the bearing's own content at a line's frequency (a
+    shaft harmonic near 60 Hz) at a phase of chance: each line carries the expectation over
+    it, its power added to the signal's (:func:`~bayesdoor.systems.unsynchronised_line`).
 
     Parameters: ``line_frequency.amplitude_<m>`` (m/s^2, 0-2; 0 is off).
     """
@@ -198,7 +200,8 @@ class LineFrequency(AbstractBearingExtension):
         phase = 2.0 * np.pi * self.frequency_hz * time.astype(dtype)
         line = jnp.zeros_like(signal)
         for m in range(1, self.harmonics + 1):
-            line = line + jnp.asarray(v[f"amplitude_{m}"], dtype) * jnp.cos(m * phase)
+            unit = unsynchronised_line(signal, m * phase)
+            line = line + jnp.asarray(v[f"amplitude_{m}"], dtype) * unit
         return signal + line
 
 

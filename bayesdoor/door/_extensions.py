@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._types import Array, Float
-from ..systems import AbstractExtension, ParameterSpec, build_extension
+from ..systems import AbstractExtension, ParameterSpec, build_extension, unsynchronised_line
 from . import _geometry as g
 
 #: the door's two accelerometers and wheels (static choices of the extensions)
@@ -400,29 +400,12 @@ class MainsHum(AbstractDoorExtension):
         v = self.local(values)
         dtype = signals.dtype
         phase = 2.0 * np.pi * self.frequency_hz * time.astype(dtype)
-        line = _quadrature_line(signals, phase)
+        line = unsynchronised_line(signals, phase)
         for h in range(2, self.harmonics + 1):
-            line = line + jnp.asarray(v[f"ratio_{h}"], dtype) * _quadrature_line(signals, h * phase)
+            harmonic = unsynchronised_line(signals, h * phase)
+            line = line + jnp.asarray(v[f"ratio_{h}"], dtype) * harmonic
         a = jnp.stack([jnp.asarray(v[f"amplitude_{c}"], dtype) for c in g.CHANNELS])
         return signals + a[:, None] * line
-
-
-def _quadrature_line(
-    signals: Float[Array, "channel time"], phase: Float[Array, " time"]
-) -> Float[Array, "channel time"]:
-    """Per channel, the unit line ``cos(phase + phi)`` whose inner product with the channel's
-    signal over the record is zero: with ``A = sum s cos(phase)``, ``B = sum s sin(phase)``,
-    ``(B cos(phase) - A sin(phase)) / hypot(A, B)``; ``cos(phase)`` where the signal holds
-    nothing at the line's frequency."""
-    cos, sin = jnp.cos(phase), jnp.sin(phase)
-    a = signals @ cos
-    b = signals @ sin
-    norm2 = a * a + b * b
-    some = norm2 > 0.0
-    scale = jnp.sqrt(jnp.where(some, norm2, 1.0))
-    a_unit = jnp.where(some, a / scale, 0.0)
-    b_unit = jnp.where(some, b / scale, 1.0)
-    return b_unit[:, None] * cos[None, :] - a_unit[:, None] * sin[None, :]
 
 
 class WheelEccentricity(AbstractDoorExtension):

@@ -149,3 +149,28 @@ def apply_output_extensions(
     }
     out = _apply_in_stage_order(outputs, flat, jnp.asarray(time, dtype=signals.dtype), vals)
     return out.reshape(signals.shape)
+
+
+def unsynchronised_line(
+    signals: Float[Array, "*channel time"], phase: Float[Array, " time"]
+) -> Float[Array, "*channel time"]:
+    """A unit line ``cos(phase + phi)`` per channel whose power adds to the signal's.
+
+    A line from a source not synchronised with the system (the mains, an electrical supply)
+    meets the system's own content at its frequency at a phase of chance: one record shows a
+    cancellation, another a doubling. Its expectation over that phase is the sum of the two
+    powers. The line returned carries that expectation: its phase ``phi`` puts it in
+    quadrature with the channel's signal over the record (their inner product is zero):
+    with ``A = sum s cos(phase)``, ``B = sum s sin(phase)``, the line is ``(B cos(phase) -
+    A sin(phase)) / hypot(A, B)``; ``cos(phase)`` where the signal holds nothing at the
+    line's frequency.
+    """
+    cos, sin = jnp.cos(phase), jnp.sin(phase)
+    a = signals @ cos
+    b = signals @ sin
+    norm2 = a * a + b * b
+    some = norm2 > 0.0
+    scale = jnp.sqrt(jnp.where(some, norm2, 1.0))
+    a_unit = jnp.where(some, a / scale, 0.0)
+    b_unit = jnp.where(some, b / scale, 1.0)
+    return b_unit[..., None] * cos - a_unit[..., None] * sin

@@ -536,3 +536,23 @@ def test_training_data_generation_draws_the_extension_parameters(tmp_path, key):
     assert np.all((drawn >= 10.0) & (drawn <= 300.0)) and np.std(drawn) > 0
     manifest = (tmp_path / "manifest.json").read_text()
     assert "frame_mode.participation_A1X" in manifest and "MainsHum" in manifest
+
+
+def test_an_unsynchronised_line_is_orthogonal_to_the_signal_and_of_unit_amplitude():
+    from bayesdoor.systems import unsynchronised_line
+
+    t = np.arange(4096) / FS
+    phase = jnp.asarray(2 * np.pi * 60.0 * t)
+    rng = np.random.default_rng(1)
+    signals = jnp.asarray(
+        np.stack([0.3 * np.cos(2 * np.pi * 60.0 * t + 0.7), rng.standard_normal(t.size)])
+    )
+    line = np.asarray(unsynchronised_line(signals, phase))
+    assert line.shape == signals.shape
+    np.testing.assert_allclose(np.sum(line * np.asarray(signals), axis=-1), 0.0, atol=1e-8)
+    np.testing.assert_allclose(np.sqrt(2 * np.mean(line**2, axis=-1)), 1.0, rtol=1e-3)
+    # one channel (a bearing's), and a silent one: the plain cosine
+    one = np.asarray(unsynchronised_line(signals[0], phase))
+    np.testing.assert_allclose(one, line[0], atol=1e-12)
+    silent = np.asarray(unsynchronised_line(jnp.zeros(t.size), phase))
+    np.testing.assert_allclose(silent, np.cos(np.asarray(phase)), atol=1e-12)

@@ -335,10 +335,10 @@ def classify_stage(
     # per run, whether every sample is finite (a boolean reduction: the records are not
     # copied, the signature check below reads the system's channels itself)
     acceleration = campaign["acceleration"]
-    finite = np.isfinite(acceleration).all(dim=[d for d in acceleration.dims if d != "run"])
+    others = tuple(i for i, d in enumerate(acceleration.dims) if d != "run")
+    finite = np.isfinite(acceleration.values).all(axis=others)
     problems: list[str | None] = [
-        None if bool(f) else "the record holds non-finite samples"
-        for f in finite.transpose("run").values
+        None if bool(f) else "the record holds non-finite samples" for f in finite
     ]
     n_freq = ensemble.network.input_shape[-1]
     training = path.parent / "training.json"

@@ -12,6 +12,7 @@ import dataclasses
 import json
 import re
 import shutil
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -26,6 +27,7 @@ from bayesdoor.pipeline import (
     Sizes,
     calibration_runs,
     configuration_hash,
+    peak_memory_mb,
     run_job,
     run_stage,
     runs_to_classify,
@@ -183,6 +185,26 @@ def test_stage_reused_only_with_the_same_configuration(tmp_path):
     assert a.config_hash == configuration_hash({"a": 1}) != c.config_hash
     # nothing but the stage folder is left behind
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+
+
+def test_stage_records_its_cpu_time_and_the_peak_memory(tmp_path):
+    def compute(folder):
+        # a CPU-bound second and 200 MB held while it runs
+        block = np.ones(25_000_000)
+        deadline = time.process_time() + 1.0
+        while time.process_time() < deadline:
+            block[:1000] += 1.0
+        (folder / "x.txt").write_text(str(block[0]))
+
+    before = peak_memory_mb()
+    first = run_stage(tmp_path, "s", {"a": 1}, compute)
+    assert first.cpu_seconds is not None and 0.9 < first.cpu_seconds < 3.0 + first.seconds
+    assert first.peak_memory_mb is not None and first.peak_memory_mb >= before
+    assert first.peak_memory_mb >= 190.0
+    # a reused stage gives the figures of the run that computed it
+    again = run_stage(tmp_path, "s", {"a": 1}, compute)
+    assert again.reused
+    assert (again.cpu_seconds, again.peak_memory_mb) == (first.cpu_seconds, first.peak_memory_mb)
 
 
 def test_interrupted_stage_leaves_the_finished_one_untouched(tmp_path):

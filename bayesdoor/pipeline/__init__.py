@@ -31,4 +31,5 @@ from ._job import run_job as run_job
 from ._job import runs_to_classify as runs_to_classify
 from ._stages import StageRecord as StageRecord
 from ._stages import configuration_hash as configuration_hash
+from ._stages import peak_memory_mb as peak_memory_mb
 from ._stages import run_stage as run_stage

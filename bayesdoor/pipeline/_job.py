@@ -219,7 +219,14 @@ class JobResult:
 
 def _stages_json(stages: tuple[StageRecord, ...]) -> list[dict[str, Any]]:
     return [
-        {"name": s.name, "reused": s.reused, "seconds": s.seconds, "hash": s.config_hash}
+        {
+            "name": s.name,
+            "reused": s.reused,
+            "seconds": s.seconds,
+            "cpu_seconds": s.cpu_seconds,
+            "peak_memory_mb": s.peak_memory_mb,
+            "hash": s.config_hash,
+        }
         for s in stages
     ]
 

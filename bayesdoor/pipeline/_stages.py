@@ -17,7 +17,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import resource
 import shutil
+import sys
 import time
 import uuid
 from collections.abc import Callable, Mapping
@@ -51,7 +53,13 @@ class StageRecord:
     reused
         True when this call found the stage finished and did not recompute it.
     seconds
-        Time the stage took when it was computed.
+        Wall time the stage took when it was computed.
+    cpu_seconds
+        CPU time of the process (every thread) while the stage was computed; above
+        ``seconds`` when it used several cores. ``None`` for a record written without it.
+    peak_memory_mb
+        The process's peak resident memory (MB) when the stage ended: the largest of this
+        stage and everything the process did before it (``None`` as above).
     """
 
     name: str
@@ -59,6 +67,19 @@ class StageRecord:
     config_hash: str
     reused: bool
     seconds: float
+    cpu_seconds: float | None = None
+    peak_memory_mb: float | None = None
+
+
+def peak_memory_mb() -> float:
+    """The process's peak resident memory so far, MB (``getrusage``: kB on Linux, bytes on
+    macOS)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (1024.0**2 if sys.platform == "darwin" else 1024.0)
+
+
+def _optional_float(value: Any) -> float | None:
+    return None if value is None else float(value)
 
 
 def finished_record(path: Path) -> dict[str, Any] | None:
@@ -114,10 +135,18 @@ def run_stage(
     old = finished_record(path)
     if old is not None and old.get("config_hash") == digest:
         report(f"{name}: reused (configuration {digest[:10]}, finished {old.get('finished')})")
-        return StageRecord(name, path, digest, True, float(old.get("seconds", 0.0)))
+        return StageRecord(
+            name,
+            path,
+            digest,
+            True,
+            float(old.get("seconds", 0.0)),
+            _optional_float(old.get("cpu_seconds")),
+            _optional_float(old.get("peak_memory_mb")),
+        )
     why = "configuration changed" if old is not None else "computing"
     report(f"{name}: {why} ...")
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     if resumable:
         marker = path / _STARTED
         if path.exists() and (
@@ -140,6 +169,7 @@ def run_stage(
             shutil.rmtree(work, ignore_errors=True)
             raise
     seconds = time.perf_counter() - start
+    cpu_seconds, peak = time.process_time() - cpu_start, peak_memory_mb()
     finished = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     _write_record(
         work,
@@ -148,6 +178,8 @@ def run_stage(
             "config_hash": digest,
             "config": dict(config),
             "seconds": seconds,
+            "cpu_seconds": cpu_seconds,
+            "peak_memory_mb": peak,
             "finished": finished,
         },
     )
@@ -158,4 +190,4 @@ def run_stage(
     else:
         (path / _STARTED).unlink(missing_ok=True)
     report(f"{name}: done in {seconds:.1f} s")
-    return StageRecord(name, path, digest, False, seconds)
+    return StageRecord(name, path, digest, False, seconds, cpu_seconds, peak)

@@ -189,8 +189,15 @@ def rest_modes(args: DoorArgs) -> tuple[Float[np.ndarray, " mode"], Float[np.nda
     static position) by central differences, as the virtual rig's ``rest_state`` does
     (steps of 1 nm and 1 um/s, far inside the contact indentation and the friction's
     regularisation). The modes are the eigenvalues with a positive imaginary part, sorted
-    by frequency.
+    by frequency. The linearisation is one compiled program per structure of ``args``
+    (:func:`rest_jacobian`); the eigenvalues are numpy's.
     """
+    return oscillatory_modes(rest_jacobian(args))
+
+
+@eqx.filter_jit
+def rest_jacobian(args: DoorArgs) -> Float[Array, "n n"]:
+    """The Jacobian of the door's flow at rest that :func:`rest_modes` reads its modes from."""
     state0 = initial_state(args)
     n_ext = extension_dofs(args)
     moving = np.r_[0 : 2 * N_DOF, STATE_SIZE : STATE_SIZE + 2 * n_ext]
@@ -199,8 +206,8 @@ def rest_modes(args: DoorArgs) -> tuple[Float[np.ndarray, " mode"], Float[np.nda
     def flow(y):
         return rhs(0.0, state0.at[moving].set(y), args)[moving]
 
-    steps = jnp.asarray(np.where(np.isin(moving, velocity), 1e-6, 1e-9))
-    return oscillatory_modes(central_jacobian(flow, state0[moving], steps))
+    steps = jnp.asarray(np.where(np.isin(moving, velocity), 1e-6, 1e-9), dtype=state0.dtype)
+    return central_jacobian(flow, state0[moving], steps)
 
 
 def sample_times(duration: float, fs: float = g.SAMPLING_RATE_HZ, dtype=jnp.float64):

@@ -1,0 +1,266 @@
+"""The main job stage by stage, against the machine's scipy yardstick in the same process.
+
+One process: first the yardstick (the door's equations with a numpy right-hand side, scipy's
+LSODA, one 3.5 s record: ``bench_simulate.time_scipy``) and the simulator (a vmapped float64
+batch of the same record, ``bench_simulate.time_batch``), then the main job on a campaign from
+an empty folder (every stage computed; the JAX cache as it is). Each stage is reported with its
+wall time, the process's CPU time during it, the peak memory so far, and the wall time in
+*scipy runs* (``seconds / scipy seconds per run``), the figure that compares machines, and
+the wall seconds it spent in JAX's tracing, lowering and compiling (the union of their time
+spans from ``jax.monitoring``; a compilation the persistent cache serves still traces and
+lowers, so this is the price of a fresh process); inside the fit and the diagnosis their own
+steps (the fit's ``timings`` and CMA-ES evaluations, the diagnosis's ``timings``).
+
+Usage: python benchmarks/bench_job.py [--campaign demo|PATH] [--full] [--no-diagnosis]
+       [--batch 64] [--seed 0] [--keep DIR] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from bayesdoor import configure_jax
+
+# as the command line sets JAX up: the cache of $BAYESDOOR_JAX_CACHE or ./.jax_cache
+configure_jax()
+
+#: the issue's targets on the 2-core development machine (seconds; speed-up against scipy)
+TARGETS = {"quick": 60.0, "full": 180.0, "simulate_x_scipy": 250.0}
+
+
+#: the JAX events whose time spans make up a compilation
+COMPILE_EVENTS = (
+    "/jax/core/compile/jaxpr_trace_duration",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration",
+    "/jax/core/compile/backend_compile_duration",
+)
+
+
+class CompileClock:
+    """The time spans of JAX's tracing, lowering and compiling, for the union over a window."""
+
+    def __init__(self) -> None:
+        self.spans: list[tuple[float, float]] = []
+        self._lock = threading.Lock()
+        jax.monitoring.register_event_time_span_listener(self._listen)
+
+    def _listen(self, event: str, start: float, end: float, **kwargs: Any) -> None:
+        if event in COMPILE_EVENTS:
+            with self._lock:
+                self.spans.append((start, end))
+
+    def seconds(self, start: float, end: float) -> float:
+        """Wall seconds between ``start`` and ``end`` (``time.time()``) in any span."""
+        clipped = sorted(
+            (max(a, start), min(b, end)) for a, b in self.spans if b > start and a < end
+        )
+        total, reach = 0.0, start
+        for a, b in clipped:
+            if b > reach:
+                total += b - max(a, reach)
+                reach = b
+        return total
+
+
+def _stage_windows(events: list[tuple[float, str]]) -> dict[str, tuple[float, float]]:
+    """Each computed stage's (start, end) from the job's progress lines."""
+    starts: dict[str, float] = {}
+    windows = {}
+    for t, line in events:
+        name, _, rest = line.partition(":")
+        if "done in" in rest and name in starts:
+            windows[name] = (starts[name], t)
+        elif rest.strip().startswith(("computing", "configuration changed")):
+            starts[name] = t
+    return windows
+
+
+def _commit() -> str:
+    try:
+        return subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            check=True,
+            cwd=Path(__file__).resolve().parent,
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def _load() -> list[float]:
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return []
+
+
+def _campaign(spec: str):
+    if spec == "demo":
+        from bayesdoor.door.datasets import load_demo_campaign
+
+        return load_demo_campaign()
+    from bayesdoor.io import load_campaign
+
+    return load_campaign(spec)
+
+
+def yardstick(batch: int, duration: float = 3.5) -> dict[str, Any]:
+    """scipy's LSODA on one record and the vmapped float64 batch, in this process."""
+    from bench_simulate import time_batch, time_scipy
+
+    scipy_runs = [time_scipy(duration) for _ in range(2)]
+    scipy_ms = min(r["ms_per_run"] for r in scipy_runs)
+    f64 = time_batch(batch, duration, "float64")
+    return {
+        "duration_s": duration,
+        "scipy_ms_per_run": scipy_ms,
+        "scipy_nfev": scipy_runs[0]["nfev"],
+        "batch": batch,
+        "batch_float64_ms_per_run": f64["ms_per_run"],
+        "batch_compile_s": f64["compile_s"],
+        "simulate_x_scipy": scipy_ms / f64["ms_per_run"],
+    }
+
+
+def run(
+    campaign_spec: str,
+    full: bool,
+    diagnosis: bool,
+    seed: int,
+    keep: str | None,
+    clock: CompileClock,
+) -> dict:
+    from bayesdoor.door import ElevatorDoor
+    from bayesdoor.pipeline import peak_memory_mb, run_job
+
+    campaign = _campaign(campaign_spec)
+    system = ElevatorDoor()
+    if campaign_spec != "demo":
+        from bayesdoor.systems import get_system
+
+        system = get_system(str(campaign.attrs.get("system", system.name)))
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(keep) if keep else Path(tmp) / "job"
+        events: list[tuple[float, str]] = []
+        t0, c0, start = time.perf_counter(), time.process_time(), time.time()
+        result = run_job(
+            system,
+            campaign,
+            out,
+            quick=not full,
+            seed=seed,
+            progress=False,
+            report=lambda line: events.append((time.time(), line)),
+            overwrite=True,
+            html=True,
+            diagnosis=diagnosis,
+        )
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        windows = _stage_windows(events)
+        compile_s = clock.seconds(start, time.time())
+        fit_json = json.loads((out / "fit" / "result" / "fit.json").read_text())
+    payload = result.to_json()
+    for stage in payload["stages"]:
+        window = windows.get(stage["name"])
+        stage["compile_seconds"] = None if window is None else clock.seconds(*window)
+    metrics = payload.get("metrics") or {}
+    diag = payload.get("diagnosis") or {}
+    return {
+        "campaign": campaign_spec,
+        "sizes": "full" if full else "quick",
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "compile_s": compile_s,
+        "peak_memory_mb": peak_memory_mb(),
+        "stages": payload["stages"],
+        "fit_steps": {
+            "timings": fit_json.get("timings"),
+            "cmaes_evaluations": (fit_json.get("cmaes") or {}).get("evaluations"),
+            "gates_passed": (fit_json.get("diagnostics") or {}).get("passed"),
+        },
+        "diagnosis_steps": {"timings": diag.get("timings"), "verdict": diag.get("verdict")},
+        "accuracy": metrics.get("accuracy"),
+        "ece": metrics.get("ece"),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--campaign", default="demo", help="'demo' or a campaign file")
+    parser.add_argument("--full", action="store_true", help="the paper's sizes, not --quick")
+    parser.add_argument("--no-diagnosis", action="store_true", help="leave the diagnosis out")
+    parser.add_argument("--batch", type=int, default=64, help="the simulator's batch")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--keep", help="write the job into this folder (else a temporary one)")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON only")
+    args = parser.parse_args()
+
+    started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
+    load_start = _load()
+    clock = CompileClock()
+    stick = yardstick(args.batch)
+    job = run(args.campaign, args.full, not args.no_diagnosis, args.seed, args.keep, clock)
+    scipy_s = stick["scipy_ms_per_run"] / 1e3
+    for stage in job["stages"]:
+        stage["scipy_runs"] = stage["seconds"] / scipy_s
+    job["scipy_runs"] = job["wall_s"] / scipy_s
+    result = {
+        "command": "python benchmarks/bench_job.py "
+        + " ".join(
+            a
+            for a in (
+                f"--campaign {args.campaign}" if args.campaign != "demo" else "",
+                "--full" if args.full else "",
+                "--no-diagnosis" if args.no_diagnosis else "",
+            )
+            if a
+        ),
+        "date": started,
+        "commit": _commit(),
+        "machine": f"{os.cpu_count()} cores, {platform.machine()}",
+        "load_start": load_start,
+        "load_end": _load(),
+        "yardstick": stick,
+        "job": job,
+        "targets": TARGETS,
+    }
+    if args.json:
+        print(json.dumps(result, indent=1))
+        return
+    print(
+        f"yardstick: scipy LSODA {stick['scipy_ms_per_run']:.0f} ms per {stick['duration_s']} s "
+        f"run; vmapped float64 batch of {stick['batch']} "
+        f"{stick['batch_float64_ms_per_run']:.1f} ms per run = "
+        f"{stick['simulate_x_scipy']:.0f}x scipy (target {TARGETS['simulate_x_scipy']:.0f}x)"
+    )
+    target = TARGETS[job["sizes"]]
+    print(
+        f"job ({job['sizes']}, {job['campaign']}): {job['wall_s']:.1f} s wall = "
+        f"{job['scipy_runs']:.1f} scipy runs (target {target:.0f} s), {job['cpu_s']:.1f} s CPU, "
+        f"{job['compile_s']:.1f} s compiling, "
+        f"peak {job['peak_memory_mb']:.0f} MB; accuracy {job['accuracy']}, ECE {job['ece']}"
+    )
+    for s in job["stages"]:
+        print(
+            f"  {s['name']:<10} {s['seconds']:7.1f} s  {s['scipy_runs']:6.1f} scipy runs  "
+            f"CPU {s['cpu_seconds']:7.1f} s  compiling {s['compile_seconds'] or 0.0:6.1f} s  "
+            f"peak {s['peak_memory_mb']:6.0f} MB"
+        )
+    print(f"  fit steps: {job['fit_steps']}")
+    print(f"  diagnosis steps: {job['diagnosis_steps']}")
+
+
+if __name__ == "__main__":
+    main()

@@ -148,6 +148,12 @@ STEPS: tuple[Step, ...] = (
         out=("--results", "diagnosis_limits_hum.md"),
     ),
     Step(
+        "solver_tolerance",
+        "scripts/solver_tolerance.py",
+        quick_args=("--speeds", "2", "--repeats", "1"),
+        out=("--out-md", "solver_tolerance.md"),
+    ),
+    Step(
         "hum_interference",
         "scripts/hum_interference.py",
         quick_args=("--seeds", "2"),

@@ -373,3 +373,22 @@ def test_importing_the_door_leaves_the_diagnosis_and_inference_layers_out():
     ).stdout.split("\n")
     assert out[0] == "[]"
     assert out[1] == "True True"
+
+
+def test_a_failed_solve_has_zero_signals_and_a_finite_gradient():
+    """A solve stopped by max_steps leaves non-finite states behind its last step; the sensor
+    outputs read them as zero, so neither the signals nor their gradient holds a NaN (a
+    likelihood masks the failed run and must still differentiate)."""
+    config = SolverConfig(dt=1.0 / 4096, max_steps=40)
+    ts = sample_times(0.05)
+
+    def energy(k):
+        p = DoorParameters(**{**OPT.to_dict(), "K": k})
+        signals, status = solve(make_args(p, CASES["D2"], 0.45), ts, config)
+        return jnp.sum(signals**2), status
+
+    (value, status), grad = jax.jit(jax.value_and_grad(energy, has_aux=True))(
+        jnp.asarray(float(OPT.K))
+    )
+    assert int(status) == 1
+    assert float(value) == 0.0 and np.isfinite(float(grad))

@@ -234,3 +234,42 @@ def test_a_wheel_of_one_tone_has_the_rail_as_an_alternative_and_a_comb_has_none(
     assert words.startswith("rail_waviness:") and "2 pi R / 6 = 31.42 mm" in words
     assert recipe.alternatives({"label": 2, "labels_found": (2, 4)}) == ()
     assert recipe.alternatives({"label": 2}) != ()
+
+
+@pytest.mark.parametrize("with_local", [False, True])
+def test_a_gains_profile_grid_scored_at_once_equals_one_point_at_a_time(with_local):
+    """The gain's profile grid is scored in one pass (:func:`_channel_lpds`): every point's
+    density must be the one :func:`estimate_discrepancy` and :func:`log_predictive` give it
+    alone, to the last digit, so that the refit does not depend on how it is batched."""
+    from bayesdoor.diagnose._gain import estimate_discrepancy, log_predictive
+    from bayesdoor.diagnose._refit import SMOOTH_BINS, Spectra, _channel_lpds
+
+    rng = np.random.default_rng(3)
+    runs, channels, freqs = 5, 4, 90
+    local = None
+    if with_local:
+        local = np.zeros((channels, freqs), dtype=bool)
+        local[:, 40:47] = True
+        local[2] = True  # a channel local everywhere
+    spectra = Spectra(
+        fs=2048.0,
+        t_start=np.zeros(runs),
+        t_stop=np.ones(runs),
+        nperseg=2048,
+        keep=np.arange(freqs),
+        freqs=np.arange(freqs, dtype=float),
+        measured=rng.normal(-4.0, 0.5, (runs + 2, channels, freqs)),
+        log_variance=rng.uniform(0.005, 0.02, runs + 2),
+        local=local,
+    )
+    train = np.array([0, 2, 3, 5, 6])
+    models = rng.normal(-4.0, 0.5, (11, runs, freqs))
+    for channel in (0, 2):
+        batched = _channel_lpds(spectra, models, train, channel)
+        y = spectra.measured[train][:, channel : channel + 1]
+        lv = spectra.log_variance[train]
+        near = None if local is None else local[channel : channel + 1]
+        for row, model in enumerate(models):
+            m = model[:, None, :]
+            disc = estimate_discrepancy(m, y, lv, SMOOTH_BINS, local=near)
+            assert batched[row] == float(log_predictive(m, y, lv, disc).sum())

@@ -30,7 +30,7 @@ from .._types import Array, Bool, Float, Int
 from ..features import windowed_log_psd
 from ..inference import minimize_cmaes
 from ..inference._surrogate import map_padded_chunks
-from ._gain import estimate_discrepancy, log_predictive
+from ._gain import Discrepancy, estimate_discrepancy, log_predictive
 
 if TYPE_CHECKING:
     from ..systems import AbstractSystem
@@ -829,11 +829,31 @@ def _channel_lpd(
 ) -> float:
     """Training log predictive density of one channel's model spectra (its discrepancy
     estimated on that channel alone, as :func:`_profile_lpd` estimates every channel's)."""
-    y, lv = spectra.measured[runs][:, channel : channel + 1], spectra.log_variance[runs]
-    local = None if spectra.local is None else spectra.local[channel : channel + 1]
-    m = model[:, None, :]
-    disc = estimate_discrepancy(m, y, lv, SMOOTH_BINS, local=local)
-    return float(log_predictive(m, y, lv, disc).sum())
+    return float(_channel_lpds(spectra, model[None], runs, channel)[0])
+
+
+def _channel_lpds(
+    spectra: Spectra, models: Float[np.ndarray, "row run freq"], runs: np.ndarray, channel: int
+) -> Float[np.ndarray, " row"]:
+    """:func:`_channel_lpd` of every row of ``models`` in one pass.
+
+    The discrepancy's estimate treats each channel on its own, so the rows stand on the
+    channel axis of one estimate, and each row's density is its own channel's sum: the same
+    arithmetic in the same order as one row at a time.
+    """
+    rows = models.shape[0]
+    y1 = spectra.measured[runs][:, channel : channel + 1]
+    lv = spectra.log_variance[runs]
+    local = None
+    if spectra.local is not None:
+        local = np.repeat(spectra.local[channel : channel + 1], rows, axis=0)
+    stacked = np.moveaxis(models, 0, 1)  # (run, row, freq): each row a channel
+    disc = estimate_discrepancy(stacked, np.repeat(y1, rows, axis=1), lv, SMOOTH_BINS, local=local)
+    # back to one channel per row, the rows as a leading population axis
+    per_row = Discrepancy(
+        smooth=disc.smooth[:, None, None, :], variance=disc.variance[:, None, None, :]
+    )
+    return log_predictive(models[:, :, None, :], y1, lv, per_row).sum(axis=1)
 
 
 def _profile_gain(
@@ -864,7 +884,8 @@ def _profile_gain(
         np.clip(np.concatenate([-hi * _GAIN_GRID[::-1], [0.0], hi * _GAIN_GRID]), lo, hi)
     )
     grid = np.unique(np.concatenate([grid, np.clip(-lo * _GAIN_GRID, lo, hi)]))
-    values = np.array([lpd(s) for s in grid])
+    curves = a[None] + 2.0 * grid[:, None, None] * b[None] + grid[:, None, None] ** 2 * c[None]
+    values = _channel_lpds(spectra, np.log10(np.maximum(curves, tiny)), runs, channel)
     i = int(np.argmax(values))
     left, right = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
     if right > left:

@@ -1003,23 +1003,33 @@ def _judge(run: _Run) -> None:
 
 def _limits(run: _Run) -> None:
     """Every catalogue cause's smallest size the rule names with the stated power in these
-    runs (:func:`detection_limits`)."""
-    assert run.setup is not None
-    for name in cause_sizes(run.catalogue, run.band):
+    runs (:func:`detection_limits`), ``workers`` causes at once (each has its own draws from
+    the same seed, so the limits do not depend on it)."""
+    setup = run.setup
+    assert setup is not None
+
+    def limit(name: str) -> tuple[Mapping[str, CauseLimit], str | None]:
         try:
-            run.limits.update(
-                detection_limits(
-                    run.setup,
-                    run.catalogue,
-                    power=LIMIT_POWER,
-                    draws=run.settings.limit_draws,
-                    seed=run.seed,
-                    causes=(name,),
-                    band=run.band,
-                )
+            found = detection_limits(
+                setup,
+                run.catalogue,
+                power=LIMIT_POWER,
+                draws=run.settings.limit_draws,
+                seed=run.seed,
+                causes=(name,),
+                band=run.band,
             )
         except (ValueError, RuntimeError) as err:
-            run.notes.append(f"{name}: its detection limit could not be computed ({err})")
+            return {}, f"{name}: its detection limit could not be computed ({err})"
+        return found, None
+
+    names = list(cause_sizes(run.catalogue, run.band))
+    with ThreadPoolExecutor(max(1, min(run.settings.workers, len(names)))) as pool:
+        done = list(pool.map(limit, names))
+    for found, note in done:
+        run.limits.update(found)
+        if note is not None:
+            run.notes.append(note)
 
 
 #: the steps of :func:`diagnose_campaign`, in order

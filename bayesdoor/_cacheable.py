@@ -17,6 +17,9 @@ from __future__ import annotations
 import contextlib
 import threading
 from collections.abc import Iterator
+from typing import Any
+
+import equinox as eqx
 
 _LOCK = threading.RLock()
 
@@ -49,3 +52,21 @@ def errors_as_nan() -> Iterator[None]:
             yield
         finally:
             _errors.EQX_ON_ERROR = before
+
+
+def error_if(x: Any, pred: Any, msg: str) -> Any:
+    """``eqx.error_if`` that follows :func:`errors_as_nan`: NaN inside the context, raise
+    outside.
+
+    Equinox keys the trace of its check by the arguments' shapes and the ``on_error`` it is
+    given, not by the setting in force: a check traced outside the context (say on a measured
+    record, eagerly) would be reused, callback and all, by a program traced inside it. Naming
+    ``on_error="nan"`` inside the context gives those programs a check of their own.
+    """
+    try:
+        from equinox import _errors
+
+        inside = getattr(_errors, "EQX_ON_ERROR", None) == "nan"
+    except ImportError:  # pragma: no cover - equinox reorganised
+        inside = False
+    return eqx.error_if(x, pred, msg, on_error="nan" if inside else "default")  # type: ignore[call-arg]

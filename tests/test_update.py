@@ -487,3 +487,51 @@ def test_posterior_covers_the_rigs_stiffness_and_mass_factor(demo_fit):
     for name in EFFECTIVE:
         q5, q95, _ = rows[name]
         assert q5 <= truth[name] <= q95, name
+
+
+def _toy_data():
+    toy = ToySystem()
+    speeds = np.array([0.3, 0.5, 0.3, 0.5])
+    values = {"k": np.full(4, 0.5), "m": np.ones(4), "law": np.full(4, 2.0)}
+    signals = np.asarray(toy.simulate_values(values, speeds).signals)
+    campaign = make_campaign(
+        signals,
+        channels=["X", "Z"],
+        fs=FS,
+        state=["healthy"] * 4,
+        v_max=speeds,
+        t_start=np.full(4, REST),
+        t_stop=np.full(4, DURATION),
+        system="toy",
+    )
+    data, duration = campaign_data(toy, campaign, [0, 1, 2, 3], max_motion_s=0.5)
+    return toy, data, duration, signals
+
+
+def test_the_fits_population_program_holds_no_host_callback_so_it_can_be_cached():
+    """The population's simulation and features are traced without equinox's run-time
+    checks (a callback keeps JAX from caching the program: compiled again in every process),
+    also when the same checks of the same shapes were traced eagerly before, on measured
+    records; a failed check gives NaN features, which ``ok`` reports."""
+    from bayesdoor.inference._features import FeatureSpec
+    from bayesdoor.inference._update import _Population, _simulate_chunk
+
+    toy, data, duration, signals = _toy_data()
+    spec = FeatureSpec()
+    # the measured records' features first, eagerly, as campaign_data computes them
+    run_features(jnp.asarray(signals), FS, jnp.full(4, REST), jnp.full(4, DURATION), spec)
+    population = _Population.build(toy, data, duration, spec)
+    x = jnp.asarray([[0.5, 1.0, 2.0], [0.52, 1.0, 2.0]])
+    text = _simulate_chunk.lower(population, x).as_text()
+    assert "callback" not in text
+    features, ok = _simulate_chunk(population, x)
+    assert np.all(np.asarray(ok)) and np.all(np.isfinite(np.asarray(features)))
+
+
+def test_a_simulated_window_without_a_whole_welch_segment_is_refused_up_front():
+    from bayesdoor.inference._features import FeatureSpec
+    from bayesdoor.inference._update import _Population
+
+    toy, data, duration, _ = _toy_data()
+    with pytest.raises(ValueError, match="no segment of nperseg=1024 lies inside"):
+        _Population.build(toy, data, duration, FeatureSpec(nperseg=1024))

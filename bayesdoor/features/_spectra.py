@@ -8,6 +8,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .._cacheable import error_if
 from .._types import Array, Float
 from ._welch import welch_psd
 
@@ -78,7 +79,7 @@ def band_features(
     f = jnp.asarray(freqs, dtype=psd.dtype)[:, None]
     member = (f >= lower) & ((f < upper) | (last & (f == upper)))
     member = member.astype(psd.dtype)
-    counts = eqx.error_if(
+    counts = error_if(
         jnp.sum(member, axis=0),
         jnp.sum(member, axis=0) == 0,
         "a frequency band holds no PSD bin: widen the bands or use a finer resolution (nperseg)",

@@ -10,13 +10,13 @@ from __future__ import annotations
 from types import ModuleType
 from typing import TypeVar
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.signal
 from jaxtyping import Complex
 
+from .._cacheable import error_if
 from .._types import Array, Float
 
 #: numpy arrays in give numpy arrays out, JAX arrays JAX arrays
@@ -133,7 +133,7 @@ def _average(power, segment_weights, layout: tuple[int, int, int | None, int], x
         "(a) the window is shorter than nperseg, (b) t_start/t_stop lie outside the record"
     )
     if xp is jnp:
-        total = eqx.error_if(total, total <= 0, message)
+        total = error_if(total, total <= 0, message)
     elif np.any(total <= 0):
         raise ValueError(message)
     return xp.sum(w[..., None] * power, axis=-2) / total

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.stats import qmc
 
+from .._cacheable import errors_as_nan
 from .._types import Array, Float
 from ._likelihood import AbstractForward, ForwardOutput
 
@@ -123,7 +124,10 @@ def box_around(
 
 @eqx.filter_jit
 def _batched(forward: AbstractForward, thetas: Float[Array, "design param"]) -> ForwardOutput:
-    return jax.vmap(forward)(thetas)
+    # without host callbacks, so that the program enters the persistent cache (a failed check
+    # gives NaN outputs, which the design treats as a failed simulation)
+    with errors_as_nan():
+        return jax.vmap(forward)(thetas)
 
 
 def box_from_samples(

@@ -34,6 +34,7 @@ import numpy as np
 import xarray as xr
 from numpyro.infer import Predictive
 
+from .._cacheable import errors_as_nan
 from .._types import Array, Bool, Float, Int
 from ..features import motion_window as detect_motion_window
 from ..features import objective_j, segment_weights
@@ -466,12 +467,34 @@ class _Population(eqx.Module):
         cls, system: AbstractSystem, data: CalibrationData, duration: float, spec: FeatureSpec
     ) -> _Population:
         t_start, t_stop = system.motion_window(np.asarray(data.operating), duration=duration)
+        horizon = simulation_horizon(system, data, duration, spec)
+        # the simulations' features are traced without run-time checks (_simulate_chunk): a
+        # window that holds no Welch segment is refused here, with the check's own words
+        fs = system.sampling_rate_hz
+        counts = np.asarray(
+            segment_weights(
+                round(horizon * fs),
+                fs,
+                jnp.asarray(t_start),
+                jnp.asarray(t_stop),
+                spec.nperseg,
+                spec.noverlap,
+            )
+        ).sum(axis=-1)
+        if np.any(counts < 1):
+            bad = int(np.argmin(counts))
+            raise ValueError(
+                f"segment_weights sum to zero for operating point {bad}: no segment of "
+                f"nperseg={spec.nperseg} lies inside its simulated motion window "
+                f"[{float(np.ravel(t_start)[bad]):.3f}, {float(np.ravel(t_stop)[bad]):.3f}] s of "
+                f"a {horizon:.3f} s record"
+            )
         return cls(
             system,
             data.operating,
             jnp.asarray(t_start),
             jnp.asarray(t_stop),
-            simulation_horizon(system, data, duration, spec),
+            horizon,
             spec,
         )
 
@@ -501,7 +524,11 @@ class _Population(eqx.Module):
 def _simulate_chunk(
     population: _Population, x: Float[Array, "pop param"]
 ) -> tuple[Float[Array, "pop op channel band"], Bool[Array, " pop"]]:
-    return population(x)
+    # traced without host callbacks, so that the program enters the persistent cache: a
+    # check that fails gives NaN features, which ``ok`` reports as a failed simulation (the
+    # windows are checked when the population is built)
+    with errors_as_nan():
+        return population(x)
 
 
 def _simulate(

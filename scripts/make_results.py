@@ -148,6 +148,13 @@ STEPS: tuple[Step, ...] = (
         out=("--results", "diagnosis_limits_hum.md"),
     ),
     Step(
+        "performance",
+        "benchmarks/bench_job.py",
+        args=("--warm-up",),
+        quick_args=(),
+        out=("--results", "performance.md"),
+    ),
+    Step(
         "solver_tolerance",
         "scripts/solver_tolerance.py",
         quick_args=("--speeds", "2", "--repeats", "1"),

@@ -150,21 +150,7 @@ def test_welch_j_standard_error_is_the_scatter_of_a_perfect_models_j_under_welch
 def test_the_solve_stops_after_the_last_segment_and_j_is_unchanged():
     """fit_campaign simulates only up to the last Welch segment inside the windows (here 1152
     of 1229 samples: 0.5 s of motion after 0.1 s of rest); its J equals J from full records."""
-    toy = ToySystem()
-    rng = np.random.default_rng(0)
-    speeds = np.array([0.3, 0.5, 0.3, 0.5])
-    values = {"k": 0.5 + 0.02 * rng.standard_normal(4), "m": np.ones(4), "law": np.full(4, 2.0)}
-    signals = np.asarray(toy.simulate_values(values, speeds).signals)
-    campaign = make_campaign(
-        signals,
-        channels=["X", "Z"],
-        fs=FS,
-        state=["healthy"] * 4,
-        v_max=speeds,
-        t_start=np.full(4, REST),
-        t_stop=np.full(4, DURATION),
-        system="toy",
-    )
+    toy, campaign = _toy_campaign([0.3, 0.5, 0.3, 0.5])
     settings = FitSettings(max_motion_s=0.5, cmaes_max_evals=40, cmaes_restarts=0)
     fit = fit_campaign(toy, campaign, method="cmaes", settings=settings, progress=False)
     data, duration = campaign_data(toy, campaign, [0, 1, 2, 3], max_motion_s=0.5)
@@ -180,11 +166,14 @@ def test_the_solve_stops_after_the_last_segment_and_j_is_unchanged():
     np.testing.assert_allclose(fit.j, float(np.mean(objective_j(sim, data.y))), rtol=1e-12)
 
 
-def _toy_campaign(speeds, seed=0):
+def _toy_campaign(speeds, seed=0, k=None):
+    """Healthy toy runs at ``speeds``, their stiffness ``k`` (default: 0.5 scattered by 0.02
+    with ``seed``): the system and the campaign."""
     toy = ToySystem()
-    rng = np.random.default_rng(seed)
     n = len(speeds)
-    values = {"k": 0.5 + 0.02 * rng.standard_normal(n), "m": np.ones(n), "law": np.full(n, 2.0)}
+    if k is None:
+        k = 0.5 + 0.02 * np.random.default_rng(seed).standard_normal(n)
+    values = {"k": np.asarray(k, dtype=float), "m": np.ones(n), "law": np.full(n, 2.0)}
     signals = np.asarray(toy.simulate_values(values, np.asarray(speeds)).signals)
     return toy, make_campaign(
         signals,
@@ -490,20 +479,8 @@ def test_posterior_covers_the_rigs_stiffness_and_mass_factor(demo_fit):
 
 
 def _toy_data():
-    toy = ToySystem()
-    speeds = np.array([0.3, 0.5, 0.3, 0.5])
-    values = {"k": np.full(4, 0.5), "m": np.ones(4), "law": np.full(4, 2.0)}
-    signals = np.asarray(toy.simulate_values(values, speeds).signals)
-    campaign = make_campaign(
-        signals,
-        channels=["X", "Z"],
-        fs=FS,
-        state=["healthy"] * 4,
-        v_max=speeds,
-        t_start=np.full(4, REST),
-        t_stop=np.full(4, DURATION),
-        system="toy",
-    )
+    toy, campaign = _toy_campaign([0.3, 0.5, 0.3, 0.5], k=np.full(4, 0.5))
+    signals = campaign["acceleration"].values
     data, duration = campaign_data(toy, campaign, [0, 1, 2, 3], max_motion_s=0.5)
     return toy, data, duration, signals
 

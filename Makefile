@@ -5,6 +5,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 
 $(BIN)/bayesdoor: pyproject.toml
+	@$(PY) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)' 2>/dev/null || \
+		{ echo "error: bayesdoor needs Python 3.11 or newer; $(PY) is $$($(PY) --version 2>&1 || echo missing): run make PY=python3.11 (or newer)"; exit 1; }
 	@echo "installing bayesdoor and its dependencies into $(VENV) (first use only, a few minutes)"
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip

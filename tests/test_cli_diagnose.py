@@ -130,7 +130,7 @@ def test_json_alone_on_stdout_and_both_files_under_out(calls, campaign, tmp_path
     assert sorted(p.name for p in out.iterdir()) == ["diagnosis.html", "diagnosis.json"]
     on_disk = json.loads((out / "diagnosis.json").read_text())
     assert on_disk["causes"] == payload["causes"] and on_disk["report"] == "diagnosis.html"
-    # the options reach the diagnosis; without --posterior it fits itself
+    # the options reach the diagnosis; without --model it fits itself
     (call,) = calls
     assert (call.seed, call.quick, call.fit) == (3, True, None)
     assert call.system.name == ElevatorDoor().name
@@ -207,26 +207,26 @@ def test_an_out_that_is_a_file_is_refused(calls, campaign, tmp_path):
 def test_bad_posterior_folders_fail_in_one_line(calls, campaign, tmp_path):
     out = tmp_path / "diag"
     one_line_failure(
-        invoke("diagnose", campaign, "--out", out, "--posterior", tmp_path / "none"),
+        invoke("diagnose", campaign, "--out", out, "--model", tmp_path / "none"),
         "no such folder",
     )
     empty = tmp_path / "empty"
     empty.mkdir()
     one_line_failure(
-        invoke("diagnose", campaign, "--out", out, "--posterior", empty), "holds no fit.json"
+        invoke("diagnose", campaign, "--out", out, "--model", empty), "holds no fit.json"
     )
     laws = tmp_path / "laws"  # bayesdoor fit --each I
     for i in (1, 2):
         (laws / f"I_{i}").mkdir(parents=True)
         (laws / f"I_{i}" / "fit.json").write_text("{}")
     one_line_failure(
-        invoke("diagnose", campaign, "--out", out, "--posterior", laws),
+        invoke("diagnose", campaign, "--out", out, "--model", laws),
         "holds several fits, one per value of a parameter (I_1, I_2)",
         str(laws / "I_1"),
     )
     broken = laws / "I_1"
     one_line_failure(
-        invoke("diagnose", campaign, "--out", out, "--posterior", broken), "cannot be read"
+        invoke("diagnose", campaign, "--out", out, "--model", broken), "cannot be read"
     )
     assert not out.exists() and calls == []
 
@@ -246,7 +246,7 @@ def fake_fit_folder(tmp_path, monkeypatch, point):
 
 def test_a_posterior_of_another_system_is_refused(calls, campaign, tmp_path, monkeypatch):
     folder, _ = fake_fit_folder(tmp_path, monkeypatch, {"k": 0.5, "m": 1.0})
-    result = invoke("diagnose", campaign, "--out", tmp_path / "diag", "--posterior", folder)
+    result = invoke("diagnose", campaign, "--out", tmp_path / "diag", "--model", folder)
     one_line_failure(result, "another system", "'k'", "missing")
     assert calls == []
 
@@ -255,7 +255,7 @@ def test_a_posterior_of_the_system_is_reused(calls, campaign, tmp_path, monkeypa
     point = ElevatorDoor().nominal()
     folder, fit = fake_fit_folder(tmp_path, monkeypatch, point)
     out = tmp_path / "diag"
-    result = invoke("diagnose", campaign, "--out", out, "--posterior", folder, "--json")
+    result = invoke("diagnose", campaign, "--out", out, "--model", folder, "--json")
     assert result.exit_code == 0, result.output
     assert calls[0].fit is fit
     assert json.loads(result.stdout)["posterior"] == str(folder)
@@ -410,7 +410,7 @@ def test_diagnose_quick_end_to_end_on_rig_runs(rig_file, tmp_path):
     assert [c["name"] for c in payload["causes"]] and set(
         c["name"] for c in payload["causes"]
     ) <= names
-    assert "fit" in payload["timings"]  # no --posterior: fitted here
+    assert "fit" in payload["timings"]  # no --model: fitted here
     page = (out / "diagnosis.html").read_text()
     assert len(images(page)) >= 1 and "Where the model is wrong" in page
 
@@ -423,7 +423,7 @@ def test_diagnose_reuses_the_fit_of_bayesdoor_fit(rig_file, tmp_path):
     assert fitted.exit_code == 0, fitted.output
     out = tmp_path / "diag"
     result = invoke(
-        "diagnose", rig_file, "--posterior", tmp_path / "fit", "--out", out, "--quick", "--json"
+        "diagnose", rig_file, "--model", tmp_path / "fit", "--out", out, "--quick", "--json"
     )
     assert result.exit_code == 0, result.output
     payload = json.loads(result.stdout)

@@ -51,7 +51,7 @@ def test_the_plan_as_json(calls, posterior, tmp_path):
     folder, fit = posterior
     result = invoke(
         "plan", campaign, "--cause", "wheel_eccentricity", "--size", "15e-6",
-        "--posterior", folder, "--json",
+        "--model", folder, "--json",
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     payload = json.loads(result.stdout)
@@ -65,7 +65,7 @@ def test_the_plan_in_words(calls, posterior, tmp_path):
     campaign = door_file(tmp_path / "door.nc", ["healthy"] * 4)
     result = invoke(
         "plan", campaign, "--cause", "wheel_eccentricity", "--size", "15e-6",
-        "--posterior", posterior[0],
+        "--model", posterior[0],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "10 runs at each of 2 conditions" in result.stdout and "20 runs" in result.stdout
@@ -73,7 +73,42 @@ def test_the_plan_in_words(calls, posterior, tmp_path):
 
 def test_an_unknown_cause_is_refused_in_one_line(calls, posterior, tmp_path):
     campaign = door_file(tmp_path / "door.nc", ["healthy"] * 4)
-    result = invoke(
-        "plan", campaign, "--cause", "nothing", "--size", "1", "--posterior", posterior[0]
-    )
+    result = invoke("plan", campaign, "--cause", "nothing", "--size", "1", "--model", posterior[0])
     one_line_failure(result, "no cause 'nothing'")
+
+
+def test_a_run_jobs_folder_gives_its_fit_and_posterior_is_the_same_option(
+    calls, posterior, tmp_path
+):
+    """``--model`` takes the output folder of ``bayesdoor run`` (its fit under fit/result);
+    ``--posterior`` is the option's former name."""
+    campaign = door_file(tmp_path / "door.nc", ["healthy"] * 4)
+    folder, fit = posterior
+    job = tmp_path / "job"
+    (job / "fit").mkdir(parents=True)
+    folder.rename(job / "fit" / "result")
+    for option, path in (("--model", job), ("--posterior", job / "fit" / "result")):
+        result = invoke(
+            "plan", campaign, "--cause", "wheel_eccentricity", "--size", "15e-6",
+            option, path, "--json",
+        )  # fmt: skip
+        assert result.exit_code == 0, result.output
+    assert [c.fit for c in calls] == [fit, fit]
+
+
+@pytest.mark.parametrize("quick", [True, False])
+def test_without_a_model_the_plan_fits_here_at_the_sizes_asked(calls, tmp_path, monkeypatch, quick):
+    fits = []
+
+    def fit_campaign(system, campaign, **kwargs):
+        fits.append(kwargs)
+        return SimpleNamespace(point=system.nominal())
+
+    monkeypatch.setattr("bayesdoor.inference.fit_campaign", fit_campaign)
+    campaign = door_file(tmp_path / "door.nc", ["healthy"] * 4)
+    flags = ["--quick"] if quick else []
+    result = invoke(
+        "plan", campaign, "--cause", "wheel_eccentricity", "--size", "15e-6", "--json", *flags
+    )
+    assert result.exit_code == 0, result.output
+    assert fits[0]["quick"] is quick and fits[0]["method"] == "cmaes"

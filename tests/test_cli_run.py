@@ -211,3 +211,25 @@ def test_the_summary_says_whether_the_posterior_passed_its_gates():
     console = Console(record=True, width=200)
     print_summary(_payload(None), console)
     assert "sampling gates" not in console.export_text()
+
+
+def test_demo_passes_the_jobs_options_on(tmp_path, monkeypatch):
+    """``demo`` takes ``run``'s job options, with its defaults (docs/cli.md)."""
+    import bayesdoor.cli._run as run_module
+    import bayesdoor.systems as systems
+
+    seen = []
+    campaign = object()
+    shipped = type(
+        "Shipped", (), {"cached_path": lambda self: tmp_path, "load": lambda self, **k: campaign}
+    )()
+    monkeypatch.setattr(systems, "get_demo", lambda name: shipped)
+    monkeypatch.setattr(run_module, "run", lambda c, out, **kwargs: seen.append((c, kwargs)))
+    args = ["demo", "--out", str(tmp_path / "d"), "--json"]
+    assert runner.invoke(app, args).exit_code == 0
+    more = ["--method", "cmaes", "--source", "gaussian", "--extend"]
+    assert runner.invoke(app, args + more).exit_code == 0
+    (first, default), (_, chosen) = seen
+    assert first is campaign
+    assert (default["method"], default["source"], default["extend"]) == ("nuts", None, False)
+    assert (chosen["method"], chosen["source"], chosen["extend"]) == ("cmaes", "gaussian", True)

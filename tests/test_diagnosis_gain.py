@@ -252,8 +252,8 @@ def test_diagnose_refuses_a_posterior_of_an_extended_door(base_fit, tmp_path, mo
     held = HeldExtension(extended, (("sensor_cross_axis.fraction", 0.1),))
     dataclasses.replace(base_fit, system=held.describe()).save(tmp_path / "fit")
     # the held fit has the base door's parameter names: only its description tells it apart
-    result = invoke("diagnose", campaign, "--out", tmp_path / "d", "--posterior", tmp_path / "fit")
-    refused(result, "--posterior", "held at {'sensor_cross_axis.fraction': 0.1}")
+    result = invoke("diagnose", campaign, "--out", tmp_path / "d", "--model", tmp_path / "fit")
+    refused(result, "--model", "held at {'sensor_cross_axis.fraction': 0.1}")
     assert not (tmp_path / "d" / "diagnosis.json").exists()
 
 

@@ -31,6 +31,29 @@ app = typer.Typer(
 )
 _err = Console(stderr=True)
 
+#: the metavar of every NAME=VALUE option
+ASSIGNMENT = "NAME=VALUE"
+
+
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        typer.echo(f"bayesdoor {version('bayesdoor')}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", callback=_version, is_eager=True, help="print the version and exit"
+        ),
+    ] = False,
+) -> None:
+    """Probabilistic model updating and damage classification of mechanical systems."""
+
 
 def _progress(quiet: bool):
     @contextlib.contextmanager
@@ -55,12 +78,18 @@ def simulate(
     out: Annotated[Path, typer.Option("--out", help="campaign file to write (.nc)")],
     system: Annotated[str, typer.Option("--system", help="the system's registered name")],
     state: Annotated[
-        list[str], typer.Option("--state", help="a state of the system; repeat for several runs")
+        list[str],
+        typer.Option(
+            "--state",
+            help="a state of the system, one run each; repeat for several runs (the default: "
+            "one healthy run, as a simulation needs a state)",
+        ),
     ] = ["healthy"],  # noqa: B006
     condition: Annotated[
         list[str],
         typer.Option(
             "--condition",
+            metavar=ASSIGNMENT,
             help="an operating condition, NAME=VALUE (all runs) or NAME=V1,V2,... (one per "
             "--state); repeat for each of the system's conditions",
         ),
@@ -68,13 +97,19 @@ def simulate(
     seed: Annotated[int, typer.Option(help="seed of the damage severity draws")] = 0,
     param: Annotated[
         list[str],
-        typer.Option("--param", help="override a parameter's reference value, NAME=VALUE"),
+        typer.Option(
+            "--param",
+            metavar=ASSIGNMENT,
+            help="override a parameter's reference value, NAME=VALUE (repeatable)",
+        ),
     ] = [],  # noqa: B006
     force: Annotated[bool, typer.Option(help="overwrite an existing file")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
-    """Simulate runs of a system's model (its reference parameters unless --param) to a
-    campaign file."""
+    """Simulate runs of a system's model to a campaign file.
+
+    The model runs at its reference parameters unless --param overrides them.
+    """
     configure_jax()
     from ..io import save_campaign
     from ..systems import get_system
@@ -118,6 +153,40 @@ def simulate(
         _err.print(f"wrote {result['runs']} runs to {out}")
 
 
+#: the job's options, alike in ``run`` and ``demo``
+_Source = Annotated[
+    str | None,
+    typer.Option(
+        help="training parameters: posterior+model_error (the default with nuts or emcee), "
+        "posterior or gaussian (the default with cmaes)"
+    ),
+]
+_JobMethod = Annotated[
+    str,
+    typer.Option(
+        help="fit method: nuts (the default: the job draws its training data from the "
+        "posterior), emcee or cmaes"
+    ),
+]
+_Extend = Annotated[
+    bool,
+    typer.Option(
+        help="when the diagnosis names a cause, run the job again on the model extended by "
+        "it (in OUT/extended) and compare"
+    ),
+]
+#: a previous job's products, alike in every command that reuses them
+_Model = Annotated[
+    Path | None,
+    typer.Option(
+        "--model",
+        "--posterior",
+        help="the fit to use: the output folder of 'bayesdoor run' or the --out folder of "
+        "'bayesdoor fit' (else fit here)",
+    ),
+]
+
+
 @app.command()
 @on_interrupt(
     "the job was stopped before its first stage: nothing was written; run the same command again"
@@ -127,22 +196,10 @@ def run(
     out: Annotated[Path, typer.Option("--out", help="output folder of the job")],
     quick: Annotated[bool, typer.Option(help="small sizes: a first look in minutes")] = False,
     seed: Annotated[int, typer.Option(help="seed of the fit, the simulations and training")] = 0,
-    source: Annotated[
-        str | None,
-        typer.Option(
-            help="training parameters: posterior+model_error (the default with nuts or emcee), "
-            "posterior or gaussian (the default with cmaes)"
-        ),
-    ] = None,
-    method: Annotated[str, typer.Option(help="fit method: nuts, emcee or cmaes")] = "nuts",
+    source: _Source = None,
+    method: _JobMethod = "nuts",
     force: Annotated[bool, typer.Option(help="replace a finished job of other settings")] = False,
-    extend: Annotated[
-        bool,
-        typer.Option(
-            help="when the diagnosis names a cause, run the job again on the model extended by "
-            "it (in OUT/extended) and compare"
-        ),
-    ] = False,
+    extend: _Extend = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
     """The main job: fit, simulate training data, train, classify the test runs, report.
@@ -173,7 +230,14 @@ _DEMO_STOPPED = (
 @app.command()
 @on_interrupt(_DEMO_STOPPED)
 def demo(
-    out: Annotated[Path, typer.Option("--out", help="output folder")] = Path("out/demo"),
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            help="output folder of the job (the default: out/demo, as the demo has no campaign "
+            "file to name one after)",
+        ),
+    ] = Path("out/demo"),
     quick: Annotated[bool, typer.Option(help="small sizes: a first look in minutes")] = False,
     seed: Annotated[int, typer.Option(help="seed of the fit, the simulations and training")] = 0,
     force: Annotated[bool, typer.Option(help="replace a finished job of other settings")] = False,
@@ -181,6 +245,9 @@ def demo(
         str | None,
         typer.Option(help="the system whose demo campaign to use (default: the first shipped)"),
     ] = None,
+    source: _Source = None,
+    method: _JobMethod = "nuts",
+    extend: _Extend = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
     """`run` on a system's demo campaign (recorded by its virtual rig on first use)."""
@@ -229,10 +296,11 @@ def demo(
         out,
         quick=quick,
         seed=seed,
-        source=None,
-        method="nuts",
+        source=source,
+        method=method,
         force=force,
         json=json,
+        extend=extend,
     )
 
 
@@ -301,7 +369,12 @@ def classify(
 def inspect(
     path: Annotated[Path, typer.Argument(help="campaign: a NetCDF file or a folder of CSV files")],
     out: Annotated[
-        Path | None, typer.Option("--out", help="folder for the PSD plots and the summary")
+        Path | None,
+        typer.Option(
+            "--out",
+            help="folder for the PSD plots and the summary (the default: none, as the check "
+            "alone writes nothing)",
+        ),
     ] = None,
     force: Annotated[bool, typer.Option(help="overwrite previous plots in --out")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
@@ -315,6 +388,7 @@ def inspect(
         list[str],
         typer.Option(
             "--condition",
+            metavar=ASSIGNMENT,
             help="CSV folder without campaign.json: an operating condition, NAME=VALUE (one "
             "for all runs) or NAME=V1,V2,... (one per run); repeat for each condition",
         ),
@@ -324,7 +398,7 @@ def inspect(
         typer.Option(
             "--state",
             help="CSV folder without campaign.json: a state of the system or unknown, one or "
-            "one per run",
+            "one per run (the default: none, as measured runs may have no known state)",
         ),
     ] = [],  # noqa: B006
 ) -> None:
@@ -391,12 +465,18 @@ def inspect(
 def fit(
     path: Annotated[Path, typer.Argument(help="campaign NetCDF file")],
     out: Annotated[Path, typer.Option("--out", help="output folder")],
-    method: Annotated[str, typer.Option(help="cmaes, nuts or emcee")] = "cmaes",
+    method: Annotated[
+        str,
+        typer.Option(
+            help="fit method: cmaes (the default here: the point estimate, in seconds), or nuts "
+            "or emcee (the posterior, from CMA-ES's start)"
+        ),
+    ] = "cmaes",
     fix: Annotated[
         list[str] | None,
         typer.Option(
             "--fix",
-            metavar="NAME=VALUE",
+            metavar=ASSIGNMENT,
             help="hold a parameter at a value, e.g. --fix I=3 (repeatable; integer parameters "
             "not held are searched by CMA-ES)",
         ),
@@ -432,10 +512,7 @@ def fit(
 def diagnose(
     path: Annotated[Path, typer.Argument(help="campaign file (.nc)")],
     out: Annotated[Path, typer.Option("--out", help="folder for diagnosis.json and .html")],
-    posterior: Annotated[
-        Path | None,
-        typer.Option("--posterior", help="the --out folder of 'bayesdoor fit' (else fit here)"),
-    ] = None,
+    model: _Model = None,
     seed: Annotated[int, typer.Option(help="seed of the fit, the simulations and refits")] = 0,
     quick: Annotated[bool, typer.Option(help="small sizes (demos, tests; not converged)")] = False,
     force: Annotated[bool, typer.Option(help="overwrite a previous diagnosis in --out")] = False,
@@ -445,7 +522,7 @@ def diagnose(
     configure_jax()
     from ._diagnose import diagnose as run_diagnosis
 
-    run_diagnosis(path, out, posterior=posterior, seed=seed, quick=quick, force=force, json=json)
+    run_diagnosis(path, out, posterior=model, seed=seed, quick=quick, force=force, json=json)
 
 
 @app.command()
@@ -453,18 +530,19 @@ def plan(
     path: Annotated[Path, typer.Argument(help="campaign file (.nc)")],
     cause: Annotated[str, typer.Option("--cause", help="a catalogue cause (frame_mode, ...)")],
     size: Annotated[float, typer.Option("--size", help="its size, in the cause's unit")],
-    posterior: Annotated[
-        Path | None,
-        typer.Option("--posterior", help="the --out folder of 'bayesdoor fit' (else fit here)"),
-    ] = None,
+    model: _Model = None,
     configuration: Annotated[
         int, typer.Option(help="which of the cause's configurations (0: the typical one)")
     ] = 0,
     seed: Annotated[int, typer.Option(help="seed of the draws (and of a fit here)")] = 0,
+    quick: Annotated[bool, typer.Option(help="small sizes (demos, tests; not converged)")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
-    """The campaign (runs per condition, conditions, record length) that names a cause of
-    this size with 80 % probability, and its cost in runs."""
+    """The cheapest campaign that names a cause of this size with 80 % probability.
+
+    It states the runs per condition, the conditions and the record length, and its cost in
+    runs.
+    """
     configure_jax()
     from ._plan import plan as run_plan
 
@@ -472,8 +550,9 @@ def plan(
         path,
         cause=cause,
         size=size,
-        posterior=posterior,
+        posterior=model,
         configuration=configuration,
         seed=seed,
+        quick=quick,
         json=json,
     )

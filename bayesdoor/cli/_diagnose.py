@@ -16,7 +16,8 @@ _err = Console(stderr=True)
 
 
 def load_fit(folder: Path, system) -> Any:
-    """The fit saved by ``bayesdoor fit --out FOLDER``, checked against the campaign's system.
+    """The fit of ``--model FOLDER``: the --out folder of ``bayesdoor fit`` or the output
+    folder of ``bayesdoor run`` (its fit), checked against the campaign's system.
 
     Raises
     ------
@@ -28,30 +29,37 @@ def load_fit(folder: Path, system) -> Any:
     from ..inference import FitResult
 
     if not folder.is_dir():
-        raise fail(f"--posterior {folder}: no such folder; pass the --out folder of bayesdoor fit")
+        raise fail(
+            f"--model {folder}: no such folder; pass the output folder of bayesdoor run or "
+            "the --out folder of bayesdoor fit"
+        )
+    job_fit = folder / "fit" / "result"
+    if not (folder / "fit.json").is_file() and (job_fit / "fit.json").is_file():
+        folder = job_fit
     fits = sorted(p.name for p in folder.iterdir() if (p / "fit.json").is_file())
     if not (folder / "fit.json").is_file():
         if fits:
             raise fail(
-                f"--posterior {folder} holds several fits, one per value of a parameter "
-                f"({', '.join(fits)}): pass one of them, e.g. --posterior {folder / fits[0]}"
+                f"--model {folder} holds several fits, one per value of a parameter "
+                f"({', '.join(fits)}): pass one of them, e.g. --model {folder / fits[0]}"
             )
         raise fail(
-            f"--posterior {folder} holds no fit.json: pass the --out folder of bayesdoor fit"
+            f"--model {folder} holds no fit.json: pass the output folder of bayesdoor run or "
+            "the --out folder of bayesdoor fit"
         )
     try:
         fit = FitResult.load(folder)
     except (OSError, ValueError, KeyError, TypeError) as err:
         reason = str(err).replace("\n", " ")
-        raise fail(f"--posterior {folder}: the fit cannot be read ({reason}); refit it") from None
+        raise fail(f"--model {folder}: the fit cannot be read ({reason}); refit it") from None
     expected = set(system.parameter_names())
     found = set(fit.point)
     if found != expected:
         extra, missing = sorted(found - expected), sorted(expected - found)
         raise fail(
-            f"--posterior {folder} is a fit of another system (parameters not in "
+            f"--model {folder} is a fit of another system (parameters not in "
             f"{system.name}: {extra or 'none'}; missing: {missing or 'none'}): pass a fit of "
-            "this campaign's system, or leave out --posterior to fit here"
+            "this campaign's system, or leave out --model to fit here"
         )
     check_fit_system(fit, system, folder)
     return fit

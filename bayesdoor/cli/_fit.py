@@ -100,7 +100,7 @@ def check_fit_system(fit: Any, system: Any, folder: Path) -> None:
     if getattr(fit, "system", None) is None:
         return
     try:
-        FitResult.check_system(fit, system, source=f"--posterior {folder}: the fit")
+        FitResult.check_system(fit, system, source=f"--model {folder}: the fit")
     except ValueError as err:
         raise fail(str(err)) from None
 

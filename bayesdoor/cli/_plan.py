@@ -21,6 +21,7 @@ def plan(
     configuration: int,
     seed: int,
     json: bool,
+    quick: bool = False,
 ) -> None:
     """The ``plan`` command: load the campaign and its fit (or fit here), plan, print."""
     from ..diagnose import plan_campaign
@@ -32,8 +33,9 @@ def plan(
     system = system_named(campaign)
     if posterior is None:
         if not json:
-            _err.print(f"fitting {path.name} ({system.name}) first (a quick CMA-ES fit)")
-        fit = fit_campaign(system, campaign, method="cmaes", seed=seed, quick=True, progress=False)
+            kind = "a quick" if quick else "a"
+            _err.print(f"fitting {path.name} ({system.name}) first ({kind} CMA-ES fit)")
+        fit = fit_campaign(system, campaign, method="cmaes", seed=seed, quick=quick, progress=False)
     else:
         fit = load_fit(posterior, system)
     try:

@@ -4,16 +4,27 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-$(BIN)/bayesdoor: pyproject.toml
+$(BIN)/bayesdoor: pyproject.toml requirements.lock
 	@$(PY) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)' 2>/dev/null || \
 		{ echo "error: bayesdoor needs Python 3.11 or newer; $(PY) is $$($(PY) --version 2>&1 || echo missing): run make PY=python3.11 (or newer)"; exit 1; }
 	@echo "installing bayesdoor and its dependencies into $(VENV) (first use only, a few minutes)"
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(BIN)/python -m pip install --quiet -e ".[dev]" -c requirements.lock
 	touch $(BIN)/bayesdoor
 
-.PHONY: install demo test test-long lint bench results docs
+# the versions of a fresh install of pyproject's floors, as requirements.lock's constraints
+lock:
+	rm -rf .venv-lock
+	$(PY) -m venv .venv-lock
+	.venv-lock/bin/python -m pip install --quiet --upgrade pip
+	.venv-lock/bin/python -m pip install --quiet -e ".[dev]"
+	{ echo "# The versions the results were measured with: the constraints 'make install' installs from."; \
+	  echo "# pyproject.toml keeps the floors for library users. Regenerate with 'make lock'."; \
+	  .venv-lock/bin/python -m pip freeze --exclude-editable; } > requirements.lock
+	rm -rf .venv-lock
+
+.PHONY: install demo test test-long lint bench results docs lock
 install: $(BIN)/bayesdoor
 
 demo: install

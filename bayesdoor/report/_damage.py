@@ -23,7 +23,7 @@ import numpy as np
 from jaxtyping import Float
 from matplotlib.ticker import MaxNLocator
 
-from ..io import atomic_write
+from ..io import HEALTHY, atomic_write
 from . import _html as H
 from ._calibration import plot_reliability
 from ._psd import STATE_COLORS
@@ -53,22 +53,25 @@ def _fmt(value: Any, digits: int = 3) -> str:
 
 
 def probability_bars(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) -> bytes:
-    """Stacked class probabilities of every run, one panel per true state (paper, Figure 6)."""
+    """Stacked class probabilities of every run, one panel per true state (paper, Figure 6);
+    when no run's state is known, one panel per predicted state."""
     colors = _colors(classes)
     valid = [r for r in runs if r["probabilities"] is not None]
-    groups = [s for s in (*classes, "unknown") if any(r["state"] == s for r in valid)]
-    groups += sorted({r["state"] for r in valid} - set(groups))
+    known = any(r["state"] in classes for r in valid)
+    key = "state" if known else "predicted"
+    groups = [s for s in (*classes, "unknown") if any(r[key] == s for r in valid)]
+    groups += sorted({r[key] for r in valid} - set(groups))
     fig = _figure(11.5, 1.7 + 1.55 * max(len(groups), 1))
     axes = fig.subplots(max(len(groups), 1), 1, squeeze=False)[:, 0]
     for ax, group in zip(axes, groups, strict=False):
-        members = [r for r in valid if r["state"] == group]
+        members = [r for r in valid if r[key] == group]
         p = np.array([[r["probabilities"][c] for c in classes] for r in members])
         x = np.arange(len(members))
         bottom = np.zeros(len(members))
         for k, c in enumerate(classes):
             ax.bar(x, p[:, k], 1.0, bottom=bottom, color=colors[c], label=c, linewidth=0)
             bottom += p[:, k]
-        wrong = [i for i, r in enumerate(members) if r["predicted"] != group]
+        wrong = [i for i, r in enumerate(members) if known and r["predicted"] != group]
         if group in classes and wrong:
             ax.plot(wrong, np.full(len(wrong), 1.06), "v", color="black", ms=4, clip_on=False)
         ood = [i for i, r in enumerate(members) if r["ood"]]
@@ -78,14 +81,18 @@ def probability_bars(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) 
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylim(0, 1)
         ax.set_yticks([0, 0.5, 1])
-        label = f"true {group}" if group in classes else group
-        n_wrong = f", {len(wrong)} misclassified (black marks)" if group in classes else ""
+        if not known:
+            label, n_wrong = f"called {group}", ""
+        else:
+            label = f"true {group}" if group in classes else group
+            n_wrong = f", {len(wrong)} misclassified (black marks)" if group in classes else ""
         ax.set_title(f"{label}: {len(members)} runs{n_wrong}", fontsize=10, loc="left", pad=11)
         ax.set_ylabel("probability")
     axes[0].legend(
         ncol=len(classes), loc="lower right", bbox_to_anchor=(1, 1.12), frameon=False, fontsize=9
     )
-    axes[-1].set_xlabel("runs of each true state, in campaign order (orange marks: flagged OOD)")
+    what = "of each true state" if known else "called each state"
+    axes[-1].set_xlabel(f"runs {what}, in campaign order (orange marks: flagged OOD)")
     return H.png(fig, dpi=90)
 
 
@@ -428,6 +435,7 @@ def write_damage_report(
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     opening = [] if adequacy is None and trust is None else [trust_section(adequacy, trust)]
     parts = [
+        _answer_section(inputs, trust),
         *opening,
         *_summary(inputs),
         _probabilities_section(inputs),
@@ -443,6 +451,76 @@ def write_damage_report(
     _write_text(index, H.page(title, subtitle, "".join(parts)))
     _write_run_pages(folder / "runs", inputs, f"{title}, generated {stamp}")
     return index
+
+
+#: the runs the answer lists first, at most
+RUNS_TO_LOOK_AT = 10
+
+
+def _answer_section(inputs: _Inputs, trust: Mapping[str, Any] | None) -> str:
+    """The page's opening: how many runs were called each state, and the runs to look at
+    first (those called a fault, most probable first, and those the classifier cannot
+    vouch for), each linked to its page."""
+    classes, colors, valid = inputs.classes, inputs.colors, inputs.valid
+    counts = [
+        (f"called {c}", str(sum(1 for r in valid if r["predicted"] == c)), "") for c in classes
+    ]
+    if inputs.n_failed:
+        counts.append(("not classified", str(inputs.n_failed), "bad"))
+    if trust is not None and trust.get("verdict"):
+        verdict = str(trust["verdict"])
+        counts.append(("trust (below)", verdict, "good" if verdict == "trusted" else "bad"))
+    looked = sorted(
+        ((_concern(r, classes), r) for r in valid if _reasons(r, classes)),
+        key=lambda item: -item[0],
+    )
+    parts = [H.cards(counts)]
+    if not looked:
+        parts.append(H.note("No run was called a fault, and the classifier vouches for every one."))
+        return H.section("What the runs were called", *parts)
+    rows = [
+        [
+            f'<a href="runs/{_run_file(r["run"])}">{r["run"]}</a>',
+            _tag(r["predicted"], colors),
+            f"{r['probabilities'][r['predicted']]:.3f}",
+            html.escape("; ".join(_reasons(r, classes))),
+        ]
+        for _, r in looked[:RUNS_TO_LOOK_AT]
+    ]
+    more = len(looked) - RUNS_TO_LOOK_AT
+    caption = (
+        f"The {min(len(looked), RUNS_TO_LOOK_AT)} runs to look at first, of {len(looked)} called "
+        "a fault or not vouched for: the most probably faulty first"
+        + (f"; the other {more} are in the table of every run below." if more > 0 else ".")
+    )
+    parts += [
+        H.note(caption),
+        H.table(["run", "called", "probability", "why"], rows, left=1, raw=True),
+    ]
+    return H.section("What the runs were called", *parts)
+
+
+def _concern(run: Mapping[str, Any], classes: Sequence[str]) -> float:
+    """The probability that the run is not healthy (without a healthy class: that it is not
+    what it was called)."""
+    p = run["probabilities"]
+    if HEALTHY in classes:
+        return 1.0 - float(p[HEALTHY])
+    return 1.0 - float(p[run["predicted"]])
+
+
+def _reasons(run: Mapping[str, Any], classes: Sequence[str]) -> list[str]:
+    """Why a classified run is worth a look (none: called healthy, and vouched for)."""
+    reasons = []
+    if HEALTHY in classes and run["predicted"] != HEALTHY:
+        reasons.append(f"called {run['predicted']}")
+    if run["ood"]:
+        reasons.append("unlike every simulated state (OOD)")
+    if run.get("uncertain"):
+        reasons.append("uncertain")
+    if run.get("corroborated") is False:
+        reasons.append("its signal does not back the call")
+    return reasons
 
 
 def _summary(inputs: _Inputs) -> list[str]:
@@ -497,9 +575,15 @@ def _probabilities_section(inputs: _Inputs) -> str:
         H.img(
             probability_bars(inputs.runs, inputs.classes),
             "probability bars",
-            "Stacked calibrated probabilities of each run, grouped by true state (as in the "
-            "paper's Figure 6). A bar entirely in the colour of its panel's state is a "
-            "confident, correct prediction.",
+            (
+                "Stacked calibrated probabilities of each run, grouped by true state (as in the "
+                "paper's Figure 6). A bar entirely in the colour of its panel's state is a "
+                "confident, correct prediction."
+                if any(r["state"] in inputs.classes for r in inputs.valid)
+                else "Stacked calibrated probabilities of each run, grouped by the state it was "
+                "called (no run's true state is known). A bar entirely in the colour of its "
+                "panel's state is a confident call."
+            ),
         ),
     )
 

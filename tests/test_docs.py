@@ -9,6 +9,7 @@ with the reason.
 import importlib
 import inspect
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -123,3 +124,15 @@ def test_griffe_extension_matches_the_constructors_equinox_generates():
         assert static == runtime, f"{package}.{name}: documented {static}, equinox {runtime}"
         checked += 1
     assert checked > 20
+
+
+def test_the_guides_speak_in_the_present_tense():
+    """Guides say what the product does; how it came to be lives in git log."""
+    narration = re.compile(r"before this change|first version|we tried|was tried", re.IGNORECASE)
+    found = [
+        f"{page.relative_to(ROOT)}:{number}: {line.strip()}"
+        for page in sorted([*DOCS.glob("**/*.md"), ROOT / "README.md"])
+        for number, line in enumerate(page.read_text().splitlines(), 1)
+        if narration.search(line)
+    ]
+    assert not found, "\n".join(found)

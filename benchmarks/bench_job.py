@@ -104,16 +104,24 @@ def _stage_windows(events: list[tuple[float, str]]) -> dict[str, tuple[float, fl
 
 
 def _commit() -> str:
-    try:
+    """The commit measured; ``+changes`` when the code measured (the package, the
+    benchmarks) differs from it."""
+
+    def git(*args: str) -> str:
         return subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
+            ["git", *args],
             capture_output=True,
             text=True,
             check=True,
             cwd=Path(__file__).resolve().parent,
         ).stdout.strip()
+
+    try:
+        commit = git("rev-parse", "--short", "HEAD")
+        changed = git("status", "--porcelain", "--untracked-files=no", "--", "../bayesdoor", ".")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
+    return f"{commit}+changes" if changed else commit
 
 
 def _load() -> list[float]:

@@ -31,5 +31,7 @@ def test_the_quick_demo_answers_none_on_a_campaign_with_nothing_hidden(tmp_path)
     assert not any(c.get("confirmed") for c in payload["diagnosis"]["causes"])
     # the classification of the 300 rig test runs, trained on simulations only
     assert payload["metrics"]["accuracy"] > 0.9
+    # quick means small, not unconverged: the posterior passes the sampling gates
+    assert payload["fit"]["diagnostics"]["passed"], payload["fit"]["diagnostics"]["messages"]
     assert (out / "report" / "index.html").is_file()
     assert (out / "diagnose" / "diagnosis.html").is_file()

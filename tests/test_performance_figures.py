@@ -33,4 +33,5 @@ def test_the_pages_quote_the_benchmarks_figures(page):
 def test_the_result_names_its_command_date_and_commit():
     assert RESULT["command"].startswith("python benchmarks/bench_job.py")
     assert RESULT["date"] and RESULT["commit"] not in ("", "unknown")
+    assert not RESULT["commit"].endswith("+changes"), "measured on code that was not committed"
     assert RESULT["warm_up"] is True

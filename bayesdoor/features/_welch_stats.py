@@ -20,7 +20,7 @@ import scipy.special
 import scipy.stats
 
 from .._types import Array, Float
-from ._spectra import log_psd
+from ._spectra import LOG_FLOOR
 from ._welch import segment_weights, welch_psd
 
 
@@ -284,15 +284,12 @@ def windowed_log_psd(
             f"run {bad}: its window [{t0[bad]:.3f}, {t1[bad]:.3f}] s holds no complete Welch "
             f"segment of nperseg={nperseg} samples at fs={fs} Hz: pass a smaller nperseg"
         )
+    # numpy in, numpy out: no eager JAX dispatch per call (a diagnosis makes thousands)
     freqs, psd = welch_psd(
-        jnp.asarray(x),
-        fs,
-        nperseg=nperseg,
-        noverlap=noverlap,
-        segment_weights=jnp.asarray(weights[:, None]),
+        x, fs, nperseg=nperseg, noverlap=noverlap, segment_weights=weights[:, None]
     )
     dof = welch_dof(counts, nperseg, noverlap)
-    return np.asarray(freqs), np.asarray(log_psd(psd)), log10_psd_variance(dof)
+    return np.asarray(freqs), np.log10(np.maximum(psd, LOG_FLOOR)), log10_psd_variance(dof)
 
 
 #: Gauss-Hermite nodes for the expectation over the predictive draws' normal spread

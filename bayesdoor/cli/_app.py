@@ -175,6 +175,8 @@ _Extend = Annotated[
         "it (in OUT/extended) and compare"
     ),
 ]
+#: small sizes, alike in the commands that fit without training (fit, diagnose, plan)
+_Quick = Annotated[bool, typer.Option(help="small sizes (demos, tests; not converged)")]
 #: a previous job's products, alike in every command that reuses them
 _Model = Annotated[
     Path | None,
@@ -491,7 +493,7 @@ def fit(
         ),
     ] = "",
     seed: Annotated[int, typer.Option(help="seed of CMA-ES, surrogate and sampler")] = 0,
-    quick: Annotated[bool, typer.Option(help="small sizes (demos, tests; not converged)")] = False,
+    quick: _Quick = False,
     force: Annotated[bool, typer.Option(help="overwrite a previous result in --out")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
@@ -514,7 +516,7 @@ def diagnose(
     out: Annotated[Path, typer.Option("--out", help="folder for diagnosis.json and .html")],
     model: _Model = None,
     seed: Annotated[int, typer.Option(help="seed of the fit, the simulations and refits")] = 0,
-    quick: Annotated[bool, typer.Option(help="small sizes (demos, tests; not converged)")] = False,
+    quick: _Quick = False,
     force: Annotated[bool, typer.Option(help="overwrite a previous diagnosis in --out")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
@@ -535,7 +537,7 @@ def plan(
         int, typer.Option(help="which of the cause's configurations (0: the typical one)")
     ] = 0,
     seed: Annotated[int, typer.Option(help="seed of the draws (and of a fit here)")] = 0,
-    quick: Annotated[bool, typer.Option(help="small sizes (demos, tests; not converged)")] = False,
+    quick: _Quick = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
     """The cheapest campaign that names a cause of this size with 80 % probability.

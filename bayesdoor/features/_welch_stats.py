@@ -284,7 +284,8 @@ def windowed_log_psd(
             f"run {bad}: its window [{t0[bad]:.3f}, {t1[bad]:.3f}] s holds no complete Welch "
             f"segment of nperseg={nperseg} samples at fs={fs} Hz: pass a smaller nperseg"
         )
-    # numpy in, numpy out: no eager JAX dispatch per call (a diagnosis makes thousands)
+    # the Welch average in numpy (numpy in, numpy out): no eager JAX dispatch of the large
+    # arrays in each of the thousands of calls a diagnosis makes
     freqs, psd = welch_psd(
         x, fs, nperseg=nperseg, noverlap=noverlap, segment_weights=weights[:, None]
     )

@@ -57,7 +57,7 @@ def probability_bars(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) 
     when no run's state is known, one panel per predicted state."""
     colors = _colors(classes)
     valid = [r for r in runs if r["probabilities"] is not None]
-    known = any(r["state"] in classes for r in valid)
+    known = _labelled(valid, classes)
     key = "state" if known else "predicted"
     groups = [s for s in (*classes, "unknown") if any(r[key] == s for r in valid)]
     groups += sorted({r[key] for r in valid} - set(groups))
@@ -94,6 +94,11 @@ def probability_bars(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) 
     what = "of each true state" if known else "called each state"
     axes[-1].set_xlabel(f"runs {what}, in campaign order (orange marks: flagged OOD)")
     return H.png(fig, dpi=90)
+
+
+def _labelled(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) -> bool:
+    """Whether any of ``runs`` has a known true state (else they are grouped as called)."""
+    return any(r["state"] in classes for r in runs)
 
 
 def confusion_figure(confusion: Sequence[Sequence[int]], classes: Sequence[str]) -> bytes:
@@ -470,9 +475,9 @@ def _answer_section(inputs: _Inputs, trust: Mapping[str, Any] | None) -> str:
     if trust is not None and trust.get("verdict"):
         verdict = str(trust["verdict"])
         counts.append(("trust (below)", verdict, "good" if verdict == "trusted" else "bad"))
+    flagged = [(r, _reasons(r, classes)) for r in valid]
     looked = sorted(
-        ((_concern(r, classes), r) for r in valid if _reasons(r, classes)),
-        key=lambda item: -item[0],
+        ((r, why) for r, why in flagged if why), key=lambda item: -_concern(item[0], classes)
     )
     parts = [H.cards(counts)]
     if not looked:
@@ -483,9 +488,9 @@ def _answer_section(inputs: _Inputs, trust: Mapping[str, Any] | None) -> str:
             f'<a href="runs/{_run_file(r["run"])}">{r["run"]}</a>',
             _tag(r["predicted"], colors),
             f"{r['probabilities'][r['predicted']]:.3f}",
-            html.escape("; ".join(_reasons(r, classes))),
+            html.escape("; ".join(why)),
         ]
-        for _, r in looked[:RUNS_TO_LOOK_AT]
+        for r, why in looked[:RUNS_TO_LOOK_AT]
     ]
     more = len(looked) - RUNS_TO_LOOK_AT
     caption = (
@@ -579,7 +584,7 @@ def _probabilities_section(inputs: _Inputs) -> str:
                 "Stacked calibrated probabilities of each run, grouped by true state (as in the "
                 "paper's Figure 6). A bar entirely in the colour of its panel's state is a "
                 "confident, correct prediction."
-                if any(r["state"] in inputs.classes for r in inputs.valid)
+                if _labelled(inputs.valid, inputs.classes)
                 else "Stacked calibrated probabilities of each run, grouped by the state it was "
                 "called (no run's true state is known). A bar entirely in the colour of its "
                 "panel's state is a confident call."

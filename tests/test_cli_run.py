@@ -82,6 +82,45 @@ def test_classify_reuses_and_refuses_to_overwrite(model, tone_file, tmp_path):
     assert (out / "classify" / "classification.json").read_bytes() != before
 
 
+def test_classify_selective_risk_option(model, tone_file, tmp_path):
+    """0 calls every run; a risk outside [0, 1) is refused with nothing written."""
+    every = invoke(
+        "classify",
+        tone_file,
+        "--model",
+        model,
+        "--out",
+        tmp_path / "all",
+        "--json",
+        "--selective-risk",
+        "0",
+    )
+    assert every.exit_code == 0, every.output
+    payload = json.loads(every.stdout)
+    assert payload["selective"] is None
+    assert all(r["predicted"] == r["most_probable"] for r in payload["runs"])
+    strict = invoke(
+        "classify",
+        tone_file,
+        "--model",
+        model,
+        "--out",
+        tmp_path / "strict",
+        "--json",
+        "--selective-risk",
+        "0.001",
+    )
+    assert strict.exit_code == 0, strict.output
+    calls = json.loads(strict.stdout)
+    assert calls["selective"]["target_risk"] == 0.001
+    assert calls["n_abstained"] == sum(r["predicted"] is None for r in calls["runs"])
+    refused = invoke(
+        "classify", tone_file, "--model", model, "--out", tmp_path / "bad", "--selective-risk", "1"
+    )
+    assert refused.exit_code == 2 and "--selective-risk must lie in [0, 1)" in refused.output
+    assert not (tmp_path / "bad").exists()
+
+
 def test_classify_without_a_model(tone_file, tmp_path):
     result = invoke("classify", tone_file, "--model", tmp_path, "--out", tmp_path / "o")
     assert result.exit_code == 2

@@ -414,14 +414,18 @@ def test_classification_json_keys_and_metrics(finished):
         assert {"predicted", "probabilities", "entropy", "mutual_information", "ood"} <= set(r)
         assert set(r["probabilities"]) == set(payload["classes"])
         assert sum(r["probabilities"].values()) == pytest.approx(1.0, abs=1e-5)
-        assert r["predicted"] == max(r["probabilities"], key=r["probabilities"].get)
+        most = max(r["probabilities"], key=r["probabilities"].get)
+        assert r["most_probable"] == most
+        # called, or left uncalled with the reason, at the selective risk
+        assert r["predicted"] in (most, None)
+        assert (r["predicted"] is None) == (r["abstained"] is not None)
         assert r["mutual_information"] >= -1e-6
     m = payload["metrics"]
     assert {"accuracy", "ece", "nll", "brier", "confusion"} <= set(m)
     confusion = np.asarray(m["confusion"])
     assert confusion.sum() == len(runs) and confusion.shape == (3, 3)
     # accuracy recomputed from the per-run entries
-    correct = np.mean([r["predicted"] == r["state"] for r in runs])
+    correct = np.mean([r["most_probable"] == r["state"] for r in runs])
     assert m["accuracy"] == pytest.approx(correct)
     # the tones separate the states plainly: a working pipeline gets at most two of the 12
     # wrong (chance: 4), trained on 12 simulated runs per state that carry the discrepancy of
@@ -573,20 +577,29 @@ def test_classification_votes_per_record(finished, tmp_path):
     for entry in payload["records"]:
         members = [runs[i] for i in range(n) if names[i] == entry["record"]]
         assert entry["runs"] == len(members) and entry["state"] == members[0]["state"]
-        votes = {c: sum(m["predicted"] == c for m in members) for c in classes}
+        # the runs left uncalled at the selective risk do not vote
+        called = [m for m in members if m["predicted"] is not None]
+        votes = {c: sum(m["predicted"] == c for m in called) for c in classes}
         assert entry["votes"] == votes
-        assert votes[entry["majority"]] == max(votes.values())
-        for c in classes:
-            mean = np.mean([m["probabilities"][c] for m in members])
-            assert entry["mean_probabilities"][c] == pytest.approx(mean)
+        if called:
+            assert votes[entry["majority"]] == max(votes.values())
+            for c in classes:
+                mean = np.mean([m["probabilities"][c] for m in called])
+                assert entry["mean_probabilities"][c] == pytest.approx(mean)
+        else:
+            assert entry["majority"] is None and entry["mean_probabilities"] is None
         for m in members:
             assert m["uncertain"] == (max(m["probabilities"].values()) < 1 - payload["max_error"])
-        share = np.mean([bool(m["ood"]) or m["uncertain"] for m in members])
+        share = np.mean(
+            [bool(m["ood"]) or m["uncertain"] or m["predicted"] is None for m in members]
+        )
         assert entry["share_flagged"] == pytest.approx(share)
         assert entry["flagged"] == (share > 0.5)
     metrics = payload["record_metrics"]
-    right = [r["majority"] == r["state"] for r in payload["records"]]
+    voted = [r for r in payload["records"] if r["majority"] is not None]
+    right = [r["majority"] == r["state"] for r in voted]
     assert metrics["records"] == len(right)
+    assert metrics["uncalled"] == len(payload["records"]) - len(voted)
     assert metrics["accuracy"] == pytest.approx(np.mean(right))
     assert np.sum(metrics["confusion"]) == len(right)
     assert payload["n_uncertain"] == sum(r["uncertain"] for r in runs)
@@ -672,13 +685,18 @@ def test_calls_the_signal_disagrees_with_are_flagged(finished, tmp_path):
     payload = json.loads((tmp_path / "c" / "classification.json").read_text())
     runs = payload["runs"]
     expected = {"healthy": True, "D1": False, "D2": None}
-    assert [r["corroborated"] for r in runs] == [expected[r["predicted"]] for r in runs]
-    assert payload["n_not_corroborated"] == sum(r["predicted"] == "D1" for r in runs) > 0
+    assert [r["corroborated"] for r in runs] == [expected[r["most_probable"]] for r in runs]
+    assert payload["n_not_corroborated"] == sum(r["most_probable"] == "D1" for r in runs) > 0
     for entry in payload["records"]:
         members = [
             r for r, n in zip(runs, campaign["record"].values, strict=True) if n == entry["record"]
         ]
-        share = np.mean([r["ood"] or r["uncertain"] or r["predicted"] == "D1" for r in members])
+        share = np.mean(
+            [
+                r["ood"] or r["uncertain"] or r["most_probable"] == "D1" or r["predicted"] is None
+                for r in members
+            ]
+        )
         assert entry["share_flagged"] == pytest.approx(share)
     # the report's headline counts them
     from bayesdoor.pipeline import report_stage
@@ -704,3 +722,36 @@ def _report_without_check(out, tmp_path):
 
     report_stage(out / "classify", out / "train", tmp_path / "plain")
     return (tmp_path / "plain" / "index.html").read_text()
+
+
+def test_runs_left_uncalled_keep_the_selective_risk(finished, tmp_path):
+    """The selective risk of the calls made on many held-out measured-like runs is not
+    significantly above the target, and every run above the threshold is called."""
+    from scipy.stats import beta
+
+    from bayesdoor.pipeline import classify_stage
+
+    _, out = finished
+    campaign = runs_to_classify(tone_campaign(per_state=40, seed=11))
+    classify_stage(out / "train", campaign, tmp_path / "sel", selective_risk=0.05)
+    payload = json.loads((tmp_path / "sel" / "classification.json").read_text())
+    runs, selective = payload["runs"], payload["selective"]
+    top = np.array([max(r["probabilities"].values()) for r in runs])
+    called = np.array([r["predicted"] is not None for r in runs])
+    assert selective["called"] == called.sum() == payload["metrics"]["selective"]["called"]
+    assert 0 < called.sum() < len(runs)
+    # a threshold rule: every run at or above the lowest probability called is called
+    assert np.all(called == (top >= selective["threshold"]))
+    # the probabilities' promise: the mean of 1 - p over the calls is at most the target
+    assert np.mean(1 - top[called]) <= 0.05 + 1e-12
+    wrong = sum(r["predicted"] != r["state"] for r in np.asarray(runs)[called])
+    # realised: the 95 % lower confidence bound of the calls' risk stays under the target
+    low = beta.ppf(0.05, wrong, called.sum() - wrong + 1) if wrong else 0.0
+    assert low <= 0.05, (wrong, called.sum())
+    for r in np.asarray(runs)[~called]:
+        assert r["abstained"].startswith(f"its probability of {r['most_probable']}")
+    # no abstention asked for: every run is called its most probable state
+    classify_stage(out / "train", campaign, tmp_path / "all", selective_risk=None)
+    every = json.loads((tmp_path / "all" / "classification.json").read_text())
+    assert every["selective"] is None
+    assert all(r["predicted"] == r["most_probable"] is not None for r in every["runs"])

@@ -628,7 +628,7 @@ def test_classify_reports_a_bad_record_run_by_run(files, job, tmp_path):
     runs = json.loads(result.stdout)["runs"]
     assert runs[4]["problem"] == "the record holds non-finite samples"
     assert runs[4]["predicted"] is None
-    assert all(r["problem"] is None and r["predicted"] for i, r in enumerate(runs) if i != 4)
+    assert all(r["problem"] is None and r["most_probable"] for i, r in enumerate(runs) if i != 4)
 
 
 # 54 s in the default suite (`pytest -n 2`, 2026-11-27, the 2-core machine under load 12-16): a
@@ -773,7 +773,7 @@ def test_run_interrupted_in_a_stage_says_what_is_kept_and_resumes(files, tmp_pat
 def test_classify_interrupted_while_writing_leaves_nothing(files, job, tmp_path, monkeypatch):
     real = bayesdoor.pipeline.classify_stage
 
-    def interrupted(model, campaign, folder):
+    def interrupted(model, campaign, folder, **options):
         (Path(folder) / "classification.json").write_text('{"runs": [')
         raise KeyboardInterrupt
 

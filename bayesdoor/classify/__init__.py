@@ -1,4 +1,5 @@
-"""Uncertainty-aware classification: an Equinox CNN ensemble, calibration, metrics, OOD flag.
+"""Uncertainty-aware classification: an Equinox CNN ensemble, calibration, metrics, OOD flag
+and selective classification.
 
 Generic over the system: inputs are arrays ``(sample, channel, freq)`` with integer labels and
 class names.
@@ -30,6 +31,12 @@ from ._network import parameter_count as parameter_count
 from ._ood import MahalanobisOOD as MahalanobisOOD
 from ._ood import fit_mahalanobis as fit_mahalanobis
 from ._ood import ledoit_wolf as ledoit_wolf
+from ._selective import SELECTIVE_RISK as SELECTIVE_RISK
+from ._selective import RiskCoverage as RiskCoverage
+from ._selective import Selection as Selection
+from ._selective import risk_coverage as risk_coverage
+from ._selective import risk_upper_bound as risk_upper_bound
+from ._selective import select_calls as select_calls
 from ._serialise import FORMAT_VERSION as FORMAT_VERSION
 from ._serialise import load_ensemble as load_ensemble
 from ._serialise import read_header as read_header

@@ -353,6 +353,15 @@ def classify(
         Path, typer.Option("--model", help="a job folder of 'bayesdoor run' or its train/")
     ],
     out: Annotated[Path, typer.Option("--out", help="output folder of the report")],
+    selective_risk: Annotated[
+        float | None,
+        typer.Option(
+            "--selective-risk",
+            metavar="RISK",
+            help="the share of wrong calls the runs called may carry; the others are left "
+            "uncalled (default 0.05; 0: call every run)",
+        ),
+    ] = None,
     force: Annotated[bool, typer.Option(help="replace a previous classification")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
@@ -360,7 +369,9 @@ def classify(
     configure_jax()
     from . import _classify, _run
 
-    _classify.classify(_run.load(path), model, out, force=force, json=json)
+    _classify.classify(
+        _run.load(path), model, out, force=force, json=json, selective_risk=selective_risk
+    )
 
 
 @app.command()

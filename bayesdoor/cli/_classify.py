@@ -16,13 +16,24 @@ from ._run import print_summary
 _err = Console(stderr=True)
 
 
-def classify(campaign: xr.Dataset, model: Path, out: Path, *, force: bool, json: bool) -> None:
+def classify(
+    campaign: xr.Dataset,
+    model: Path,
+    out: Path,
+    *,
+    force: bool,
+    json: bool,
+    selective_risk: float | None = None,
+) -> None:
     """Classify every run with the ensemble of ``model`` and write the report under ``out``.
+
+    ``selective_risk``: the share of wrong calls the runs called may carry (``None``: the
+    default, :data:`bayesdoor.classify.SELECTIVE_RISK`; 0: call every run).
 
     ``out/classify`` (the JSON and the features) and ``out/report`` (the HTML) are stages:
     the same model and runs reuse them; other ones replace them only with ``force``.
     """
-    from ..classify import load_ensemble
+    from ..classify import SELECTIVE_RISK, load_ensemble
     from ..pipeline import (
         classify_stage,
         configuration_hash,
@@ -45,10 +56,14 @@ def classify(campaign: xr.Dataset, model: Path, out: Path, *, force: bool, json:
             f"{len(channels)} ({', '.join(channels)}): pass a campaign with the channels the "
             "model was trained on"
         )
+    risk = SELECTIVE_RISK if selective_risk is None else selective_risk
+    if not 0 <= risk < 1:
+        raise fail(f"--selective-risk must lie in [0, 1), got {risk:g} (0: call every run)")
     check_writable(out)
     config = {
         "model": hashlib.sha256(ensemble.read_bytes()).hexdigest(),
         "runs": digest_runs(campaign),
+        "selective_risk": risk,
     }
     record = out / "classify" / "stage.json"
     if out.exists():
@@ -80,7 +95,9 @@ def classify(campaign: xr.Dataset, model: Path, out: Path, *, force: bool, json:
                 out,
                 "classify",
                 config,
-                lambda folder: classify_stage(ensemble.parent, campaign, folder),
+                lambda folder: classify_stage(
+                    ensemble.parent, campaign, folder, selective_risk=risk or None
+                ),
                 report=stages,
             )
             reported = run_stage(

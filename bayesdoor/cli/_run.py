@@ -131,6 +131,15 @@ def print_summary(
         table.add_row("NLL", _fmt(metrics["nll"], 3))
         table.add_row("Brier", _fmt(metrics["brier"], 3))
         table.add_row("runs with a known state", str(metrics["runs"]))
+    selective = result.get("selective")
+    if selective is not None:
+        called = (metrics or {}).get("selective") or {}
+        accuracy = called.get("accuracy")
+        table.add_row(
+            f"called at a selective risk of {100 * selective['target_risk']:g} %",
+            f"{selective['called']} of {selective['runs']}"
+            + ("" if accuracy is None else f" ({100 * accuracy:.1f} % right)"),
+        )
     table.add_row("flagged out-of-distribution", str(result["n_ood"]))
     if "n_uncertain" in result:
         table.add_row(

@@ -14,13 +14,17 @@ import numpy as np
 import xarray as xr
 
 from ..classify import (
+    SELECTIVE_RISK,
     Ensemble,
     TrainConfig,
     classification_metrics,
     fit_classifier,
     load_ensemble,
     predict,
+    risk_coverage,
+    risk_upper_bound,
     save_ensemble,
+    select_calls,
 )
 from ..datagen import (
     TrainingData,
@@ -207,6 +211,28 @@ def _signature_agreement(
     return checks
 
 
+def _selective(probabilities: np.ndarray, ok: np.ndarray, risk: float | None):
+    """The runs called at the selective ``risk`` (:func:`bayesdoor.classify.select_calls` over
+    the classified runs) and its JSON summary; every classified run called when ``risk`` is
+    ``None``."""
+    called = ok.copy()
+    if risk is None or not ok.any():
+        return called, None
+    selection = select_calls(probabilities[ok], risk)
+    called[ok] = selection.called
+    return called, {
+        "target_risk": risk,
+        "threshold": selection.threshold,
+        "expected_risk": selection.expected_risk,
+        "called": int(selection.called.sum()),
+        "runs": int(ok.sum()),
+        "rule": (
+            "the runs are called from the most probable down while the mean of 1 - p over the "
+            "calls (their expected share of wrong calls) stays at most the target"
+        ),
+    }
+
+
 def runs_in_state(campaign: xr.Dataset, state: str) -> xr.Dataset:
     """The runs of ``campaign`` whose ``state`` is ``state``."""
     states = np.asarray(campaign["state"].values).astype(str)
@@ -298,12 +324,13 @@ def classify_stage(
     run_index: list[int] | None = None,
     system: AbstractSystem | None = None,
     max_error: float = MAX_ERROR,
+    selective_risk: float | None = SELECTIVE_RISK,
 ) -> None:
     """Classify every run of ``campaign`` with the ensemble in ``model``.
 
     Writes ``classification.json`` (docs/cli.md, the job's JSON: per run ``predicted``,
-    ``probabilities``, ``entropy``, ``mutual_information``, ``ood``, ``uncertain``,
-    ``signatures``, ``corroborated``;
+    ``most_probable``, ``abstained``, ``probabilities``, ``entropy``, ``mutual_information``,
+    ``ood``, ``uncertain``, ``signatures``, ``corroborated``;
     ``metrics`` over the runs whose true state is one of the classes) and ``features.npz``.
     A run is ``uncertain`` when its call would be wrong with a probability above
     ``max_error``: the calibrated probability of the predicted state is below
@@ -314,6 +341,13 @@ def classify_stage(
     or whose features cannot be computed, is reported with its ``problem`` and no
     prediction; it does not stop the others. Each run's operating conditions are reported
     under their names (``system``: the campaign's; ``None``: the registered one it names).
+
+    With ``selective_risk`` (default :data:`~bayesdoor.classify.SELECTIVE_RISK`; ``None``:
+    call every run), the runs are called from the most probable down while their expected
+    share of wrong calls stays under that level (:func:`bayesdoor.classify.select_calls`); a
+    run left uncalled has ``predicted`` ``None``, ``abstained`` saying why and
+    ``most_probable`` naming the state it leans to; ``metrics["selective"]`` holds the
+    risk-coverage curve of the labelled runs and the accuracy of those called.
     """
     path = model_file(model)
     ensemble = load_ensemble(path)
@@ -376,6 +410,7 @@ def classify_stage(
             info["score"][ok] = np.asarray(pred.ood_score)
             flags[ok] = np.asarray(pred.ood)
     agreement = _signature_agreement(path.parent, campaign, system, ok)
+    called, selective = _selective(probabilities, ok, selective_risk)
     runs = []
     for i in range(n_run):
         entry: dict[str, Any] = {
@@ -384,6 +419,8 @@ def classify_stage(
             "operating": _operating(speeds[i]),
             **_named(conditions, speeds[i]),
             "predicted": None,
+            "most_probable": None,
+            "abstained": None,
             "probabilities": None,
             "entropy": None,
             "expected_entropy": None,
@@ -396,19 +433,24 @@ def classify_stage(
             "problem": problems[i],
         }
         if ok[i]:
+            top = float(np.max(probabilities[i]))
+            most = classes[int(np.argmax(probabilities[i]))]
             entry.update(
-                predicted=classes[int(np.argmax(probabilities[i]))],
+                predicted=most,
+                most_probable=most,
                 probabilities={c: float(p) for c, p in zip(classes, probabilities[i], strict=True)},
                 entropy=_clean(info["entropy"][i]),
                 expected_entropy=_clean(info["expected"][i]),
                 mutual_information=_clean(info["mi"][i]),
                 ood=bool(flags[i]) if ensemble.ood is not None else None,
                 ood_score=_clean(info["score"][i]),
-                uncertain=bool(np.max(probabilities[i]) < 1.0 - max_error),
+                uncertain=bool(top < 1.0 - max_error),
             )
+            if not called[i]:
+                entry.update(predicted=None, abstained=_abstention(top, most, selective))
             check = agreement[i]
             if check is not None:
-                entry.update(signatures=check, corroborated=check.get(entry["predicted"]))
+                entry.update(signatures=check, corroborated=check.get(most))
         runs.append(entry)
     known = ok & np.isin(states, classes)
     metrics = None
@@ -417,6 +459,7 @@ def classify_stage(
         metrics = _metrics(probabilities[known], labels)
         metrics["ood_runs"] = int(flags[known].sum())
         metrics["classes"] = classes
+        metrics["selective"] = _selective_metrics(probabilities[known], labels, called[known])
     records = (
         record_votes(runs, np.asarray(campaign["record"].values).astype(str), classes)
         if "record" in campaign.variables and campaign["record"].dims == ("run",)
@@ -432,6 +475,8 @@ def classify_stage(
         "max_error": max_error,
         "n_uncertain": sum(bool(r["uncertain"]) for r in runs),
         "n_not_corroborated": sum(r["corroborated"] is False for r in runs),
+        "n_abstained": sum(r["abstained"] is not None for r in runs),
+        "selective": selective,
         "runs": runs,
         "metrics": metrics,
     }
@@ -451,6 +496,43 @@ def classify_stage(
             )
 
     atomic_write(folder / "features.npz", write, overwrite=True)
+
+
+def _abstention(top: float, most: str, selective: dict[str, Any] | None) -> str:
+    """Why a classified run is left uncalled at the selective risk."""
+    assert selective is not None
+    risk = f"{100 * selective['target_risk']:g} %"
+    if selective["threshold"] is None:
+        return (
+            f"its probability of {most}, {top:.3f}, is too low: no run's call keeps the "
+            f"expected share of wrong calls under {risk}"
+        )
+    return (
+        f"its probability of {most}, {top:.3f}, is below {selective['threshold']:.3f}, the "
+        f"lowest called while the expected share of wrong calls stays under {risk}"
+    )
+
+
+def _selective_metrics(
+    probabilities: np.ndarray, labels: np.ndarray, called: np.ndarray
+) -> dict[str, Any]:
+    """The risk-coverage curve of labelled runs (at most 101 points) and, for the runs called,
+    the coverage, their accuracy, their number and the 95 % upper bound of their risk."""
+    curve = risk_coverage(probabilities, labels)
+    keep = np.unique(np.linspace(0, max(curve.coverage.size - 1, 0), 101).round().astype(int))
+    right = probabilities[called].argmax(axis=1) == labels[called]
+    return {
+        "aurc": _clean(curve.aurc),
+        "curve": {
+            "threshold": curve.threshold[keep].tolist() if curve.coverage.size else [],
+            "coverage": curve.coverage[keep].tolist() if curve.coverage.size else [],
+            "risk": curve.risk[keep].tolist() if curve.coverage.size else [],
+        },
+        "coverage": float(called.mean()),
+        "called": int(called.sum()),
+        "accuracy": float(right.mean()) if called.any() else None,
+        "risk_upper_95": risk_upper_bound(int((~right).sum()), int(called.sum()), 0.05),
+    }
 
 
 def run_flagged(run: dict[str, Any]) -> bool:
@@ -526,11 +608,13 @@ def record_votes(
 def record_metrics(records: list[dict[str, Any]], classes: list[str]) -> dict[str, Any] | None:
     """Accuracy, balanced accuracy and confusion of the records' majority votes.
 
-    Over the records whose true state is one of ``classes`` and that have a vote; the
-    balanced accuracy is the mean over the true states present of their records' accuracy.
+    Over the records whose true state is one of ``classes`` and that have a vote (a record
+    none of whose runs is called has none: ``uncalled`` counts them); the balanced accuracy
+    is the mean over the true states present of their records' accuracy.
     ``misnamed_flagged`` counts the misnamed records that are flagged.
     """
-    known = [r for r in records if r["state"] in classes and r["majority"] is not None]
+    labelled = [r for r in records if r["state"] in classes]
+    known = [r for r in labelled if r["majority"] is not None]
     if not known:
         return None
     confusion = np.zeros((len(classes), len(classes)), dtype=int)
@@ -546,6 +630,7 @@ def record_metrics(records: list[dict[str, Any]], classes: list[str]) -> dict[st
         "confusion": confusion.tolist(),
         "misnamed": len(wrong),
         "misnamed_flagged": sum(r["flagged"] for r in wrong),
+        "uncalled": len(labelled) - len(known),
     }
 
 

@@ -230,7 +230,7 @@ def judge_trust(
         # the simulated recall, shrunk away from 1: a perfect validation of a few dozen runs
         # does not make one miss impossible
         recall = _jeffreys_centre(hits, int(own.sum()))
-        called = [r["predicted"] for r in known["runs"] if r["predicted"] is not None]
+        called = [c for c in map(_call, known["runs"]) if c is not None]
         k = sum(p == KNOWN_STATE for p in called)
         p_value = _binomial_low(k, len(called), recall)
         checks["known_runs"] = {
@@ -248,7 +248,7 @@ def judge_trust(
                 f"recall {recall:.3f} makes that improbable (p = {p_value:.1e})"
             )
 
-    runs = [r for r in classification["runs"] if r["predicted"] is not None]
+    runs = [r for r in classification["runs"] if _call(r) is not None]
     ood = {r["run"] for r in runs if r.get("ood")}
     # a confident call that the system's own signature check contradicts is as unlike the
     # simulations as an OOD run (only a system with a check has ``corroborated``)
@@ -271,7 +271,7 @@ def judge_trust(
             f"{len(ood)} of {n} runs lie outside every simulated state (OOD), against "
             f"{100 * nominal:.0f} % expected (p = {p_ood:.1e}): their probabilities extrapolate"
         )
-    called_healthy = sum(r["predicted"] == KNOWN_STATE for r in runs)
+    called_healthy = sum(_call(r) == KNOWN_STATE for r in runs)
     p_h = _binomial_high(len(unlike_healthy), called_healthy, alpha) if called_healthy else 1.0
     checks["unlike_healthy"] = {"called_healthy": called_healthy, "p_value": p_h}
     if unlike_healthy and p_h < alpha:
@@ -377,7 +377,7 @@ def trust_stage(
         (folder / "known").mkdir(parents=True, exist_ok=True)
         classify_stage(model, known_runs, folder / "known", system=system)
         known = json.loads((folder / "known" / "classification.json").read_text())
-        known["runs"] = [r for r in known["runs"] if r["predicted"] is not None]
+        known["runs"] = [r for r in known["runs"] if _call(r) is not None]
     classification = json.loads((classified / "classification.json").read_text())
     training = json.loads((model / "training.json").read_text())
     adequacy = json.loads((adequacy_folder / ADEQUACY_JSON).read_text())
@@ -388,7 +388,7 @@ def trust_stage(
     picks = [
         (i, r)
         for i, r in enumerate(classification["runs"])
-        if r["predicted"] == KNOWN_STATE and _known(r["operating"])
+        if _call(r) == KNOWN_STATE and _known(r["operating"])
     ]
     if picks and KNOWN_STATE in data.states:
         with np.load(classified / "features.npz", allow_pickle=False) as f:
@@ -424,6 +424,12 @@ def trust_stage(
             signature_rate=None if rate is None else float(rate),
         ),
     )
+
+
+def _call(run: dict[str, Any]) -> str | None:
+    """The state a classified run is called, or leans to when the selective risk leaves it
+    uncalled (the trust checks judge the classifier's calls, before any abstention)."""
+    return run["predicted"] if run["predicted"] is not None else run.get("most_probable")
 
 
 def _known(point) -> bool:

@@ -58,20 +58,23 @@ def probability_bars(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) 
     colors = _colors(classes)
     valid = [r for r in runs if r["probabilities"] is not None]
     known = _labelled(valid, classes)
-    key = "state" if known else "predicted"
-    groups = [s for s in (*classes, "unknown") if any(r[key] == s for r in valid)]
-    groups += sorted({r[key] for r in valid} - set(groups))
+
+    def key(r: Mapping[str, Any]) -> str | None:
+        return r["state"] if known else _leaning(r)
+
+    groups = [s for s in (*classes, "unknown") if any(key(r) == s for r in valid)]
+    groups += sorted({str(key(r)) for r in valid} - set(groups))
     fig = _figure(11.5, 1.7 + 1.55 * max(len(groups), 1))
     axes = fig.subplots(max(len(groups), 1), 1, squeeze=False)[:, 0]
     for ax, group in zip(axes, groups, strict=False):
-        members = [r for r in valid if r[key] == group]
+        members = [r for r in valid if str(key(r)) == group]
         p = np.array([[r["probabilities"][c] for c in classes] for r in members])
         x = np.arange(len(members))
         bottom = np.zeros(len(members))
         for k, c in enumerate(classes):
             ax.bar(x, p[:, k], 1.0, bottom=bottom, color=colors[c], label=c, linewidth=0)
             bottom += p[:, k]
-        wrong = [i for i, r in enumerate(members) if known and r["predicted"] != group]
+        wrong = [i for i, r in enumerate(members) if known and _leaning(r) != group]
         if group in classes and wrong:
             ax.plot(wrong, np.full(len(wrong), 1.06), "v", color="black", ms=4, clip_on=False)
         ood = [i for i, r in enumerate(members) if r["ood"]]
@@ -94,6 +97,18 @@ def probability_bars(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) 
     what = "of each true state" if known else "called each state"
     axes[-1].set_xlabel(f"runs {what}, in campaign order (orange marks: flagged OOD)")
     return H.png(fig, dpi=90)
+
+
+def _leaning(run: Mapping[str, Any]) -> str | None:
+    """The state a classified run is called, or leans to when it is left uncalled."""
+    return run["predicted"] if run["predicted"] is not None else run.get("most_probable")
+
+
+def _called_text(run: Mapping[str, Any]) -> str:
+    """What a run was called, as the tables show it (an uncalled run: what it leans to)."""
+    if run["predicted"] is None and run.get("abstained"):
+        return f"uncalled (leans {run.get('most_probable')})"
+    return run["predicted"] or "-"
 
 
 def _labelled(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) -> bool:
@@ -135,8 +150,8 @@ def uncertainty_figure(
     fig = _figure(11.5, 3.8)
     ax, ax_ood = fig.subplots(1, 2)
     known = [r for r in valid if r["state"] in classes]
-    right = [r for r in known if r["predicted"] == r["state"]]
-    wrong = [r for r in known if r["predicted"] != r["state"]]
+    right = [r for r in known if _leaning(r) == r["state"]]
+    wrong = [r for r in known if _leaning(r) != r["state"]]
     unknown = [r for r in valid if r["state"] not in classes]
     for group, style, label in (
         (right, dict(color="tab:green", alpha=0.5, s=14), "correct"),
@@ -319,7 +334,7 @@ def _tag(state: str | None, colors: Mapping[str, str]) -> str:
 def _row_class(run: Mapping[str, Any], classes: Sequence[str]) -> str:
     if run["probabilities"] is None:
         return "failed"
-    if run["state"] in classes and run["predicted"] != run["state"]:
+    if run["state"] in classes and _leaning(run) != run["state"]:
         return "wrong"
     return "ood" if run["ood"] else ""
 
@@ -327,8 +342,10 @@ def _row_class(run: Mapping[str, Any], classes: Sequence[str]) -> str:
 def _verdict(run: Mapping[str, Any], threshold: float | None) -> str:
     if run["probabilities"] is None:
         return f"Not classified: {run['problem']}."
-    p = run["probabilities"][run["predicted"]]
-    text = f"The ensemble says {run['predicted']} with probability {p:.2f}."
+    p = run["probabilities"][_leaning(run)]
+    text = f"The classifier says {_leaning(run)} with probability {p:.2f}."
+    if run.get("abstained"):
+        text += f" It leaves the run uncalled: {run['abstained']}."
     if run["ood"]:
         text += (
             f" But the run is unlike every simulated state (OOD score {run['ood_score']:.1f} >"
@@ -445,6 +462,7 @@ def write_damage_report(
         *_summary(inputs),
         _probabilities_section(inputs),
         *([] if inputs.metrics is None else [_calibration_section(inputs, training)]),
+        *_selective_section(classification, training),
         _uncertainty_section(inputs),
         *_bands_section(inputs),
         *([] if fit is None else [_fit_section(fit)]),
@@ -470,6 +488,9 @@ def _answer_section(inputs: _Inputs, trust: Mapping[str, Any] | None) -> str:
     counts = [
         (f"called {c}", str(sum(1 for r in valid if r["predicted"] == c)), "") for c in classes
     ]
+    uncalled = sum(1 for r in valid if r["predicted"] is None)
+    if uncalled:
+        counts.append(("left uncalled (selective risk)", str(uncalled), "bad"))
     if inputs.n_failed:
         counts.append(("not classified", str(inputs.n_failed), "bad"))
     if trust is not None and trust.get("verdict"):
@@ -486,8 +507,8 @@ def _answer_section(inputs: _Inputs, trust: Mapping[str, Any] | None) -> str:
     rows = [
         [
             f'<a href="runs/{_run_file(r["run"])}">{r["run"]}</a>',
-            _tag(r["predicted"], colors),
-            f"{r['probabilities'][r['predicted']]:.3f}",
+            _tag(_leaning(r), colors) + ("" if r["predicted"] else " (uncalled)"),
+            f"{r['probabilities'][_leaning(r)]:.3f}",
             html.escape("; ".join(why)),
         ]
         for r, why in looked[:RUNS_TO_LOOK_AT]
@@ -511,13 +532,15 @@ def _concern(run: Mapping[str, Any], classes: Sequence[str]) -> float:
     p = run["probabilities"]
     if HEALTHY in classes:
         return 1.0 - float(p[HEALTHY])
-    return 1.0 - float(p[run["predicted"]])
+    return 1.0 - float(p[_leaning(run)])
 
 
 def _reasons(run: Mapping[str, Any], classes: Sequence[str]) -> list[str]:
     """Why a classified run is worth a look (none: called healthy, and vouched for)."""
     reasons = []
-    if HEALTHY in classes and run["predicted"] != HEALTHY:
+    if run["predicted"] is None:
+        reasons.append(f"left uncalled, leaning {_leaning(run)}")
+    elif HEALTHY in classes and run["predicted"] != HEALTHY:
         reasons.append(f"called {run['predicted']}")
     if run["ood"]:
         reasons.append("unlike every simulated state (OOD)")
@@ -641,6 +664,101 @@ def _calibration_section(inputs: _Inputs, training: Mapping[str, Any] | None) ->
     )
 
 
+def risk_coverage_figure(
+    curves: Sequence[tuple[str, Mapping[str, Sequence[float]]]],
+    target_risk: float,
+    threshold: float | None,
+) -> bytes:
+    """Selective risk against coverage, one line per labelled set of runs, with the target
+    risk and each curve's point at the threshold."""
+    fig = _figure(6.4, 3.8)
+    ax = fig.subplots()
+    for (label, curve), color in zip(curves, ("tab:blue", "black"), strict=False):
+        coverage = np.asarray(curve["coverage"], dtype=float)
+        risk = np.asarray(curve["risk"], dtype=float)
+        ax.step(coverage, risk, where="post", color=color, label=label)
+        if threshold is not None and coverage.size:
+            at = np.flatnonzero(np.asarray(curve["threshold"], dtype=float) >= threshold)
+            if at.size:
+                ax.plot(coverage[at[-1]], risk[at[-1]], "o", color=color, ms=6)
+    ax.axhline(target_risk, color="tab:red", lw=1, ls="--", label=f"target {100 * target_risk:g} %")
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, None)
+    ax.set_xlabel("coverage (share of runs called, most probable first)")
+    ax.set_ylabel("selective risk (share of calls wrong)")
+    ax.legend(frameon=False, fontsize=9)
+    return H.png(fig, dpi=100)
+
+
+def _selective_section(
+    classification: Mapping[str, Any], training: Mapping[str, Any] | None
+) -> list[str]:
+    """The selective threshold, what it left uncalled and the risk-coverage curves (on the
+    held-out simulations it was chosen on and on the campaign's labelled runs)."""
+    selective = classification.get("selective")
+    if not selective:
+        return []
+    from ..classify import risk_coverage
+
+    curves: list[tuple[str, Mapping[str, Sequence[float]]]] = []
+    validation = None if training is None else training.get("validation")
+    if validation and validation.get("labels"):
+        c = risk_coverage(np.asarray(validation["probabilities"]), np.asarray(validation["labels"]))
+        curves.append(
+            (
+                "held-out simulations",
+                {
+                    "coverage": c.coverage.tolist(),
+                    "risk": c.risk.tolist(),
+                    "threshold": c.threshold.tolist(),
+                },
+            )
+        )
+    labelled = (classification.get("metrics") or {}).get("selective")
+    if labelled and labelled["curve"]["coverage"]:
+        curves.append(("this campaign's labelled runs", labelled["curve"]))
+    threshold = selective["threshold"]
+    rows = [
+        ["target selective risk", f"{100 * selective['target_risk']:g} %"],
+        [
+            "lowest probability called",
+            "none (no run called)" if threshold is None else f"{threshold:.3f}",
+        ],
+        [
+            "runs called / expected share of wrong calls",
+            f"{selective['called']} of {selective['runs']} / "
+            f"{100 * selective['expected_risk']:.1f} %",
+        ],
+    ]
+    if labelled and labelled["accuracy"] is not None:
+        rows.append(
+            [
+                "labelled runs called: accuracy (95 % upper bound of the risk)",
+                f"{labelled['accuracy']:.3f} ({100 * labelled['risk_upper_95']:.1f} %)",
+            ]
+        )
+    parts = [
+        H.note(
+            "Runs are called from the most probable down while the share of wrong calls their "
+            "probabilities promise stays under the target; the others are left uncalled (each "
+            "run's page says which state it leans to). The promise holds as far as the "
+            "probabilities are calibrated: where true states are known, the curve shows the "
+            "share of calls actually wrong."
+        ),
+        H.table(["", "value"], rows),
+    ]
+    if curves:
+        parts.append(
+            H.img(
+                risk_coverage_figure(curves, selective["target_risk"], threshold),
+                "risk-coverage curve",
+                "Selective risk against coverage, runs called from the most probable down; "
+                "dots: the threshold's point.",
+            )
+        )
+    return [H.section("Selective classification: which runs are called", *parts)]
+
+
 def _uncertainty_section(inputs: _Inputs) -> str:
     """Entropy against mutual information, and the OOD scores against the threshold."""
     return H.section(
@@ -737,7 +855,9 @@ def _runs_section(inputs: _Inputs) -> str:
                 f'<a href="runs/{_run_file(r["run"])}">{r["run"]}</a>',
                 _tag(r["state"], colors),
                 _point_text(_point(r)),
-                _tag(r["predicted"], colors),
+                _tag(r["predicted"], colors)
+                if r["predicted"] is not None or not r.get("abstained")
+                else "uncalled, leans " + _tag(_leaning(r), colors),
                 *[("-" if p is None else f"{p[c]:.3f}") for c in classes],
                 _fmt(r["entropy"]),
                 _fmt(r["mutual_information"]),
@@ -802,7 +922,7 @@ def _run_cards(r: Mapping[str, Any], inputs: _Inputs) -> str:
     return H.cards(
         [
             ("true state", r["state"], ""),
-            ("predicted", r["predicted"] or "-", "bad" if _row_class(r, inputs.classes) else ""),
+            ("predicted", _called_text(r), "bad" if _row_class(r, inputs.classes) else ""),
             ("entropy (nats)", _fmt(r["entropy"]), ""),
             ("mutual information", _fmt(r["mutual_information"]), ""),
             ("OOD score", _fmt(r["ood_score"], 2), "bad" if r["ood"] else ""),

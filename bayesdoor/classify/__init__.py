@@ -1,5 +1,5 @@
-"""Uncertainty-aware classification: an Equinox CNN ensemble, calibration, metrics, OOD flag
-and selective classification.
+"""Uncertainty-aware classification: an Equinox CNN ensemble, calibration, metrics, OOD flag,
+selective classification and the ensemble weighed against a physical signature check.
 
 Generic over the system: inputs are arrays ``(sample, channel, freq)`` with integer labels and
 class names.
@@ -13,6 +13,8 @@ from ._config import TrainConfig as TrainConfig
 from ._ensemble import Ensemble as Ensemble
 from ._ensemble import Prediction as Prediction
 from ._ensemble import predict as predict
+from ._evidence import Evidence as Evidence
+from ._evidence import combine_evidence as combine_evidence
 from ._fit import calibrate as calibrate
 from ._fit import fit_classifier as fit_classifier
 from ._fit import fit_ood as fit_ood

@@ -18,6 +18,7 @@ from ..classify import (
     Ensemble,
     TrainConfig,
     classification_metrics,
+    combine_evidence,
     fit_classifier,
     load_ensemble,
     predict,
@@ -35,7 +36,7 @@ from ..datagen import (
 )
 from ..datagen._points import point_key
 from ..features import CNNInputSpec
-from ..io import atomic_write, system_of
+from ..io import HEALTHY, atomic_write, system_of
 from ..io import operating as campaign_operating
 from ..report import diagnosis_section, extension_section, write_damage_report
 from ..systems import AbstractSystem
@@ -186,13 +187,14 @@ def signature_stage(
 
 def _signature_agreement(
     model_dir: Path, campaign: xr.Dataset, system: AbstractSystem | None, ok: np.ndarray
-) -> list[dict[str, bool | None] | None]:
+) -> tuple[list[dict[str, bool | None] | None], float | None]:
     """Per run, the system's signature check (``None`` for a run not checked: no reference
-    beside the ensemble, no system, a channel missing, or a run not classified)."""
+    beside the ensemble, no system, a channel missing, or a run not classified), and the
+    check's stated false-alarm rate (``None`` when the reference states none)."""
     checks: list[dict[str, bool | None] | None] = [None] * len(ok)
     path = model_dir / SIGNATURES
     if system is None or not path.is_file() or not ok.any():
-        return checks
+        return checks, None
     stored = json.loads(path.read_text())
     if stored["system"] != system.name:
         raise ValueError(
@@ -202,13 +204,58 @@ def _signature_agreement(
         )
     signals = _system_signals(campaign, system)
     if signals is None:
-        return checks
+        return checks, None
     good = np.flatnonzero(ok)
     operating = np.asarray(campaign_operating(campaign, system))[good]
     checked = system.signatures(stored["reference"], signals[good], operating)
     for i, agreement in zip(good, checked, strict=True):
         checks[i] = agreement
-    return checks
+    alpha = stored["reference"].get("false_alarm_rate")
+    return checks, None if alpha is None else float(alpha)
+
+
+def _with_evidence(
+    probabilities: np.ndarray,
+    agreement: list[dict[str, bool | None] | None],
+    alpha: float | None,
+    classes: list[str],
+    ok: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any] | None]:
+    """The runs' probabilities weighed against the signature check
+    (:func:`bayesdoor.classify.combine_evidence`), each run's probability that the ensemble's
+    probabilities hold, and the campaign's summary; the ensemble's probabilities unchanged
+    without a check, a stated false-alarm rate or a healthy class."""
+    applies = np.full(len(probabilities), np.nan)
+    if alpha is None or HEALTHY not in classes or all(a is None for a in agreement):
+        return probabilities, applies, None
+    healthy = classes.index(HEALTHY)
+    shows = np.full(probabilities.shape, np.nan)
+    for i, check in enumerate(agreement):
+        for k, c in enumerate(classes):
+            value = None if check is None else check.get(c)
+            if k != healthy and value is not None:
+                shows[i, k] = float(value)
+    good = np.flatnonzero(ok)
+    evidence = combine_evidence(probabilities[good], shows[good], healthy, alpha)
+    combined = probabilities.copy()
+    combined[good] = evidence.probabilities
+    applies[good] = evidence.applies
+    summary = {
+        "model": (
+            "per run, either the ensemble's probabilities hold (the check then adds nothing "
+            "to them) or only its healthy share does and the damage states share the rest, "
+            "the check then the only evidence of which; a damage state's signature shows "
+            "with rate d on its own runs, l on other damage, the false-alarm rate on healthy "
+            "runs; the share pi of runs the ensemble holds for, d and l learned from the "
+            "campaign's checked runs without labels (docs/classification.md)"
+        ),
+        "false_alarm_rate": evidence.alpha,
+        "checked_runs": evidence.checked,
+        "pi": list(evidence.pi),
+        "detection": {classes[k]: list(v) for k, v in evidence.detection.items()},
+        "leak": {classes[k]: list(v) for k, v in evidence.leak.items()},
+    }
+    return combined, applies, summary
 
 
 def _selective(probabilities: np.ndarray, ok: np.ndarray, risk: float | None):
@@ -342,7 +389,12 @@ def classify_stage(
     prediction; it does not stop the others. Each run's operating conditions are reported
     under their names (``system``: the campaign's; ``None``: the registered one it names).
 
-    With ``selective_risk`` (default :data:`~bayesdoor.classify.SELECTIVE_RISK`; ``None``:
+    With a signature check whose reference states its false-alarm rate, the reported
+    ``probabilities`` weigh the ensemble's (``ensemble_probabilities``) against the check
+    (:func:`bayesdoor.classify.combine_evidence`; ``applies``: the probability that the
+    ensemble's probabilities hold for the run; ``evidence``: what the campaign said of the
+    model's rates; ``metrics["ensemble"]``: the ensemble's own metrics). With
+    ``selective_risk`` (default :data:`~bayesdoor.classify.SELECTIVE_RISK`; ``None``:
     call every run), the runs are called from the most probable down while their expected
     share of wrong calls stays under that level (:func:`bayesdoor.classify.select_calls`); a
     run left uncalled has ``predicted`` ``None``, ``abstained`` saying why and
@@ -409,7 +461,9 @@ def classify_stage(
         if pred.ood is not None and pred.ood_score is not None:
             info["score"][ok] = np.asarray(pred.ood_score)
             flags[ok] = np.asarray(pred.ood)
-    agreement = _signature_agreement(path.parent, campaign, system, ok)
+    agreement, alpha = _signature_agreement(path.parent, campaign, system, ok)
+    ensemble_probabilities = probabilities
+    probabilities, applies, evidence = _with_evidence(probabilities, agreement, alpha, classes, ok)
     called, selective = _selective(probabilities, ok, selective_risk)
     runs = []
     for i in range(n_run):
@@ -422,6 +476,8 @@ def classify_stage(
             "most_probable": None,
             "abstained": None,
             "probabilities": None,
+            "ensemble_probabilities": None,
+            "applies": None,
             "entropy": None,
             "expected_entropy": None,
             "mutual_information": None,
@@ -446,6 +502,13 @@ def classify_stage(
                 ood_score=_clean(info["score"][i]),
                 uncertain=bool(top < 1.0 - max_error),
             )
+            if evidence is not None:
+                entry.update(
+                    ensemble_probabilities={
+                        c: float(p) for c, p in zip(classes, ensemble_probabilities[i], strict=True)
+                    },
+                    applies=_clean(applies[i]),
+                )
             if not called[i]:
                 entry.update(predicted=None, abstained=_abstention(top, most, selective))
             check = agreement[i]
@@ -460,6 +523,8 @@ def classify_stage(
         metrics["ood_runs"] = int(flags[known].sum())
         metrics["classes"] = classes
         metrics["selective"] = _selective_metrics(probabilities[known], labels, called[known])
+        if evidence is not None:
+            metrics["ensemble"] = _metrics(ensemble_probabilities[known], labels)
     records = (
         record_votes(runs, np.asarray(campaign["record"].values).astype(str), classes)
         if "record" in campaign.variables and campaign["record"].dims == ("run",)
@@ -477,6 +542,7 @@ def classify_stage(
         "n_not_corroborated": sum(r["corroborated"] is False for r in runs),
         "n_abstained": sum(r["abstained"] is not None for r in runs),
         "selective": selective,
+        "evidence": evidence,
         "runs": runs,
         "metrics": metrics,
     }

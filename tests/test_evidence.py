@@ -65,7 +65,7 @@ def test_void_calls_lose_their_confidence_and_the_campaign_its_calibration_error
     # 90 % interval; the detection rates within 0.1 (their states are drawn from the ensemble
     # and the check together, as if the two were independent: here the ensemble read the
     # check, which biases the rates up a little)
-    mean, low, high = evidence.pi
+    _, low, high = evidence.pi
     assert low <= 0.7 <= high
     for k, true in zip((1, 2, 3), (0.95, 0.9, 0.3), strict=True):
         assert abs(evidence.detection[k][0] - true) <= 0.1, (k, evidence.detection)

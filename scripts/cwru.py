@@ -277,6 +277,7 @@ def _job_result(method: str, source: str, job, runs, wall: float) -> dict[str, A
         "segments": segments,
         "records": records,
         "ece": metrics.get("ece"),
+        "ece_ensemble": (metrics.get("ensemble") or {}).get("ece"),
         "nll": metrics.get("nll"),
         "target_risk": (c.get("selective") or {}).get("target_risk"),
         "wall": wall,
@@ -286,8 +287,27 @@ def _job_result(method: str, source: str, job, runs, wall: float) -> dict[str, A
             f"fit adequacy: {adequacy.get('verdict')}: "
             f"{adequacy.get('summary') or adequacy.get('reason') or ''}",
             f"trust: {trust.get('verdict')}" + "".join(f"; {r}" for r in trust.get("reasons", [])),
+            _evidence_note(c.get("evidence")),
         ],
     }
+
+
+def _evidence_note(evidence: dict[str, Any] | None) -> str:
+    """What the weighing against the envelope check learned from the campaign."""
+    if evidence is None:
+        return "probabilities: the ensemble's (no signature check weighed)"
+
+    def rate(v: list[float]) -> str:
+        return f"{v[0]:.2f} ({v[1]:.2f}-{v[2]:.2f})"
+
+    detection = ", ".join(f"{k} {rate(v)}" for k, v in evidence["detection"].items())
+    leak = ", ".join(f"{k} {rate(v)}" for k, v in evidence["leak"].items())
+    return (
+        "probabilities weighed against the envelope check (docs/classification.md): share of "
+        f"segments the ensemble holds for {rate(evidence['pi'])}; each family's line shows on "
+        f"its own segments: {detection}; on other faults': {leak} (posterior means, 90 % "
+        "intervals)"
+    )
 
 
 def _rule_call(z: dict[str, float], threshold: float) -> str:
@@ -320,6 +340,7 @@ def _rule_result(rule, segments, seconds: float) -> dict[str, Any]:
         "segments": segments,
         "records": records,
         "ece": None,
+        "ece_ensemble": None,
         "nll": None,
         "target_risk": None,
         "wall": seconds,
@@ -480,10 +501,12 @@ def _summary_text(results) -> str:
         "record accuracy call every segment its most probable state; the selective columns "
         "call only the segments whose probabilities keep the expected share of wrong calls "
         "under the job's selective risk (5 %), and a record by the vote of its called "
-        "segments.",
+        "segments. The probabilities are the ensemble's weighed against the envelope check "
+        "(docs/classification.md); in brackets, the ensemble's own ECE.",
         "",
-        "| classifier | segment accuracy | segment balanced accuracy | segment ECE | "
-        "segment ECE, no other family shown | record accuracy | record balanced accuracy | "
+        "| classifier | segment accuracy | segment balanced accuracy | segment ECE (the "
+        "ensemble alone) | segment ECE, no other family shown | record accuracy | record "
+        "balanced accuracy | "
         "race records named | segments called at the selective risk: right | records "
         "called: right | misnamed records flagged | wall time (s) |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
@@ -514,7 +537,9 @@ def _summary_text(results) -> str:
         )
         lines.append(
             f"| {r['name']} | {s['segment_acc'][0]:.3f} | {s['segment_acc'][1]:.3f} | "
-            f"{_num(r['ece'], '.3f')} | {_num(s['ece_not_other'], '.3f')} | "
+            f"{_num(r['ece'], '.3f')}"
+            + ("" if r["ece_ensemble"] is None else f" ({r['ece_ensemble']:.3f})")
+            + f" | {_num(s['ece_not_other'], '.3f')} | "
             f"{s['record_acc'][0]:.3f} | {s['record_acc'][1]:.3f} | "
             f"{s['races_named']} of {s['races']} | {called} | {records_called} | {flagged} | "
             f"{r['wall']:.0f} |"

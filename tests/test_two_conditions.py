@@ -269,7 +269,7 @@ def test_job_on_two_conditions(tmp_path, campaign):
     )
     runs = result.classification["runs"]
     assert len(runs) == 9
-    assert all(r["predicted"] is not None for r in runs)
+    assert all(r["most_probable"] is not None for r in runs)
     assert [r["operating"] for r in runs[:3]] == POINTS.tolist()
     assert runs[1]["speed"] == 0.3 and runs[1]["load"] == 2.0
     assert result.adequacy["verdict"] is not None, result.adequacy

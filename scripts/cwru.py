@@ -79,6 +79,13 @@ def main(argv: list[str] | None = None) -> None:
         "the main seed (the fit's seed stays --seed, so the fit is reused): their scores join "
         "the summary",
     )
+    parser.add_argument(
+        "--extend",
+        action="store_true",
+        help="close the diagnosis loop: each nuts job also runs on the bearing extended by the "
+        "diagnosis's verdict on the healthy calibration segments (refit, training data, "
+        "classifier), and the results compare the two",
+    )
     parser.add_argument("--results", type=Path, default=ROOT / "results" / "cwru.md")
     args = parser.parse_args(argv)
     setup_jax()
@@ -124,6 +131,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.runs_per_state is not None:
         sizes = dataclasses.replace(sizes, runs_per_state=args.runs_per_state)
     results: list[dict[str, Any]] = []
+    loop: list[tuple[int, dict[str, Any], dict[str, Any] | None, str]] = []
     for method in args.jobs:
         source = default_source(method)
         # the further seeds first, the main one last: one folder, whose fit they share
@@ -142,8 +150,10 @@ def main(argv: list[str] | None = None) -> None:
                 source=source,
                 progress=False,
                 html=False,
-                # the diagnosis of the healthy calibration record, once: with the main seed
-                diagnosis=method == "nuts" and seed == args.seed,
+                # the diagnosis of the healthy calibration record: with the main seed, and with
+                # every seed when the loop is closed (the extension follows its verdict)
+                diagnosis=method == "nuts" and (seed == args.seed or args.extend),
+                extend=method == "nuts" and args.extend,
                 overwrite=True,
             )
             wall = time.perf_counter() - t0
@@ -154,6 +164,8 @@ def main(argv: list[str] | None = None) -> None:
                 result["name"] += f", training seed {seed}"
                 result["detail"] = False
             results.append(result)
+            if method == "nuts" and args.extend:
+                loop.append(_loop_entry(seed, result, job, runs, wall))
         # the main seed's row first, then the further seeds'
         results[len(results) - len(seeds) :] = [
             results[-1],
@@ -163,6 +175,9 @@ def main(argv: list[str] | None = None) -> None:
     results.append(rule_result)
     for r in results:
         r["scores"] = _scores(r, runs, shows)
+    for _, _, extended, _ in loop:
+        if extended is not None:
+            extended["scores"] = _scores(extended, runs, shows)
     header = [
         "# The bearing on the real CWRU records: trained on simulations only",
         "",
@@ -178,11 +193,58 @@ def main(argv: list[str] | None = None) -> None:
         + [_setup_text(campaign, runs, files, read_s), _summary_text(results)]
         + [_classifier_text(r, runs, files, shows) for r in results if r.get("detail", True)]
         + [_diagnosis_text(r) for r in results if r.get("diagnosis")]
+        + ([_loop_text(loop)] if loop else [])
     )
     write_results(args.results, text)
 
 
 # ----------------------------------------------------------------------------------- inputs
+
+
+def _loop_entry(
+    seed: int, base: dict[str, Any], job, runs, wall: float
+) -> tuple[int, dict[str, Any], dict[str, Any] | None, str]:
+    """One seed of the loop: the base job's result, the extended job's (``None`` when nothing
+    was extended) and the verdict or the reason nothing was."""
+    verdict = (job.diagnosis or {}).get("verdict", "-")
+    if job.extended is None:
+        return seed, base, None, str((job.extension or {}).get("reason") or verdict)
+    extended = _job_result("nuts", f"extended by {verdict}", job.extended, runs, wall)
+    return seed, base, extended, verdict
+
+
+def _loop_text(loop) -> str:
+    """The base job against the job on the bearing extended by the diagnosis's verdict."""
+    lines = [
+        "## The diagnosis loop on the real records",
+        "",
+        "Per training seed: the diagnosis of the healthy calibration segments, the bearing "
+        "extended by its verdict (refitted on the same segments, training data regenerated, "
+        "classifier retrained, `run_job(extend=True)`), and the scores of the base job and the "
+        "extended one on the same test segments. A loss is a loss.",
+        "",
+        "| seed | verdict | job | segment accuracy | segment ECE | record accuracy | record "
+        "balanced accuracy | segments called at the selective risk: right |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for seed, base, extended, verdict in loop:
+        for label, r in (("base", base), ("extended", extended)):
+            if r is None:
+                lines.append(f"| {seed} | {verdict} | extended | nothing extended | | | | |")
+                continue
+            s = r["scores"]
+            sel = s["selective"]
+            right = (
+                f"{sel['segments_right'] / sel['segments_called']:.3f}"
+                if sel["segments_called"]
+                else "-"
+            )
+            lines.append(
+                f"| {seed} | {verdict} | {label} | {s['segment_acc'][0]:.3f} | "
+                f"{_num(r['ece'], '.3f')} | {s['record_acc'][0]:.3f} | {s['record_acc'][1]:.3f} "
+                f"| {sel['segments_called']} of {len(r['segments'])}: {right} |"
+            )
+    return "\n".join(lines) + "\n"
 
 
 def _keep(path: Path, classification: dict[str, Any]) -> None:

@@ -269,3 +269,27 @@ def test_run_refuses_a_job_folder_of_the_base_system_for_an_extended_one(tmp_pat
     held = HeldExtension(SYSTEM, (("m", 1.0),))
     with pytest.raises(FileExistsError, match="other settings"):
         run_job(held, campaign, tmp_path / "job", report=lambda line: None, **options)
+
+
+def test_a_held_extension_keeps_what_the_system_says_of_itself():
+    """The bearing extended and held keeps its own features, training points, envelope check
+    and catalogue (the base class's defaults would replace them: 4 Hz bands the bearing's
+    sampling cannot resolve, no check, the campaign's points only)."""
+    from bayesdoor.bearing import BearingSystem
+
+    bearing = BearingSystem()
+    extended = bearing.with_extensions("shaft_harmonics")
+    held = HeldExtension(extended, tuple((p.name, 0.0) for p in extended.parameters[-3:]))
+    assert held.features == bearing.features
+    points = np.array([[1797.0, 0.0]])
+    np.testing.assert_array_equal(held.training_points(points), bearing.training_points(points))
+    assert held.catalogue is not None
+    assert held.catalogue == bearing.catalogue
+    rng = np.random.default_rng(0)
+    signals = 0.1 * rng.standard_normal((4, 1, 12000))
+    operating = np.tile([1797.0, 0.0], (4, 1))
+    reference = held.signature_reference(signals, operating)
+    assert reference == bearing.signature_reference(signals, operating)
+    assert held.signatures(reference, signals, operating) == bearing.signatures(
+        reference, signals, operating
+    )

@@ -197,6 +197,37 @@ class HeldExtension(AbstractSystem):
     def record_duration(self, operating) -> float:
         return self.system.record_duration(operating)
 
+    # what the wrapped system says of itself beyond the core: its features, the points its
+    # training data are simulated at, its signature check and its catalogue (the base
+    # class's defaults would silently replace them)
+
+    @property
+    def features(self):
+        return self.system.features
+
+    def training_points(self, points: np.ndarray) -> np.ndarray:
+        return self.system.training_points(points)
+
+    def signature_reference(self, signals, operating) -> dict | None:
+        return self.system.signature_reference(signals, operating)
+
+    def signatures(self, reference, signals, operating):
+        return self.system.signatures(reference, signals, operating)
+
+    @property
+    def catalogue(self):
+        return self.system.catalogue
+
+    def simulate_gains(self, values, operating, gains, *, duration=None, check=True):
+        """The wrapped system's :meth:`simulate_gains` with the held values added."""
+        return self.system.simulate_gains(
+            {**dict(values), **self.held_values},
+            operating,
+            gains,
+            duration=duration,
+            check=check,
+        )
+
     def motion_window(self, operating, *, duration: float | None = None):
         return self.system.motion_window(operating, duration=duration)
 

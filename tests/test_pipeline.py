@@ -595,6 +595,7 @@ def test_classification_votes_per_record(finished, tmp_path):
         )
         assert entry["share_flagged"] == pytest.approx(share)
         assert entry["flagged"] == (share > 0.5)
+        assert entry["shows"] is None  # the tones have no signature check
     metrics = payload["record_metrics"]
     voted = [r for r in payload["records"] if r["majority"] is not None]
     right = [r["majority"] == r["state"] for r in voted]
@@ -698,6 +699,8 @@ def test_calls_the_signal_disagrees_with_are_flagged(finished, tmp_path):
             ]
         )
         assert entry["share_flagged"] == pytest.approx(share)
+        # what the record's signal shows, by state, without labels (D2: the check says nothing)
+        assert entry["shows"] == {"healthy": 1.0, "D1": 0.0}
     # the report's headline counts them
     from bayesdoor.pipeline import report_stage
 

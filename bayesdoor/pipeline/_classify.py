@@ -637,7 +637,10 @@ def record_votes(
         higher mean probability; ``None`` when no run is classified); ``mean_probabilities``
         (the classified runs' mean probability of each class); ``share_flagged`` (runs flagged
         out-of-distribution or uncertain, or not classified, per run); ``flagged`` (more than
-        half of its runs flagged: the record's vote is not to be relied on).
+        half of its runs flagged: the record's vote is not to be relied on); ``shows`` (with
+        the system's signature check: per state, the share of its checked runs whose signal
+        shows that state's signature, at the check's stated false-alarm rate, read without
+        labels; ``None`` without a check).
     """
     order = list(dict.fromkeys(str(r) for r in record))
     out = []
@@ -655,6 +658,16 @@ def record_votes(
         )
         flagged = sum(run_flagged(m) for m in members)
         states = {m["state"] for m in members}
+        checked = [m["signatures"] for m in members if m.get("signatures")]
+        shows = (
+            {
+                c: float(np.mean([bool(g.get(c)) for g in checked]))
+                for c in classes
+                if any(g.get(c) is not None for g in checked)
+            }
+            if checked
+            else None
+        )
         out.append(
             {
                 "record": name,
@@ -666,6 +679,7 @@ def record_votes(
                 "mean_probabilities": mean,
                 "share_flagged": flagged / len(members),
                 "flagged": flagged > len(members) / 2,
+                "shows": shows,
             }
         )
     return out

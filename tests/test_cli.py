@@ -146,4 +146,14 @@ def test_classify_prints_the_records_votes():
     assert re.search(
         r"IR007_0\s.*inner_race\s.*10\s.*inner_race\s.*0\.85\s.*70 % \(flagged\)", text
     )
-    assert re.search(r"B007_0\s.*None\s.*-\s.*100 % \(flagged\)", text)
+    assert re.search(r"B007_0\s.*uncalled\s.*-\s.*100 % \(flagged\)", text)
+    assert "signal shows" not in text  # no record was checked
+    # with a signature check: the states whose signature shows in most of the runs
+    records[0]["shows"] = {"inner_race": 0.8, "healthy": 0.0}
+    records[1]["shows"] = {"inner_race": 0.25, "healthy": 0.5}
+    console = Console(record=True, width=140)
+    console.print(_records_table(records, ["healthy", "inner_race"]))
+    text = console.export_text()
+    assert "signal shows" in text
+    assert re.search(r"IR007_0\s.*10\s.*inner_race\s.*inner_race\s.*0\.85", text)
+    assert re.search(r"B007_0\s.*4\s.*-\s.*uncalled", text)

@@ -121,17 +121,25 @@ def classify(
 
 
 def _records_table(records: list[dict], classes: list[str]) -> Table:
-    """The records' votes: true state, majority, its mean probability, share flagged."""
+    """The records' votes: true state, what the signal shows, majority of the runs called, its
+    mean probability, share flagged."""
     table = Table(title=f"votes of {len(records)} records")
-    for column in ("record", "state", "runs", "majority", "mean p(majority)", "flagged"):
+    checked = any(r.get("shows") for r in records)
+    columns = ["record", "state", "runs", *(["signal shows"] if checked else [])]
+    columns += ["majority", "mean p(majority)", "flagged"]
+    for column in columns:
         table.add_column(column, justify="left" if column in ("record", "state") else "right")
     for r in records:
         mean = r["mean_probabilities"]
+        shown = r.get("shows") or {}
+        # the states whose signature shows in most of the record's runs
+        most = [c for c in classes if shown.get(c, 0.0) > 0.5]
         table.add_row(
             r["record"],
             str(r["state"]),
             str(r["runs"]),
-            str(r["majority"]),
+            *([", ".join(most) or "-"] if checked else []),
+            "uncalled" if r["majority"] is None else str(r["majority"]),
             "-" if mean is None else f"{mean[r['majority']]:.2f}",
             f"{100 * r['share_flagged']:.0f} %" + (" (flagged)" if r["flagged"] else ""),
         )

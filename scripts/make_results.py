@@ -171,7 +171,7 @@ STEPS: tuple[Step, ...] = (
         "scripts/cwru.py",
         args=(
             *("--data", "../shared/data/cwru", "--quick", "--runs-per-state", "200"),
-            *("--more-seeds", "1", "2"),
+            *("--more-seeds", "1", "2", "--extend"),
         ),
         quick_args=("--jobs", "cmaes"),
         out=("--results", "cwru.md"),

@@ -18,5 +18,6 @@ from ._extensions import LineFrequency as LineFrequency
 from ._extensions import ShaftHarmonics as ShaftHarmonics
 from ._extensions import StructuralMode as StructuralMode
 from ._geometry import CWRU_DRIVE_END as CWRU_DRIVE_END
+from ._geometry import CWRU_FAN_END as CWRU_FAN_END
 from ._geometry import BearingGeometry as BearingGeometry
 from ._system import BearingSystem as BearingSystem

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
+from ._geometry import CWRU_DRIVE_END, BearingGeometry
 from ._stand import BAND_HZ
 
 
@@ -163,9 +164,8 @@ def fault_indicators(
     :data:`RULE_LINES` (from the geometry and ``shaft_speed_rpm``) the strongest bin within
     ``tolerance`` (relative, for slip) is compared with the median within 20 %
     (:func:`line_strength`). A family's indicator is the mean of its lines' prominences, dB.
+    ``geometry``: the bearing's (default the CWRU drive end's).
     """
-    from ._geometry import CWRU_DRIVE_END
-
     geometry = CWRU_DRIVE_END if geometry is None else geometry
     x = np.asarray(x, dtype=float).ravel()
     f, amplitude = envelope_spectrum(x, fs, band, segment_s=x.size / fs)
@@ -212,6 +212,8 @@ class EnvelopeRule:
     family_threshold
         The standardised indicator above which one given family counts as shown (``None``:
         ``z_threshold``).
+    geometry
+        The bearing whose fault frequencies the lines sit at.
     """
 
     mean: dict[str, float]
@@ -220,6 +222,7 @@ class EnvelopeRule:
     false_alarm_rate: float
     band: tuple[float, float] = BAND_HZ
     family_threshold: float | None = None
+    geometry: BearingGeometry = CWRU_DRIVE_END
 
     @classmethod
     def from_healthy(
@@ -230,8 +233,10 @@ class EnvelopeRule:
         *,
         false_alarm_rate: float = 0.01,
         band: tuple[float, float] = BAND_HZ,
+        geometry: BearingGeometry = CWRU_DRIVE_END,
     ) -> EnvelopeRule:
-        """The rule from healthy reference segments ``(segment, time)`` and their speeds."""
+        """The rule from healthy reference segments ``(segment, time)`` and their speeds, for
+        a bearing of ``geometry``."""
         from scipy.stats import t as student
 
         if not 0 < false_alarm_rate < 1:
@@ -241,7 +246,8 @@ class EnvelopeRule:
         if len(segments) < 3:
             raise ValueError(f"the rule needs at least 3 healthy segments, got {len(segments)}")
         rows = [
-            fault_indicators(x, fs, s, band=band) for x, s in zip(segments, speeds, strict=True)
+            fault_indicators(x, fs, s, band=band, geometry=geometry)
+            for x, s in zip(segments, speeds, strict=True)
         ]
         mean = {k: float(np.mean([r[k] for r in rows])) for k in RULE_LINES}
         sd = {k: float(np.std([r[k] for r in rows], ddof=1)) for k in RULE_LINES}
@@ -249,7 +255,7 @@ class EnvelopeRule:
         quantile = student.ppf(1 - false_alarm_rate / len(RULE_LINES), n - 1)
         z = float(quantile * np.sqrt(1 + 1 / n))
         one = float(student.ppf(1 - false_alarm_rate, n - 1) * np.sqrt(1 + 1 / n))
-        return cls(mean, sd, z, false_alarm_rate, band, one)
+        return cls(mean, sd, z, false_alarm_rate, band, one, geometry)
 
     def to_json(self) -> dict:
         """The rule as a JSON-able dict (:meth:`from_json` reads it back)."""
@@ -262,7 +268,10 @@ class EnvelopeRule:
         unknown = set(payload) - fields
         if unknown:
             raise ValueError(f"not an envelope rule: unknown keys {sorted(unknown)}")
-        return cls(**(payload | {"band": tuple(payload.get("band", BAND_HZ))}))
+        geometry = BearingGeometry(**payload.get("geometry", dataclasses.asdict(CWRU_DRIVE_END)))
+        return cls(
+            **(payload | {"band": tuple(payload.get("band", BAND_HZ)), "geometry": geometry})
+        )
 
     def agrees(self, x: np.ndarray, fs: float, shaft_speed_rpm: float) -> dict[str, bool]:
         """Whether the segment agrees with each state: ``healthy`` when the rule calls it
@@ -274,7 +283,7 @@ class EnvelopeRule:
 
     def scores(self, x: np.ndarray, fs: float, shaft_speed_rpm: float) -> dict[str, float]:
         """The standardised indicator of each fault family for one segment."""
-        raw = fault_indicators(x, fs, shaft_speed_rpm, band=self.band)
+        raw = fault_indicators(x, fs, shaft_speed_rpm, band=self.band, geometry=self.geometry)
         return {k: (raw[k] - self.mean[k]) / self.sd[k] for k in RULE_LINES}
 
     def classify(self, x: np.ndarray, fs: float, shaft_speed_rpm: float) -> str:

@@ -8,7 +8,6 @@ look for a line at the fault frequency in the envelope's spectrum (Randall and A
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 from scipy import signal
@@ -81,61 +80,6 @@ def line_strength(
 
 #: the envelope lines of each state's family, as multiples of the shaft frequency's name
 FAMILIES = {"outer_race": ("bpfo",), "inner_race": ("bpfi",), "ball": ("2bsf", "bsf")}
-
-
-def fault_line_check(
-    folder,
-    *,
-    band: tuple[float, float] = BAND_HZ,
-    tolerance: float = 0.02,
-    threshold_db: float = 10.0,
-) -> list[dict]:
-    """Which CWRU records show their fault frequency in the envelope spectrum.
-
-    Each record under ``folder`` (read as :func:`~bayesdoor.bearing.read_cwru` reads it, at
-    its settled sampling rate, whole) is band-passed to ``band``, enveloped and its envelope
-    spectrum taken with 1 Hz resolution (:func:`envelope_spectrum`); at BPFO, BPFI, 2 BSF and
-    BSF (from the geometry and the record's rpm) the strongest line within ``tolerance`` is
-    compared with the median of the spectrum within 20 % (:func:`line_strength`). A fault
-    record shows its fault when its own family's line (BPFO; BPFI; the stronger of 2 BSF and
-    BSF for a ball) stands ``threshold_db`` or more above that background and above every
-    other family's line.
-
-    Returns
-    -------
-    rows
-        Per record: ``record``, ``state``, ``shaft_speed_rpm``, per line its frequency found
-        (``<line>_hz``) and prominence (``<line>_db``), and ``shows`` (``None`` for a healthy
-        record).
-    """
-    from ._cwru import _at_campaign_rate, _record_rate, _records
-    from ._geometry import CWRU_DRIVE_END
-    from ._stand import FS
-
-    rows = []
-    for record in _records(Path(folder)):
-        rate, _ = _record_rate(record)
-        x = _at_campaign_rate(record.drive_end_g, rate)
-        f, amplitude = envelope_spectrum(x, FS, band)
-        hz = CWRU_DRIVE_END.fault_frequencies(record.shaft_speed / 60.0)
-        targets = {"bpfo": hz["bpfo"], "bpfi": hz["bpfi"], "2bsf": 2 * hz["bsf"], "bsf": hz["bsf"]}
-        row: dict = {
-            "record": record.name,
-            "state": record.state,
-            "shaft_speed_rpm": record.shaft_speed,
-        }
-        for name, target in targets.items():
-            peak, ratio = line_strength(f, amplitude, target, tolerance=tolerance)
-            row[f"{name}_hz"] = peak
-            row[f"{name}_db"] = round(20 * float(np.log10(ratio)), 1)
-        if record.state == "healthy":
-            row["shows"] = None
-        else:
-            family = {k: max(row[f"{n}_db"] for n in v) for k, v in FAMILIES.items()}
-            own = family.pop(record.state)
-            row["shows"] = bool(own >= threshold_db and own > max(family.values()))
-        rows.append(row)
-    return rows
 
 
 #: the lines of the physics rule's indicator of each fault state: harmonics 1..3 of BPFO and

@@ -17,6 +17,7 @@ from bayesdoor.bearing import (
     envelope_spectrum,
     import_cwru,
     import_records,
+    parse_manifest,
     read_manifest,
     read_records,
 )
@@ -374,3 +375,13 @@ def test_campaign_settings_the_system_refuses_are_a_problem(rig):
     assert [p.code for p in validate_campaign(ds)] == ["bad_system_settings"]
     with pytest.raises(ValueError, match="is not JSON"):
         system_of(ds)
+
+
+def test_the_manifest_of_the_docs_is_one_the_reader_takes():
+    page = (Path(__file__).parents[1] / "docs" / "bearing.md").read_text()
+    (block,) = re.findall(r"^```toml\n(.*?)^```", page, flags=re.S | re.M)
+    manifest = parse_manifest(block, source="docs/bearing.md")
+    assert manifest.rate_hz == FS and manifest.campaign_rate_hz == FS
+    assert manifest.states == {"N": "healthy", "O": "outer_race", "I": "inner_race"}
+    assert manifest.geometry.orders()["bpfo"] == pytest.approx(BPFO_ORDER, rel=1e-12)
+    assert manifest.names[1].search("O014_L1")["size"] == "014"

@@ -7,7 +7,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bayesdoor.bearing import CWRU_DRIVE_END, BearingGeometry, BearingSystem, envelope_spectrum
+from bayesdoor.bearing import (
+    CWRU_DRIVE_END,
+    CWRU_FAN_END,
+    BearingGeometry,
+    BearingSystem,
+    envelope_spectrum,
+)
 from bayesdoor.bearing._envelope import line_strength
 from bayesdoor.systems import AbstractSystem, get_system
 
@@ -307,3 +313,64 @@ def test_training_points_span_the_speeds_and_loads_and_keep_the_campaigns(system
     assert points[:, 1].min() == 0.0 and points[:, 1].max() == 3.0
     assert len(points) == len({tuple(p) for p in points}) == 2 + 3 * 2
     system.check_operating(points)
+
+
+def test_another_geometry_and_rate_travel_with_a_campaign():
+    from bayesdoor.bearing._system import FEATURES
+    from bayesdoor.io import make_campaign, system_of
+
+    # the CWRU fan-end bearing at 48 kHz, its orders those of the Data Center's table
+    geometry = CWRU_FAN_END
+    orders = geometry.orders()
+    np.testing.assert_allclose(
+        [orders["bpfi"], orders["bpfo"], orders["ftf"], 2 * orders["bsf"]],
+        [4.9469, 3.0530, 0.3817, 3.9874],
+        atol=3e-4,  # the table's figures lie within 3 units of their last digit of the formula
+    )
+    system = BearingSystem(geometry=geometry, sampling_rate_hz=48000.0)
+    assert BearingSystem().with_settings(json.loads(json.dumps(system.settings()))) == system
+    ds = make_campaign(
+        np.zeros((1, 1, 48000)),
+        channels=["DE"],
+        fs=48000.0,
+        state=["healthy"],
+        system="bearing",
+        shaft_speed=[1797.0],
+        load_hp=[0.0],
+    )
+    assert system_of(ds) == BearingSystem()
+    ds.attrs["system_settings"] = json.dumps(system.settings())
+    assert system_of(ds) == system
+    # the same bin widths at four times the rate: Welch segments of the same duration
+    assert system.features.nperseg == 4 * FEATURES.nperseg
+    assert system.features.classifier_nperseg == 4 * FEATURES.classifier_nperseg
+    assert system.describe()["sampling_rate_hz"] == 48000.0
+    with pytest.raises(ValueError, match=r"sampling_rate_hz=8000.0: .* must exceed 11600 Hz"):
+        BearingSystem(sampling_rate_hz=8000.0)
+    with pytest.raises(ValueError, match=r"unknown settings \['speed'\] of bearing"):
+        system.with_settings({"speed": 1.0})
+
+
+def test_the_envelope_rule_reads_the_lines_of_its_bearing():
+    from bayesdoor.bearing import EnvelopeRule
+
+    geometry = CWRU_FAN_END
+    system = BearingSystem(geometry=geometry)
+    healthy = system.simulate_values(system.nominal(), np.tile(OPERATING, (4, 1))).signals
+    faulty = system.simulate_values(
+        system.nominal(),
+        np.tile(OPERATING, (3, 1)),
+        state="outer_race",
+        severity={"fault_size_in": 0.014, "impulse_amplitude": 60.0},
+    ).signals
+    reference = system.signature_reference(healthy, np.tile(OPERATING, (4, 1)))
+    assert EnvelopeRule.from_json(json.loads(json.dumps(reference))).geometry == geometry
+    calls = system.signatures(reference, faulty, np.tile(OPERATING, (3, 1)))
+    assert [c["outer_race"] for c in calls] == [True] * 3
+    # the same runs read at the CWRU drive end's frequencies show no outer-race lines
+    cwru = BearingSystem().signatures(
+        BearingSystem().signature_reference(healthy, np.tile(OPERATING, (4, 1))),
+        faulty,
+        np.tile(OPERATING, (3, 1)),
+    )
+    assert [c["outer_race"] for c in cwru] == [False] * 3

@@ -8,11 +8,11 @@ look for a line at the fault frequency in the envelope's spectrum (Randall and A
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 from scipy import signal
 
+from ._geometry import CWRU_DRIVE_END, BearingGeometry
 from ._stand import BAND_HZ
 
 
@@ -82,61 +82,6 @@ def line_strength(
 FAMILIES = {"outer_race": ("bpfo",), "inner_race": ("bpfi",), "ball": ("2bsf", "bsf")}
 
 
-def fault_line_check(
-    folder,
-    *,
-    band: tuple[float, float] = BAND_HZ,
-    tolerance: float = 0.02,
-    threshold_db: float = 10.0,
-) -> list[dict]:
-    """Which CWRU records show their fault frequency in the envelope spectrum.
-
-    Each record under ``folder`` (read as :func:`~bayesdoor.bearing.read_cwru` reads it, at
-    its settled sampling rate, whole) is band-passed to ``band``, enveloped and its envelope
-    spectrum taken with 1 Hz resolution (:func:`envelope_spectrum`); at BPFO, BPFI, 2 BSF and
-    BSF (from the geometry and the record's rpm) the strongest line within ``tolerance`` is
-    compared with the median of the spectrum within 20 % (:func:`line_strength`). A fault
-    record shows its fault when its own family's line (BPFO; BPFI; the stronger of 2 BSF and
-    BSF for a ball) stands ``threshold_db`` or more above that background and above every
-    other family's line.
-
-    Returns
-    -------
-    rows
-        Per record: ``record``, ``state``, ``shaft_speed_rpm``, per line its frequency found
-        (``<line>_hz``) and prominence (``<line>_db``), and ``shows`` (``None`` for a healthy
-        record).
-    """
-    from ._cwru import _at_campaign_rate, _record_rate, _records
-    from ._geometry import CWRU_DRIVE_END
-    from ._stand import FS
-
-    rows = []
-    for record in _records(Path(folder)):
-        rate, _ = _record_rate(record)
-        x = _at_campaign_rate(record.drive_end_g, rate)
-        f, amplitude = envelope_spectrum(x, FS, band)
-        hz = CWRU_DRIVE_END.fault_frequencies(record.shaft_speed / 60.0)
-        targets = {"bpfo": hz["bpfo"], "bpfi": hz["bpfi"], "2bsf": 2 * hz["bsf"], "bsf": hz["bsf"]}
-        row: dict = {
-            "record": record.name,
-            "state": record.state,
-            "shaft_speed_rpm": record.shaft_speed,
-        }
-        for name, target in targets.items():
-            peak, ratio = line_strength(f, amplitude, target, tolerance=tolerance)
-            row[f"{name}_hz"] = peak
-            row[f"{name}_db"] = round(20 * float(np.log10(ratio)), 1)
-        if record.state == "healthy":
-            row["shows"] = None
-        else:
-            family = {k: max(row[f"{n}_db"] for n in v) for k, v in FAMILIES.items()}
-            own = family.pop(record.state)
-            row["shows"] = bool(own >= threshold_db and own > max(family.values()))
-        rows.append(row)
-    return rows
-
-
 #: the lines of the physics rule's indicator of each fault state: harmonics 1..3 of BPFO and
 #: BPFI; harmonics 1..4 of BSF for a ball (a ball strikes the races at 2 BSF and, when its
 #: defect meets one race only, at BSF)
@@ -163,9 +108,8 @@ def fault_indicators(
     :data:`RULE_LINES` (from the geometry and ``shaft_speed_rpm``) the strongest bin within
     ``tolerance`` (relative, for slip) is compared with the median within 20 %
     (:func:`line_strength`). A family's indicator is the mean of its lines' prominences, dB.
+    ``geometry``: the bearing's (default the CWRU drive end's).
     """
-    from ._geometry import CWRU_DRIVE_END
-
     geometry = CWRU_DRIVE_END if geometry is None else geometry
     x = np.asarray(x, dtype=float).ravel()
     f, amplitude = envelope_spectrum(x, fs, band, segment_s=x.size / fs)
@@ -212,6 +156,8 @@ class EnvelopeRule:
     family_threshold
         The standardised indicator above which one given family counts as shown (``None``:
         ``z_threshold``).
+    geometry
+        The bearing whose fault frequencies the lines sit at.
     """
 
     mean: dict[str, float]
@@ -220,6 +166,7 @@ class EnvelopeRule:
     false_alarm_rate: float
     band: tuple[float, float] = BAND_HZ
     family_threshold: float | None = None
+    geometry: BearingGeometry = CWRU_DRIVE_END
 
     @classmethod
     def from_healthy(
@@ -230,8 +177,10 @@ class EnvelopeRule:
         *,
         false_alarm_rate: float = 0.01,
         band: tuple[float, float] = BAND_HZ,
+        geometry: BearingGeometry = CWRU_DRIVE_END,
     ) -> EnvelopeRule:
-        """The rule from healthy reference segments ``(segment, time)`` and their speeds."""
+        """The rule from healthy reference segments ``(segment, time)`` and their speeds, for
+        a bearing of ``geometry``."""
         from scipy.stats import t as student
 
         if not 0 < false_alarm_rate < 1:
@@ -241,7 +190,8 @@ class EnvelopeRule:
         if len(segments) < 3:
             raise ValueError(f"the rule needs at least 3 healthy segments, got {len(segments)}")
         rows = [
-            fault_indicators(x, fs, s, band=band) for x, s in zip(segments, speeds, strict=True)
+            fault_indicators(x, fs, s, band=band, geometry=geometry)
+            for x, s in zip(segments, speeds, strict=True)
         ]
         mean = {k: float(np.mean([r[k] for r in rows])) for k in RULE_LINES}
         sd = {k: float(np.std([r[k] for r in rows], ddof=1)) for k in RULE_LINES}
@@ -249,7 +199,7 @@ class EnvelopeRule:
         quantile = student.ppf(1 - false_alarm_rate / len(RULE_LINES), n - 1)
         z = float(quantile * np.sqrt(1 + 1 / n))
         one = float(student.ppf(1 - false_alarm_rate, n - 1) * np.sqrt(1 + 1 / n))
-        return cls(mean, sd, z, false_alarm_rate, band, one)
+        return cls(mean, sd, z, false_alarm_rate, band, one, geometry)
 
     def to_json(self) -> dict:
         """The rule as a JSON-able dict (:meth:`from_json` reads it back)."""
@@ -262,7 +212,10 @@ class EnvelopeRule:
         unknown = set(payload) - fields
         if unknown:
             raise ValueError(f"not an envelope rule: unknown keys {sorted(unknown)}")
-        return cls(**(payload | {"band": tuple(payload.get("band", BAND_HZ))}))
+        geometry = BearingGeometry(**payload.get("geometry", dataclasses.asdict(CWRU_DRIVE_END)))
+        return cls(
+            **(payload | {"band": tuple(payload.get("band", BAND_HZ)), "geometry": geometry})
+        )
 
     def agrees(self, x: np.ndarray, fs: float, shaft_speed_rpm: float) -> dict[str, bool]:
         """Whether the segment agrees with each state: ``healthy`` when the rule calls it
@@ -274,7 +227,7 @@ class EnvelopeRule:
 
     def scores(self, x: np.ndarray, fs: float, shaft_speed_rpm: float) -> dict[str, float]:
         """The standardised indicator of each fault family for one segment."""
-        raw = fault_indicators(x, fs, shaft_speed_rpm, band=self.band)
+        raw = fault_indicators(x, fs, shaft_speed_rpm, band=self.band, geometry=self.geometry)
         return {k: (raw[k] - self.mean[k]) / self.sd[k] for k in RULE_LINES}
 
     def classify(self, x: np.ndarray, fs: float, shaft_speed_rpm: float) -> str:

@@ -28,7 +28,7 @@ from .._types import Array, Float
 from ..systems import AbstractExtension, ParameterSpec, build_extension, unsynchronised_line
 from ._model import resonance_response
 
-#: the sampling rate of the modelled records, Hz (the system's)
+#: the default bearing's sampling rate, Hz: the supply's harmonics lie below its Nyquist
 _FS = 12000.0
 #: the supply frequencies an electrical line may have, Hz
 SUPPLY_FREQUENCIES_HZ = (50.0, 60.0)
@@ -139,12 +139,14 @@ class StructuralMode(AbstractBearingExtension):
         v = self.local(values)
         n = signal.shape[-1]
         dtype = signal.dtype
-        f = jnp.arange(n // 2 + 1, dtype=dtype) * (_FS / n)
+        # the record's own rate, from its time axis (the system's sampling rate)
+        fs = 1.0 / (time[1] - time[0]).astype(dtype)
+        f = jnp.arange(n // 2 + 1, dtype=dtype) * (fs / n)
         fn = jnp.asarray(v["frequency_hz"], dtype)
         zeta = jnp.asarray(v["damping_ratio"], dtype)
-        response = resonance_response(f, _FS, fn, zeta)
+        response = resonance_response(f, fs, fn, zeta)
         # unit gain and zero phase at the natural frequency: the mode adds to the signal there
-        at_mode = resonance_response(fn[None], _FS, fn, zeta)[0]
+        at_mode = resonance_response(fn[None], fs, fn, zeta)[0]
         filtered = jnp.fft.irfft(jnp.fft.rfft(signal) * (response / at_mode), n=n)
         return signal + jnp.asarray(v["gain"], dtype) * filtered
 

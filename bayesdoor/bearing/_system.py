@@ -1,5 +1,7 @@
-"""The drive-end bearing of the CWRU stand as a :class:`~bayesdoor.systems.AbstractSystem`.
+"""A rolling-element bearing as a :class:`~bayesdoor.systems.AbstractSystem`.
 
+By default the drive-end bearing of the CWRU stand at 12 kHz; the geometry and the sampling
+rate are fields, so a campaign of another bearing names its own (:meth:`BearingSystem.settings`).
 A phenomenological model of the drive-end accelerometer (one channel ``DE``, m/s^2): shaft
 harmonics, resonances excited by a broadband background and, for a localised fault, by
 impulses at the kinematic fault frequency with slip jitter and load-zone modulation, plus
@@ -109,6 +111,10 @@ CONDITIONS = (
     ),
 )
 
+#: the highest frequency the model describes, Hz: the upper bound of the higher mode
+#: (``resonance_2_hz``); a sampling rate must put the Nyquist frequency above it
+MODEL_TOP_HZ = max(p.upper for p in PARAMETERS if p.unit == "Hz")
+
 #: the shaft speeds (rpm) and motor loads (hp) the training data span besides the campaign's
 #: own operating points: a user's machine does not run at the calibration speed. The ends and
 #: the middle of 1700-1800 rpm, at the ends of 0-3 hp (the model depends on the load only
@@ -125,7 +131,8 @@ SIGNATURE_FALSE_ALARM_RATE = 0.01
 #: the fewest healthy runs the signature check's reference is made from
 SIGNATURE_MIN_RUNS = 3
 
-#: what the fit and the classifier compare (docs/bearing.md, "Features"): the fit, log10 Welch
+#: what the fit and the classifier compare at 12 kHz (docs/bearing.md, "Features"; at another
+#: rate the Welch segments scale with it, :attr:`BearingSystem.features`): the fit, log10 Welch
 #: PSDs (480 samples, 25 Hz bins) in 39 bands of 100 Hz from 1.5 to 5.4 kHz, the resonance
 #: region the model describes (below it the real healthy record holds lines the model lacks,
 #: above it the recorder's anti-alias filter cuts the spectrum); the classifier, the log10
@@ -145,7 +152,8 @@ FEATURES = SpectralFeatures(
 
 
 class BearingSystem(AbstractSystem):
-    """The CWRU drive-end bearing (SKF 6205-2RS): one accelerometer ``DE`` at 12 kHz.
+    """A rolling-element bearing seen by one accelerometer ``DE``; by default the CWRU
+    drive-end bearing (SKF 6205-2RS) at 12 kHz.
 
     Operating conditions: ``shaft_speed`` (rpm) and ``load_hp``, the columns of
     ``operating`` (shape ``(run, 2)``; one run may be given as ``(2,)``).
@@ -153,7 +161,10 @@ class BearingSystem(AbstractSystem):
     Parameters
     ----------
     geometry
-        The bearing's geometry (the fault frequencies follow from it).
+        The bearing's geometry (the fault frequencies follow from it: the simulated impulses
+        and the envelope rule's lines).
+    sampling_rate_hz
+        The accelerometer's sampling rate, Hz; above twice :data:`MODEL_TOP_HZ`.
     segment_s
         The length of a record, s (:meth:`record_duration`).
     seed
@@ -182,6 +193,7 @@ class BearingSystem(AbstractSystem):
     """
 
     geometry: BearingGeometry = eqx.field(static=True, default=CWRU_DRIVE_END)
+    sampling_rate_hz: float = eqx.field(static=True, default=FS, converter=float)
     segment_s: float = eqx.field(static=True, default=1.0)
     seed: int = eqx.field(static=True, default=0)
     harmonic_ratios: tuple[float, ...] = eqx.field(static=True, default=(1.0, 0.6, 0.8))
@@ -207,6 +219,13 @@ class BearingSystem(AbstractSystem):
             )
         if not self.segment_s > 0:
             raise ValueError(f"segment_s must be positive, got {self.segment_s!r}")
+        if not (np.isfinite(self.sampling_rate_hz) and self.sampling_rate_hz > 2 * MODEL_TOP_HZ):
+            raise ValueError(
+                f"sampling_rate_hz={self.sampling_rate_hz!r}: the model describes the spectrum "
+                f"up to {MODEL_TOP_HZ:g} Hz (the higher mode's upper bound), so the rate must "
+                f"exceed {2 * MODEL_TOP_HZ:g} Hz; resample the records to a higher rate, or "
+                "record at one"
+            )
         if not 0 < self.load_zone_epsilon:
             raise ValueError(f"load_zone_epsilon must be positive, got {self.load_zone_epsilon}")
 
@@ -268,13 +287,50 @@ class BearingSystem(AbstractSystem):
         return CONDITIONS
 
     @property
-    def sampling_rate_hz(self) -> float:
-        return FS
-
-    @property
     def features(self) -> SpectralFeatures:
-        """Log-PSD bands over the resonance region (:data:`FEATURES`, docs/bearing.md)."""
-        return FEATURES
+        """Log-PSD bands over the resonance region (:data:`FEATURES`, docs/bearing.md), with
+        Welch segments of the same duration at any sampling rate (the same bin widths)."""
+        scale = self.sampling_rate_hz / FS
+        return dataclasses.replace(
+            FEATURES,
+            nperseg=round(FEATURES.nperseg * scale),
+            classifier_nperseg=round(FEATURES.classifier_nperseg * scale),
+        )
+
+    def settings(self) -> dict:
+        """The bearing's geometry and sampling rate (JSON-able), which
+        :meth:`with_settings` reads back: what a campaign of this bearing records."""
+        return {
+            "geometry": dataclasses.asdict(self.geometry),
+            "sampling_rate_hz": self.sampling_rate_hz,
+        }
+
+    def with_settings(self, settings) -> BearingSystem:
+        """This bearing with the geometry and sampling rate of :meth:`settings` (either may
+        be left out).
+
+        Raises
+        ------
+        ValueError
+            For another key, a geometry with unknown or missing fields, or values the
+            geometry or the system refuse.
+        """
+        unknown = sorted(set(settings) - {"geometry", "sampling_rate_hz"})
+        if unknown:
+            raise ValueError(
+                f"unknown settings {unknown} of {self.name}: it takes geometry and sampling_rate_hz"
+            )
+        geometry = self.geometry
+        if "geometry" in settings:
+            try:
+                geometry = BearingGeometry(**settings["geometry"])
+            except TypeError as err:
+                fields = ", ".join(f.name for f in dataclasses.fields(BearingGeometry))
+                raise ValueError(f"geometry {settings['geometry']!r}: {err} ({fields})") from None
+        rate = settings.get("sampling_rate_hz", self.sampling_rate_hz)
+        if isinstance(rate, bool) or not isinstance(rate, int | float):
+            raise ValueError(f"sampling_rate_hz must be a number (Hz), got {rate!r}")
+        return dataclasses.replace(self, geometry=geometry, sampling_rate_hz=float(rate))
 
     def describe(self) -> dict:
         """Name, geometry and the model's fixed settings (JSON-able)."""
@@ -294,6 +350,7 @@ class BearingSystem(AbstractSystem):
                 "pitch_diameter_in": self.geometry.pitch_diameter_in,
                 "contact_angle_deg": self.geometry.contact_angle_deg,
             },
+            "sampling_rate_hz": self.sampling_rate_hz,
             "segment_s": self.segment_s,
             "seed": self.seed,
             "harmonic_ratios": list(self.harmonic_ratios),
@@ -323,7 +380,11 @@ class BearingSystem(AbstractSystem):
         if len(segments) < SIGNATURE_MIN_RUNS:
             return None
         rule = EnvelopeRule.from_healthy(
-            segments, FS, rpm, false_alarm_rate=SIGNATURE_FALSE_ALARM_RATE
+            segments,
+            self.sampling_rate_hz,
+            rpm,
+            false_alarm_rate=SIGNATURE_FALSE_ALARM_RATE,
+            geometry=self.geometry,
         )
         return rule.to_json()
 
@@ -334,7 +395,8 @@ class BearingSystem(AbstractSystem):
 
         rule = EnvelopeRule.from_json(reference)
         segments, rpm = _drive_end(signals, operating)
-        return [dict(rule.agrees(x, FS, float(s))) for x, s in zip(segments, rpm, strict=True)]
+        fs = self.sampling_rate_hz
+        return [dict(rule.agrees(x, fs, float(s))) for x, s in zip(segments, rpm, strict=True)]
 
     def _runs(self, operating) -> int:
         return int(np.atleast_2d(np.asarray(operating)).shape[0])
@@ -346,8 +408,9 @@ class BearingSystem(AbstractSystem):
     def motion_window(self, operating, *, duration=None):
         """The whole record, from its first sample to its last: the shaft turns throughout."""
         runs = self._runs(operating)
-        n_time = round((self.segment_s if duration is None else float(duration)) * FS)
-        return np.zeros(runs), np.full(runs, (n_time - 1) / FS)
+        fs = self.sampling_rate_hz
+        n_time = round((self.segment_s if duration is None else float(duration)) * fs)
+        return np.zeros(runs), np.full(runs, (n_time - 1) / fs)
 
     def simulate(self, theta, damage, operating, *, duration=None) -> SimulationResult:
         """Runs for parameter values ``theta`` (by name) and a damage.
@@ -432,9 +495,10 @@ class BearingSystem(AbstractSystem):
             if k != "fault_size_in":
                 p[k] = jnp.broadcast_to(jnp.asarray(fault[k], dtype=dtype), (runs,))
         size_arr = jnp.broadcast_to(jnp.asarray(fault["fault_size_in"], dtype=dtype), (runs,))
-        n_time = round((self.segment_s if duration is None else float(duration)) * FS)
+        fs = self.sampling_rate_hz
+        n_time = round((self.segment_s if duration is None else float(duration)) * fs)
         signals, status = _simulate(self, p, op, size_arr, state, n_time)
-        time = jnp.arange(n_time, dtype=dtype) / FS
+        time = jnp.arange(n_time, dtype=dtype) / fs
         if self.output_extensions:
             signals = self.apply_output_extensions(signals, time, p)
             ok = jnp.all(jnp.isfinite(signals), axis=(-2, -1))
@@ -471,11 +535,12 @@ def _float_bits(x: jax.Array) -> jax.Array:
 @eqx.filter_jit
 def _simulate(system: BearingSystem, p, op, size, state: str, n_time: int):
     geometry = system.geometry
+    fs = system.sampling_rate_hz
     orders = geometry.orders()
     order = geometry.impulse_order(state) if state != "healthy" else 1.0
     slip_max = FAULT_PARAMETERS["slip"][1]
     rpm_max = CONDITIONS[0].upper
-    capacity = impulse_capacity(n_time / FS, order, 1.5 * rpm_max / 60.0, slip_max)
+    capacity = impulse_capacity(n_time / fs, order, 1.5 * rpm_max / 60.0, slip_max)
     base = jax.random.PRNGKey(system.seed)
     runs = op.shape[0]
 
@@ -492,7 +557,7 @@ def _simulate(system: BearingSystem, p, op, size, state: str, n_time: int):
             key,
             state=state,
             n_time=n_time,
-            fs=FS,
+            fs=fs,
             order=order,
             ftf_order=orders["ftf"],
             surface_speed_per_hz=geometry.surface_speed_per_hz(),

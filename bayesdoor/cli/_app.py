@@ -309,18 +309,27 @@ def demo(
 @app.command("import")
 @on_interrupt("nothing was written (the campaign file is written whole or not at all)")
 def import_(
-    format: Annotated[str, typer.Argument(help="the data's format, e.g. cwru")],
+    format: Annotated[
+        str,
+        typer.Argument(
+            help="the data's format: an importer's name (cwru), or a manifest file (.toml) "
+            "that describes the records"
+        ),
+    ],
     source: Annotated[Path, typer.Argument(help="the measured data (a file or a folder)")],
     out: Annotated[Path, typer.Option("--out", help="campaign file to write (.nc)")],
     force: Annotated[bool, typer.Option(help="overwrite an existing file")] = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
-    """Turn measured data into a campaign file, through the importer of its format."""
+    """Turn measured data into a campaign file, through its format's importer or a manifest."""
     configure_jax()
     from ..systems import get_importer
 
     try:
-        importer = get_importer(format)
+        if format.endswith(".toml"):
+            importer = _manifest_importer(Path(format))
+        else:
+            importer = get_importer(format)
     except LookupError as err:
         raise fail(str(err)) from None
     if not source.exists():
@@ -340,6 +349,28 @@ def import_(
         per_state = summary.get("runs_per_state", {})
         states = ", ".join(f"{k} {v}" for k, v in per_state.items())
         _err.print(f"wrote {summary.get('runs', '?')} runs ({states}) to {out}", soft_wrap=True)
+        for note in summary.get("notes", []):
+            _err.print(f"note: {note}", soft_wrap=True, markup=False)
+
+
+def _manifest_importer(manifest: Path):
+    """The importer of the records a manifest describes: the reader of manifests of the
+    system it names (``system = "bearing"``), bound to the manifest."""
+    import functools
+    import tomllib
+
+    from ..systems import get_manifest_importer
+
+    if not manifest.is_file():
+        raise fail(f"{manifest}: no such manifest file")
+    try:
+        data = tomllib.loads(manifest.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise fail(f"{manifest}: not TOML ({err})") from None
+    system = data.get("system")
+    if not isinstance(system, str):
+        raise fail(f'{manifest}: the manifest names no system (system = "bearing" at its top)')
+    return functools.partial(get_manifest_importer(system), manifest)
 
 
 @app.command()

@@ -217,7 +217,9 @@ def writing(path: Path, option: str = "--out") -> Iterator[None]:
 
 def system_named(campaign: xr.Dataset, name: str | None = None) -> AbstractSystem:
     """The system ``name`` (``--system``), else the one the campaign names in its ``system``
-    attribute, found through the registry (:func:`bayesdoor.systems.get_system`)."""
+    attribute, found through the registry (:func:`bayesdoor.systems.get_system`), with the
+    settings the campaign records for it (a bearing's geometry and sampling rate)."""
+    from ..io import with_campaign_settings
     from ..systems import available_systems, get_system
 
     if "acceleration" not in campaign:
@@ -231,8 +233,8 @@ def system_named(campaign: xr.Dataset, name: str | None = None) -> AbstractSyste
                 f"NAME, one of {', '.join(available_systems())}"
             )
     try:
-        return get_system(name)
-    except LookupError as err:
+        return with_campaign_settings(get_system(name), campaign)
+    except (LookupError, ValueError) as err:
         raise fail(str(err)) from None
 
 

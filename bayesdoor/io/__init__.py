@@ -7,13 +7,16 @@ from ._csv import SIDECAR as SIDECAR
 from ._csv import from_csv as from_csv
 from ._csv import to_csv as to_csv
 from ._format import ACCELERATION_UNITS as ACCELERATION_UNITS
+from ._format import CONVERTIBLE_UNITS as CONVERTIBLE_UNITS
 from ._format import HEALTHY as HEALTHY
 from ._format import SPLIT_LABELS as SPLIT_LABELS
+from ._format import SYSTEM_SETTINGS as SYSTEM_SETTINGS
 from ._format import UNKNOWN as UNKNOWN
 from ._format import atomic_write as atomic_write
 from ._format import operating as operating
 from ._format import state_labels as state_labels
 from ._format import system_of as system_of
+from ._format import with_campaign_settings as with_campaign_settings
 from ._validate import CampaignError as CampaignError
 from ._validate import Problem as Problem
 from ._validate import check_campaign as check_campaign

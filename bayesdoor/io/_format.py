@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import uuid
 from collections.abc import Callable
@@ -52,16 +53,54 @@ def atomic_write(path: Path, write: Callable[[Path], object], *, overwrite: bool
     return path
 
 
+#: the campaign attribute that holds the system's settings (JSON), where they differ from
+#: the registered system's (:meth:`~bayesdoor.systems.AbstractSystem.settings`)
+SYSTEM_SETTINGS = "system_settings"
+
+
 def system_of(campaign_or_name) -> AbstractSystem | None:
-    """The registered system a campaign names in ``attrs['system']`` (or by name); ``None``
-    when no system of that name is registered."""
+    """The registered system a campaign names in ``attrs['system']`` (or by name), with the
+    settings the campaign records (:func:`with_campaign_settings`); ``None`` when no system of
+    that name is registered.
+
+    Raises
+    ------
+    ValueError
+        When the campaign's ``system_settings`` are not JSON or the system refuses them.
+    """
     name = getattr(campaign_or_name, "attrs", {}).get("system", campaign_or_name)
     if not isinstance(name, str) or not name.strip():
         return None
     try:
-        return get_system(name)
+        system = get_system(name)
     except LookupError:
         return None
+    return with_campaign_settings(system, campaign_or_name)
+
+
+def with_campaign_settings(system: AbstractSystem, campaign) -> AbstractSystem:
+    """``system`` with the settings of ``attrs['system_settings']`` (a bearing's geometry and
+    sampling rate) when the campaign names that system; else ``system`` as given.
+
+    Raises
+    ------
+    ValueError
+        When the settings are not a JSON object or the system refuses them, naming both.
+    """
+    attrs = getattr(campaign, "attrs", {})
+    text = attrs.get(SYSTEM_SETTINGS)
+    if text is None or attrs.get("system") != system.name:
+        return system
+    try:
+        settings = json.loads(text)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"attrs[{SYSTEM_SETTINGS!r}] is not JSON ({err}): {text!r}") from None
+    if not isinstance(settings, dict):
+        raise ValueError(f"attrs[{SYSTEM_SETTINGS!r}] must be a JSON object, got {text!r}")
+    try:
+        return system.with_settings(settings)
+    except ValueError as err:
+        raise ValueError(f"attrs[{SYSTEM_SETTINGS!r}] of the campaign: {err}") from None
 
 
 def state_labels(system: AbstractSystem) -> tuple[str, ...]:

@@ -409,8 +409,9 @@ def validate_campaign(
     ``missing_<condition>`` (one of the system's operating conditions absent or not finite,
     e.g. the door's ``missing_v_max``), ``bad_<condition>`` (not positive where it must be),
     ``unknown_split``, ``bad_motion_window``,
-    ``window_too_short``, ``missing_system``, and ``bad_<name>`` for a per-run coordinate
-    without dims ``('run',)``.
+    ``window_too_short``, ``missing_system``, ``bad_system_settings`` (``system_settings``
+    that are not JSON or that the system refuses), and ``bad_<name>`` for a per-run
+    coordinate without dims ``('run',)``.
 
     The clipping rule: a record is clipped when the samples at exactly its largest absolute
     value (either sign) form a stretch of at least ``clip_run`` consecutive samples, or number
@@ -473,7 +474,10 @@ def validate_campaign(
     problems += time_problems
     problems += _sample_problems(ds, clip_run, clip_fraction)
     if system is None:
-        system = system_of(ds)
+        try:
+            system = system_of(ds)
+        except ValueError as err:
+            problems.append(Problem("bad_system_settings", str(err)))
     problems += _run_problems(ds, system, fs, nperseg)
     if not str(ds.attrs.get("system", "")).strip():
         problems.append(

@@ -22,5 +22,6 @@ from ._registry import available_importers as available_importers
 from ._registry import available_systems as available_systems
 from ._registry import get_demo as get_demo
 from ._registry import get_importer as get_importer
+from ._registry import get_manifest_importer as get_manifest_importer
 from ._registry import get_system as get_system
 from ._registry import register_system as register_system

@@ -324,6 +324,26 @@ class AbstractSystem(eqx.Module):
         """
         return signals
 
+    def settings(self) -> dict:
+        """The settings that make this system one of several of its name (a bearing's
+        geometry and sampling rate), JSON-able: what :meth:`with_settings` reads back. A
+        campaign of a system that differs from the registered one records them in
+        ``attrs['system_settings']`` (JSON), and :func:`bayesdoor.io.system_of` applies them.
+        Default: none."""
+        return {}
+
+    def with_settings(self, settings: Mapping) -> AbstractSystem:
+        """This system with ``settings`` (as :meth:`settings` writes them) applied.
+
+        Raises
+        ------
+        ValueError
+            For settings the system does not take (by default: any).
+        """
+        if settings:
+            raise ValueError(f"{self.name} takes no settings, got {sorted(settings)}")
+        return self
+
     def describe(self) -> dict:
         """A JSON-able description (name, extensions) for provenance and configuration hashes."""
         return {"name": self.name, "extensions": []}

@@ -26,6 +26,9 @@ ENTRY_POINT_GROUP = "bayesdoor.systems"
 DEMO_GROUP = "bayesdoor.demos"
 #: the entry-point group of importers of measured data (``bayesdoor import NAME``)
 IMPORTER_GROUP = "bayesdoor.importers"
+#: the entry-point group of the readers of manifests (``bayesdoor import MANIFEST.toml``),
+#: named after the system a manifest names
+MANIFEST_IMPORTER_GROUP = "bayesdoor.manifest_importers"
 _REGISTERED: dict[str, Callable[[], AbstractSystem]] = {}
 
 
@@ -132,4 +135,25 @@ def get_importer(name: str) -> Callable[..., dict]:
     raise LookupError(
         f"no importer called {name!r}: available {', '.join(available_importers()) or 'none'} "
         f"(a package declares one through the {IMPORTER_GROUP!r} entry points)"
+    )
+
+
+def get_manifest_importer(system: str) -> Callable[..., dict]:
+    """The reader of manifests of ``system``: ``importer(manifest, source, out, *,
+    overwrite=False) -> summary`` writes a campaign file from the records at ``source`` that
+    the manifest file describes, and returns a JSON-able summary.
+
+    Raises
+    ------
+    LookupError
+        When no system of that name reads manifests; the message lists those that do.
+    """
+    group = entry_points(group=MANIFEST_IMPORTER_GROUP)
+    for ep in group:
+        if ep.name == system:
+            return ep.load()
+    names = ", ".join(sorted({ep.name for ep in group})) or "none"
+    raise LookupError(
+        f"no reader of manifests of the system {system!r} (systems with one: {names}; a "
+        f"package declares one through the {MANIFEST_IMPORTER_GROUP!r} entry points)"
     )

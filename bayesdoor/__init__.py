@@ -8,6 +8,8 @@ import warnings as _warnings
 
 import jax as _jax
 
+from ._cluster import Cluster as Cluster
+from ._cluster import Pool as Pool
 from ._jax_config import configure_jax as configure_jax
 
 _jax.config.update("jax_enable_x64", True)

@@ -100,15 +100,15 @@ def run_case(name: str, seed: int, *, ceiling: bool = False) -> dict[str, Any]:
     started = time.perf_counter()
     result: dict[str, Any] = {"name": name, "seed": seed}
     seen: dict[str, Any] = {}
-    original = job._cross_validate
+    original = job._judge_refits
 
-    def recorded(setup, proposal, folds, **kwargs):  # type: ignore[no-untyped-def]
+    def recorded(setup, proposal, folds, fits, **kwargs):  # type: ignore[no-untyped-def]
         seen.setdefault("setup", (setup, folds))
-        return original(setup, proposal, folds, **kwargs)
+        return original(setup, proposal, folds, fits, **kwargs)
 
     try:
         recording, rig = cases.record(name, seed, cases.SPEEDS_SLOW)
-        job._cross_validate = recorded
+        job._judge_refits = recorded
         try:
             diagnosis = cases.diagnose_campaign(
                 cases.DOOR,
@@ -118,7 +118,7 @@ def run_case(name: str, seed: int, *, ceiling: bool = False) -> dict[str, Any]:
                 catalogue=cases.DOOR_CATALOGUE,
             )
         finally:
-            job._cross_validate = original
+            job._judge_refits = original
         result["verdict"] = diagnosis.verdict
         if diagnosis.fit is not None:
             result["fit_point"] = {k: float(v) for k, v in diagnosis.fit.point.items()}

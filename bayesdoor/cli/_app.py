@@ -175,6 +175,22 @@ _Extend = Annotated[
         "it (in OUT/extended) and compare"
     ),
 ]
+_Workers = Annotated[
+    int,
+    typer.Option(
+        metavar="N",
+        help="run the simulation-heavy steps (training data, the diagnosis's refits and "
+        "limits) on a local Dask cluster of N worker processes; 0: in this process",
+    ),
+]
+_Scheduler = Annotated[
+    str | None,
+    typer.Option(
+        metavar="ADDRESS",
+        help="run the simulation-heavy steps on the Dask scheduler at ADDRESS "
+        "(tcp://HOST:PORT; its workers need bayesdoor installed)",
+    ),
+]
 #: small sizes, alike in the commands that fit without training (fit, diagnose, plan)
 _Quick = Annotated[bool, typer.Option(help="small sizes (demos, tests; not converged)")]
 #: a previous job's products, alike in every command that reuses them
@@ -202,6 +218,8 @@ def run(
     method: _JobMethod = "nuts",
     force: Annotated[bool, typer.Option(help="replace a finished job of other settings")] = False,
     extend: _Extend = False,
+    workers: _Workers = 0,
+    scheduler: _Scheduler = None,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
     """The main job: fit, simulate training data, train, classify the test runs, report.
@@ -211,6 +229,7 @@ def run(
     configure_jax()
     from . import _run
 
+    cluster = _run.cluster_option(workers, scheduler)
     _run.run(
         _run.load(path),
         out,
@@ -221,6 +240,7 @@ def run(
         force=force,
         json=json,
         extend=extend,
+        cluster=cluster,
     )
 
 
@@ -250,6 +270,8 @@ def demo(
     source: _Source = None,
     method: _JobMethod = "nuts",
     extend: _Extend = False,
+    workers: _Workers = 0,
+    scheduler: _Scheduler = None,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
     """`run` on a system's demo campaign (recorded by its virtual rig on first use)."""
@@ -257,6 +279,7 @@ def demo(
     from ..systems import get_demo
     from . import _run
 
+    cluster = _run.cluster_option(workers, scheduler)
     try:
         shipped = get_demo(system)
     except LookupError as err:
@@ -303,6 +326,7 @@ def demo(
         force=force,
         json=json,
         extend=extend,
+        cluster=cluster,
     )
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
 from pathlib import Path
@@ -12,6 +13,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from .._cluster import Cluster
 from ._common import (
     StageLog,
     check_for_job,
@@ -189,6 +191,22 @@ def print_summary(
     console.print(f"report: {result['report']}")
 
 
+def cluster_option(workers: int, scheduler: str | None) -> Cluster:
+    """The cluster of ``--workers`` and ``--scheduler`` (checked before any data is read)."""
+    if scheduler is not None and workers:
+        raise fail(
+            f"give --scheduler or --workers, not both (--scheduler {scheduler} --workers {workers})"
+        )
+    try:
+        return Cluster(address=scheduler, workers=workers)
+    except ValueError as err:
+        raise fail(
+            str(err)
+            .replace("Cluster.address", "--scheduler")
+            .replace("Cluster.workers", "--workers")
+        ) from None
+
+
 def run(
     campaign: xr.Dataset,
     out: Path,
@@ -200,10 +218,12 @@ def run(
     force: bool,
     json: bool,
     extend: bool = False,
+    cluster: Cluster | None = None,
 ) -> None:
     """Run the job, print its summary (or its JSON); ``source`` ``None``: the method's default.
 
-    ``extend``: when the diagnosis names a cause, the job on the extended system as well.
+    ``extend``: when the diagnosis names a cause, the job on the extended system as well;
+    ``cluster``: where the simulation-heavy steps run (``None``: this process).
     """
     from ..pipeline import (
         SOURCES,
@@ -241,9 +261,17 @@ def run(
                 soft_wrap=True,  # a long line stays one line in a log
             )
 
+    cluster = Cluster() if cluster is None else cluster
     stages = StageLog(out, line)
+    opened = contextlib.ExitStack()
     try:
-        with interruptible(stages.interrupted), writing(out), warnings_as_lines(line):
+        pool = opened.enter_context(cluster.open())
+    except OSError as err:
+        raise fail(f"{cluster.describe()} cannot be reached: {err}") from None
+    if cluster.distributed:
+        line(f"simulation-heavy steps on {cluster.describe()} ({pool.address})")
+    try:
+        with opened, interruptible(stages.interrupted), writing(out), warnings_as_lines(line):
             result = run_job(
                 system,
                 campaign,
@@ -257,6 +285,7 @@ def run(
                 overwrite=force,
                 diagnose=functools.partial(default_diagnose, catalogue=system.catalogue),
                 extend=extend,
+                cluster=pool,
             )
     except FileExistsError as err:
         raise fail(str(err)) from None

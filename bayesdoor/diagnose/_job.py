@@ -10,13 +10,13 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
+from .._cluster import Pool, in_process
 from .._types import Float, Int
 from ..features import motion_window as detect_motion_window
 from ..features import welch_psd
@@ -53,6 +53,9 @@ from ._signatures import AbstractSignature, FirstOf, HarmonicComb, SpeedTracking
 
 if TYPE_CHECKING:
     from ..systems import AbstractSystem
+
+#: the base solves a refit keeps by grid point (shared by the folds of one proposal)
+_Bases = dict[tuple[float, ...], np.ndarray]
 
 #: a candidate is refitted when its signature passes at least this share of its checks
 PLAUSIBLE_SCORE = 0.5
@@ -496,8 +499,65 @@ def _cross_validate(
     bases: dict[tuple[float, ...], np.ndarray],
     tracking: bool,
     workers: int = 1,
+    pool: Pool | None = None,
 ) -> tuple[list[RefitResult], Gain]:
-    """Refit on each fold's training runs, judge its held-out runs, both models alike.
+    """Refit on each fold's training runs, judge its held-out runs, both models alike
+    (:func:`_fold_tasks`, then :func:`_judge_refits`).
+
+    The folds are refitted on ``pool`` (``None``: ``workers`` threads of this process);
+    every fold has its own seed, so the fits do not depend on where they ran.
+    """
+    pool = in_process(workers) if pool is None else pool
+    results = pool.map(refit_fold, _fold_tasks(setup, proposal, folds, seed, max_evals, bases))
+    fits = [f for f in results if isinstance(f, RefitResult)]
+    for failed in results:
+        if not isinstance(failed, RefitResult):
+            raise failed
+    return fits, _judge_refits(setup, proposal, folds, fits, tracking=tracking)
+
+
+def _fold_tasks(
+    setup: RefitSetup,
+    proposal: ExtensionProposal,
+    folds: Sequence[tuple[np.ndarray, np.ndarray]],
+    seed: int,
+    max_evals: int,
+    bases: _Bases,
+) -> list[tuple[Any, ...]]:
+    """The arguments of :func:`refit_fold` for each fold (fold ``k`` seeded ``seed + k``)."""
+    return [
+        (setup, proposal, train, seed + k, max_evals, bases) for k, (train, _) in enumerate(folds)
+    ]
+
+
+def refit_fold(
+    setup: RefitSetup,
+    proposal: ExtensionProposal,
+    train: np.ndarray,
+    seed: int,
+    max_evals: int,
+    bases: _Bases,
+) -> RefitResult | ValueError | RuntimeError:
+    """One fold's refit on its training runs (:func:`refit_extension`, spectra of the
+    approximate solve), or the error that stopped it, so that one failed proposal does not
+    stop the others refitted beside it."""
+    try:
+        return refit_extension(
+            setup, proposal, train, seed=seed, max_evals=max_evals, bases=bases, exact=False
+        )
+    except (ValueError, RuntimeError) as err:
+        return err
+
+
+def _judge_refits(
+    setup: RefitSetup,
+    proposal: ExtensionProposal,
+    folds: Sequence[tuple[np.ndarray, np.ndarray]],
+    fits: Sequence[RefitResult],
+    *,
+    tracking: bool,
+) -> Gain:
+    """The held-out judgement of one proposal's fold refits.
 
     The held-out runs of every fold are simulated exactly at the values fitted without them,
     all in one simulation (:func:`exact_spectra`); the extended model's discrepancy is
@@ -507,26 +567,8 @@ def _cross_validate(
     held-out runs' as simulated), so the judgement asks where the extension predicts
     something different, does it predict better. For an extension whose effect ``tracking``
     the speed (a tone at ``f = v / lambda`` of each run's operating speed) the scatter in the
-    changed bins is local in the order domain, else in frequency. ``workers`` threads refit
-    folds at once; every fold has its own seed, so the fits do not depend on it.
+    changed bins is local in the order domain, else in frequency.
     """
-
-    def refit(k: int) -> RefitResult:
-        return refit_extension(
-            setup,
-            proposal,
-            folds[k][0],
-            seed=seed + k,
-            max_evals=max_evals,
-            bases=bases,
-            exact=False,
-        )
-
-    if workers > 1 and len(folds) > 1:
-        with ThreadPoolExecutor(min(workers, len(folds))) as pool:
-            fits = list(pool.map(refit, range(len(folds))))
-    else:
-        fits = [refit(k) for k in range(len(folds))]
     tests = np.concatenate([test for _, test in folds])
     values = {
         n: np.concatenate(
@@ -541,7 +583,7 @@ def _cross_validate(
         model[test] = held[start : start + len(test)]
         start += len(test)
         models.append(model)
-    return fits, judge_folds(setup, models, folds, tracking=tracking)
+    return judge_folds(setup, models, folds, tracking=tracking)
 
 
 def judge_folds(
@@ -667,6 +709,7 @@ class _Run:
     quick: bool
     progress: bool
     fit: FitResult | None
+    pool: Pool
     timings: dict[str, float] = dataclasses.field(default_factory=dict)
     notes: list[str] = dataclasses.field(default_factory=list)
     measured: _Measured | None = None
@@ -826,51 +869,73 @@ def _plausible(run: _Run) -> list[CauseScore]:
 
 def _refit_candidates(run: _Run) -> None:
     """Each plausible candidate's extensions refitted fold by fold and judged on held-out
-    runs; a decisive one that explains its feature refitted on every run."""
-    assert run.measured is not None
+    runs; a decisive one that explains its feature refitted on every run.
+
+    The fold refits of every proposal of every candidate go to the pool at once (each has
+    its own seed, so where they run changes nothing); the judgements follow in rank order.
+    """
+    assert run.measured is not None and run.setup is not None
     folds = held_out_folds(_fold_order(run.catalogue, run.measured.operating), run.settings.folds)
+    work: list[tuple[CauseScore, list[ExtensionProposal], list[_Bases]]] = []
+    tasks: list[tuple[Any, ...]] = []
     for rank, score in enumerate(_plausible(run)):
-        cause = _refit_candidate(run, rank, score, folds)
+        recipe = _candidate(run, score.name).refit
+        assert recipe is not None
+        try:
+            proposals = list(recipe.propose(score.parameters, band=run.band))
+        except (KeyError, ValueError) as err:
+            run.notes.append(f"{score.name}: its recipe proposed no extension ({err!r})")
+            continue
+        # the base solves a proposal's folds share (filled in this process; on a cluster
+        # each worker fills its own)
+        bases: list[_Bases] = [{} for _ in proposals]
+        work.append((score, proposals, bases))
+        for k, proposal in enumerate(proposals):
+            seed = run.seed + 101 * (rank + 1) + 7 * k
+            tasks += _fold_tasks(
+                run.setup, proposal, folds, seed, run.settings.refit_evals, bases[k]
+            )
+    done = iter(run.pool.map(refit_fold, tasks))
+    for score, proposals, bases in work:
+        fitted = [[next(done) for _ in folds] for _ in proposals]
+        cause = _refit_candidate(run, score, folds, proposals, fitted, bases)
         if cause is not None:
             run.refitted[score.name] = cause
 
 
+def _candidate(run: _Run, name: str) -> Any:
+    return next(c for c in run.catalogue.candidates if c.name == name)
+
+
 def _refit_candidate(
     run: _Run,
-    rank: int,
     score: CauseScore,
     folds: Sequence[tuple[np.ndarray, np.ndarray]],
+    proposals: Sequence[ExtensionProposal],
+    fitted: Sequence[Sequence[RefitResult | Exception]],
+    shared_bases: Sequence[_Bases],
 ) -> Cause | None:
-    """One candidate: its recipe's proposals cross-validated, the best on the training runs
-    kept, its symptom checked, and, when confirmed, its final refit on every run."""
+    """One candidate: its proposals' fold refits judged on held-out runs, the best on the
+    training runs kept, its symptom checked, and, when confirmed, its final refit on every
+    run."""
     setup, settings, seed = run.setup, run.settings, run.seed
     assert setup is not None
-    candidate = next(c for c in run.catalogue.candidates if c.name == score.name)
+    candidate = _candidate(run, score.name)
     recipe = candidate.refit
-    assert recipe is not None
-    try:
-        proposals = recipe.propose(score.parameters, band=run.band)
-    except (KeyError, ValueError) as err:
-        run.notes.append(f"{score.name}: its recipe proposed no extension ({err!r})")
-        return None
     trials = []
-    for k, proposal in enumerate(proposals):
-        bases: dict[tuple[float, ...], np.ndarray] = {}
+    for proposal, results, shared in zip(proposals, fitted, shared_bases, strict=True):
+        fits = [f for f in results if isinstance(f, RefitResult)]
+        failed = [f for f in results if not isinstance(f, RefitResult)]
         try:
-            fits, gain = _cross_validate(
-                setup,
-                proposal,
-                folds,
-                seed=seed + 101 * (rank + 1) + 7 * k,
-                max_evals=settings.refit_evals,
-                bases=bases,
-                tracking=tracks_speed(candidate.signature),
-                workers=settings.workers,
+            if failed:
+                raise failed[0]
+            gain = _judge_refits(
+                setup, proposal, folds, fits, tracking=tracks_speed(candidate.signature)
             )
         except (ValueError, RuntimeError) as err:
             run.notes.append(f"{score.name} ({proposal.label}): refit failed: {err}")
             continue
-        trials.append((sum(f.train_lpd for f in fits), proposal, fits, gain, bases))
+        trials.append((sum(f.train_lpd for f in fits), proposal, fits, gain, shared))
     if not trials:
         return None
     _, proposal, fits, gain, bases = max(trials, key=lambda t: t[0])
@@ -1003,33 +1068,42 @@ def _judge(run: _Run) -> None:
 
 def _limits(run: _Run) -> None:
     """Every catalogue cause's smallest size the rule names with the stated power in these
-    runs (:func:`detection_limits`), ``workers`` causes at once (each has its own draws from
-    the same seed, so the limits do not depend on it)."""
-    setup = run.setup
-    assert setup is not None
-
-    def limit(name: str) -> tuple[Mapping[str, CauseLimit], str | None]:
-        try:
-            found = detection_limits(
-                setup,
-                run.catalogue,
-                power=LIMIT_POWER,
-                draws=run.settings.limit_draws,
-                seed=run.seed,
-                causes=(name,),
-                band=run.band,
-            )
-        except (ValueError, RuntimeError) as err:
-            return {}, f"{name}: its detection limit could not be computed ({err})"
-        return found, None
-
+    runs (:func:`detection_limits`), one task per cause on the pool (each has its own draws
+    from the same seed, so the limits do not depend on where they ran)."""
+    assert run.setup is not None
     names = list(cause_sizes(run.catalogue, run.band))
-    with ThreadPoolExecutor(max(1, min(run.settings.workers, len(names)))) as pool:
-        done = list(pool.map(limit, names))
-    for found, note in done:
+    tasks = [
+        (run.setup, run.catalogue, run.settings.limit_draws, run.seed, name, run.band)
+        for name in names
+    ]
+    for found, note in run.pool.map(cause_limit, tasks):
         run.limits.update(found)
         if note is not None:
             run.notes.append(note)
+
+
+def cause_limit(
+    setup: RefitSetup,
+    catalogue: Catalogue,
+    draws: int,
+    seed: int,
+    name: str,
+    band: tuple[float, float],
+) -> tuple[Mapping[str, CauseLimit], str | None]:
+    """One cause's detection limit (:func:`detection_limits`), or why there is none."""
+    try:
+        found = detection_limits(
+            setup,
+            catalogue,
+            power=LIMIT_POWER,
+            draws=draws,
+            seed=seed,
+            causes=(name,),
+            band=band,
+        )
+    except (ValueError, RuntimeError) as err:
+        return {}, f"{name}: its detection limit could not be computed ({err})"
+    return found, None
 
 
 #: the steps of :func:`diagnose_campaign`, in order
@@ -1054,6 +1128,7 @@ def diagnose_campaign(
     progress: bool = True,
     catalogue: Catalogue | None = None,
     settings: DiagnosisSettings | None = None,
+    pool: Pool | None = None,
 ) -> Diagnosis:
     """Show where a model departs from a campaign, name the cause, measure the gain, state
     what the campaign could not have shown.
@@ -1098,6 +1173,9 @@ def diagnose_campaign(
         The system's catalogue; ``None``: ``system.catalogue``.
     settings
         Sizes (overrides ``quick``).
+    pool
+        Where the refits and the limits run (:meth:`bayesdoor.Cluster.open`); ``None``:
+        ``settings.workers`` threads of this process. The diagnosis does not depend on it.
 
     Returns
     -------
@@ -1119,7 +1197,8 @@ def diagnose_campaign(
         )
     if settings is None:
         settings = DiagnosisSettings.quick() if quick else DiagnosisSettings()
-    run = _Run(system, campaign, catalogue, settings, int(seed), quick, progress, fit)
+    pool = in_process(settings.workers) if pool is None else pool
+    run = _Run(system, campaign, catalogue, settings, int(seed), quick, progress, fit, pool)
     for stage in _STAGES:
         if stage.when is not None and not stage.when(run):
             continue

@@ -29,6 +29,7 @@ from typing import Any, Protocol
 import numpy as np
 import xarray as xr
 
+from .._cluster import Pool
 from ..diagnose import Catalogue, Features, diagnose_campaign
 from ..inference import FitResult
 from ..io import atomic_write
@@ -158,10 +159,12 @@ def default_diagnose(
     quick: bool,
     progress: bool,
     catalogue: Catalogue | None = None,
+    pool: Pool | None = None,
 ) -> DiagnosisLike:
     """:func:`bayesdoor.diagnose.diagnose_campaign` under the fit saved in ``fit_folder``.
 
-    ``catalogue``: the system's causes (``None``: ``system.catalogue``).
+    ``catalogue``: the system's causes (``None``: ``system.catalogue``); ``pool``: where its
+    refits and limits run (``None``: this process).
     """
     fit = FitResult.load(fit_folder)
     return diagnose_campaign(
@@ -172,6 +175,7 @@ def default_diagnose(
         quick=quick,
         progress=progress,
         catalogue=catalogue,
+        pool=pool,
     )
 
 

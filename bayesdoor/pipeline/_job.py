@@ -18,10 +18,13 @@ Folder of a job::
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import hashlib
+import inspect
 import json
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Literal, NamedTuple
@@ -30,6 +33,7 @@ import jax
 import numpy as np
 import xarray as xr
 
+from .._cluster import Cluster, Pool
 from ..classify import TrainConfig
 from ..datagen import (
     DISCREPANCY_FORM,
@@ -405,6 +409,7 @@ def run_job(
     diagnosis: bool | None = None,
     diagnose: Callable[..., Any] | None = None,
     extend: bool = False,
+    cluster: Cluster | Pool | None = None,
 ) -> JobResult:
     """Fit on the calibration runs, simulate training data, train, classify the test runs, report.
 
@@ -464,7 +469,8 @@ def run_job(
     diagnose
         The diagnosis, called as ``diagnose(system, campaign, fit_folder, seed=, quick=,
         progress=)`` with the folder of the saved fit and returning an object with
-        ``to_json()`` (:class:`bayesdoor.diagnose.Diagnosis`); ``None`` means
+        ``to_json()`` (:class:`bayesdoor.diagnose.Diagnosis`); a function that takes a
+        ``pool`` keyword gets the job's (see ``cluster``); ``None`` means
         :func:`bayesdoor.pipeline.default_diagnose`
         (:func:`bayesdoor.diagnose.diagnose_campaign`). When it raises ``ValueError`` (a
         campaign it cannot diagnose, for example too few runs), the job goes on: the
@@ -478,6 +484,13 @@ def run_job(
         compare the two. It needs the diagnosis (``diagnosis=None`` turns it on). The
         diagnosis sees the healthy calibration runs only: the test runs score both jobs and
         inform neither.
+    cluster
+        Where the simulation-heavy steps run (:class:`bayesdoor.Cluster`: this process, a
+        local Dask cluster of worker processes, or a scheduler's address): the
+        training-data generation and the diagnosis's refits and limits. ``None``: this
+        process. An open :class:`~bayesdoor.Pool` is used as it is (the extended job shares
+        its job's). The results do not depend on it: every task has its own seed, and the
+        stages' configurations (their cache keys) leave it out.
     overwrite
         Let a job of other settings replace the finished job in ``out`` (stages whose
         configuration did not change are still reused).
@@ -526,34 +539,38 @@ def run_job(
     test = runs_to_classify(campaign)
     _check_folder(out, settings, job_hash, overwrite)
     out.mkdir(parents=True, exist_ok=True)
-    job = _Job(
-        system=system,
-        system_description=system_description,
-        campaign=campaign,
-        calibration=calibration,
-        test=test,
-        out=out,
-        quick=quick,
-        seed=seed,
-        fit_seed=fit_seed,
-        source=source,
-        method=method,
-        sizes=sizes,
-        fit=_default_fit if fit is None else fit,
-        options=options,
-        progress=progress,
-        report=report,
-        diagnose=default_diagnose if diagnose is None else diagnose,
-        versions=_versions(),
-        key=jax.random.key(seed),
-        html=html,
-        diagnosis=html if diagnosis is None else diagnosis,
-        extend=extend,
-    )
-    for stage in JOB_STAGES:
-        if stage.name == "report" and extend:
-            job.extension = _extension(job)
-        job.run(stage)
+    with _opened(cluster) as pool:
+        job = _Job(
+            system=system,
+            system_description=system_description,
+            campaign=campaign,
+            calibration=calibration,
+            test=test,
+            out=out,
+            quick=quick,
+            seed=seed,
+            fit_seed=fit_seed,
+            source=source,
+            method=method,
+            sizes=sizes,
+            fit=_default_fit if fit is None else fit,
+            options=options,
+            progress=progress,
+            report=report,
+            diagnose=default_diagnose if diagnose is None else diagnose,
+            versions=_versions(),
+            key=jax.random.key(seed),
+            html=html,
+            diagnosis=html if diagnosis is None else diagnosis,
+            extend=extend,
+            pool=pool,
+        )
+        if pool.address is not None:
+            report(f"cluster: {pool.address}")
+        for stage in JOB_STAGES:
+            if stage.name == "report" and extend:
+                job.extension = _extension(job)
+            job.run(stage)
     products = job.products
     adequacy, trust = products["adequacy"], products["trust"]
     diagnosis_json = products.get("diagnose")
@@ -621,6 +638,7 @@ class _Job:
     key: jax.Array
     html: bool
     diagnosis: bool
+    pool: Pool
     extend: bool = False
     records: dict[str, StageRecord] = dataclasses.field(default_factory=dict)
     products: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -775,8 +793,28 @@ def _extension(job: _Job) -> _Extension:
         overwrite=True,
         html=job.html,
         diagnosis=False,
+        cluster=job.pool,
     )
     return _Extension(dataclasses.replace(result, extends=extends), extends)
+
+
+@contextlib.contextmanager
+def _opened(cluster: Cluster | Pool | None) -> Iterator[Pool]:
+    """The pool of ``cluster`` for the length of a job (an open pool as it is)."""
+    if isinstance(cluster, Pool):
+        yield cluster
+        return
+    with (Cluster() if cluster is None else cluster).open() as pool:
+        yield pool
+
+
+def _with_pool(diagnose: Callable[..., Any], pool: Pool) -> Callable[..., Any]:
+    """``diagnose`` given the job's pool, when it takes one."""
+    try:
+        takes = "pool" in inspect.signature(diagnose).parameters
+    except (TypeError, ValueError):  # a callable without a signature
+        takes = False
+    return functools.partial(diagnose, pool=pool) if takes else diagnose
 
 
 def _always(job: _Job) -> bool:
@@ -859,6 +897,7 @@ def _generate(job: _Job, folder: Path) -> None:
         folder / "data",
         key=jax.random.fold_in(job.key, 1),
         progress=job.progress,
+        scheduler=job.pool.address,
     )
 
 
@@ -989,7 +1028,7 @@ def _diagnose(job: _Job, folder: Path) -> None:
         job.campaign,
         job.path("fit") / "result",
         folder,
-        diagnose=job.diagnose,
+        diagnose=_with_pool(job.diagnose, job.pool),
         seed=job.seed,
         quick=job.quick,
         progress=job.progress,

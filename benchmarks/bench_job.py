@@ -168,7 +168,7 @@ def run(
     clock: CompileClock,
 ) -> dict:
     from bayesdoor.door import ElevatorDoor
-    from bayesdoor.pipeline import peak_memory_mb, run_job
+    from bayesdoor.pipeline import JobConfig, peak_memory_mb, run_job
 
     campaign = _campaign(campaign_spec)
     system = ElevatorDoor()
@@ -184,13 +184,10 @@ def run(
             system,
             campaign,
             out,
-            quick=not full,
-            seed=seed,
+            JobConfig(quick=not full, seed=seed, html=True, diagnosis=diagnosis),
             progress=False,
             report=lambda line: events.append((time.time(), line)),
             overwrite=True,
-            html=True,
-            diagnosis=diagnosis,
         )
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         windows = _stage_windows(events)

@@ -223,7 +223,7 @@ def run_one(settings: dict, seed: int, source: str) -> dict:
 
     from bayesdoor.classify import load_ensemble, predict
     from bayesdoor.door import ElevatorDoor
-    from bayesdoor.pipeline import Sizes, Source, run_job
+    from bayesdoor.pipeline import JobConfig, Sizes, Source, run_job
 
     out = settings["out"]
     campaign, _ = _campaign(settings["campaign"])
@@ -240,15 +240,17 @@ def run_one(settings: dict, seed: int, source: str) -> dict:
         ElevatorDoor(),
         campaign,
         folder,
-        seed=seed,
-        fit_seed=0,
-        source=cast(Source, source),
-        method=settings["method"],
-        sizes=Sizes(runs_per_state=settings["runs_per_state"]),
-        fit_options={"settings": _fit_settings(settings)},
+        JobConfig(
+            seed=seed,
+            fit_seed=0,
+            source=cast(Source, source),
+            method=settings["method"],
+            sizes=Sizes(runs_per_state=settings["runs_per_state"]),
+            fit_options={"settings": _fit_settings(settings)},
+            html=False,
+        ),
         progress=False,
         report=stage_line,
-        html=False,
         overwrite=True,
     )
     if not shared_fit.is_dir():

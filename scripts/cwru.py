@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> None:
     setup_jax()
 
     from bayesdoor.bearing import EnvelopeRule, read_cwru
-    from bayesdoor.pipeline import Sizes, default_source, run_job
+    from bayesdoor.pipeline import JobConfig, Sizes, default_source, run_job
     from bayesdoor.systems import get_system
 
     system = get_system("bearing")
@@ -142,18 +142,20 @@ def main(argv: list[str] | None = None) -> None:
                 system,
                 campaign,
                 args.out / method,
-                quick=args.quick,
-                sizes=sizes,
-                seed=seed,
-                fit_seed=args.seed,
-                method=method,
-                source=source,
+                JobConfig(
+                    quick=args.quick,
+                    sizes=sizes,
+                    seed=seed,
+                    fit_seed=args.seed,
+                    method=method,
+                    source=source,
+                    html=False,
+                    # the diagnosis of the healthy calibration record: with the main seed, and
+                    # with every seed when the loop is closed (the extension follows its verdict)
+                    diagnosis=method == "nuts" and (seed == args.seed or args.extend),
+                    extend=method == "nuts" and args.extend,
+                ),
                 progress=False,
-                html=False,
-                # the diagnosis of the healthy calibration record: with the main seed, and with
-                # every seed when the loop is closed (the extension follows its verdict)
-                diagnosis=method == "nuts" and (seed == args.seed or args.extend),
-                extend=method == "nuts" and args.extend,
                 overwrite=True,
             )
             wall = time.perf_counter() - t0
@@ -220,7 +222,7 @@ def _loop_text(loop) -> str:
         "",
         "Per training seed: the diagnosis of the healthy calibration segments, the bearing "
         "extended by its verdict (refitted on the same segments, training data regenerated, "
-        "classifier retrained, `run_job(extend=True)`), and the scores of the base job and the "
+        "classifier retrained, `JobConfig(extend=True)`), and the scores of the base job and the "
         "extended one on the same test segments. A loss is a loss.",
         "",
         "| seed | verdict | job | segment accuracy | segment ECE | record accuracy | record "

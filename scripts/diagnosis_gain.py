@@ -120,7 +120,7 @@ def record(effect: str, seed: int, settings: Settings, path: Path):
 def job(system, campaign, out: Path, settings: Settings, seed: int, label: str):
     """The main job without its report or diagnosis stages; its metrics and wall time."""
     from bayesdoor.inference import FitSettings
-    from bayesdoor.pipeline import Sizes, run_job
+    from bayesdoor.pipeline import JobConfig, Sizes, run_job
 
     start, cpu = time.perf_counter(), time.process_time()
     sizes = Sizes(runs_per_state=settings.runs_per_state, chunk_size=50)
@@ -129,17 +129,19 @@ def job(system, campaign, out: Path, settings: Settings, seed: int, label: str):
         system,
         campaign,
         out,
-        quick=quick,
-        seed=seed,
-        fit_seed=seed,
-        source=settings.source,  # type: ignore[arg-type]
-        method=settings.method,
-        sizes=sizes,
-        fit_options={"settings": FitSettings.quick() if quick else FitSettings()},
+        JobConfig(
+            quick=quick,
+            seed=seed,
+            fit_seed=seed,
+            source=settings.source,  # type: ignore[arg-type]
+            method=settings.method,
+            sizes=sizes,
+            fit_options={"settings": FitSettings.quick() if quick else FitSettings()},
+            html=False,
+            diagnosis=False,
+        ),
         progress=False,
         report=lambda text: print(f"  {label}: {text}", flush=True),
-        html=False,
-        diagnosis=False,
         overwrite=True,
     )
     m = result.classification["metrics"]

@@ -115,7 +115,7 @@ def _jobs(args, campaign, folder: Path, seed: int, label: str):
     (the first job's fit stage is copied into the others, whose configuration hash reuses it);
     yields the source, the job's result and its seconds."""
     from bayesdoor.door import ElevatorDoor
-    from bayesdoor.pipeline import Sizes, run_job
+    from bayesdoor.pipeline import JobConfig, Sizes, run_job
 
     shared_fit = folder / "fit"
     for source in args.sources:
@@ -128,14 +128,16 @@ def _jobs(args, campaign, folder: Path, seed: int, label: str):
             ElevatorDoor(),
             campaign,
             job,
-            quick=not args.full,
-            sizes=Sizes() if args.full_training else None,
-            seed=seed,
-            source=source,
+            JobConfig(
+                quick=not args.full,
+                sizes=Sizes() if args.full_training else None,
+                seed=seed,
+                source=source,
+                html=False,
+                diagnosis=False,
+            ),
             progress=False,
             report=lambda line, s=source: print(f"  {label} {s}: {line}", flush=True),
-            html=False,
-            diagnosis=False,
             overwrite=True,
         )
         if not shared_fit.is_dir():

@@ -46,20 +46,16 @@ from transfer import DEFAULT_SOURCE, job_row
 def _job(system, campaign, out: Path, label: str) -> dict[str, Any]:
     """The quick main job (no diagnosis, no HTML) with the default source: its row as
     ``scripts/transfer.py`` records one, and the stages it reused."""
-    from bayesdoor.pipeline import run_job
+    from bayesdoor.pipeline import JobConfig, run_job
 
     start = time.perf_counter()
     result = run_job(
         system,
         campaign,
         out,
-        quick=True,
-        seed=0,
-        source=DEFAULT_SOURCE,
+        JobConfig.quick_look(seed=0, source=DEFAULT_SOURCE, html=False, diagnosis=False),
         progress=False,
         report=lambda line: print(f"  {label}: {line}", flush=True),
-        html=False,
-        diagnosis=False,
         overwrite=True,
     )
     row = job_row(result, DEFAULT_SOURCE, time.perf_counter() - start)

@@ -18,7 +18,7 @@ import pytest
 from bayesdoor.bearing import BearingSystem
 from bayesdoor.classify import TrainConfig
 from bayesdoor.io import make_campaign
-from bayesdoor.pipeline import Sizes, run_job
+from bayesdoor.pipeline import JobConfig, Sizes, run_job
 
 pytestmark = pytest.mark.long
 
@@ -117,13 +117,9 @@ def test_the_job_reads_no_fault_segment_before_classification(tmp_path):
             SYSTEM,
             data,
             out,
-            sizes=SIZES,
+            JobConfig(sizes=SIZES, method="cmaes", source="gaussian", html=False, diagnosis=False),
             fit=fit,
-            method="cmaes",
-            source="gaussian",
             progress=False,
-            html=False,
-            diagnosis=False,
         )
 
     first = job(campaign, tmp_path / "a")
@@ -203,13 +199,9 @@ def test_weighing_against_the_envelope_check_keeps_held_out_simulations_calibrat
         SYSTEM,
         campaign,
         tmp_path / "job",
-        sizes=SIZES,
+        JobConfig(sizes=SIZES, method="cmaes", source="gaussian", html=False, diagnosis=False),
         fit=lambda system, calibration, **_: _PointFit(),
-        method="cmaes",
-        source="gaussian",
         progress=False,
-        html=False,
-        diagnosis=False,
     )
     held_out = _held_out(16, seed=3)
     classify_stage(tmp_path / "job" / "train", held_out, tmp_path / "c")

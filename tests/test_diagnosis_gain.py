@@ -261,14 +261,15 @@ def test_diagnose_refuses_a_posterior_of_an_extended_door(base_fit, tmp_path, mo
 def test_run_refuses_a_job_folder_of_the_base_system_for_an_extended_one(tmp_path):
     from test_pipeline import SIZES, SYSTEM, stand_in_fit, tone_campaign
 
-    from bayesdoor.pipeline import run_job
+    from bayesdoor.pipeline import JobConfig, run_job
 
     campaign = tone_campaign()
-    options = dict(seed=0, sizes=SIZES, fit=stand_in_fit, progress=False, html=False)
-    run_job(SYSTEM, campaign, tmp_path / "job", report=lambda line: None, **options)
+    config = JobConfig(seed=0, sizes=SIZES, html=False)
+    options = dict(fit=stand_in_fit, progress=False, report=lambda line: None)
+    run_job(SYSTEM, campaign, tmp_path / "job", config, **options)
     held = HeldExtension(SYSTEM, (("m", 1.0),))
     with pytest.raises(FileExistsError, match="other settings"):
-        run_job(held, campaign, tmp_path / "job", report=lambda line: None, **options)
+        run_job(held, campaign, tmp_path / "job", config, **options)
 
 
 def test_a_held_extension_keeps_what_the_system_says_of_itself():

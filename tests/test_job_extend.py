@@ -18,7 +18,14 @@ import equinox as eqx
 import jax.numpy as jnp
 import pytest
 from _toy_system import FS, ToySystem
-from test_pipeline import SIZES, SYSTEM, stand_in_diagnose, stand_in_fit, tone_campaign
+from test_pipeline import (
+    SIZES,
+    SYSTEM,
+    job_arguments,
+    stand_in_diagnose,
+    stand_in_fit,
+    tone_campaign,
+)
 
 from bayesdoor.diagnose import ExtensionProposal, HeldExtension
 from bayesdoor.pipeline import run_job
@@ -129,7 +136,8 @@ def job(out, **kw):
         report=lambda line: None,
     )
     settings.update(kw)
-    return run_job(BASE, tone_campaign(), out, **settings)
+    config, options = job_arguments(**settings)
+    return run_job(BASE, tone_campaign(), out, config, **options)
 
 
 def test_extend_needs_the_diagnosis(tmp_path):
@@ -228,15 +236,15 @@ def test_run_extend_reaches_the_job_and_its_summary(tmp_path, monkeypatch):
     from bayesdoor.cli._run import extension_lines
     from bayesdoor.io import save_campaign
 
-    def called(system, data, out, **options):
-        raise _Called(options)
+    def called(system, data, out, config, **options):
+        raise _Called(config)
 
     monkeypatch.setattr(bayesdoor.pipeline, "run_job", called)
     path = save_campaign(campaign(), tmp_path / "door.nc")
     for flags, extend in (([], False), (["--extend"], True)):
         result = invoke("run", path, "--out", tmp_path / "job", *flags)
         assert isinstance(result.exception, _Called), result.output
-        assert result.exception.args[0]["extend"] is extend
+        assert result.exception.args[0].extend is extend
     base = {"metrics": {"accuracy": 0.833, "ece": 0.091}, "trust": {"verdict": "trusted"}}
     extended = {
         "verdict": "frame_mode",

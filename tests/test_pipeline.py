@@ -24,6 +24,7 @@ from bayesdoor.classify import TrainConfig
 from bayesdoor.io import make_campaign
 from bayesdoor.pipeline import (
     FitSummary,
+    JobConfig,
     Sizes,
     calibration_runs,
     configuration_hash,
@@ -143,17 +144,26 @@ SIZES = Sizes(
 )
 
 
+def job_arguments(**kw):
+    """``run_job``'s :class:`JobConfig` and its other keyword arguments, from one set."""
+    fields = {f.name for f in dataclasses.fields(JobConfig)}
+    config = JobConfig(**{k: v for k, v in kw.items() if k in fields})
+    return config, {k: v for k, v in kw.items() if k not in fields}
+
+
 def job(out, campaign=None, lines=None, **kw):
     settings = dict(
         seed=0, sizes=SIZES, fit=stand_in_fit, diagnose=stand_in_diagnose, progress=False
     )
     settings.update(kw)
+    config, options = job_arguments(**settings)
     return run_job(
         SYSTEM,
         tone_campaign() if campaign is None else campaign,
         out,
+        config,
         report=(lines.append if lines is not None else lambda line: None),
-        **settings,
+        **options,
     )
 
 
@@ -758,3 +768,25 @@ def test_runs_left_uncalled_keep_the_selective_risk(finished, tmp_path):
     every = json.loads((tmp_path / "all" / "classification.json").read_text())
     assert every["selective"] is None
     assert all(r["predicted"] == r["most_probable"] is not None for r in every["runs"])
+
+
+def test_a_job_config_resolves_its_defaults_from_what_it_is_given():
+    quick = JobConfig.quick_look(seed=3)
+    assert quick.effective_sizes == Sizes.quick() and quick.effective_fit_seed == 3
+    # a replaced setting carries what follows from it: the sizes follow quick, the source
+    # follows the method
+    full = dataclasses.replace(quick, quick=False)
+    assert full.effective_sizes == Sizes() == JobConfig.paper_sizes().effective_sizes
+    assert quick.effective_source == "posterior+model_error"
+    assert dataclasses.replace(quick, method="cmaes").effective_source == "gaussian"
+    # the diagnosis follows the HTML report unless told, and always runs with extend
+    assert JobConfig(html=False).effective_diagnosis is False
+    assert JobConfig(html=False, extend=True).effective_diagnosis is True
+    with pytest.raises(ValueError, match="diagnosis=False skips the diagnosis"):
+        JobConfig(extend=True, diagnosis=False)
+    with pytest.raises(ValueError, match="source must be one of"):
+        JobConfig(source="prior")  # type: ignore[arg-type]
+    # what a job folder is checked against names every resolved setting
+    settings = JobConfig(seed=2).settings({"name": "toy"}, "digest")
+    assert settings["fit_seed"] == 2 and settings["source"] == "posterior+model_error"
+    assert settings["sizes"] == Sizes().to_json()

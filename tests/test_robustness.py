@@ -13,6 +13,7 @@ sizes; the commands' own checks, which are the point here, all run before that.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -146,7 +147,7 @@ def fast(monkeypatch, fit=door_fit, diagnose=stand_in_diagnose, interrupt: str |
     """
     real = bayesdoor.pipeline.run_job
 
-    def run_job(system, data, out, **options):
+    def run_job(system, data, out, config, **options):
         assert system.name == "elevator_door"  # the CLI picked the campaign's system
         report = options["report"]
 
@@ -155,8 +156,8 @@ def fast(monkeypatch, fit=door_fit, diagnose=stand_in_diagnose, interrupt: str |
             if text.startswith(f"{interrupt}: computing"):
                 raise KeyboardInterrupt
 
-        options.update(fit=fit, diagnose=diagnose, sizes=SIZES, progress=False, report=line)
-        return real(SYSTEM, data, out, **options)
+        options.update(fit=fit, diagnose=diagnose, progress=False, report=line)
+        return real(SYSTEM, data, out, dataclasses.replace(config, sizes=SIZES), **options)
 
     monkeypatch.setattr(bayesdoor.pipeline, "run_job", run_job)
 

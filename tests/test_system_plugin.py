@@ -38,7 +38,7 @@ from bayesdoor.diagnose import (
     diagnose_campaign,
 )
 from bayesdoor.io import make_campaign, save_campaign, validate_campaign
-from bayesdoor.pipeline import Sizes, run_job
+from bayesdoor.pipeline import JobConfig, Sizes, run_job
 from bayesdoor.systems import (
     AbstractSystem,
     ConditionSpec,
@@ -376,9 +376,7 @@ def test_the_job_runs_on_the_fan_through_the_api(tmp_path):
         ToyFan(),
         fan_campaign(),
         out,
-        quick=True,
-        method="cmaes",
-        sizes=SIZES,
+        JobConfig.quick_look(method="cmaes", sizes=SIZES),
         progress=False,
         report=lines.append,
     )
@@ -406,9 +404,7 @@ def test_the_job_runs_on_the_fan_through_the_api(tmp_path):
         ToyFan(),
         fan_campaign(),
         out,
-        quick=True,
-        method="cmaes",
-        sizes=SIZES,
+        JobConfig.quick_look(method="cmaes", sizes=SIZES),
         progress=False,
         report=lines.append,
     )

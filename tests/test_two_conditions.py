@@ -29,7 +29,7 @@ from bayesdoor.datagen import (
 from bayesdoor.inference import fit_campaign, posterior_predictive
 from bayesdoor.io import make_campaign
 from bayesdoor.io import operating as campaign_operating
-from bayesdoor.pipeline import PredictiveBands, Sizes, run_job
+from bayesdoor.pipeline import JobConfig, PredictiveBands, Sizes, run_job
 from bayesdoor.systems import (
     AbstractSystem,
     ConditionSpec,
@@ -260,11 +260,8 @@ def test_job_on_two_conditions(tmp_path, campaign):
         SYSTEM,
         campaign,
         tmp_path / "job",
-        quick=True,
-        method="cmaes",
-        sizes=sizes,
+        JobConfig.quick_look(method="cmaes", sizes=sizes, html=False),
         progress=False,
-        html=False,
         report=lambda line: None,
     )
     runs = result.classification["runs"]

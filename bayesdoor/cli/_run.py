@@ -227,6 +227,7 @@ def run(
     """
     from ..pipeline import (
         SOURCES,
+        JobConfig,
         Source,
         calibration_runs,
         default_diagnose,
@@ -276,16 +277,18 @@ def run(
                 system,
                 campaign,
                 out,
-                quick=quick,
-                seed=seed,
-                source=cast(Source, source),
-                method=method,
+                JobConfig(
+                    quick=quick,
+                    seed=seed,
+                    source=cast(Source, source),
+                    method=method,
+                    extend=extend,
+                ),
+                diagnose=functools.partial(default_diagnose, catalogue=system.catalogue),
+                cluster=pool,
                 progress=not json,
                 report=stages,
                 overwrite=force,
-                diagnose=functools.partial(default_diagnose, catalogue=system.catalogue),
-                extend=extend,
-                cluster=pool,
             )
     except FileExistsError as err:
         raise fail(str(err)) from None

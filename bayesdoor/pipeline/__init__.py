@@ -20,6 +20,7 @@ from ._job import DEFAULT_SOURCE as DEFAULT_SOURCE
 from ._job import SOURCES as SOURCES
 from ._job import STAGES as STAGES
 from ._job import Generation as Generation
+from ._job import JobConfig as JobConfig
 from ._job import JobResult as JobResult
 from ._job import Sizes as Sizes
 from ._job import Source as Source

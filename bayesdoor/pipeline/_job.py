@@ -145,6 +145,128 @@ class Sizes:
 
 
 @dataclasses.dataclass(frozen=True)
+class JobConfig:
+    """Every setting of a job that changes what it computes, in one frozen record.
+
+    :meth:`quick_look` and :meth:`paper_sizes` are the two usual starting points; change a
+    setting with ``dataclasses.replace``. The fields left ``None`` are resolved when the
+    record is made (so two records that mean the same job compare equal).
+
+    Parameters
+    ----------
+    quick
+        Smaller sizes (:meth:`Sizes.quick`) and the fit's quick mode.
+    seed
+        Seed of the generation and the training (and of the fit unless ``fit_seed``).
+    method
+        The fit's method (``"nuts"``, ``"emcee"``; ``"cmaes"`` for a point only).
+    source
+        Training-data parameters: ``"posterior+model_error"`` (posterior draws plus the
+        fit's model-error offsets on the features), ``"posterior"`` draws alone, or the
+        paper's ``"gaussian"`` scatter around the fit's point; ``None``:
+        :func:`default_source` (the first for a sampled fit, the last for CMA-ES).
+    fit_seed
+        Seed of the fit; ``None`` means ``seed``.
+    sizes
+        Sizes of the generation and training; ``None``: the paper's, or the quick ones.
+    fit_options
+        Further keyword arguments of the fit (for example ``settings``, a
+        :class:`bayesdoor.inference.FitSettings`, or ``fixed={"I": 3}``); they enter the fit
+        stage's configuration through their ``repr``.
+    html
+        Write the HTML report stage (``False`` for batch studies that need the metrics only;
+        the JSON is always written).
+    diagnosis
+        Run the discrepancy diagnosis of the campaign under the job's fit (the ``diagnose``
+        stage, linked from the report); ``None``: when ``html`` is true (and always with
+        ``extend``).
+    extend
+        After the diagnosis, when its verdict names a cause: run the same job (seeds, sizes,
+        source, method, fit; no diagnosis) on :func:`bayesdoor.diagnose.extend_system` of
+        the system and the diagnosis (the cause held at its refitted values) in
+        ``out/extended``, its stages reused alike; the report and :attr:`JobResult.extended`
+        compare the two. The diagnosis sees the healthy calibration runs only: the test runs
+        score both jobs and inform neither.
+
+    Raises
+    ------
+    ValueError
+        For an unknown source, or ``extend`` with ``diagnosis=False``.
+    """
+
+    quick: bool = False
+    seed: int = 0
+    method: str = "nuts"
+    source: Source | None = None
+    fit_seed: int | None = None
+    sizes: Sizes | None = None
+    fit_options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    html: bool = True
+    diagnosis: bool | None = None
+    extend: bool = False
+
+    def __post_init__(self) -> None:
+        if self.extend and self.diagnosis is False:
+            raise ValueError(
+                "extend=True extends the system by the diagnosis's verdict, but "
+                "diagnosis=False skips the diagnosis: pass diagnosis=True (or None) with "
+                "extend=True"
+            )
+        if self.effective_source not in SOURCES:
+            raise ValueError(
+                f"source must be one of {', '.join(SOURCES)}, got {self.effective_source!r}"
+            )
+        object.__setattr__(self, "fit_options", dict(self.fit_options))
+
+    # the settings left ``None`` read through these, so that ``dataclasses.replace`` of
+    # ``quick`` or ``method`` changes the sizes or the source that follow from them
+    @property
+    def effective_source(self) -> Source:
+        return default_source(self.method) if self.source is None else self.source
+
+    @property
+    def effective_fit_seed(self) -> int:
+        return self.seed if self.fit_seed is None else self.fit_seed
+
+    @property
+    def effective_sizes(self) -> Sizes:
+        if self.sizes is not None:
+            return self.sizes
+        return Sizes.quick() if self.quick else Sizes()
+
+    @property
+    def effective_diagnosis(self) -> bool:
+        """The job diagnoses: with ``extend``, else as ``diagnosis`` says, else with the HTML."""
+        if self.extend:
+            return True
+        return self.html if self.diagnosis is None else self.diagnosis
+
+    @classmethod
+    def quick_look(cls, **changes: Any) -> JobConfig:
+        """A first look in minutes: :meth:`Sizes.quick` and the fit's quick mode."""
+        return cls(quick=True, **changes)
+
+    @classmethod
+    def paper_sizes(cls, **changes: Any) -> JobConfig:
+        """The paper's sizes (600 simulated runs per state, the full fit)."""
+        return cls(quick=False, **changes)
+
+    def settings(self, system_description: Mapping[str, Any], campaign: str) -> dict[str, Any]:
+        """What a finished job folder is checked against (``job.json``'s settings)."""
+        return {
+            "system": dict(system_description),
+            "campaign": campaign,
+            "quick": self.quick,
+            "seed": self.seed,
+            "fit_seed": self.effective_fit_seed,
+            "source": self.effective_source,
+            "method": self.method,
+            "fit_options": {k: repr(v) for k, v in self.fit_options.items()},
+            "sizes": self.effective_sizes.to_json(),
+        }
+
+
+@dataclasses.dataclass(frozen=True)
 class JobResult:
     """What a finished job produced.
 
@@ -393,23 +515,14 @@ def run_job(
     system: AbstractSystem,
     campaign: xr.Dataset,
     out: str | Path,
+    config: JobConfig | None = None,
     *,
-    quick: bool = False,
-    seed: int = 0,
-    source: Source | None = None,
-    method: str = "nuts",
-    fit_seed: int | None = None,
-    sizes: Sizes | None = None,
     fit: Callable[..., Any] | None = None,
-    fit_options: Mapping[str, Any] | None = None,
+    diagnose: Callable[..., Any] | None = None,
+    cluster: Cluster | Pool | None = None,
     progress: bool = True,
     report: Callable[[str], None] = print,
     overwrite: bool = False,
-    html: bool = True,
-    diagnosis: bool | None = None,
-    diagnose: Callable[..., Any] | None = None,
-    extend: bool = False,
-    cluster: Cluster | Pool | None = None,
 ) -> JobResult:
     """Fit on the calibration runs, simulate training data, train, classify the test runs, report.
 
@@ -429,43 +542,15 @@ def run_job(
         all runs).
     out
         The job's folder.
-    quick
-        Smaller sizes (:meth:`Sizes.quick`) and the fit's quick mode.
-    seed
-        Seed of the generation and the training (and of the fit unless ``fit_seed``).
-    source
-        Training-data parameters: ``"posterior+model_error"`` (posterior draws plus the
-        fit's model-error offsets on the features), ``"posterior"`` draws alone, or the
-        paper's ``"gaussian"`` scatter around the fit's point; ``None``:
-        :func:`default_source` (the first for a sampled fit, the last for CMA-ES).
-    method
-        The fit's method (``"nuts"``, ``"emcee"``; ``"cmaes"`` for a point only).
-    fit_seed
-        Seed of the fit; ``None`` means ``seed``.
-    sizes
-        Sizes of the generation and training; ``None``: the paper's, or the quick ones.
+    config
+        What the job computes (:class:`JobConfig`; ``None``: its defaults, the paper's sizes).
     fit
         The model-updating function, called as ``fit(system, calibration, method=, seed=,
-        quick=, progress=, **fit_options)`` and returning a ``FitResult``-like object
+        quick=, progress=, **config.fit_options)`` and returning a ``FitResult``-like object
         (``point``, ``j``, ``posterior_draws()``, ``model_error_draws()``, ``save(folder)``);
         ``None`` means :func:`bayesdoor.inference.fit_campaign`, whose integer parameters (the
-        door's contact-law index) CMA-ES searches unless ``fit_options`` holds them
+        door's contact-law index) CMA-ES searches unless the fit options hold them
         (``fixed={"I": 3}``).
-    fit_options
-        Further keyword arguments of ``fit`` (for example ``settings``, a
-        :class:`bayesdoor.inference.FitSettings`); they enter the fit stage's configuration
-        through their ``repr``.
-    progress
-        Show the progress bars of the stages.
-    report
-        Receives one line per stage event.
-    html
-        Write the HTML report stage (``False`` for batch studies that need the metrics only;
-        the JSON is always written).
-    diagnosis
-        Run the discrepancy diagnosis of the campaign under the job's fit (the ``diagnose``
-        stage, linked from the report); ``None``: when ``html`` is true (a batch study that
-        needs the metrics only skips both).
     diagnose
         The diagnosis, called as ``diagnose(system, campaign, fit_folder, seed=, quick=,
         progress=)`` with the folder of the saved fit and returning an object with
@@ -476,14 +561,6 @@ def run_job(
         campaign it cannot diagnose, for example too few runs), the job goes on: the
         diagnosis JSON holds ``error`` and no verdict, the report says why, and the next run
         tries again.
-    extend
-        After the diagnosis, when its verdict names a cause: run the same job (seeds, sizes,
-        source, method, fit; no diagnosis) on :func:`bayesdoor.diagnose.extend_system` of
-        the system and the diagnosis (the cause held at its refitted values) in
-        ``out/extended``, its stages reused alike; the report and :attr:`JobResult.extended`
-        compare the two. It needs the diagnosis (``diagnosis=None`` turns it on). The
-        diagnosis sees the healthy calibration runs only: the test runs score both jobs and
-        inform neither.
     cluster
         Where the simulation-heavy steps run (:class:`bayesdoor.Cluster`: this process, a
         local Dask cluster of worker processes, or a scheduler's address): the
@@ -491,6 +568,10 @@ def run_job(
         process. An open :class:`~bayesdoor.Pool` is used as it is (the extended job shares
         its job's). The results do not depend on it: every task has its own seed, and the
         stages' configurations (their cache keys) leave it out.
+    progress
+        Show the progress bars of the stages.
+    report
+        Receives one line per stage event.
     overwrite
         Let a job of other settings replace the finished job in ``out`` (stages whose
         configuration did not change are still reused).
@@ -502,38 +583,15 @@ def run_job(
     Raises
     ------
     ValueError
-        For a campaign without a healthy run to fit on, an unknown source, a source the fit
-        cannot serve, or ``extend`` with ``diagnosis=False``.
+        For a campaign without a healthy run to fit on, or a source the fit cannot serve.
     FileExistsError
         When ``out`` holds a finished job of other settings (and ``overwrite`` is false), or
         files that are not a job's; nothing is written then.
     """
-    if extend and diagnosis is False:
-        raise ValueError(
-            "extend=True extends the system by the diagnosis's verdict, but diagnosis=False "
-            "skips the diagnosis: pass diagnosis=True (or None) with extend=True"
-        )
-    if extend:
-        diagnosis = True
-    source = default_source(method) if source is None else source
-    if source not in SOURCES:
-        raise ValueError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
+    config = JobConfig() if config is None else config
     out = Path(out)
-    sizes = (Sizes.quick() if quick else Sizes()) if sizes is None else sizes
-    fit_seed = seed if fit_seed is None else fit_seed
-    options = dict(fit_options or {})
     system_description = describe_system(system)
-    settings = {
-        "system": system_description,
-        "campaign": digest_runs(campaign),
-        "quick": quick,
-        "seed": seed,
-        "fit_seed": fit_seed,
-        "source": source,
-        "method": method,
-        "fit_options": {k: repr(v) for k, v in options.items()},
-        "sizes": sizes.to_json(),
-    }
+    settings = config.settings(system_description, digest_runs(campaign))
     job_hash = configuration_hash(settings)
     calibration = campaign.isel(run=calibration_runs(campaign))
     test = runs_to_classify(campaign)
@@ -547,28 +605,19 @@ def run_job(
             calibration=calibration,
             test=test,
             out=out,
-            quick=quick,
-            seed=seed,
-            fit_seed=fit_seed,
-            source=source,
-            method=method,
-            sizes=sizes,
+            config=config,
             fit=_default_fit if fit is None else fit,
-            options=options,
             progress=progress,
             report=report,
             diagnose=default_diagnose if diagnose is None else diagnose,
             versions=_versions(),
-            key=jax.random.key(seed),
-            html=html,
-            diagnosis=html if diagnosis is None else diagnosis,
-            extend=extend,
+            key=jax.random.key(config.seed),
             pool=pool,
         )
         if pool.address is not None:
             report(f"cluster: {pool.address}")
         for stage in JOB_STAGES:
-            if stage.name == "report" and extend:
+            if stage.name == "report" and config.extend:
                 job.extension = _extension(job)
             job.run(stage)
     products = job.products
@@ -623,23 +672,14 @@ class _Job:
     calibration: xr.Dataset
     test: xr.Dataset
     out: Path
-    quick: bool
-    seed: int
-    fit_seed: int
-    source: Source
-    method: str
-    sizes: Sizes
+    config: JobConfig
     fit: Callable[..., Any]
-    options: dict[str, Any]
     progress: bool
     report: Callable[[str], None]
     diagnose: Callable[..., Any]
     versions: dict[str, str]
     key: jax.Array
-    html: bool
-    diagnosis: bool
     pool: Pool
-    extend: bool = False
     records: dict[str, StageRecord] = dataclasses.field(default_factory=dict)
     products: dict[str, Any] = dataclasses.field(default_factory=dict)
     #: the configuration hash a stage that could not be made stands in with (its reason's)
@@ -685,7 +725,7 @@ class _Job:
     def discrepancy(self) -> bool:
         """The default source carries the model error as measured: the calibration runs'
         discrepancy from the simulated healthy runs, added to every training run."""
-        return self.source == "posterior+model_error"
+        return self.config.effective_source == "posterior+model_error"
 
     @property
     def discrepancy_form(self) -> str | None:
@@ -700,9 +740,9 @@ class _Job:
                 self.campaign,
                 self.products["fit"],
                 self.records["fit"].config_hash,
-                self.source,
-                self.sizes,
-                self.seed,
+                self.config.effective_source,
+                self.config.effective_sizes,
+                self.config.seed,
             )
         return self._generation
 
@@ -711,7 +751,7 @@ class _Job:
             self.path("generate") / "data",
             self.calibration,
             discrepancy=self.discrepancy,
-            seed=self.seed,
+            seed=self.config.seed,
             system=self.system,
         )
 
@@ -779,21 +819,13 @@ def _extension(job: _Job) -> _Extension:
         extend_system(job.system, diagnosis),
         job.campaign,
         job.out / EXTENDED,
-        quick=job.quick,
-        seed=job.seed,
-        source=job.source,
-        method=job.method,
-        fit_seed=job.fit_seed,
-        sizes=job.sizes,
+        dataclasses.replace(job.config, diagnosis=False, extend=False),
         fit=job.fit,
-        fit_options=job.options,
+        cluster=job.pool,
         progress=job.progress,
         report=lambda line: job.report(f"{EXTENDED}/{line}"),
         # the folder is this job's: it follows the diagnosis, whatever it held before
         overwrite=True,
-        html=job.html,
-        diagnosis=False,
-        cluster=job.pool,
     )
     return _Extension(dataclasses.replace(result, extends=extends), extends)
 
@@ -867,10 +899,10 @@ def _fit_config(job: _Job) -> dict[str, Any]:
     return {
         "system": job.system_description,
         "calibration_runs": digest_runs(job.calibration),
-        "method": job.method,
-        "seed": job.fit_seed,
-        "quick": job.quick,
-        "options": {k: repr(v) for k, v in job.options.items()},
+        "method": job.config.method,
+        "seed": job.config.effective_fit_seed,
+        "quick": job.config.quick,
+        "options": {k: repr(v) for k, v in job.config.fit_options.items()},
         "versions": job.versions,
     }
 
@@ -879,14 +911,14 @@ def _fit(job: _Job, folder: Path) -> None:
     result = job.fit(
         job.system,
         job.calibration,
-        method=job.method,
-        seed=job.fit_seed,
-        quick=job.quick,
+        method=job.config.method,
+        seed=job.config.effective_fit_seed,
+        quick=job.config.quick,
         progress=job.progress,
-        **job.options,
+        **job.config.fit_options,
     )
     result.save(folder / "result")
-    FitSummary.from_result(result, job.method).save(folder)
+    FitSummary.from_result(result, job.config.method).save(folder)
 
 
 def _generate(job: _Job, folder: Path) -> None:
@@ -905,7 +937,7 @@ def _adequacy_config(job: _Job) -> dict[str, Any]:
     return {
         "data": job.hash("generate"),
         "runs": digest_runs(job.calibration),
-        "seed": job.seed,
+        "seed": job.config.seed,
         "discrepancy": job.discrepancy_form,
         "check": ADEQUACY_CHECK,
     }
@@ -916,7 +948,7 @@ def _adequacy(job: _Job, folder: Path) -> None:
         job.path("generate") / "data",
         job.calibration,
         folder,
-        seed=job.seed,
+        seed=job.config.seed,
         discrepancy=job.discrepancy,
         system=job.system,
     )
@@ -932,8 +964,8 @@ def _load_adequacy(job: _Job, folder: Path) -> dict[str, Any]:
 def _train_config(job: _Job) -> dict[str, Any]:
     return {
         "data": job.hash("generate"),
-        "sizes": job.sizes.to_json(),
-        "seed": job.seed,
+        "sizes": job.config.effective_sizes.to_json(),
+        "seed": job.config.seed,
         "ood": "model-error draws",
         "discrepancy": job.discrepancy_form,
         # the stage also writes the system's signature reference (from the calibration runs,
@@ -948,8 +980,8 @@ def _train(job: _Job, folder: Path) -> None:
         data,
         folder,
         key=jax.random.fold_in(job.key, 2),
-        config=job.sizes.train,
-        ood_quantile=job.sizes.ood_quantile,
+        config=job.config.effective_sizes.train,
+        ood_quantile=job.config.effective_sizes.ood_quantile,
         progress=job.progress,
         ood_model_error=ood_model_error(
             data,
@@ -983,7 +1015,7 @@ def _trust_config(job: _Job) -> dict[str, Any]:
         "adequacy": job.hash("adequacy"),
         "checks": TRUST_CHECKS,
         "runs": digest_runs(job.calibration),
-        "seed": job.seed,
+        "seed": job.config.seed,
         "discrepancy": job.discrepancy_form,
     }
 
@@ -996,7 +1028,7 @@ def _trust(job: _Job, folder: Path) -> None:
         job.path("adequacy"),
         job.calibration,
         folder,
-        seed=job.seed,
+        seed=job.config.seed,
         discrepancy=job.discrepancy,
         system=job.system,
     )
@@ -1013,8 +1045,8 @@ def _diagnose_config(job: _Job) -> dict[str, Any]:
     return {
         "fit": job.hash("fit"),
         "runs": digest_runs(job.calibration),
-        "seed": job.seed,
-        "quick": job.quick,
+        "seed": job.config.seed,
+        "quick": job.config.quick,
         "versions": job.versions,
         # the object beside the JSON (what extending the system reads): a diagnosis made
         # without it is made again
@@ -1029,8 +1061,8 @@ def _diagnose(job: _Job, folder: Path) -> None:
         job.path("fit") / "result",
         folder,
         diagnose=_with_pool(job.diagnose, job.pool),
-        seed=job.seed,
-        quick=job.quick,
+        seed=job.config.seed,
+        quick=job.config.quick,
         progress=job.progress,
         fit=job.products["fit"].to_json(),
     )
@@ -1114,7 +1146,7 @@ JOB_STAGES = (
         _diagnose_config,
         _diagnose,
         load=_load_diagnosis,
-        wanted=lambda job: job.diagnosis,
+        wanted=lambda job: job.config.effective_diagnosis,
         optional=True,
         failure=_no_diagnosis,
     ),
@@ -1123,6 +1155,6 @@ JOB_STAGES = (
         _report_config,
         _report,
         load=lambda job, folder: folder / "index.html",
-        wanted=lambda job: job.html,
+        wanted=lambda job: job.config.html,
     ),
 )

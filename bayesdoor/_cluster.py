@@ -122,7 +122,7 @@ class _Settings:
             jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
-def _call(settings: _Settings, function: Callable[..., T], args: tuple[Any, ...]) -> T:
+def _call(settings: _Settings, function: Callable[..., T], *args: Any) -> T:
     settings.apply()
     return function(*args)
 
@@ -148,10 +148,36 @@ class Pool:
             with ThreadPoolExecutor(min(self.threads, len(tasks))) as pool:
                 return list(pool.map(lambda task: function(*task), tasks))
         settings = _Settings.here()
+        shared = self._scatter_shared(tasks)
         futures = [
-            self.client.submit(_call, settings, function, task, pure=False) for task in tasks
+            self.client.submit(
+                _call,
+                settings,
+                function,
+                *(shared.get(id(arg), arg) for arg in task),
+                pure=False,
+            )
+            for task in tasks
         ]
         return list(self.client.gather(futures))
+
+    def _scatter_shared(self, tasks: Sequence[tuple[Any, ...]]) -> dict[int, Any]:
+        """The arguments that several tasks share (the same object: a refit's setup, a
+        catalogue), sent to the workers once each instead of once per task."""
+        seen: dict[int, int] = {}
+        objects: dict[int, Any] = {}
+        for task in tasks:
+            for arg in task:
+                if arg is None or isinstance(arg, bool | int | float | str):
+                    continue
+                seen[id(arg)] = seen.get(id(arg), 0) + 1
+                objects[id(arg)] = arg
+        return {
+            # in a list: scatter would send a dict item by item
+            key: self.client.scatter([objects[key]], broadcast=True, hash=False)[0]
+            for key, count in seen.items()
+            if count > 1
+        }
 
 
 def in_process(threads: int | None = None) -> Pool:

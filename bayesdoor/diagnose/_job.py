@@ -348,7 +348,10 @@ def _simulate_rows(
         for name in system.parameter_names()
     }
     result = system.simulate_values(
-        values, jnp.asarray(tile_runs(measured.operating, len(rows))), duration=measured.duration
+        values,
+        jnp.asarray(tile_runs(measured.operating, len(rows))),
+        state=system.healthy,
+        duration=measured.duration,
     )
     ok = np.all(np.asarray(result.status).reshape(len(rows), n_runs) == 0, axis=1)
     signals = np.asarray(result.signals)[..., :n_time]

@@ -509,7 +509,11 @@ class _Population(eqx.Module):
         # every candidate at every operating point (a row for several conditions)
         reps = (pop,) + (1,) * (self.operating.ndim - 1)
         result = self.system.simulate_values(
-            values, jnp.tile(self.operating, reps), duration=self.horizon, check=False
+            values,
+            jnp.tile(self.operating, reps),
+            state=self.system.healthy,
+            duration=self.horizon,
+            check=False,
         )
         features, _ = run_features(
             result.signals,

@@ -82,9 +82,9 @@ def simulate(
         typer.Option(
             "--state",
             help="a state of the system, one run each; repeat for several runs (the default: "
-            "one healthy run, as a simulation needs a state)",
+            "one run of the system's healthy state, as a simulation needs a state)",
         ),
-    ] = ["healthy"],  # noqa: B006
+    ] = [],  # noqa: B006
     condition: Annotated[
         list[str],
         typer.Option(
@@ -119,6 +119,7 @@ def simulate(
         model = get_system(system)
     except LookupError as err:
         raise fail(str(err)) from None
+    state = state or [model.healthy]
     for s in state:
         if s not in model.states:
             raise fail(f"unknown state {s!r}: allowed {', '.join(model.states)}")

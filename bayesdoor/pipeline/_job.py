@@ -522,7 +522,7 @@ def run_job(
         "sizes": sizes.to_json(),
     }
     job_hash = configuration_hash(settings)
-    calibration = campaign.isel(run=calibration_runs(campaign))
+    calibration = campaign.isel(run=calibration_runs(campaign, system.healthy))
     test = runs_to_classify(campaign)
     _check_folder(out, settings, job_hash, overwrite)
     out.mkdir(parents=True, exist_ok=True)

@@ -23,7 +23,8 @@ import numpy as np
 from jaxtyping import Float
 from matplotlib.ticker import MaxNLocator
 
-from ..io import HEALTHY, atomic_write
+from ..io import atomic_write
+from ..systems import HEALTHY
 from . import _html as H
 from ._calibration import plot_reliability
 from ._psd import STATE_COLORS
@@ -362,6 +363,8 @@ class _Inputs:
     """What every section of a damage report reads: the classification and the features."""
 
     classes: list[str]
+    #: the system's healthy state (it may not be one of the classes)
+    healthy: str
     runs: list[Mapping[str, Any]]
     metrics: Mapping[str, Any] | None
     threshold: float | None
@@ -408,8 +411,9 @@ def write_damage_report(
     folder
         Output folder (created).
     classification
-        The classification JSON (``classes``, ``runs``, ``metrics``, ``ood_threshold``,
-        ``temperature``) of :func:`bayesdoor.pipeline.classify_stage`.
+        The classification JSON (``classes``, ``healthy_state``, ``runs``, ``metrics``,
+        ``ood_threshold``, ``temperature``) of :func:`bayesdoor.pipeline.classify_stage`; one
+        without ``healthy_state`` is read with :data:`~bayesdoor.systems.HEALTHY`.
     features
         The classifier's input of each run, in the order of ``classification["runs"]``.
     frequencies, channels
@@ -442,6 +446,7 @@ def write_damage_report(
     (folder / "runs").mkdir(parents=True, exist_ok=True)
     inputs = _Inputs(
         classes=list(classification["classes"]),
+        healthy=str(classification.get("healthy_state", HEALTHY)),
         runs=list(classification["runs"]),
         metrics=classification.get("metrics"),
         threshold=classification.get("ood_threshold"),
@@ -496,9 +501,10 @@ def _answer_section(inputs: _Inputs, trust: Mapping[str, Any] | None) -> str:
     if trust is not None and trust.get("verdict"):
         verdict = str(trust["verdict"])
         counts.append(("trust (below)", verdict, "good" if verdict == "trusted" else "bad"))
-    flagged = [(r, _reasons(r, classes)) for r in valid]
+    flagged = [(r, _reasons(r, classes, inputs.healthy)) for r in valid]
     looked = sorted(
-        ((r, why) for r, why in flagged if why), key=lambda item: -_concern(item[0], classes)
+        ((r, why) for r, why in flagged if why),
+        key=lambda item: -_concern(item[0], classes, inputs.healthy),
     )
     parts = [H.cards(counts)]
     if not looked:
@@ -526,21 +532,21 @@ def _answer_section(inputs: _Inputs, trust: Mapping[str, Any] | None) -> str:
     return H.section("What the runs were called", *parts)
 
 
-def _concern(run: Mapping[str, Any], classes: Sequence[str]) -> float:
-    """The probability that the run is not healthy (without a healthy class: that it is not
-    what it was called)."""
+def _concern(run: Mapping[str, Any], classes: Sequence[str], healthy: str) -> float:
+    """The probability that the run is not ``healthy`` (without a healthy class: that it is
+    not what it was called)."""
     p = run["probabilities"]
-    if HEALTHY in classes:
-        return 1.0 - float(p[HEALTHY])
+    if healthy in classes:
+        return 1.0 - float(p[healthy])
     return 1.0 - float(p[_leaning(run)])
 
 
-def _reasons(run: Mapping[str, Any], classes: Sequence[str]) -> list[str]:
+def _reasons(run: Mapping[str, Any], classes: Sequence[str], healthy: str) -> list[str]:
     """Why a classified run is worth a look (none: called healthy, and vouched for)."""
     reasons = []
     if run["predicted"] is None:
         reasons.append(f"left uncalled, leaning {_leaning(run)}")
-    elif HEALTHY in classes and run["predicted"] != HEALTHY:
+    elif healthy in classes and run["predicted"] != healthy:
         reasons.append(f"called {run['predicted']}")
     if run["ood"]:
         reasons.append("unlike every simulated state (OOD)")

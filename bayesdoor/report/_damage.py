@@ -983,7 +983,7 @@ def trust_section(adequacy: Mapping[str, Any] | None, trust: Mapping[str, Any] |
                 "The classification below cannot be trusted: "
                 + "; ".join(str(r) for r in trust.get("reasons", []))
                 + ". Its probabilities are calibrated on simulations that do not describe "
-                "these measurements; read them as the simulations' view, not as the door's "
+                "these measurements; read them as the simulations' view, not as the machine's "
                 "state. Diagnose the discrepancy, or train on the source that carries the "
                 "model error (posterior+model_error)."
             )

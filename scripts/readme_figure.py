@@ -30,10 +30,12 @@ def main(argv: list[str] | None = None) -> None:
     if not classification.is_file():
         parser.error(f"{classification} does not exist: pass the folder of a finished job")
     from bayesdoor.report import probability_bars
+    from bayesdoor.systems import HEALTHY
 
     payload = json.loads(classification.read_text())
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_bytes(probability_bars(payload["runs"], payload["classes"]))
+    healthy = payload.get("healthy_state", HEALTHY)
+    args.out.write_bytes(probability_bars(payload["runs"], payload["classes"], healthy))
     print(f"wrote {args.out}")
 
 

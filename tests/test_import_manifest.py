@@ -352,7 +352,7 @@ def test_the_command_refuses_a_manifest_it_cannot_use(rig, tmp_path):
     cases = {
         tmp_path / "missing.toml": "missing.toml: no such manifest file",
         tmp_path / "broken.toml": "broken.toml: not TOML",
-        tmp_path / "nosystem.toml": 'the manifest names no system (system = "bearing"',
+        tmp_path / "nosystem.toml": 'the manifest names no system (a line system = "NAME"',
         tmp_path / "door.toml": "no reader of manifests of the system 'elevator_door'",
     }
     (tmp_path / "broken.toml").write_text("name = [")

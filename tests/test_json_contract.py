@@ -61,6 +61,8 @@ FIT = {
     "j": ANY,
 }
 CLASSIFY = {
+    "classes": ANY,
+    "healthy_state": ANY,
     "runs": Each(
         {
             "probabilities": keys("healthy", "D1", "D2"),

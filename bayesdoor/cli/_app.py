@@ -82,9 +82,9 @@ def simulate(
         typer.Option(
             "--state",
             help="a state of the system, one run each; repeat for several runs (the default: "
-            "one healthy run, as a simulation needs a state)",
+            "one run of the system's healthy state, as a simulation needs a state)",
         ),
-    ] = ["healthy"],  # noqa: B006
+    ] = [],  # noqa: B006
     condition: Annotated[
         list[str],
         typer.Option(
@@ -119,6 +119,7 @@ def simulate(
         model = get_system(system)
     except LookupError as err:
         raise fail(str(err)) from None
+    state = state or [model.healthy]
     for s in state:
         if s not in model.states:
             raise fail(f"unknown state {s!r}: allowed {', '.join(model.states)}")
@@ -336,8 +337,9 @@ def import_(
     format: Annotated[
         str,
         typer.Argument(
-            help="the data's format: an importer's name (cwru), or a manifest file (.toml) "
-            "that describes the records"
+            help="the data's format: the name of an importer a package declares (a "
+            "bayesdoor.importers entry point), or a manifest file (.toml) that describes the "
+            "records"
         ),
     ],
     source: Annotated[Path, typer.Argument(help="the measured data (a file or a folder)")],
@@ -379,7 +381,7 @@ def import_(
 
 def _manifest_importer(manifest: Path):
     """The importer of the records a manifest describes: the reader of manifests of the
-    system it names (``system = "bearing"``), bound to the manifest."""
+    system it names (``system = "NAME"``), bound to the manifest."""
     import functools
     import tomllib
 
@@ -393,7 +395,10 @@ def _manifest_importer(manifest: Path):
         raise fail(f"{manifest}: not TOML ({err})") from None
     system = data.get("system")
     if not isinstance(system, str):
-        raise fail(f'{manifest}: the manifest names no system (system = "bearing" at its top)')
+        raise fail(
+            f'{manifest}: the manifest names no system (a line system = "NAME" at its top, '
+            "NAME the system whose records it describes)"
+        )
     return functools.partial(get_manifest_importer(system), manifest)
 
 
@@ -545,7 +550,7 @@ def fit(
         typer.Option(
             "--fix",
             metavar=ASSIGNMENT,
-            help="hold a parameter at a value, e.g. --fix I=3 (repeatable; integer parameters "
+            help="hold a parameter at a value, NAME=VALUE (repeatable; integer parameters "
             "not held are searched by CMA-ES)",
         ),
     ] = None,
@@ -554,8 +559,8 @@ def fit(
         typer.Option(
             "--each",
             metavar="NAME",
-            help="one fit per value of an integer parameter over its bounds, e.g. --each I "
-            "(the door's contact-law ablation), into --out/NAME_VALUE",
+            help="one fit per value of the integer parameter NAME over its bounds (an "
+            "ablation of that parameter), into --out/NAME_VALUE",
         ),
     ] = "",
     seed: Annotated[int, typer.Option(help="seed of CMA-ES, surrogate and sampler")] = 0,

@@ -242,14 +242,14 @@ def check_for_job(
     campaign: xr.Dataset,
     system: AbstractSystem,
     source: str,
-    fitted: Callable[[xr.Dataset], Iterable[int]],
+    fitted: Callable[[xr.Dataset, str], Iterable[int]],
 ) -> None:
     """Refuse a campaign a job cannot use, before it writes anything, in one line.
 
     Every problem of :func:`bayesdoor.io.validate_campaign` against the system's channels and
     sampling rate is fatal when it concerns the whole campaign or one of the runs the model is
-    fitted on (``fitted(campaign)``, which raises ``ValueError`` when there are none);
-    problems of other runs are left to the job, which reports them run by run.
+    fitted on (``fitted(campaign, system.healthy)``, which raises ``ValueError`` when there
+    are none); problems of other runs are left to the job, which reports them run by run.
     ``_TOLERATED`` lists the exceptions.
     """
     from ..io import validate_campaign
@@ -275,7 +275,7 @@ def check_for_job(
 
     refuse([p for p in problems if p.run is None], "not a usable campaign")
     try:
-        runs = {int(r) for r in fitted(campaign)}
+        runs = {int(r) for r in fitted(campaign, system.healthy)}
     except ValueError as err:
         raise fail(f"{source}: {err}") from None
     refuse([p for p in problems if p.run in runs], "a run the model is fitted on is unusable")

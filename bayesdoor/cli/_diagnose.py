@@ -138,7 +138,7 @@ def diagnose(
 
     campaign = load(path)
     system = system_named(campaign)
-    check_for_job(campaign, system, str(path), lambda c: [int(i) for i in calibration_runs(c)])
+    check_for_job(campaign, system, str(path), calibration_runs)
     if out.exists() and not out.is_dir():
         raise fail(f"--out {out} is a file: pass a folder for the diagnosis")
     check_writable(out)

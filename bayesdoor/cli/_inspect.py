@@ -224,8 +224,22 @@ def plot(ds: xr.Dataset, problems: list, paths: list[Path], title: str) -> tuple
     psds = campaign_psds(ds, runs=good, windows=(start, stop))
     low, full = paths
     title = f"{title}: mean log PSD per state and its spread over the runs"
-    plot_state_psds(psds, low, fmax=_LOW_BAND_HZ, title=f"{title}, 0-{_LOW_BAND_HZ:g} Hz")
-    plot_state_psds(psds, full, title=f"{title}, full band")
+    from ..io import system_of
+    from ..systems import HEALTHY
+
+    system = system_of(ds) if ds.attrs else None
+    # the system's states, in its order, give the colours (as in the job's report)
+    states = () if system is None else tuple(system.states)
+    healthy = HEALTHY if system is None else system.healthy
+    plot_state_psds(
+        psds,
+        low,
+        fmax=_LOW_BAND_HZ,
+        title=f"{title}, 0-{_LOW_BAND_HZ:g} Hz",
+        states=states,
+        healthy=healthy,
+    )
+    plot_state_psds(psds, full, title=f"{title}, full band", states=states, healthy=healthy)
     return [low, full], notes
 
 

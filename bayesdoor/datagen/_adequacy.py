@@ -166,7 +166,7 @@ def fit_adequacy(
     speeds: Float[np.ndarray, " run"] | Sequence[float],
     variance: Float[np.ndarray, "channel freq"],
     *,
-    state: str = "healthy",
+    state: str | None = None,
     seed: int = 0,
     alpha: float = ALPHA,
     bands: int = BANDS,
@@ -186,7 +186,8 @@ def fit_adequacy(
         Per-feature variance a measured record adds to a simulation (decades^2), e.g.
         :func:`measurement_variance` without the model error (the Welch scatter).
     state
-        The measured runs' state.
+        The measured runs' state; ``None``: the training data's healthy state
+        (:attr:`TrainingData.healthy`).
     seed
         Seed of the scatter draws.
     alpha
@@ -209,6 +210,7 @@ def fit_adequacy(
         For an unknown state, mismatched shapes, no measured run, or a speed at which fewer
         than 5 simulated runs of the state exist.
     """
+    state = data.healthy if state is None else state
     x, v, var, groups = _inputs(data, features, speeds, variance, state, alpha, bands)
     if not discrepancy:
         scores = _scores(data, x, v, var, state, groups)
@@ -258,13 +260,14 @@ def healthy_outliers(
     speeds: Float[np.ndarray, " run"] | Sequence[float],
     variance: Float[np.ndarray, "channel freq"],
     *,
-    state: str = "healthy",
+    state: str | None = None,
     seed: int = 0,
     alpha: float = ALPHA,
     bands: int = BANDS,
     replicates: int = 20,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per run: is it unlike the simulated runs of ``state`` at its speed?
+    """Per run: is it unlike the simulated runs of ``state`` (``None``: the training data's
+    healthy state) at its speed?
 
     The run's score is ``T = sum(Phi^-1(u)^2)`` over the channel-band cells of
     :func:`fit_adequacy` (``u`` its predictive p-values); its threshold is the ``1 - alpha``
@@ -281,6 +284,7 @@ def healthy_outliers(
     ValueError
         As :func:`fit_adequacy`.
     """
+    state = data.healthy if state is None else state
     x, v, var, groups = _inputs(data, features, speeds, variance, state, alpha, bands)
     null = (np.random.default_rng(seed), replicates, alpha)
     out = _scores(data, x, v, var, state, groups, null=null)

@@ -27,7 +27,7 @@ import numpy as np
 
 from .._types import Array
 from ..io import atomic_write
-from ..systems import AbstractSystem
+from ..systems import HEALTHY, AbstractSystem
 from ._chunks import Job, run_chunk
 from ._config import GenerationConfig
 from ._sources import AbstractParameterSource, ModelErrorDraws, _digest
@@ -66,6 +66,13 @@ class TrainingData:
     dropped_run_ids: np.ndarray
     manifest: Mapping[str, Any]
 
+    @property
+    def healthy(self) -> str:
+        """The simulated system's healthy state (:attr:`AbstractSystem.healthy
+        <bayesdoor.systems.AbstractSystem.healthy>`), as the manifest describes the system;
+        :data:`~bayesdoor.systems.HEALTHY` where it names none."""
+        return str(self.manifest.get("system", {}).get("healthy_state", HEALTHY))
+
     def subset(self, which: str) -> TrainingData:
         """The ``"train"`` or ``"validation"`` runs."""
         if which not in ("train", "validation"):
@@ -99,10 +106,18 @@ class TrainingData:
 
 
 def describe_system(system: AbstractSystem) -> dict[str, Any]:
-    """A JSON-able description of a system for provenance (its settings and array leaves)."""
+    """A JSON-able description of a system for provenance (its settings and array leaves).
+
+    It names the system's healthy state (``healthy_state``) only where that is not
+    :data:`~bayesdoor.systems.HEALTHY`, which is what a description without it means
+    (:attr:`TrainingData.healthy`): a system with the default is described, and its jobs and
+    generations hashed, alike with or without the key.
+    """
     leaves = jax.tree_util.tree_leaves(system)
+    healthy = {} if system.healthy == HEALTHY else {"healthy_state": system.healthy}
     return {
         "name": system.name,
+        **healthy,
         "repr": repr(system),
         "leaves_sha256": _digest({str(i): np.asarray(v) for i, v in enumerate(leaves)}),
         "channels": list(system.channels),

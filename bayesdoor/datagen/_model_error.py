@@ -200,7 +200,7 @@ def with_measured_discrepancy(
     speeds: Float[np.ndarray, " run"] | Sequence[float],
     *,
     seed: int = 0,
-    state: str = "healthy",
+    state: str | None = None,
 ) -> TrainingData:
     """Training data whose every simulated run carries the measured discrepancy of one known run.
 
@@ -228,7 +228,8 @@ def with_measured_discrepancy(
     seed
         Seed of the draws of which run's discrepancy each simulated run gets.
     state
-        The measured runs' state.
+        The measured runs' state; ``None``: the training data's healthy state
+        (:attr:`TrainingData.healthy`).
 
     Returns
     -------
@@ -241,6 +242,7 @@ def with_measured_discrepancy(
         For an unknown state, features of another shape, no measured run, or a measured
         speed without simulated runs of ``state``.
     """
+    state = data.healthy if state is None else state
     if state not in data.states:
         raise ValueError(f"state={state!r} is not one of the training data's {data.states}")
     x = np.asarray(features, dtype=float)

@@ -173,6 +173,10 @@ class HeldExtension(AbstractSystem):
         return self.system.states
 
     @property
+    def healthy(self) -> str:
+        return self.system.healthy
+
+    @property
     def channels(self) -> tuple[str, ...]:
         return self.system.channels
 
@@ -236,12 +240,13 @@ class HeldExtension(AbstractSystem):
         values: Mapping[str, Float[Array, "*batch"] | float],
         operating: Float[Array, " batch"] | float,
         *,
-        state: str = "healthy",
+        state: str | None = None,
         severity: Mapping[str, Float[Array, "*batch"] | float] | None = None,
         duration: float | None = None,
         check: bool = True,
     ) -> SimulationResult:
-        """The wrapped system's runs with the held values added to ``values``."""
+        """The wrapped system's runs with the held values added to ``values`` (``state``
+        ``None``: its healthy state)."""
         clash = [n for n in values if n in self.held_values]
         if clash:
             raise ValueError(
@@ -251,7 +256,7 @@ class HeldExtension(AbstractSystem):
         return self.system.simulate_values(
             {**dict(values), **self.held_values},
             operating,
-            state=state,
+            state=self.healthy if state is None else state,
             severity=severity,
             duration=duration,
             check=check,

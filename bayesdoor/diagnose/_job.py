@@ -351,7 +351,10 @@ def _simulate_rows(
         for name in system.parameter_names()
     }
     result = system.simulate_values(
-        values, jnp.asarray(tile_runs(measured.operating, len(rows))), duration=measured.duration
+        values,
+        jnp.asarray(tile_runs(measured.operating, len(rows))),
+        state=system.healthy,
+        duration=measured.duration,
     )
     ok = np.all(np.asarray(result.status).reshape(len(rows), n_runs) == 0, axis=1)
     signals = np.asarray(result.signals)[..., :n_time]
@@ -767,7 +770,9 @@ def _measure(run: _Run) -> None:
     notes."""
     assert run.fit is not None
     run.notes += base_fit_notes(run.system, run.fit)
-    run.measured = _Measured.of(run.system, run.campaign, calibration_runs(run.campaign))
+    run.measured = _Measured.of(
+        run.system, run.campaign, calibration_runs(run.campaign, run.system.healthy)
+    )
 
 
 def _predictive(run: _Run) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1264,7 +1269,7 @@ def extension_gain(
         For fewer than 4 healthy calibration runs.
     """
     settings = DiagnosisSettings.quick() if quick else DiagnosisSettings()
-    measured = _Measured.of(system, campaign, calibration_runs(campaign))
+    measured = _Measured.of(system, campaign, calibration_runs(campaign, system.healthy))
     catalogue = system.catalogue if catalogue is None else catalogue
     known = catalogue if isinstance(catalogue, Catalogue) else None
     order = measured.operating if known is None else _fold_order(known, measured.operating)

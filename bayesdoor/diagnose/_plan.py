@@ -104,7 +104,7 @@ def plan_campaign(
     catalogue = system.catalogue if catalogue is None else catalogue
     if not isinstance(catalogue, Catalogue):
         raise ValueError(f"{system.name} has no catalogue of discrepancy causes")
-    measured = _Measured.of(system, campaign, calibration_runs(campaign))
+    measured = _Measured.of(system, campaign, calibration_runs(campaign, system.healthy))
     if len(measured.runs) < 4:
         raise ValueError(f"{len(measured.runs)} calibration runs: need at least 4 to plan from")
     band = _band(fit)

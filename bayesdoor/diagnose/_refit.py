@@ -586,7 +586,11 @@ class _Model:
             pop, n_runs = next(iter(vals.values())).shape
             flat, speeds = self._flat(vals, runs)
             result = self.extended.simulate_values(
-                flat, speeds, duration=self.setup.duration, check=False
+                flat,
+                speeds,
+                state=self.extended.healthy,
+                duration=self.setup.duration,
+                check=False,
             )
             signals = np.asarray(result.signals)[..., : self.setup.base_signals.shape[-1]]
             failed = np.asarray(result.status) != 0

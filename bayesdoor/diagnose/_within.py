@@ -65,8 +65,8 @@ def within_run_speed(
 
     Short-time spectra (Hann frames of ``frame_s``, every ``hop_s``, zero-padded 4 times) of
     the measured and the predictive runs give the excess ``e = log10 P - mean_d log10 P_d``
-    per frame. A feature at cruise frequency ``f_c`` in a run of peak speed ``v_max`` lies at
-    ``f_c v(t) / v_max`` if it tracks the speed and at ``f_c`` if it does not; the frames
+    per frame. A feature at cruise frequency ``f_c`` in a run of peak speed ``v_peak`` lies at
+    ``f_c v(t) / v_peak`` if it tracks the speed and at ``f_c`` if it does not; the frames
     where the door moves (speed at least ``MOVING_FRACTION`` of its peak) and the two
     predictions lie at least ``TELLING_BINS`` frame resolutions apart (accelerating and
     braking) tell them apart. The statistic is the mean of ``e(f_tracking) - e(f_fixed)``
@@ -120,10 +120,10 @@ def within_run_speed(
         c = names.index(region.channel)
         diffs = []
         for r in range(x.shape[0]):
-            v_max = float(v[r].max())
-            if v_max <= 0:
+            v_peak = float(v[r].max())
+            if v_peak <= 0:
                 continue
-            f_c = region.peak if region.domain == FREQUENCY else region.peak * v_max
+            f_c = region.peak if region.domain == FREQUENCY else region.peak * v_peak
             if (r, c) not in spectra:
                 spectra[r, c] = _excess_spectrogram(
                     x[r, c], sims[:, r, c], fs, nperseg, hop, 4 * nperseg
@@ -131,8 +131,8 @@ def within_run_speed(
             freqs, times, excess = spectra[r, c]
             starts = np.rint(times * fs).astype(int) - nperseg // 2
             speed = np.array([v[r, s : s + nperseg].mean() for s in starts])
-            f_track = f_c * speed / v_max
-            telling = (speed >= MOVING_FRACTION * v_max) & (
+            f_track = f_c * speed / v_peak
+            telling = (speed >= MOVING_FRACTION * v_peak) & (
                 np.abs(f_c - f_track) >= TELLING_BINS * resolution
             )
             for k in np.flatnonzero(telling):

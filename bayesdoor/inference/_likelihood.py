@@ -167,7 +167,7 @@ class SimulatorForward(AbstractForward):
         values: dict[str, Array | float] = {n: theta[i] for i, n in enumerate(self.names)}
         values.update(dict(self.fixed))
         result = self.system.simulate_values(
-            values, self.operating, duration=self.duration, check=False
+            values, self.operating, state=self.system.healthy, duration=self.duration, check=False
         )
         features, _ = run_features(
             result.signals, self.system.sampling_rate_hz, self.t_start, self.t_stop, self.spec

@@ -434,10 +434,10 @@ def _initial_walkers(
     space: _Unconstrained,
     total: int,
     init_scale: float,
-    key_ball: jax.Array,
+    key_start: jax.Array,
     key_numpy: jax.Array,
 ) -> emcee.State:
-    """emcee's start state: ``total`` walkers drawn (``key_ball``) from a Gaussian ball of
+    """emcee's start state: ``total`` walkers drawn (``key_start``) from a Gaussian ball of
     standard deviation ``init_scale`` around the start point, their log densities, and the
     state of NumPy's generator that emcee's moves draw from, seeded by ``key_numpy``.
 
@@ -447,8 +447,9 @@ def _initial_walkers(
         If a walker starts at a non-finite log density.
     """
     z0 = space.z0
-    ball = np.asarray(z0 + init_scale * jax.random.normal(key_ball, (total, space.ndim), z0.dtype))
-    lp0 = space.log_density(ball)
+    start = jax.random.normal(key_start, (total, space.ndim), z0.dtype)
+    walkers = np.asarray(z0 + init_scale * start)
+    lp0 = space.log_density(walkers)
     if not np.all(np.isfinite(lp0)):
         raise ValueError(
             f"{int(np.sum(~np.isfinite(lp0)))} of {total} walkers start with a non-finite "
@@ -456,7 +457,7 @@ def _initial_walkers(
             "(e.g. a CMA-ES optimum), (b) shrink init_scale, (c) check the model at init_values"
         )
     seed = int(jax.random.randint(key_numpy, (), 0, np.iinfo(np.int32).max))
-    return emcee.State(ball, log_prob=lp0, random_state=np.random.RandomState(seed).get_state())
+    return emcee.State(walkers, log_prob=lp0, random_state=np.random.RandomState(seed).get_state())
 
 
 def _autocorr_time(sampler: emcee.EnsembleSampler, burn: int) -> np.ndarray:
@@ -536,11 +537,11 @@ class _Emcee:
         length, the autocorrelation time and the thinning, the draws mapped back to the
         constrained sites."""
         model_kwargs = dict(model_kwargs or {})
-        key_init, key_ball, key_numpy = jax.random.split(key, 3)
+        key_init, key_start, key_numpy = jax.random.split(key, 3)
         space = _Unconstrained.of(model, model_kwargs, init_values, key_init)
         n_walkers = _walkers_per_ensemble(self.n_walkers, space.ndim)
         total = self.n_ensembles * n_walkers
-        state = _initial_walkers(space, total, self.init_scale, key_ball, key_numpy)
+        state = _initial_walkers(space, total, self.init_scale, key_start, key_numpy)
         sampler = emcee.EnsembleSampler(
             total,
             space.ndim,

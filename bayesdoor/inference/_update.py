@@ -40,7 +40,7 @@ from ..features import motion_window as detect_motion_window
 from ..features import objective_j, segment_weights
 from ..io import atomic_write
 from ..io import operating as campaign_operating
-from ..systems import AbstractSystem
+from ..systems import HEALTHY, AbstractSystem
 from ._cmaes import CMAESHistory, CMAESResult, minimize_cmaes
 from ._diagnostics import SamplingDiagnostics, diagnose_sampling
 from ._features import FeatureSpec, run_features
@@ -204,11 +204,12 @@ class FitSettings:
 # the campaign side
 
 
-def calibration_runs(campaign: xr.Dataset) -> Int[np.ndarray, " run"]:
+def calibration_runs(campaign: xr.Dataset, healthy: str = HEALTHY) -> Int[np.ndarray, " run"]:
     """Indices of the runs a model is updated on.
 
     The runs with ``split == "calibration"`` when the campaign has such runs, else every run;
-    of those, the ``healthy`` ones.
+    of those, the ones in the state ``healthy`` (the system's
+    :attr:`~bayesdoor.systems.AbstractSystem.healthy`).
 
     Raises
     ------
@@ -221,15 +222,15 @@ def calibration_runs(campaign: xr.Dataset) -> Int[np.ndarray, " run"]:
         split = np.asarray(campaign["split"].values).astype(str)
         if np.any(split == "calibration"):
             chosen = split == "calibration"
-    runs = np.flatnonzero(chosen & (state == "healthy"))
+    runs = np.flatnonzero(chosen & (state == healthy))
     if runs.size == 0:
         labels, counts = np.unique(state[chosen], return_counts=True)
         found = ", ".join(f"{n} {s}" for s, n in zip(labels, counts, strict=True)) or "no runs"
         where = "calibration runs" if not chosen.all() else "runs"
         raise ValueError(
-            f"the campaign has no healthy run to update the model on (its {where}: {found}): "
-            "model updating needs measurements of the healthy system; (a) label them "
-            "state='healthy', (b) mark them split='calibration', (c) pass another campaign"
+            f"the campaign has no {healthy} run to update the model on (its {where}: {found}): "
+            "model updating needs measurements of the undamaged system; (a) label them "
+            f"state={healthy!r}, (b) mark them split='calibration', (c) pass another campaign"
         )
     return runs
 
@@ -509,7 +510,11 @@ class _Population(eqx.Module):
         # every candidate at every operating point (a row for several conditions)
         reps = (pop,) + (1,) * (self.operating.ndim - 1)
         result = self.system.simulate_values(
-            values, jnp.tile(self.operating, reps), duration=self.horizon, check=False
+            values,
+            jnp.tile(self.operating, reps),
+            state=self.system.healthy,
+            duration=self.horizon,
+            check=False,
         )
         features, _ = run_features(
             result.signals,
@@ -1178,7 +1183,7 @@ def fit_campaign(
         The simulated system.
     campaign
         The measurements (docs/data.md): runs with ``split == "calibration"`` when
-        present, else every ``healthy`` run, are fitted.
+        present, else every run of the system's healthy state, are fitted.
     method
         ``cmaes`` (the optimum of J only), ``nuts`` or ``emcee`` (a posterior on a surrogate
         of the simulator, started at the CMA-ES optimum).
@@ -1238,7 +1243,7 @@ def fit_campaign(
     error = ModelError() if error is None else error
     search = _SearchSpace.of(system, fixed, method)
     t0 = time.perf_counter()
-    runs = calibration_runs(campaign)
+    runs = calibration_runs(campaign, system.healthy)
     data, duration = campaign_data(
         system, campaign, runs, spec=spec, max_motion_s=settings.max_motion_s
     )

@@ -8,7 +8,6 @@ from ._csv import from_csv as from_csv
 from ._csv import to_csv as to_csv
 from ._format import ACCELERATION_UNITS as ACCELERATION_UNITS
 from ._format import CONVERTIBLE_UNITS as CONVERTIBLE_UNITS
-from ._format import HEALTHY as HEALTHY
 from ._format import SPLIT_LABELS as SPLIT_LABELS
 from ._format import SYSTEM_SETTINGS as SYSTEM_SETTINGS
 from ._format import UNKNOWN as UNKNOWN

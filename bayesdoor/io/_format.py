@@ -12,8 +12,6 @@ import numpy as np
 
 from ..systems import AbstractSystem, get_system
 
-#: the state every system has: the reference that calibration runs are measured in
-HEALTHY = "healthy"
 #: the state label of a run whose state is not known (to be classified)
 UNKNOWN = "unknown"
 #: the per-run ``split`` labels of the campaign format (docs/data.md)

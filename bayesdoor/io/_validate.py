@@ -240,11 +240,11 @@ def _sample_problems(ds: xr.Dataset, clip_run: int, clip_fraction: float) -> lis
                 channels[c],
             )
         )
-    at_rail = (np.abs(finite) == peak[..., None]) & (peak[..., None] > 0) & ~flat[..., None]
-    counts = at_rail.sum(axis=2)
+    at_peak = (np.abs(finite) == peak[..., None]) & (peak[..., None] > 0) & ~flat[..., None]
+    counts = at_peak.sum(axis=2)
     for r, c in zip(*np.nonzero(counts >= clip_run), strict=True):
         # longest stretch of consecutive samples at +-peak
-        edges = np.diff(np.concatenate([[0], at_rail[r, c].astype(np.int8), [0]]))
+        edges = np.diff(np.concatenate([[0], at_peak[r, c].astype(np.int8), [0]]))
         longest = int(np.max(np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)))
         if longest >= clip_run or counts[r, c] >= clip_fraction * n:
             problems.append(

@@ -36,10 +36,10 @@ from ..datagen import (
 )
 from ..datagen._points import point_key
 from ..features import CNNInputSpec
-from ..io import HEALTHY, atomic_write, system_of
+from ..io import atomic_write, system_of
 from ..io import operating as campaign_operating
 from ..report import diagnosis_section, extension_section, write_damage_report
-from ..systems import AbstractSystem
+from ..systems import HEALTHY, AbstractSystem
 from ._bands import PredictiveBands
 from ._fit import FitSummary
 
@@ -132,6 +132,7 @@ def train_stage(
         folder / "training.json",
         {
             "states": list(data.states),
+            "healthy_state": data.healthy,
             "spec": data.manifest["config"]["spec"],
             "counts": data.counts(),
             "temperature": float(ensemble.temperature),
@@ -219,16 +220,17 @@ def _with_evidence(
     agreement: list[dict[str, bool | None] | None],
     alpha: float | None,
     classes: list[str],
+    healthy_state: str,
     ok: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any] | None]:
     """The runs' probabilities weighed against the signature check
     (:func:`bayesdoor.classify.combine_evidence`), each run's probability that the ensemble's
     probabilities hold, and the campaign's summary; the ensemble's probabilities unchanged
-    without a check, a stated false-alarm rate or a healthy class."""
+    without a check, a stated false-alarm rate or the class ``healthy_state``."""
     applies = np.full(len(probabilities), np.nan)
-    if alpha is None or HEALTHY not in classes or all(a is None for a in agreement):
+    if alpha is None or healthy_state not in classes or all(a is None for a in agreement):
         return probabilities, applies, None
-    healthy = classes.index(HEALTHY)
+    healthy = classes.index(healthy_state)
     shows = np.full(probabilities.shape, np.nan)
     for i, check in enumerate(agreement):
         for k, c in enumerate(classes):
@@ -280,6 +282,15 @@ def _selective(probabilities: np.ndarray, ok: np.ndarray, risk: float | None):
     }
 
 
+def healthy_state(record: dict[str, Any] | None, system: AbstractSystem | None = None) -> str:
+    """The healthy state a job's products were made for: the ``healthy_state`` of
+    ``record`` (``training.json`` or ``classification.json``), else ``system``'s, else
+    :data:`~bayesdoor.systems.HEALTHY`."""
+    if record is not None and "healthy_state" in record:
+        return str(record["healthy_state"])
+    return HEALTHY if system is None else system.healthy
+
+
 def runs_in_state(campaign: xr.Dataset, state: str) -> xr.Dataset:
     """The runs of ``campaign`` whose ``state`` is ``state``."""
     states = np.asarray(campaign["state"].values).astype(str)
@@ -311,7 +322,7 @@ def ood_model_error(
     or when a calibration run's operating point has no simulated healthy training run, only
     the scatter is drawn.
     """
-    healthy = runs_in_state(calibration, "healthy")
+    healthy = runs_in_state(calibration, data.healthy)
     speeds = campaign_operating(healthy, system)
     # operating points as keys: numbers for one condition, tuples (rows) for several; the
     # residuals need simulated healthy runs at every calibration run's point
@@ -320,16 +331,16 @@ def ood_model_error(
         {
             point_key(p)
             for p, label in zip(np.asarray(train.speeds), train.labels, strict=True)
-            if data.states[int(label)] == "healthy"
+            if data.states[int(label)] == data.healthy
         }
-        if "healthy" in data.states
+        if data.healthy in data.states
         else set()
     )
     measured = {point_key(p) for p in np.asarray(speeds)}
     residuals = None
     if healthy.sizes["run"] and simulated and measured <= simulated:
         residuals = calibration_residuals(
-            data, campaign_features(healthy, spec=data_spec(data)), speeds, state="healthy"
+            data, campaign_features(healthy, spec=data_spec(data)), speeds, state=data.healthy
         )
     return model_error_draws(
         draws,
@@ -375,7 +386,8 @@ def classify_stage(
 ) -> None:
     """Classify every run of ``campaign`` with the ensemble in ``model``.
 
-    Writes ``classification.json`` (docs/cli.md, the job's JSON: per run ``predicted``,
+    Writes ``classification.json`` (docs/cli.md, the job's JSON: the ensemble's ``classes``
+    and ``healthy_state``, the system's healthy state; per run ``predicted``,
     ``most_probable``, ``abstained``, ``probabilities``, ``entropy``, ``mutual_information``,
     ``ood``, ``uncertain``, ``signatures``, ``corroborated``;
     ``metrics`` over the runs whose true state is one of the classes) and ``features.npz``.
@@ -428,12 +440,10 @@ def classify_stage(
     ]
     n_freq = ensemble.network.input_shape[-1]
     training = path.parent / "training.json"
+    record = json.loads(training.read_text()) if training.is_file() else None
     # the features of the training data (the default spec for a bare ensemble file)
-    spec = (
-        CNNInputSpec(**json.loads(training.read_text())["spec"])
-        if training.is_file()
-        else CNNInputSpec()
-    )
+    spec = CNNInputSpec() if record is None else CNNInputSpec(**record["spec"])
+    healthy = healthy_state(record, system)
     features = np.full((n_run, *ensemble.network.input_shape), np.nan)
     good = [i for i in range(n_run) if problems[i] is None]
     if good:
@@ -463,7 +473,9 @@ def classify_stage(
             flags[ok] = np.asarray(pred.ood)
     agreement, alpha = _signature_agreement(path.parent, campaign, system, ok)
     ensemble_probabilities = probabilities
-    probabilities, applies, evidence = _with_evidence(probabilities, agreement, alpha, classes, ok)
+    probabilities, applies, evidence = _with_evidence(
+        probabilities, agreement, alpha, classes, healthy, ok
+    )
     called, selective = _selective(probabilities, ok, selective_risk)
     runs = []
     for i in range(n_run):
@@ -532,6 +544,7 @@ def classify_stage(
     )
     payload = {
         "classes": classes,
+        "healthy_state": healthy,
         "temperature": float(ensemble.temperature),
         "ood_threshold": None if ensemble.ood is None else float(ensemble.ood.threshold),
         "n_runs": n_run,

@@ -593,7 +593,7 @@ def run_job(
     system_description = describe_system(system)
     settings = config.settings(system_description, digest_runs(campaign))
     job_hash = configuration_hash(settings)
-    calibration = campaign.isel(run=calibration_runs(campaign))
+    calibration = campaign.isel(run=calibration_runs(campaign, system.healthy))
     test = runs_to_classify(campaign)
     _check_folder(out, settings, job_hash, overwrite)
     out.mkdir(parents=True, exist_ok=True)

@@ -63,7 +63,14 @@ from ..datagen import (
 from ..datagen._points import point_key
 from ..io import operating as campaign_operating
 from ..systems import AbstractSystem
-from ._classify import SIGNATURES, _write_json, classify_stage, data_spec, runs_in_state
+from ._classify import (
+    SIGNATURES,
+    _write_json,
+    classify_stage,
+    data_spec,
+    healthy_state,
+    runs_in_state,
+)
 
 ADEQUACY_JSON = "adequacy.json"
 TRUST_JSON = "trust.json"
@@ -80,8 +87,6 @@ TRUST_CHECKS = {
     "alpha": TRUST_ALPHA,
     "required_accuracy": REQUIRED_ACCURACY,
 }
-#: the state the calibration runs are measured in
-KNOWN_STATE = "healthy"
 
 
 def training_data(
@@ -97,15 +102,15 @@ def training_data(
     (:func:`bayesdoor.datagen.with_measured_discrepancy`). ``system``: the campaign's system
     (``None``: the registered one it names)."""
     data = load_training_data(data_folder)
-    known = runs_in_state(calibration, KNOWN_STATE)
-    if not discrepancy or KNOWN_STATE not in data.states or known.sizes["run"] == 0:
+    known = runs_in_state(calibration, data.healthy)
+    if not discrepancy or data.healthy not in data.states or known.sizes["run"] == 0:
         return data
     return with_measured_discrepancy(
         data,
         campaign_features(known, spec=data_spec(data)),
         campaign_operating(known, system),
         seed=seed,
-        state=KNOWN_STATE,
+        state=data.healthy,
     )
 
 
@@ -126,11 +131,11 @@ def adequacy_stage(
     ``verdict: null`` and the reason.
     """
     data = load_training_data(data_folder)
-    known = runs_in_state(calibration, KNOWN_STATE)
-    if KNOWN_STATE not in data.states or known.sizes["run"] == 0:
+    known = runs_in_state(calibration, data.healthy)
+    if data.healthy not in data.states or known.sizes["run"] == 0:
         _write_json(
             folder / ADEQUACY_JSON,
-            {"verdict": None, "reason": f"no measured {KNOWN_STATE} runs to check the fit on"},
+            {"verdict": None, "reason": f"no measured {data.healthy} runs to check the fit on"},
         )
         return
     try:
@@ -145,9 +150,7 @@ def _adequacy(
 ) -> dict[str, Any]:
     features = campaign_features(known, spec=data_spec(data))
     variance = measurement_variance(data)
-    model = fit_adequacy(
-        data, features, speeds, variance, state=KNOWN_STATE, seed=seed, alpha=TRUST_ALPHA
-    )
+    model = fit_adequacy(data, features, speeds, variance, seed=seed, alpha=TRUST_ALPHA)
     payload = model.to_json()
     if discrepancy and known.sizes["run"] >= 2:
         payload = fit_adequacy(
@@ -155,7 +158,6 @@ def _adequacy(
             features,
             speeds,
             variance,
-            state=KNOWN_STATE,
             seed=seed,
             alpha=TRUST_ALPHA,
             discrepancy=True,
@@ -206,13 +208,15 @@ def judge_trust(
     classification
         The classification JSON of the test runs.
     training
-        ``training.json`` of the ensemble (its simulated validation and OOD quantile).
+        ``training.json`` of the ensemble (its states, healthy state, simulated validation and
+        OOD quantile).
     unlike_healthy
         Test runs (their ``run`` numbers) called healthy but unlike the simulated healthy runs.
     signature_rate
         The system's signature check's false-alarm rate (the share of right calls it
         contradicts; ``None``: no check, or none stated).
     """
+    healthy = healthy_state(training)
     reasons: list[str] = []
     checks: dict[str, Any] = {}
     if adequacy.get("verdict") == "does not reproduce":
@@ -224,27 +228,27 @@ def judge_trust(
         validation = training["validation"]
         labels = np.asarray(validation["labels"])
         probs = np.asarray(validation["probabilities"])
-        h = classes.index(KNOWN_STATE)
+        h = classes.index(healthy)
         own = labels == h
         hits = int(np.sum(np.argmax(probs[own], axis=1) == h))
         # the simulated recall, shrunk away from 1: a perfect validation of a few dozen runs
         # does not make one miss impossible
         recall = _jeffreys_centre(hits, int(own.sum()))
         called = [c for c in map(_call, known["runs"]) if c is not None]
-        k = sum(p == KNOWN_STATE for p in called)
+        k = sum(p == healthy for p in called)
         p_value = _binomial_low(k, len(called), recall)
         checks["known_runs"] = {
-            "state": KNOWN_STATE,
+            "state": healthy,
             "runs": len(called),
             "called_right": k,
             "simulated_recall": recall,
             "p_value": p_value,
         }
         if called and p_value < alpha:
-            others = sorted({p for p in called if p != KNOWN_STATE})
+            others = sorted({p for p in called if p != healthy})
             reasons.append(
-                f"{k} of {len(called)} measured {KNOWN_STATE} calibration runs were called "
-                f"{KNOWN_STATE} (the others: {', '.join(others)}); the simulated validation's "
+                f"{k} of {len(called)} measured {healthy} calibration runs were called "
+                f"{healthy} (the others: {', '.join(others)}); the simulated validation's "
                 f"recall {recall:.3f} makes that improbable (p = {p_value:.1e})"
             )
 
@@ -271,13 +275,13 @@ def judge_trust(
             f"{len(ood)} of {n} runs lie outside every simulated state (OOD), against "
             f"{100 * nominal:.0f} % expected (p = {p_ood:.1e}): their probabilities extrapolate"
         )
-    called_healthy = sum(_call(r) == KNOWN_STATE for r in runs)
+    called_healthy = sum(_call(r) == healthy for r in runs)
     p_h = _binomial_high(len(unlike_healthy), called_healthy, alpha) if called_healthy else 1.0
     checks["unlike_healthy"] = {"called_healthy": called_healthy, "p_value": p_h}
     if unlike_healthy and p_h < alpha:
         warnings.append(
-            f"{len(unlike_healthy)} of {called_healthy} runs called {KNOWN_STATE} are unlike "
-            f"the simulated {KNOWN_STATE} runs at their speed (p = {p_h:.1e})"
+            f"{len(unlike_healthy)} of {called_healthy} runs called {healthy} are unlike "
+            f"the simulated {healthy} runs at their speed (p = {p_h:.1e})"
         )
     _uncertain_rate(classification, training, runs, checks, warnings, alpha)
     if signature_rate is not None and n:
@@ -371,7 +375,9 @@ def trust_stage(
     ``discrepancy``: the training data carry the calibration runs' measured discrepancy
     (:func:`training_data`); the runs called healthy are then held against those.
     """
-    known_runs = runs_in_state(calibration, KNOWN_STATE)
+    training = json.loads((model / "training.json").read_text())
+    healthy = healthy_state(training, system)
+    known_runs = runs_in_state(calibration, healthy)
     known = None
     if known_runs.sizes["run"]:
         (folder / "known").mkdir(parents=True, exist_ok=True)
@@ -379,7 +385,6 @@ def trust_stage(
         known = json.loads((folder / "known" / "classification.json").read_text())
         known["runs"] = [r for r in known["runs"] if _call(r) is not None]
     classification = json.loads((classified / "classification.json").read_text())
-    training = json.loads((model / "training.json").read_text())
     adequacy = json.loads((adequacy_folder / ADEQUACY_JSON).read_text())
     data = training_data(
         data_folder, calibration, discrepancy=discrepancy, seed=seed, system=system
@@ -388,9 +393,9 @@ def trust_stage(
     picks = [
         (i, r)
         for i, r in enumerate(classification["runs"])
-        if _call(r) == KNOWN_STATE and _known(r["operating"])
+        if _call(r) == healthy and _known(r["operating"])
     ]
-    if picks and KNOWN_STATE in data.states:
+    if picks and healthy in data.states:
         with np.load(classified / "features.npz", allow_pickle=False) as f:
             features = f["features"][[i for i, _ in picks]]
         simulated = {point_key(s) for s in np.asarray(data.speeds)}

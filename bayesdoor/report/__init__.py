@@ -1,6 +1,10 @@
 """Figures and summaries at the edge of the library, shared by the command-line tools."""
 
 from ._calibration import plot_reliability as plot_reliability
+from ._colors import HEALTHY_COLOR as HEALTHY_COLOR
+from ._colors import STATE_COLORMAP as STATE_COLORMAP
+from ._colors import UNKNOWN_COLOR as UNKNOWN_COLOR
+from ._colors import state_colors as state_colors
 from ._damage import bands_figure as bands_figure
 from ._damage import confusion_figure as confusion_figure
 from ._damage import probability_bars as probability_bars
@@ -24,7 +28,6 @@ from ._posterior import ablation_table as ablation_table
 from ._posterior import plot_posterior_pairs as plot_posterior_pairs
 from ._posterior import plot_posterior_trace as plot_posterior_trace
 from ._posterior import plot_predictive_bands as plot_predictive_bands
-from ._psd import STATE_COLORS as STATE_COLORS
 from ._psd import RunPSDs as RunPSDs
 from ._psd import campaign_psds as campaign_psds
 from ._psd import motion_windows as motion_windows

@@ -23,17 +23,11 @@ import numpy as np
 from jaxtyping import Float
 from matplotlib.ticker import MaxNLocator
 
-from ..io import HEALTHY, atomic_write
+from ..io import UNKNOWN, atomic_write
+from ..systems import HEALTHY
 from . import _html as H
 from ._calibration import plot_reliability
-from ._psd import STATE_COLORS
-
-_OTHER = ("tab:purple", "tab:orange", "tab:brown", "tab:olive", "tab:cyan")
-
-
-def _colors(classes: Sequence[str]) -> dict[str, str]:
-    spare = iter(_OTHER * 4)
-    return {c: STATE_COLORS.get(c) or next(spare) for c in classes}
+from ._colors import UNKNOWN_COLOR, state_colors
 
 
 def _figure(width: float, height: float, **kw: Any) -> Any:
@@ -52,17 +46,20 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return str(value)
 
 
-def probability_bars(runs: Sequence[Mapping[str, Any]], classes: Sequence[str]) -> bytes:
+def probability_bars(
+    runs: Sequence[Mapping[str, Any]], classes: Sequence[str], healthy: str = HEALTHY
+) -> bytes:
     """Stacked class probabilities of every run, one panel per true state (paper, Figure 6);
-    when no run's state is known, one panel per predicted state."""
-    colors = _colors(classes)
+    when no run's state is known, one panel per predicted state. ``healthy``: the system's
+    healthy state (its colour, :func:`~bayesdoor.report.state_colors`)."""
+    colors = state_colors(classes, healthy)
     valid = [r for r in runs if r["probabilities"] is not None]
     known = _labelled(valid, classes)
 
     def key(r: Mapping[str, Any]) -> str | None:
         return r["state"] if known else _leaning(r)
 
-    groups = [s for s in (*classes, "unknown") if any(key(r) == s for r in valid)]
+    groups = [s for s in (*classes, UNKNOWN) if any(key(r) == s for r in valid)]
     groups += sorted({str(key(r)) for r in valid} - set(groups))
     fig = _figure(11.5, 1.7 + 1.55 * max(len(groups), 1))
     axes = fig.subplots(max(len(groups), 1), 1, squeeze=False)[:, 0]
@@ -143,9 +140,13 @@ def confusion_figure(confusion: Sequence[Sequence[int]], classes: Sequence[str])
 
 
 def uncertainty_figure(
-    runs: Sequence[Mapping[str, Any]], classes: Sequence[str], threshold: float | None
+    runs: Sequence[Mapping[str, Any]],
+    classes: Sequence[str],
+    threshold: float | None,
+    healthy: str = HEALTHY,
 ) -> bytes:
-    """Entropy against mutual information per run, and the OOD scores against the threshold."""
+    """Entropy against mutual information per run, and the OOD scores against the threshold
+    (``healthy``: the system's healthy state, for the colours)."""
     valid = [r for r in runs if r["probabilities"] is not None]
     fig = _figure(11.5, 3.8)
     ax, ax_ood = fig.subplots(1, 2)
@@ -173,13 +174,14 @@ def uncertainty_figure(
     ax.grid(True, alpha=0.3)
     scores = np.array([r["ood_score"] for r in valid if r["ood_score"] is not None])
     if scores.size:
-        colors = _colors(classes)
+        labels = sorted({r["state"] for r in valid})
+        colors = state_colors([*classes, *labels], healthy)
         bins = np.linspace(0, max(scores.max(), threshold or 0) * 1.05, 40)
-        for state in sorted({r["state"] for r in valid}):
+        for state in labels:
             s = [
                 r["ood_score"] for r in valid if r["state"] == state and r["ood_score"] is not None
             ]
-            ax_ood.hist(s, bins=bins, alpha=0.55, label=state, color=colors.get(state, "0.45"))
+            ax_ood.hist(s, bins=bins, alpha=0.55, label=state, color=colors[state])
         if threshold is not None:
             ax_ood.axvline(threshold, color="darkorange", lw=2, label="OOD threshold")
         ax_ood.legend(fontsize=8.5, frameon=False, loc="upper right")
@@ -214,19 +216,22 @@ def bands_figure(
     bands: np.ndarray,
     classes: Sequence[str],
     speed: float | np.ndarray,
+    healthy: str = HEALTHY,
 ) -> bytes:
-    """Every channel: the simulated band of each state and the measured runs' features."""
-    colors = _colors(classes)
+    """Every channel: the simulated band of each state and the measured runs' features
+    (``healthy``: the system's healthy state, for the colours)."""
+    labels = sorted(set(states))
+    colors = state_colors([*classes, *labels], healthy)
     fig, axes = _band_axes(len(channels))
     for ch, ax in enumerate(axes[: len(channels)]):
         _draw_bands(ax, frequencies, bands[:, :, ch], classes, colors)
-        for state in sorted(set(states)):
+        for state in labels:
             rows = [i for i, s in enumerate(states) if s == state]
             if rows:
                 ax.plot(
                     frequencies,
                     np.median(features[rows, ch], axis=0),
-                    color=colors.get(state, "0.3"),
+                    color=colors[state],
                     lw=1.6,
                     ls="--",
                     label=f"{state} measured (median of {len(rows)})",
@@ -256,11 +261,11 @@ class _RunFigure:
     with the bands, axes and legend is rendered once and only the run's lines are drawn per run.
     """
 
-    def __init__(self, frequencies, channels, bands_at_speed, classes, ylims):
+    def __init__(self, frequencies, channels, bands_at_speed, classes, healthy, ylims):
         from matplotlib.backends.backend_agg import FigureCanvasAgg
 
         self.fig, axes = _band_axes(len(channels), width=10.0, height=2.2)
-        colors = _colors(classes)
+        colors = state_colors(classes, healthy)
         self.lines = []
         for ch, ax in enumerate(axes[: len(channels)]):
             if bands_at_speed is not None:
@@ -325,9 +330,7 @@ def _ylims(features: np.ndarray, band_values: np.ndarray | None) -> list[tuple[f
 def _tag(state: str | None, colors: Mapping[str, str]) -> str:
     if state is None:
         return "-"
-    color = {"tab:green": "#2ca02c", "tab:red": "#d62728", "tab:blue": "#1f77b4"}.get(
-        colors.get(state, ""), "#6b7680"
-    )
+    color = colors.get(state, UNKNOWN_COLOR)
     return f'<span class="tag" style="background:{color}">{html.escape(state)}</span>'
 
 
@@ -362,6 +365,8 @@ class _Inputs:
     """What every section of a damage report reads: the classification and the features."""
 
     classes: list[str]
+    #: the system's healthy state (it may not be one of the classes)
+    healthy: str
     runs: list[Mapping[str, Any]]
     metrics: Mapping[str, Any] | None
     threshold: float | None
@@ -383,7 +388,8 @@ class _Inputs:
 
     @property
     def colors(self) -> dict[str, str]:
-        return _colors(self.classes)
+        """A colour per class, and per other label of the runs' true states."""
+        return state_colors([*self.classes, *(r["state"] for r in self.runs)], self.healthy)
 
 
 def write_damage_report(
@@ -408,8 +414,9 @@ def write_damage_report(
     folder
         Output folder (created).
     classification
-        The classification JSON (``classes``, ``runs``, ``metrics``, ``ood_threshold``,
-        ``temperature``) of :func:`bayesdoor.pipeline.classify_stage`.
+        The classification JSON (``classes``, ``healthy_state``, ``runs``, ``metrics``,
+        ``ood_threshold``, ``temperature``) of :func:`bayesdoor.pipeline.classify_stage`; one
+        without ``healthy_state`` is read with :data:`~bayesdoor.systems.HEALTHY`.
     features
         The classifier's input of each run, in the order of ``classification["runs"]``.
     frequencies, channels
@@ -442,6 +449,7 @@ def write_damage_report(
     (folder / "runs").mkdir(parents=True, exist_ok=True)
     inputs = _Inputs(
         classes=list(classification["classes"]),
+        healthy=str(classification.get("healthy_state", HEALTHY)),
         runs=list(classification["runs"]),
         metrics=classification.get("metrics"),
         threshold=classification.get("ood_threshold"),
@@ -496,9 +504,10 @@ def _answer_section(inputs: _Inputs, trust: Mapping[str, Any] | None) -> str:
     if trust is not None and trust.get("verdict"):
         verdict = str(trust["verdict"])
         counts.append(("trust (below)", verdict, "good" if verdict == "trusted" else "bad"))
-    flagged = [(r, _reasons(r, classes)) for r in valid]
+    flagged = [(r, _reasons(r, classes, inputs.healthy)) for r in valid]
     looked = sorted(
-        ((r, why) for r, why in flagged if why), key=lambda item: -_concern(item[0], classes)
+        ((r, why) for r, why in flagged if why),
+        key=lambda item: -_concern(item[0], classes, inputs.healthy),
     )
     parts = [H.cards(counts)]
     if not looked:
@@ -526,21 +535,21 @@ def _answer_section(inputs: _Inputs, trust: Mapping[str, Any] | None) -> str:
     return H.section("What the runs were called", *parts)
 
 
-def _concern(run: Mapping[str, Any], classes: Sequence[str]) -> float:
-    """The probability that the run is not healthy (without a healthy class: that it is not
-    what it was called)."""
+def _concern(run: Mapping[str, Any], classes: Sequence[str], healthy: str) -> float:
+    """The probability that the run is not ``healthy`` (without a healthy class: that it is
+    not what it was called)."""
     p = run["probabilities"]
-    if HEALTHY in classes:
-        return 1.0 - float(p[HEALTHY])
+    if healthy in classes:
+        return 1.0 - float(p[healthy])
     return 1.0 - float(p[_leaning(run)])
 
 
-def _reasons(run: Mapping[str, Any], classes: Sequence[str]) -> list[str]:
+def _reasons(run: Mapping[str, Any], classes: Sequence[str], healthy: str) -> list[str]:
     """Why a classified run is worth a look (none: called healthy, and vouched for)."""
     reasons = []
     if run["predicted"] is None:
         reasons.append(f"left uncalled, leaning {_leaning(run)}")
-    elif HEALTHY in classes and run["predicted"] != HEALTHY:
+    elif healthy in classes and run["predicted"] != healthy:
         reasons.append(f"called {run['predicted']}")
     if run["ood"]:
         reasons.append("unlike every simulated state (OOD)")
@@ -601,7 +610,7 @@ def _probabilities_section(inputs: _Inputs) -> str:
     return H.section(
         "Class probabilities per run",
         H.img(
-            probability_bars(inputs.runs, inputs.classes),
+            probability_bars(inputs.runs, inputs.classes, inputs.healthy),
             "probability bars",
             (
                 "Stacked calibrated probabilities of each run, grouped by true state (as in the "
@@ -764,7 +773,7 @@ def _uncertainty_section(inputs: _Inputs) -> str:
     return H.section(
         "Uncertainty and out-of-distribution runs",
         H.img(
-            uncertainty_figure(inputs.runs, inputs.classes, inputs.threshold),
+            uncertainty_figure(inputs.runs, inputs.classes, inputs.threshold, inputs.healthy),
             "uncertainty",
             "Left: total uncertainty (entropy) against disagreement between the ensemble's "
             "members (mutual information); the dotted line is the entropy of a uniform "
@@ -798,10 +807,9 @@ def _bands_section(inputs: _Inputs) -> list[str]:
                     band_values[:, j],
                     inputs.band_classes,
                     float(v) if v.ndim == 0 else v,
+                    inputs.healthy,
                 ),
-                f"bands at {v:g} m/s"
-                if v.ndim == 0
-                else f"bands at operating point {_point_text(v)}",
+                f"bands at operating point {_point_text(v)}",
             )
         )
     return [
@@ -909,6 +917,7 @@ def _write_run_pages(folder: Path, inputs: _Inputs, subtitle: str) -> None:
                     inputs.channels,
                     None if inputs.band_values is None else inputs.band_values[:, j],
                     inputs.band_classes,
+                    inputs.healthy,
                     ylims,
                 )
             body += _run_figures(r, inputs, j, renderers[j].render(inputs.features[i]))
@@ -974,7 +983,7 @@ def trust_section(adequacy: Mapping[str, Any] | None, trust: Mapping[str, Any] |
                 "The classification below cannot be trusted: "
                 + "; ".join(str(r) for r in trust.get("reasons", []))
                 + ". Its probabilities are calibrated on simulations that do not describe "
-                "these measurements; read them as the simulations' view, not as the door's "
+                "these measurements; read them as the simulations' view, not as the machine's "
                 "state. Diagnose the discrepancy, or train on the source that carries the "
                 "model error (posterior+model_error)."
             )

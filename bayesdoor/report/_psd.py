@@ -12,11 +12,9 @@ import numpy as np
 import xarray as xr
 
 from ..features import log_psd, motion_window, segment_weights, welch_psd
-from ..io import atomic_write
-
-#: line colours of the campaign states (docs/data.md); other labels cycle through greys
-STATE_COLORS = {"healthy": "tab:green", "D1": "tab:red", "D2": "tab:blue", "unknown": "0.45"}
-_OTHER_COLORS = ("tab:purple", "tab:orange", "tab:brown", "tab:olive", "tab:cyan")
+from ..io import UNKNOWN, atomic_write
+from ..systems import HEALTHY
+from ._colors import state_colors
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,7 +179,7 @@ def campaign_psds(
     freqs, psd = welch_psd(
         jnp.asarray(acc, dtype=float), fs, nperseg, segment_weights=weights[:, None]
     )
-    states = ds["state"].values[selected] if "state" in ds else ["unknown"] * len(selected)
+    states = ds["state"].values[selected] if "state" in ds else [UNKNOWN] * len(selected)
     return RunPSDs(
         freqs=np.asarray(freqs),
         log_psd=np.asarray(log_psd(psd)),
@@ -193,11 +191,6 @@ def campaign_psds(
     )
 
 
-def _state_colors(states: Sequence[str]) -> dict[str, str]:
-    others = iter(_OTHER_COLORS * (1 + len(states) // len(_OTHER_COLORS)))
-    return {s: STATE_COLORS[s] if s in STATE_COLORS else next(others) for s in states}
-
-
 def plot_state_psds(
     psds: RunPSDs,
     path: str | os.PathLike,
@@ -205,6 +198,8 @@ def plot_state_psds(
     fmax: float | None = None,
     title: str | None = None,
     band: tuple[float, float] = (5.0, 95.0),
+    states: Sequence[str] = (),
+    healthy: str = HEALTHY,
 ) -> Path:
     """Mean log PSD per state with a band over its runs, one panel per channel.
 
@@ -225,6 +220,11 @@ def plot_state_psds(
         The figure's title; the analysis settings are added below it.
     band
         Lower and upper percentile of the band over runs.
+    states
+        The system's states, in its order: the colours follow them
+        (:func:`~bayesdoor.report.state_colors`), and the runs' other labels come after them.
+    healthy
+        The system's healthy state.
 
     Returns
     -------
@@ -254,8 +254,8 @@ def plot_state_psds(
     if shown.sum() < 2:
         raise ValueError(f"fmax={fmax} Hz shows fewer than two bins (spacing {psds.freqs[1]} Hz)")
     freqs, values = psds.freqs[shown], psds.log_psd[..., shown]
-    states = list(dict.fromkeys(psds.states))
-    colors = _state_colors(states)
+    colors = state_colors([*states, *psds.states], healthy)
+    labels = [s for s in colors if s in psds.states]
     n_channels = len(psds.channels)
     ncols = 2 if n_channels > 1 else 1
     nrows = -(-n_channels // ncols)
@@ -263,7 +263,7 @@ def plot_state_psds(
         nrows, ncols, figsize=(6.2 * ncols, 3.6 * nrows + 1.1), sharex=True, squeeze=False
     )
     handles: list[Artist] = []
-    for state in states:
+    for state in labels:
         member = np.array([s == state for s in psds.states])
         count = int(member.sum())
         runs = values[member]
@@ -281,7 +281,7 @@ def plot_state_psds(
             ax.plot(freqs, runs[:, ch].mean(axis=0), color=color, lw=1.4)
         runs_text = "1 run" if count == 1 else f"mean of {count} runs"
         handles.append(plt.Line2D([], [], color=color, lw=1.6, label=f"{state} ({runs_text})"))
-    if any(psds.states.count(s) > 1 for s in states):
+    if any(psds.states.count(s) > 1 for s in labels):
         handles.append(Patch(color="0.5", alpha=0.3, label=f"{lo:g}-{hi:g} percentile over runs"))
     for ax, name in zip(axes.flat, psds.channels, strict=False):
         ax.set_title(name, fontsize=11, fontweight="bold")

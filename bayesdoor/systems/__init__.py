@@ -5,6 +5,7 @@ packages on top of the generic layers and are found through the ``bayesdoor.syst
 points.
 """
 
+from ._base import HEALTHY as HEALTHY
 from ._base import AbstractSystem as AbstractSystem
 from ._base import ConditionSpec as ConditionSpec
 from ._base import DamageSpec as DamageSpec

@@ -15,6 +15,10 @@ import numpy as np
 
 from .._types import Array, Float, Int
 
+#: the label of the undamaged state of a system that names no other
+#: (:attr:`AbstractSystem.healthy`), and of files written without one
+HEALTHY = "healthy"
+
 
 @dataclasses.dataclass(frozen=True)
 class ParameterSpec:
@@ -120,7 +124,19 @@ class SimulationResult(eqx.Module):
 
 
 class AbstractSystem(eqx.Module):
-    """Interface every simulated system implements."""
+    """Interface every simulated system implements.
+
+    A system whose :attr:`healthy` is not one of its :attr:`states` is refused when it is
+    built (``ValueError``).
+    """
+
+    def __check_init__(self):
+        if self.healthy not in self.states:
+            raise ValueError(
+                f"system {self.name}: its healthy state {self.healthy!r} is not one of its "
+                f"states ({', '.join(self.states)}); name the undamaged state in `states`, or "
+                "set `healthy` to the one that is"
+            )
 
     @property
     @abc.abstractmethod
@@ -133,6 +149,15 @@ class AbstractSystem(eqx.Module):
     @property
     @abc.abstractmethod
     def states(self) -> Mapping[str, DamageSpec]: ...
+
+    @property
+    def healthy(self) -> str:
+        """The label of the undamaged state, one of :attr:`states` (default :data:`HEALTHY`).
+
+        The state the calibration runs are measured in and the model is updated on; the
+        generic layers know the undamaged state only by this name.
+        """
+        return HEALTHY
 
     @property
     @abc.abstractmethod
@@ -177,7 +202,7 @@ class AbstractSystem(eqx.Module):
         values: Mapping[str, Float[Array, "*batch"] | float],
         operating: Float[Array, " batch"] | float,
         *,
-        state: str = "healthy",
+        state: str,
         severity: Mapping[str, Float[Array, "*batch"] | float] | None = None,
         duration: float | None = None,
         check: bool = True,
@@ -196,7 +221,8 @@ class AbstractSystem(eqx.Module):
         operating
             The operating condition of each run (for example a speed).
         state
-            The damage state, a key of :attr:`states`.
+            The damage state, a key of :attr:`states` (:attr:`healthy` for the undamaged
+            system: a system may default to it, the generic layers always name it).
         severity
             Its severity parameters by name (missing ones: the middle of their prior range).
         duration
@@ -231,8 +257,9 @@ class AbstractSystem(eqx.Module):
         """
         off = {**values, **dict.fromkeys(gains, 0.0)}
         on = {**values, **dict.fromkeys(gains, 1.0)}
-        zero = self.simulate_values(off, operating, duration=duration, check=check)
-        one = self.simulate_values(on, operating, duration=duration, check=check)
+        healthy = self.healthy
+        zero = self.simulate_values(off, operating, state=healthy, duration=duration, check=check)
+        one = self.simulate_values(on, operating, state=healthy, duration=duration, check=check)
         return zero, one.signals - zero.signals
 
     @property

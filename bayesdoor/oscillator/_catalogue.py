@@ -1,5 +1,7 @@
 """The oscillator's catalogue of discrepancy causes, as data: one cause and ``none``.
 
+The diagnosis looks over :data:`DIAGNOSIS_BAND_HZ`, wider than the fit's band.
+
 ``second_mode``: excess power at a frequency that does not move with the speed
 (:class:`~bayesdoor.diagnose.FixedFrequency` in :data:`MODE_BAND_HZ`), confirmed by
 refitting :class:`SecondMode` started from the excess's frequency, width and height.
@@ -22,6 +24,9 @@ from ..diagnose import (
 )
 from ._extensions import MODE_BAND_HZ
 
+#: the diagnosis's band, Hz: the fit's (5-100 Hz, where the one-mode model is complete) and
+#: above it up to the top of the band a second mode may lie in
+DIAGNOSIS_BAND_HZ = (5.0, MODE_BAND_HZ[1])
 #: the refit searches the mode's frequency this far either side of the excess's, Hz
 MODE_BOX_HZ = 5.0
 
@@ -65,6 +70,7 @@ class SecondModeRefit(AbstractRefit):
 
 
 OSCILLATOR_CATALOGUE = Catalogue(
+    band=DIAGNOSIS_BAND_HZ,
     candidates=(
         Candidate(
             name="second_mode",
@@ -77,5 +83,5 @@ OSCILLATOR_CATALOGUE = Catalogue(
             description="the model explains the data within its uncertainty",
             signature=NoResidual(),
         ),
-    )
+    ),
 )

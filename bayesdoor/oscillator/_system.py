@@ -61,13 +61,14 @@ CONDITIONS = (ConditionSpec("speed", "m/s", 2.0, 40.0, "travel speed over the ro
 FS = 512.0
 RECORD_S = 4.0
 
-#: what the fit and the classifier compare: 1 Hz Welch bins (512 samples); the fit's 49
-#: bands of 4 Hz from 5 to 200 Hz (both ends included) hold the first mode's whole range and
-#: the flat response above it, where a second mode would show; the classifier's bins up to
-#: 100 Hz hold the first mode of every state
+#: what the fit and the classifier compare: 1 Hz Welch bins (512 samples); the fit's 24
+#: bands of 4 Hz from 5 to 100 Hz (both ends included) hold the first mode of every state and
+#: the flat response above it, where the one-mode model is complete; the classifier's bins
+#: from 0 to 100 Hz the same. A second mode the model lacks shows above, in the diagnosis's
+#: wider band (``OSCILLATOR_CATALOGUE.band``)
 FEATURES = SpectralFeatures(
     f_low=5.0,
-    f_high=200.0,
+    f_high=100.0,
     band_width=4.0,
     nperseg=512,
     classifier_fmax=100.0,

@@ -232,18 +232,7 @@ class Oscillator(AbstractSystem):
             )
         sev = {k: severity.get(k, 0.5 * (lo + hi)) for k, (lo, hi) in spec.severity.items()}
         if check:
-            self.check_operating(operating)
-            for param in self.parameters:
-                v = np.asarray(values[param.name], dtype=float)
-                param.check(float(v.min()) if np.isfinite(v).all() else float("nan"))
-                param.check(float(v.max()))
-            for k, (lo, hi) in spec.severity.items():
-                v = np.asarray(sev[k], dtype=float)
-                if not (np.isfinite(v).all() and lo <= v.min() and v.max() <= hi):
-                    raise ValueError(
-                        f"{k}={v.ravel().tolist()} is outside its range [{lo}, {hi}] "
-                        f"(the severity of {state} of {self.name})"
-                    )
+            self._check_host(values, operating, state, sev)
         dtype = jnp.result_type(float)
         speed = jnp.atleast_1d(jnp.asarray(operating, dtype=dtype))
         shape = jnp.broadcast_shapes(
@@ -254,6 +243,21 @@ class Oscillator(AbstractSystem):
         n_time = round((RECORD_S if duration is None else float(duration)) * FS)
         signals, status = _simulate(self, p, jnp.broadcast_to(speed, shape), s, n_time)
         return SimulationResult(signals, status, jnp.arange(n_time, dtype=dtype) / FS)
+
+    def _check_host(self, values, operating, state, severity) -> None:
+        """Every value, speed and severity inside its range, else a ``ValueError`` naming it."""
+        self.check_operating(operating)
+        for param in self.parameters:
+            v = np.asarray(values[param.name], dtype=float)
+            param.check(float(v.min()) if np.isfinite(v).all() else float("nan"))
+            param.check(float(v.max()))
+        for k, (lo, hi) in self.states[state].severity.items():
+            v = np.asarray(severity[k], dtype=float)
+            if not (np.isfinite(v).all() and lo <= v.min() and v.max() <= hi):
+                raise ValueError(
+                    f"{k}={v.ravel().tolist()} is outside its range [{lo}, {hi}] "
+                    f"(the severity of {state} of {self.name})"
+                )
 
 
 @eqx.filter_jit

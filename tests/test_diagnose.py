@@ -16,6 +16,8 @@ import scipy.stats
 
 from bayesdoor.diagnose import (
     NONE,
+    Candidate,
+    Catalogue,
     coherence_map,
     find_features,
     log10_psd_variance,
@@ -191,7 +193,7 @@ def make_case(
     )
 
 
-def diagnose_case(case, band=(2.0, 400.0), *, within=False):
+def diagnose_case(case, band=(2.0, 400.0), *, within=False, catalogue=DOOR_CATALOGUE):
     features = find_features(
         case["measured"],
         case["predictive"],
@@ -204,7 +206,7 @@ def diagnose_case(case, band=(2.0, 400.0), *, within=False):
         pairs=PAIRS,
         band=band,
     )
-    return rank_causes(features, DOOR_CATALOGUE)
+    return rank_causes(features, catalogue)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -435,6 +437,20 @@ def test_within_run_speed_test_decides_when_every_run_has_one_speed(effect, seed
         assert ranking.cause(effect).parameters["wavelength_m"] == pytest.approx(
             case["truth"]["wavelength_m"], rel=0.04
         )
+
+
+def test_a_catalogue_of_one_cause_or_of_none_alone_is_ranked():
+    # a catalogue may hold a single cause besides ``none``, with no runner-up to compare the
+    # top cause with, or ``none`` alone, which leaves a residual without a cause
+    case = make_case("frame_mode", 0)
+    door = {c.name: c for c in DOOR_CATALOGUE.candidates}
+    one = Catalogue(candidates=(door["frame_mode"], door[NONE]))
+    ranking = diagnose_case(case, catalogue=one)
+    assert ranking.verdict == "frame_mode"
+    assert [c.name for c in ranking.causes] == ["frame_mode", NONE]
+    alone = Catalogue(candidates=(Candidate(NONE, "nothing else", door[NONE].signature),))
+    assert diagnose_case(case, catalogue=alone).verdict is None
+    assert diagnose_case(make_case(NONE, 0), catalogue=one).verdict == NONE
 
 
 def test_catalogue_holds_the_design_names():

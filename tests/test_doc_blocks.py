@@ -9,6 +9,10 @@ tests/test_inspect.py; they are left out here. Pages whose examples take more th
 (a fit, training data, the ensemble, rig runs, a diagnosis) are in the long tier (``make
 test-long``), with the reason in ``LONG``; those that take longer (a diagnosis and a job) are
 ``slow``, in ``SLOW``.
+
+A block whose first line is ``# quoted from PATH`` quotes the project's own file ``PATH``: it
+is not run, and its other lines must appear in that file as they stand, so that a guide that
+teaches from the source cannot drift from it.
 """
 
 import os
@@ -44,18 +48,37 @@ def _marks(page: str):
     return [pytest.mark.long] if page in LONG else []
 
 
+#: the first line of a block that quotes a file of the project
+QUOTED = re.compile(r"# quoted from (\S+)\n")
+
+
 def blocks(page: str) -> list[tuple[int, str]]:
-    """The page's ```python blocks that are not doctests, each with its first line's number."""
+    """The page's ```python blocks that are neither doctests nor quotes, each with its first
+    line's number."""
     text = (ROOT / page).read_text(encoding="utf-8")
     found = []
     for match in re.finditer(r"^```python\n(.*?)^```", text, flags=re.S | re.M):
         code = match.group(1)
-        if not re.search(r"^\s*>>>", code, flags=re.M):
+        if not re.search(r"^\s*>>>", code, flags=re.M) and not QUOTED.match(code):
             found.append((text.count("\n", 0, match.start()) + 2, code))
     return found
 
 
+def quotes(page: str) -> list[tuple[int, str, str]]:
+    """The page's fenced blocks (any language) that quote a file: each block's first line's
+    number, the file and the quoted text."""
+    text = (ROOT / page).read_text(encoding="utf-8")
+    found = []
+    for match in re.finditer(r"^```\w*\n(.*?)^```", text, flags=re.S | re.M):
+        quote = QUOTED.match(match.group(1))
+        if quote:
+            line = text.count("\n", 0, match.start()) + 2
+            found.append((line, quote.group(1), match.group(1)[quote.end() :]))
+    return found
+
+
 RUNNABLE = [page for page in PAGES if blocks(page)]
+QUOTING = [page for page in PAGES if quotes(page)]
 
 
 def test_every_example_is_collected():
@@ -86,3 +109,19 @@ def test_page_examples_run(page, tmp_path, monkeypatch):
                 raise AssertionError(f"the block at {page}:{line} fails: {error!r}") from error
     finally:
         plt.close("all")
+
+
+def test_every_quote_is_collected():
+    # the guide to writing a system teaches from the reference system's source
+    assert "docs/systems.md" in QUOTING, QUOTING
+
+
+@pytest.mark.parametrize("page", QUOTING)
+def test_quoted_source_stands_in_its_file(page):
+    for line, path, quoted in quotes(page):
+        source = ROOT / path
+        assert source.is_file(), f"{page}:{line} quotes {path}, which does not exist"
+        assert quoted in source.read_text(encoding="utf-8"), (
+            f"{page}:{line}: the quote of {path} is not in the file as it stands: copy the "
+            "lines again from the file"
+        )

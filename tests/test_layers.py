@@ -1,6 +1,6 @@
 """The package's layers, as import-linter's contracts in pyproject.toml state them: concrete
-systems (``bayesdoor.door``, ``bayesdoor.bearing``) sit on top of the generic layers, which
-never import them, and no package's modules import each other in a cycle."""
+systems (``bayesdoor.door``, ``bayesdoor.bearing``, ``bayesdoor.oscillator``) sit on top of the
+generic layers, which never import them, and no package's modules import each other in a cycle."""
 
 import os
 import shutil

@@ -152,11 +152,11 @@ def rank_causes(features: Features, catalogue: Catalogue) -> Ranking:
     Candidates are ranked by score, then strength. ``none`` scores 1 exactly when nothing is
     significant in the maps, and then it is the verdict unless another signature scores at least
     ``MIN_VERDICT_SCORE`` (one that examines more than the maps: a harmonic comb in the order
-    spectra); otherwise the verdict is the top candidate if it
-    scores at least ``MIN_VERDICT_SCORE`` and is not tied with the runner-up on the same
-    feature, else ``None`` (nothing fits well, or two causes explain one feature equally well:
-    the refit has to decide). Two causes that fully explain two different features may both be
-    present; the stronger feature ranks first.
+    spectra); otherwise the verdict is the top candidate if it scores at least
+    ``MIN_VERDICT_SCORE`` and is not tied with the runner-up (when the catalogue holds another
+    cause) on the same feature, else ``None`` (nothing fits well, or two causes explain one
+    feature equally well: the refit has to decide). Two causes that fully explain two
+    different features may both be present; the stronger feature ranks first.
 
     Parameters
     ----------
@@ -197,7 +197,11 @@ def rank_causes(features: Features, catalogue: Catalogue) -> Ranking:
     if nothing is not None and nothing.score == 1.0 and not seen:
         verdict: str | None = NONE
     else:
-        top, runner_up = [c for c in scored if c.name != NONE][:2]
-        clear = top.score > runner_up.score or top.feature != runner_up.feature
-        verdict = top.name if top.score >= MIN_VERDICT_SCORE and clear else None
+        # a catalogue may hold one cause besides ``none`` (no runner-up), or none at all
+        causes = [c for c in scored if c.name != NONE]
+        verdict = None
+        if causes and causes[0].score >= MIN_VERDICT_SCORE:
+            top, rest = causes[0], causes[1:2]
+            if not rest or top.score > rest[0].score or top.feature != rest[0].feature:
+                verdict = top.name
     return Ranking(verdict=verdict, causes=tuple(scored), features=features)

@@ -29,7 +29,7 @@ from bayesdoor.classify import TrainConfig
 from bayesdoor.inference import FitSettings
 from bayesdoor.io import make_campaign, validate_campaign
 from bayesdoor.oscillator import Oscillator, base_velocity_psd
-from bayesdoor.pipeline import Sizes, run_job
+from bayesdoor.pipeline import JobConfig, Sizes, run_job
 
 FS = 512.0
 RECORD_S = 4.0
@@ -133,14 +133,15 @@ def test_the_oscillator_goes_through_the_job(tmp_path):
         oscillator,
         campaign,
         tmp_path / "job",
-        quick=True,
-        method="cmaes",
-        sizes=SIZES,
-        fit_options={"settings": FIT},
+        JobConfig.quick_look(
+            method="cmaes",
+            sizes=SIZES,
+            fit_options={"settings": FIT},
+            html=False,
+            diagnosis=True,
+        ),
         progress=False,
         report=lambda line: None,
-        html=False,
-        diagnosis=True,
     )
     seconds = time.perf_counter() - started
     assert [s.name for s in result.stages] == [

@@ -27,7 +27,7 @@ from bayesdoor.diagnose import HeldExtension
 from bayesdoor.inference import FeatureSpec, SimulatorForward, calibration_runs, campaign_data
 from bayesdoor.inference._update import _Population
 from bayesdoor.io import load_campaign, make_campaign
-from bayesdoor.pipeline import Sizes, run_job
+from bayesdoor.pipeline import JobConfig, Sizes, run_job
 from bayesdoor.pipeline._classify import _with_evidence
 from bayesdoor.pipeline._trust import judge_trust
 from bayesdoor.report import HEALTHY_COLOR, UNKNOWN_COLOR, state_colors
@@ -221,10 +221,8 @@ def test_the_job_runs_on_a_system_whose_healthy_state_is_ok(tmp_path):
         SYSTEM,
         ok_campaign(),
         tmp_path,
-        seed=0,
-        sizes=sizes,
+        JobConfig(seed=0, sizes=sizes, diagnosis=False),
         fit=stand_in_fit,
-        diagnosis=False,
         progress=False,
         report=lambda line: None,
     )

@@ -14,8 +14,8 @@ the job and the command line (docs/systems.md, "The layers"). Each module is rea
 - its parameters: every name it takes (positional, keyword-only, ``*args``, ``**kwargs``),
   less a method's leading ``self`` or ``cls``;
 - a module's lines: the lines of its file;
-- a concrete system name: one of :data:`SYSTEM_NAMES` (the elevator door's and the bearing's
-  states, parts, condition and data set) as words of an identifier (a name, an attribute, a
+- a concrete system name: one of :data:`SYSTEM_NAMES` (the elevator door's, the bearing's and
+  the oscillator's states, parts, condition and data set) as words of an identifier (a name, an attribute, a
   function's, class's, parameter's or keyword argument's name, an imported module or name;
   split into words at underscores and case changes) or of a string constant (split at every
   character that is not a letter or a digit; f-strings' literal parts included), singular
@@ -51,7 +51,8 @@ PACKAGE = "bayesdoor"
 #: a function with more parameters than this is counted
 MAX_PARAMETERS = 8
 #: the concrete systems' names the generic layers must not hold: the door's damage states,
-#: parts and operating condition, the bearing's damage states and part, and its data set
+#: parts and operating condition, the bearing's damage states and part, and its data set,
+#: the reference oscillator's name, damage states and catalogue cause
 SYSTEM_NAMES = (
     "D1",
     "D2",
@@ -65,6 +66,10 @@ SYSTEM_NAMES = (
     "outer_race",
     "ball",
     "cwru",
+    "oscillator",
+    "stiffness_loss",
+    "loose_mount",
+    "second_mode",
 )
 
 

@@ -43,11 +43,18 @@ def test_no_concrete_system_name_is_left_in_the_generic_layers():
 
 
 def test_the_generic_layers_are_every_module_but_the_registered_systems():
-    assert architecture.concrete_packages() == ("bayesdoor.bearing", "bayesdoor.door")
+    assert architecture.concrete_packages() == (
+        "bayesdoor.bearing",
+        "bayesdoor.door",
+        "bayesdoor.oscillator",
+    )
     modules = {m.as_posix() for m in architecture.generic_modules()}
     assert "bayesdoor/report/_damage.py" in modules
     assert "bayesdoor/systems/_base.py" in modules
-    assert not any(m.startswith(("bayesdoor/door/", "bayesdoor/bearing/")) for m in modules)
+    assert not any(
+        m.startswith(("bayesdoor/door/", "bayesdoor/bearing/", "bayesdoor/oscillator/"))
+        for m in modules
+    )
 
 
 SOURCE = '''

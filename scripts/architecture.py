@@ -15,13 +15,13 @@ the job and the command line (docs/systems.md, "The layers"). Each module is rea
   less a method's leading ``self`` or ``cls``;
 - a module's lines: the lines of its file;
 - a concrete system name: one of :data:`SYSTEM_NAMES` (the elevator door's, the bearing's and
-  the oscillator's states, parts, condition and data set) as words of an identifier (a name,
-  an attribute, a function's, class's, parameter's or keyword argument's name, an imported
-  module or name; split into words at underscores and case changes) or of a string constant (split at every
-  character that is not a letter or a digit; f-strings' literal parts included), singular
+  the oscillator's states, parts, condition and data set) as words of an identifier (a name, an
+  attribute, a function's, class's, parameter's or keyword argument's name, an imported module
+  or name; split into words at underscores and case changes) or of a string constant (split at
+  every character that is not a letter or a digit; f-strings' literal parts included), singular
   or plural (``wheels``), in any case but the state labels ``D1`` and ``D2``, which count as
-  written (``d2`` is a squared distance). A name counts once per identifier or string it
-  occurs in.
+  written (``d2`` is a squared distance). A name counts once per identifier or string it occurs
+  in.
   Docstrings and comments do not count: they cite the shipped systems as examples of what
   the generic code serves; identifiers and strings are what the code reads, compares and
   shows to users.

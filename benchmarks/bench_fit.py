@@ -50,7 +50,7 @@ from bayesdoor.inference import (
     fit_campaign,
     run_features,
 )
-from bayesdoor.inference._update import simulation_horizon
+from bayesdoor.inference._population import simulation_horizon
 
 ROOT = Path(__file__).resolve().parent.parent
 configure_jax(os.environ.get("BAYESDOOR_JAX_CACHE", ROOT / ".jax_cache"))

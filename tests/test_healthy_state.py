@@ -25,7 +25,7 @@ from bayesdoor.cli import app
 from bayesdoor.datagen import describe_system
 from bayesdoor.diagnose import HeldExtension
 from bayesdoor.inference import FeatureSpec, SimulatorForward, calibration_runs, campaign_data
-from bayesdoor.inference._update import _Population
+from bayesdoor.inference._population import _Population
 from bayesdoor.io import load_campaign, make_campaign
 from bayesdoor.pipeline import JobConfig, Sizes, run_job
 from bayesdoor.pipeline._classify import _with_evidence

@@ -24,7 +24,7 @@ from bayesdoor.inference import (
     posterior_predictive,
     run_features,
 )
-from bayesdoor.inference._update import j_standard_error, welch_j_standard_error
+from bayesdoor.inference._calibration import j_standard_error, welch_j_standard_error
 from bayesdoor.io import make_campaign
 from bayesdoor.systems import ParameterSpec
 
@@ -491,7 +491,7 @@ def test_the_fits_population_program_holds_no_host_callback_so_it_can_be_cached(
     also when the same checks of the same shapes were traced eagerly before, on measured
     records; a failed check gives NaN features, which ``ok`` reports."""
     from bayesdoor.inference._features import FeatureSpec
-    from bayesdoor.inference._update import _Population, _simulate_chunk
+    from bayesdoor.inference._population import _Population, _simulate_chunk
 
     toy, data, duration, signals = _toy_data()
     spec = FeatureSpec()
@@ -507,7 +507,7 @@ def test_the_fits_population_program_holds_no_host_callback_so_it_can_be_cached(
 
 def test_a_simulated_window_without_a_whole_welch_segment_is_refused_up_front():
     from bayesdoor.inference._features import FeatureSpec
-    from bayesdoor.inference._update import _Population
+    from bayesdoor.inference._population import _Population
 
     toy, data, duration, _ = _toy_data()
     with pytest.raises(ValueError, match="no segment of nperseg=1024 lies inside"):

@@ -1,5 +1,7 @@
 """Generic optimisation and sampling: CMA-ES, NUTS and emcee posteriors, diagnostics gates."""
 
+from ._calibration import calibration_runs as calibration_runs
+from ._calibration import campaign_data as campaign_data
 from ._cmaes import CMAESHistory as CMAESHistory
 from ._cmaes import CMAESResult as CMAESResult
 from ._cmaes import minimize_cmaes as minimize_cmaes
@@ -30,6 +32,8 @@ from ._posterior import load_posterior as load_posterior
 from ._posterior import posterior_system as posterior_system
 from ._posterior import record_system as record_system
 from ._posterior import save_posterior as save_posterior
+from ._predictive import posterior_predictive as posterior_predictive
+from ._result import FitResult as FitResult
 from ._samplers import sample_emcee as sample_emcee
 from ._samplers import sample_nuts as sample_nuts
 from ._sbc import SBCResult as SBCResult
@@ -39,15 +43,11 @@ from ._sbc import plot_sbc_ranks as plot_sbc_ranks
 from ._sbc import run_sbc as run_sbc
 from ._sbc import save_sbc as save_sbc
 from ._sbc import sbc_uniformity as sbc_uniformity
+from ._settings import METHODS as METHODS
+from ._settings import FitSettings as FitSettings
 from ._surrogate import QuadraticSurrogate as QuadraticSurrogate
 from ._surrogate import box_around as box_around
 from ._surrogate import box_from_samples as box_from_samples
 from ._surrogate import fit_surrogate as fit_surrogate
 from ._surrogate import simulate_design as simulate_design
-from ._update import METHODS as METHODS
-from ._update import FitResult as FitResult
-from ._update import FitSettings as FitSettings
-from ._update import calibration_runs as calibration_runs
-from ._update import campaign_data as campaign_data
 from ._update import fit_campaign as fit_campaign
-from ._update import posterior_predictive as posterior_predictive

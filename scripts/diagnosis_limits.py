@@ -91,7 +91,7 @@ def base(work: Path, key: int) -> tuple[Any, Any, dict[str, Any], float]:
     import xarray as xr
 
     from bayesdoor.diagnose import detection_limits
-    from bayesdoor.diagnose._job import _band, _Measured, _simulate_rows
+    from bayesdoor.diagnose._job import Measured, _band, _simulate_rows
     from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
     from bayesdoor.inference import FitResult, FitSettings, calibration_runs, fit_campaign
 
@@ -108,7 +108,7 @@ def base(work: Path, key: int) -> tuple[Any, Any, dict[str, Any], float]:
         fit.save(folder / "fit", force=True)
         campaign.to_netcdf(folder / "campaign.nc")
     t0 = time.perf_counter()
-    measured = _Measured.of(door, campaign, calibration_runs(campaign))
+    measured = Measured.of(door, campaign, calibration_runs(campaign))
     sims, _, times = _simulate_rows(door, measured, [dict(fit.point)])
     setup = measured.setup(door, fit.point, sims[0], times, _band(fit), None)
     limits = detection_limits(setup, DOOR_CATALOGUE)
@@ -130,9 +130,9 @@ def _judge(campaign: Any, proposal: Any, fit: Any, seed: int, tracking: bool) ->
     """``extension_gain`` with the base model's simulation shared between loops."""
     from bayesdoor.diagnose import DiagnosisSettings
     from bayesdoor.diagnose._job import (
+        Measured,
         _band,
         _cross_validate,
-        _Measured,
         _simulate_rows,
         held_out_folds,
     )
@@ -141,7 +141,7 @@ def _judge(campaign: Any, proposal: Any, fit: Any, seed: int, tracking: bool) ->
 
     door = ElevatorDoor()
     settings = DiagnosisSettings.quick()
-    measured = _Measured.of(door, campaign, calibration_runs(campaign))
+    measured = Measured.of(door, campaign, calibration_runs(campaign))
     # the rig's records differ in length between keys
     at = (measured.signals.shape[-1], tuple(np.round(np.ravel(measured.operating), 6)))
     if at not in _BASE:

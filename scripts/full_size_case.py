@@ -81,7 +81,7 @@ def _ceiling(
     signature = {c.name: c.signature for c in cases.DOOR_CATALOGUE.candidates}[name]
     tracking = job.tracks_speed(signature)
     runs = calibration_runs(clean.campaign)
-    clean_signals = job._Measured.of(cases.DOOR, clean.campaign, runs).signals
+    clean_signals = job.Measured.of(cases.DOOR, clean.campaign, runs).signals
     gain, held = ceiling_gain(setup, folds, tracking, clean_signals)
     return {
         "ceiling_gain": {**gain.to_json(), "delta_elpd_runs": held},

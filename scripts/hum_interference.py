@@ -45,12 +45,12 @@ LINE_HZ = 50.0
 
 def spectra(campaign):
     """The measured log10 spectra of a campaign and their bins, as the diagnosis reads them."""
-    from bayesdoor.diagnose._job import _Measured
+    from bayesdoor.diagnose._job import Measured
     from bayesdoor.diagnose._refit import Spectra
     from bayesdoor.door import ElevatorDoor
     from bayesdoor.inference import calibration_runs
 
-    m = _Measured.of(ElevatorDoor(), campaign, calibration_runs(campaign))
+    m = Measured.of(ElevatorDoor(), campaign, calibration_runs(campaign))
     s = Spectra.of_measured(m.signals, m.fs, m.t_start, m.t_stop, (1.0, 200.0), nperseg=int(m.fs))
     return s.freqs, s.measured
 
@@ -68,14 +68,14 @@ def model_effects(
     catalogue extension's (its line in quadrature with each channel's signal)."""
     import xarray as xr
 
-    from bayesdoor.diagnose._job import _band, _Measured, _simulate_rows
+    from bayesdoor.diagnose._job import Measured, _band, _simulate_rows
     from bayesdoor.door import ElevatorDoor
     from bayesdoor.inference import FitResult, calibration_runs
 
     door = ElevatorDoor()
     fit = FitResult.load(work / f"base-{base_key}" / "fit")
     campaign = xr.load_dataset(work / f"base-{base_key}" / "campaign.nc")
-    measured = _Measured.of(door, campaign, calibration_runs(campaign))
+    measured = Measured.of(door, campaign, calibration_runs(campaign))
     sims, _, times = _simulate_rows(door, measured, [dict(fit.point)])
     setup = measured.setup(door, fit.point, sims[0], times, _band(fit), None)
     z = np.asarray(setup.base_signals)

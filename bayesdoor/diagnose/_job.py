@@ -7,9 +7,10 @@ signatures and refit recipes) and the generic extension hooks of
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import jax.numpy as jnp
@@ -201,7 +202,8 @@ class Diagnosis:
     notes
         What limited the diagnosis (too few runs to hold any out, a refit that failed).
     timings
-        Seconds per stage.
+        Seconds per step: ``"fit"`` (when fitted here), ``"features"`` (measure, residual
+        map, ranking), ``"refits"`` (proposals, refits, judgement), ``"limits"``.
     fit
         The base model's fit the diagnosis was made under (given, or made by
         :func:`diagnose_campaign`), so that a report can show it.
@@ -277,7 +279,7 @@ def _plain(value: Any) -> Any:
 
 
 @dataclasses.dataclass(frozen=True)
-class _Measured:
+class Measured:
     """The diagnosed runs of a campaign: signals, operating points, motion windows."""
 
     runs: np.ndarray
@@ -289,7 +291,7 @@ class _Measured:
     channels: tuple[str, ...]
 
     @classmethod
-    def of(cls, system: AbstractSystem, campaign: xr.Dataset, runs: np.ndarray) -> _Measured:
+    def of(cls, system: AbstractSystem, campaign: xr.Dataset, runs: np.ndarray) -> Measured:
         fs = float(campaign.attrs.get("sampling_rate_hz", np.nan))
         if fs != system.sampling_rate_hz:
             raise ValueError(
@@ -342,7 +344,7 @@ class _Measured:
 
 
 def _simulate_rows(
-    system: AbstractSystem, measured: _Measured, rows: Sequence[Mapping[str, float]]
+    system: AbstractSystem, measured: Measured, rows: Sequence[Mapping[str, float]]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Signals (row, run, channel, time) of every run for each parameter row, success per row."""
     n_runs, n_time = len(measured.runs), measured.signals.shape[-1]
@@ -700,97 +702,124 @@ def _signature_cause(score: CauseScore) -> Cause:
     )
 
 
-@dataclasses.dataclass
-class _Run:
-    """What the stages of one diagnosis hand on to each other, in memory."""
+@dataclasses.dataclass(frozen=True)
+class Residuals:
+    """The residual map of the runs under the base fit (:func:`residual_map`).
 
-    system: AbstractSystem
-    campaign: xr.Dataset
-    catalogue: Catalogue
-    settings: DiagnosisSettings
-    seed: int
-    quick: bool
-    progress: bool
-    fit: FitResult | None
-    pool: Pool
-    timings: dict[str, float] = dataclasses.field(default_factory=dict)
-    notes: list[str] = dataclasses.field(default_factory=list)
-    measured: _Measured | None = None
-    features: Features | None = None
-    ranking: Ranking | None = None
-    setup: RefitSetup | None = None
-    band: tuple[float, float] = (0.0, 0.0)
-    refitted: dict[str, Cause] = dataclasses.field(default_factory=dict)
-    verdict: str = NONE
-    causes: tuple[Cause, ...] = ()
-    limits: dict[str, CauseLimit] = dataclasses.field(default_factory=dict)
+    Attributes
+    ----------
+    features
+        The residual features (:func:`find_features`).
+    band
+        The analysed band, Hz (:func:`_band`).
+    setup
+        What every refit and every detection limit of these runs shares.
+    notes
+        The base fit's parameters at an end of their bounds (:func:`base_fit_notes`): the
+        map is read against that fit.
+    """
 
-    def diagnosis(self) -> Diagnosis:
-        assert self.ranking is not None and self.measured is not None
-        return Diagnosis(
-            verdict=self.verdict,
-            causes=self.causes,
-            ranking=self.ranking,
-            catalogue=self.catalogue,
-            rule=RULE,
-            runs=np.asarray(self.measured.runs),
-            notes=tuple(self.notes),
-            timings=self.timings,
-            fit=self.fit,
-            limits=self.limits,
-        )
+    features: Features
+    band: tuple[float, float]
+    setup: RefitSetup
+    notes: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
-class _Stage:
-    """One named step of :func:`diagnose_campaign`: what it computes from the objects the
-    earlier steps left in the :class:`_Run`, the ``Diagnosis.timings`` key its seconds add to,
-    and when it runs (``None``: always)."""
+class Proposed:
+    """One plausible candidate and the extensions its catalogue recipe proposed.
 
-    name: str
-    compute: Callable[[_Run], None]
-    timing: str
-    when: Callable[[_Run], bool] | None = None
+    Attributes
+    ----------
+    score
+        The candidate's signature score.
+    proposals
+        The recipe's proposals, each refitted fold by fold.
+    seeds
+        Each proposal's seed (fold ``k`` of it is seeded ``seed + k``).
+    """
 
-
-def _fit(run: _Run) -> None:
-    """The base model's CMA-ES fit on the calibration runs (when none was given)."""
-    run.fit = fit_campaign(
-        run.system,
-        run.campaign,
-        method="cmaes",
-        seed=run.seed,
-        quick=run.quick,
-        progress=run.progress,
-    )
+    score: CauseScore
+    proposals: tuple[ExtensionProposal, ...]
+    seeds: tuple[int, ...]
 
 
-def _measure(run: _Run) -> None:
-    """The diagnosed runs (signals, operating points, motion windows) and the base fit's
-    notes."""
-    assert run.fit is not None
-    run.notes += base_fit_notes(run.system, run.fit)
-    run.measured = _Measured.of(
-        run.system, run.campaign, calibration_runs(run.campaign, run.system.healthy)
-    )
+@dataclasses.dataclass(frozen=True)
+class Proposals:
+    """The candidates to refit (:func:`propose`), in rank order, and the held-out folds.
+
+    ``notes``: why no candidate could be refitted (too few runs), or which recipe proposed
+    nothing.
+    """
+
+    folds: tuple[tuple[np.ndarray, np.ndarray], ...]
+    candidates: tuple[Proposed, ...]
+    notes: tuple[str, ...] = ()
 
 
-def _predictive(run: _Run) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The base signals at the fit's point, posterior-predictive signals (with white noise at
-    the level the records show at rest), and the simulated sample times."""
-    fit, measured, settings = run.fit, run.measured, run.settings
-    assert fit is not None and measured is not None
+@dataclasses.dataclass(frozen=True)
+class Refits:
+    """The refitted causes by name, in rank order (:func:`refit_candidates`); ``notes``:
+    the proposals whose refit failed."""
+
+    causes: Mapping[str, Cause]
+    notes: tuple[str, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
+class Judgement:
+    """The verdict (:func:`judge`): a catalogue name or ``"none"``; every candidate, the
+    confirmed ones first; ``notes``: what to read the verdict with."""
+
+    verdict: str
+    causes: tuple[Cause, ...]
+    notes: tuple[str, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
+class Limits:
+    """Each catalogue cause's detection limit in these runs (:func:`cause_limits`);
+    ``notes``: the causes whose limit could not be computed."""
+
+    limits: Mapping[str, CauseLimit] = dataclasses.field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+
+@contextlib.contextmanager
+def _timed(timings: dict[str, float], key: str) -> Iterator[None]:
+    """Add the seconds of the block to ``timings[key]``."""
+    t0 = time.perf_counter()
+    yield
+    timings[key] = timings.get(key, 0.0) + (time.perf_counter() - t0)
+
+
+def measure(system: AbstractSystem, campaign: xr.Dataset) -> Measured:
+    """The diagnosed runs of a campaign: its healthy calibration runs."""
+    return Measured.of(system, campaign, calibration_runs(campaign, system.healthy))
+
+
+def _predictive(
+    system: AbstractSystem,
+    fit: FitResult,
+    measured: Measured,
+    catalogue: Catalogue,
+    draws_wanted: int,
+    seed: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The base signals at the fit's point, ``draws_wanted`` posterior-predictive signals
+    (with white noise at the level the records show at rest), and the simulated sample
+    times."""
     draws = fit.posterior_draws()
     total = len(next(iter(draws.values())))
-    pick = np.unique(np.linspace(0, total - 1, min(settings.predictive_draws, total)).round())
+    pick = np.unique(np.linspace(0, total - 1, min(draws_wanted, total)).round())
     fixed = {k: v for k, v in fit.point.items() if k not in fit.names}
     rows = [dict(fit.point)]
-    repeat = total == 1 and run.catalogue.random_realisations
+    repeat = total == 1 and catalogue.random_realisations
     if total > 1:
         rows += [{**fixed, **{n: float(draws[n][int(i)]) for n in fit.names}} for i in pick]
     elif repeat:  # the point again at other batch positions: other realisations
-        rows += [dict(fit.point)] * settings.predictive_draws
-    sims, ok, sample_times = _simulate_rows(run.system, measured, rows)
+        rows += [dict(fit.point)] * draws_wanted
+    sims, ok, sample_times = _simulate_rows(system, measured, rows)
     if not ok[0]:
         raise RuntimeError(
             "the base model failed to simulate the runs at the fit's point: (a) the fit is not "
@@ -798,19 +827,27 @@ def _predictive(run: _Run) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         )
     base_signals = sims[0]
     sims = sims[1:][ok[1:]] if total > 1 or repeat else sims[:1]
-    sims = sims[np.resize(np.arange(len(sims)), settings.predictive_draws)]
-    rng = np.random.default_rng(run.seed)
+    sims = sims[np.resize(np.arange(len(sims)), draws_wanted)]
+    rng = np.random.default_rng(seed)
     noise = _noise_rms(measured.signals, measured.fs, measured.t_start)
     predictive = sims + noise[None, None, :, None] * rng.standard_normal(sims.shape)
     return base_signals, predictive, sample_times
 
 
-def _residuals(run: _Run) -> None:
+def residual_map(
+    system: AbstractSystem,
+    fit: FitResult,
+    measured: Measured,
+    catalogue: Catalogue,
+    settings: DiagnosisSettings,
+    seed: int,
+) -> Residuals:
     """The residual features of the runs against the posterior-predictive simulations, and
     the refits' shared setup."""
-    fit, measured, catalogue = run.fit, run.measured, run.catalogue
-    assert fit is not None and measured is not None
-    base_signals, predictive, sample_times = _predictive(run)
+    notes = base_fit_notes(system, fit)
+    base_signals, predictive, sample_times = _predictive(
+        system, fit, measured, catalogue, settings.predictive_draws, seed
+    )
     band = _band(fit, catalogue)
     speeds = catalogue.speeds(measured.operating)
     profiles = None
@@ -821,7 +858,7 @@ def _residuals(run: _Run) -> None:
             ),
             dtype=float,
         )
-    run.features = find_features(
+    features = find_features(
         measured.signals,
         predictive,
         measured.fs,
@@ -836,97 +873,121 @@ def _residuals(run: _Run) -> None:
         band=band,
         smooth_discrepancy_bins=SMOOTH_BINS,
     )
-    run.band = band
-    run.setup = measured.setup(
-        run.system, fit.point, base_signals, sample_times, band, run.features, speeds
-    )
+    setup = measured.setup(system, fit.point, base_signals, sample_times, band, features, speeds)
+    return Residuals(features, band, setup, tuple(notes))
 
 
-def _rank(run: _Run) -> None:
-    """The catalogue's signatures scored on the residual features (:func:`rank_causes`)."""
-    assert run.features is not None
-    run.ranking = rank_causes(run.features, run.catalogue)
+def propose(
+    ranking: Ranking,
+    measured: Measured,
+    catalogue: Catalogue,
+    band: tuple[float, float],
+    settings: DiagnosisSettings,
+    seed: int,
+) -> Proposals:
+    """The candidates worth a refit and their recipes' extensions.
 
-
-def _plausible(run: _Run) -> list[CauseScore]:
-    """The candidates worth a refit: signature score at least ``PLAUSIBLE_SCORE``, a recipe,
-    at most ``max_candidates``; none when nothing is significant or no run can be held out."""
-    ranking, measured = run.ranking, run.measured
-    assert ranking is not None and measured is not None
-    recipes = {c.name: c.refit for c in run.catalogue.candidates}
+    A candidate is plausible with a signature score at least ``PLAUSIBLE_SCORE`` and a
+    recipe, at most ``max_candidates`` of them; none when nothing is significant or no run
+    can be held out. The ``rank``-th plausible candidate's ``k``-th proposal is seeded
+    ``seed + 101 (rank + 1) + 7 k``.
+    """
+    folds = tuple(held_out_folds(_fold_order(catalogue, measured.operating), settings.folds))
+    recipes = {c.name: c.refit for c in catalogue.candidates}
     plausible = [
         c
         for c in ranking.causes
         if c.name != NONE and c.score >= PLAUSIBLE_SCORE and recipes.get(c.name) is not None
-    ][: run.settings.max_candidates]
+    ][: settings.max_candidates]
     if ranking.verdict == NONE:
-        return []
-    if plausible and not held_out_folds(
-        _fold_order(run.catalogue, measured.operating), run.settings.folds
-    ):
-        run.notes.append(
-            f"{len(measured.runs)} healthy runs: too few to fit on half and hold out the other "
-            "half (need 4); no candidate could be confirmed"
+        return Proposals(folds, ())
+    if plausible and not folds:
+        return Proposals(
+            folds,
+            (),
+            (
+                f"{len(measured.runs)} healthy runs: too few to fit on half and hold out the "
+                "other half (need 4); no candidate could be confirmed",
+            ),
         )
-        return []
-    return plausible
+    candidates: list[Proposed] = []
+    notes: list[str] = []
+    for rank, score in enumerate(plausible):
+        recipe = _candidate(catalogue, score.name).refit
+        assert recipe is not None
+        try:
+            proposals = tuple(recipe.propose(score.parameters, band=band))
+        except (KeyError, ValueError) as err:
+            notes.append(f"{score.name}: its recipe proposed no extension ({err!r})")
+            continue
+        seeds = tuple(seed + 101 * (rank + 1) + 7 * k for k in range(len(proposals)))
+        candidates.append(Proposed(score, proposals, seeds))
+    return Proposals(folds, tuple(candidates), tuple(notes))
 
 
-def _refit_candidates(run: _Run) -> None:
-    """Each plausible candidate's extensions refitted fold by fold and judged on held-out
-    runs; a decisive one that explains its feature refitted on every run.
+def refit_candidates(
+    proposals: Proposals,
+    setup: RefitSetup,
+    catalogue: Catalogue,
+    settings: DiagnosisSettings,
+    seed: int,
+    pool: Pool,
+) -> Refits:
+    """Each candidate's extensions refitted fold by fold and judged on held-out runs; a
+    decisive one that explains its feature refitted on every run (seeded ``seed + 997``).
 
     The fold refits of every proposal of every candidate go to the pool at once (each has
     its own seed, so where they run changes nothing); the judgements follow in rank order.
     """
-    assert run.measured is not None and run.setup is not None
-    folds = held_out_folds(_fold_order(run.catalogue, run.measured.operating), run.settings.folds)
-    work: list[tuple[CauseScore, list[ExtensionProposal], list[_Bases]]] = []
+    folds = proposals.folds
+    # the base solves a proposal's folds share (filled in this process; on a cluster each
+    # worker fills its own)
+    bases: list[list[_Bases]] = [[{} for _ in c.proposals] for c in proposals.candidates]
     tasks: list[tuple[Any, ...]] = []
-    for rank, score in enumerate(_plausible(run)):
-        recipe = _candidate(run, score.name).refit
-        assert recipe is not None
-        try:
-            proposals = list(recipe.propose(score.parameters, band=run.band))
-        except (KeyError, ValueError) as err:
-            run.notes.append(f"{score.name}: its recipe proposed no extension ({err!r})")
-            continue
-        # the base solves a proposal's folds share (filled in this process; on a cluster
-        # each worker fills its own)
-        bases: list[_Bases] = [{} for _ in proposals]
-        work.append((score, proposals, bases))
-        for k, proposal in enumerate(proposals):
-            seed = run.seed + 101 * (rank + 1) + 7 * k
-            tasks += _fold_tasks(
-                run.setup, proposal, folds, seed, run.settings.refit_evals, bases[k]
-            )
-    done = iter(run.pool.map(refit_fold, tasks))
-    for score, proposals, bases in work:
-        fitted = [[next(done) for _ in folds] for _ in proposals]
-        cause = _refit_candidate(run, score, folds, proposals, fitted, bases)
+    for candidate, shared in zip(proposals.candidates, bases, strict=True):
+        for proposal, start, base in zip(candidate.proposals, candidate.seeds, shared, strict=True):
+            tasks += _fold_tasks(setup, proposal, folds, start, settings.refit_evals, base)
+    done = iter(pool.map(refit_fold, tasks))
+    causes: dict[str, Cause] = {}
+    notes: list[str] = []
+    for candidate, shared in zip(proposals.candidates, bases, strict=True):
+        fitted = [[next(done) for _ in folds] for _ in candidate.proposals]
+        cause, failed = _refit_candidate(
+            setup,
+            _candidate(catalogue, candidate.score.name),
+            candidate,
+            folds,
+            fitted,
+            shared,
+            settings,
+            seed,
+        )
+        notes += failed
         if cause is not None:
-            run.refitted[score.name] = cause
+            causes[candidate.score.name] = cause
+    return Refits(causes, tuple(notes))
 
 
-def _candidate(run: _Run, name: str) -> Any:
-    return next(c for c in run.catalogue.candidates if c.name == name)
+def _candidate(catalogue: Catalogue, name: str) -> Any:
+    return next(c for c in catalogue.candidates if c.name == name)
 
 
 def _refit_candidate(
-    run: _Run,
-    score: CauseScore,
+    setup: RefitSetup,
+    entry: Any,
+    candidate: Proposed,
     folds: Sequence[tuple[np.ndarray, np.ndarray]],
-    proposals: Sequence[ExtensionProposal],
     fitted: Sequence[Sequence[RefitResult | Exception]],
     shared_bases: Sequence[_Bases],
-) -> Cause | None:
-    """One candidate: its proposals' fold refits judged on held-out runs, the best on the
-    training runs kept, its symptom checked, and, when confirmed, its final refit on every
-    run."""
-    setup, settings, seed = run.setup, run.settings, run.seed
-    assert setup is not None
-    candidate = _candidate(run, score.name)
-    recipe = candidate.refit
+    settings: DiagnosisSettings,
+    seed: int,
+) -> tuple[Cause | None, list[str]]:
+    """One candidate (``entry``: its catalogue entry): its proposals' fold refits judged on
+    held-out runs, the best on the training runs kept, its symptom checked, and, when
+    confirmed, its final refit on every run; and a note for each proposal whose refit
+    failed."""
+    score, proposals, recipe = candidate.score, candidate.proposals, entry.refit
+    notes: list[str] = []
     trials = []
     for proposal, results, shared in zip(proposals, fitted, shared_bases, strict=True):
         fits = [f for f in results if isinstance(f, RefitResult)]
@@ -935,21 +996,21 @@ def _refit_candidate(
             if failed:
                 raise failed[0]
             gain = _judge_refits(
-                setup, proposal, folds, fits, tracking=tracks_speed(candidate.signature)
+                setup, proposal, folds, fits, tracking=tracks_speed(entry.signature)
             )
         except (ValueError, RuntimeError) as err:
-            run.notes.append(f"{score.name} ({proposal.label}): refit failed: {err}")
+            notes.append(f"{score.name} ({proposal.label}): refit failed: {err}")
             continue
         trials.append((sum(f.train_lpd for f in fits), proposal, fits, gain, shared))
     if not trials:
-        return None
+        return None, notes
     _, proposal, fits, gain, bases = max(trials, key=lambda t: t[0])
     # each fold's own value is kept: folds that disagree mark a refit to distrust
     by_fold = {n: [float(np.mean(f.values[n])) for f in fits] for n in proposal.free}
     parameters: dict[str, Any] = {
         n: {"mean": float(np.mean(v)), "sd": None, "folds": v} for n, v in by_fold.items()
     }
-    extended_system = run.system.with_extensions(proposal.extension)
+    extended_system = setup.system.with_extensions(proposal.extension)
     # each fold's refit as the recipe reads it (a rail-carrying mode's installed peak)
     fold_values = [
         {**f.values, **recipe.derived(proposal, extended_system, {**setup.point, **f.values})}
@@ -961,7 +1022,7 @@ def _refit_candidate(
         setup.spectra.measured,
         setup.base_spectra,
         held_out_spectra(fits, folds),
-        tuple(run.system.channels),
+        tuple(setup.system.channels),
         refitted=fold_values,
     )
     confirmed = gain.decisive and explained
@@ -1002,7 +1063,7 @@ def _refit_candidate(
         verb = "explains" if explained else "does not explain"
         words += f"; the refit {verb} its own feature: {symptom}"
     merged = {**dict(score.parameters), **parameters}
-    return dataclasses.replace(
+    cause = dataclasses.replace(
         _signature_cause(score),
         evidence=f"{score.evidence}. {words}",
         parameters=merged,
@@ -1012,6 +1073,7 @@ def _refit_candidate(
         proposal=proposal,
         alternatives=recipe.alternatives(merged),
     )
+    return cause, notes
 
 
 def _mark_boxes(
@@ -1036,55 +1098,61 @@ def _mark_boxes(
                 parameters[n][key] = refit[key]
 
 
-def _judge(run: _Run) -> None:
+def judge(ranking: Ranking, refits: Refits) -> Judgement:
     """The verdict: every confirmed cause, strongest held-out evidence first
     (:func:`verdict_order`); then the others by signature score."""
-    ranking = run.ranking
-    assert ranking is not None
     confirmed = sorted(
-        (c for c in run.refitted.values() if c.confirmed),
+        (c for c in refits.causes.values() if c.confirmed),
         key=lambda c: verdict_order(held_out_evidence(c.gain), c.score),  # type: ignore[arg-type]
     )
-    run.verdict = confirmed[0].name if confirmed else NONE
+    verdict = confirmed[0].name if confirmed else NONE
+    notes: list[str] = []
     if confirmed:
         first = confirmed[0]
-        run.notes += [
-            f"{run.verdict}: {n} ended at the {value['at_bound']} end of its search box "
+        notes += [
+            f"{verdict}: {n} ended at the {value['at_bound']} end of its search box "
             f"[{value['search_box'][0]:.4g}, {value['search_box'][1]:.4g}]: the data would move "
             "it further, so it is not an estimate, nor are the parameters that trade off with it"
             for n, value in first.parameters.items()
             if isinstance(value, dict) and value.get("at_bound")
         ]
-        run.notes += [
-            f"the verdict {run.verdict} could also be {alternative}"
+        notes += [
+            f"the verdict {verdict} could also be {alternative}"
             for alternative in first.alternatives
         ]
     if len(confirmed) > 1:
-        run.notes.append(
+        notes.append(
             f"{len(confirmed)} causes confirmed, strongest held-out evidence first: "
             + ", ".join(
                 f"{c.name} ({held_out_evidence(c.gain):.1f} SE)"  # type: ignore[arg-type]
                 for c in confirmed
             )
         )
-    others = [run.refitted.get(s.name, _signature_cause(s)) for s in ranking.causes]
-    run.causes = tuple(confirmed) + tuple(c for c in others if not c.confirmed)
+    others = [refits.causes.get(s.name, _signature_cause(s)) for s in ranking.causes]
+    causes = tuple(confirmed) + tuple(c for c in others if not c.confirmed)
+    return Judgement(verdict, causes, tuple(notes))
 
 
-def _limits(run: _Run) -> None:
+def cause_limits(
+    setup: RefitSetup,
+    catalogue: Catalogue,
+    band: tuple[float, float],
+    settings: DiagnosisSettings,
+    seed: int,
+    pool: Pool,
+) -> Limits:
     """Every catalogue cause's smallest size the rule names with the stated power in these
     runs (:func:`detection_limits`), one task per cause on the pool (each has its own draws
     from the same seed, so the limits do not depend on where they ran)."""
-    assert run.setup is not None
-    names = list(cause_sizes(run.catalogue, run.band))
-    tasks = [
-        (run.setup, run.catalogue, run.settings.limit_draws, run.seed, name, run.band)
-        for name in names
-    ]
-    for found, note in run.pool.map(cause_limit, tasks):
-        run.limits.update(found)
+    names = list(cause_sizes(catalogue, band))
+    tasks = [(setup, catalogue, settings.limit_draws, seed, name, band) for name in names]
+    limits: dict[str, CauseLimit] = {}
+    notes: list[str] = []
+    for found, note in pool.map(cause_limit, tasks):
+        limits.update(found)
         if note is not None:
-            run.notes.append(note)
+            notes.append(note)
+    return Limits(limits, tuple(notes))
 
 
 def cause_limit(
@@ -1111,18 +1179,6 @@ def cause_limit(
     return found, None
 
 
-#: the steps of :func:`diagnose_campaign`, in order
-_STAGES: tuple[_Stage, ...] = (
-    _Stage("fit", _fit, "fit", when=lambda run: run.fit is None),
-    _Stage("measure", _measure, "features"),
-    _Stage("residuals", _residuals, "features"),
-    _Stage("rank signatures", _rank, "features"),
-    _Stage("refit candidates", _refit_candidates, "refits"),
-    _Stage("judge held-out", _judge, "refits"),
-    _Stage("limits", _limits, "limits", when=lambda run: run.settings.limits),
-)
-
-
 def diagnose_campaign(
     system: AbstractSystem,
     campaign: xr.Dataset,
@@ -1138,26 +1194,29 @@ def diagnose_campaign(
     """Show where a model departs from a campaign, name the cause, measure the gain, state
     what the campaign could not have shown.
 
-    The steps (``_STAGES``), each handing its objects on to the next:
+    The steps, each a function of what the earlier ones made, returning a frozen product
+    (their notes, in this order, are the diagnosis's):
 
     1. *fit*: the base model is fitted on the calibration runs (:func:`bayesdoor.inference.
        fit_campaign`, CMA-ES) unless ``fit`` is given.
-    2. *measure*, *residuals*, *rank signatures*: posterior-predictive simulations of those
+    2. :func:`measure` (:class:`Measured`), :func:`residual_map` (:class:`Residuals`),
+       :func:`rank_causes` (:class:`Ranking`): posterior-predictive simulations of those
        runs (plus white noise at the level the records show at rest) give the residual
        features (:func:`find_features`, over the fit's feature band, with the smooth
-       discrepancy taken out) and the signature ranking (:func:`rank_causes`).
-    3. *refit candidates*: each plausible candidate (signature score at least
-       ``PLAUSIBLE_SCORE``, at most ``max_candidates``) is confirmed by fitting: its catalogue
-       recipe proposes a model extension started from the signature's estimate, whose
-       parameters are fitted with the base parameters at the fit's point on one half of the
-       runs and tested on the other half, both ways (two folds; halves alternate in speed);
-       a confirmed one is refitted on all runs, with Laplace standard deviations.
-    4. *judge held-out*: every confirmed cause is reported, the strongest held-out evidence
-       (gain in standard errors) first; the verdict names the first
+       discrepancy taken out) and the signature ranking.
+    3. :func:`propose` (:class:`Proposals`): each plausible candidate (signature score at
+       least ``PLAUSIBLE_SCORE``, at most ``max_candidates``) has its catalogue recipe propose
+       model extensions started from the signature's estimate.
+    4. :func:`refit_candidates` (:class:`Refits`): each extension's parameters are fitted
+       with the base parameters at the fit's point on one half of the runs and tested on the
+       other half, both ways (two folds; halves alternate in speed); a confirmed one is
+       refitted on all runs, with Laplace standard deviations.
+    5. :func:`judge` (:class:`Judgement`): every confirmed cause is reported, the strongest
+       held-out evidence (gain in standard errors) first; the verdict names the first
        (:func:`verdict_order`), else ``none`` (:data:`~bayesdoor.diagnose.RULE`).
-    5. *limits*: for every catalogue cause that declares its size
-       (:meth:`~bayesdoor.diagnose.AbstractRefit.size`), the smallest size the rule would
-       name with 80 % probability in these runs (:func:`detection_limits`).
+    6. :func:`cause_limits` (:class:`Limits`): for every catalogue cause that declares its
+       size (:meth:`~bayesdoor.diagnose.AbstractRefit.size`), the smallest size the rule
+       would name with 80 % probability in these runs (:func:`detection_limits`).
 
     Parameters
     ----------
@@ -1203,14 +1262,38 @@ def diagnose_campaign(
     if settings is None:
         settings = DiagnosisSettings.quick() if quick else DiagnosisSettings()
     pool = in_process(settings.workers) if pool is None else pool
-    run = _Run(system, campaign, catalogue, settings, int(seed), quick, progress, fit, pool)
-    for stage in _STAGES:
-        if stage.when is not None and not stage.when(run):
-            continue
-        t0 = time.perf_counter()
-        stage.compute(run)
-        run.timings[stage.timing] = run.timings.get(stage.timing, 0.0) + (time.perf_counter() - t0)
-    return run.diagnosis()
+    timings: dict[str, float] = {}
+    if fit is None:
+        with _timed(timings, "fit"):
+            fit = fit_campaign(
+                system, campaign, method="cmaes", seed=int(seed), quick=quick, progress=progress
+            )
+    with _timed(timings, "features"):
+        measured = measure(system, campaign)
+        residuals = residual_map(system, fit, measured, catalogue, settings, int(seed))
+        ranking = rank_causes(residuals.features, catalogue)
+    with _timed(timings, "refits"):
+        proposals = propose(ranking, measured, catalogue, residuals.band, settings, int(seed))
+        refits = refit_candidates(proposals, residuals.setup, catalogue, settings, int(seed), pool)
+        judgement = judge(ranking, refits)
+    limits = Limits()
+    if settings.limits:
+        with _timed(timings, "limits"):
+            limits = cause_limits(
+                residuals.setup, catalogue, residuals.band, settings, int(seed), pool
+            )
+    return Diagnosis(
+        verdict=judgement.verdict,
+        causes=judgement.causes,
+        ranking=ranking,
+        catalogue=catalogue,
+        rule=RULE,
+        runs=np.asarray(measured.runs),
+        notes=residuals.notes + proposals.notes + refits.notes + judgement.notes + limits.notes,
+        timings=timings,
+        fit=fit,
+        limits=limits.limits,
+    )
 
 
 def extension_gain(
@@ -1269,7 +1352,7 @@ def extension_gain(
         For fewer than 4 healthy calibration runs.
     """
     settings = DiagnosisSettings.quick() if quick else DiagnosisSettings()
-    measured = _Measured.of(system, campaign, calibration_runs(campaign, system.healthy))
+    measured = measure(system, campaign)
     catalogue = system.catalogue if catalogue is None else catalogue
     known = catalogue if isinstance(catalogue, Catalogue) else None
     order = measured.operating if known is None else _fold_order(known, measured.operating)

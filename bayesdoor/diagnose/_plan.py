@@ -22,7 +22,7 @@ import xarray as xr
 from ..inference import FitResult
 from ._design import MAX_RUNS_PER_CONDITION as MAX_RUNS_PER_CONDITION
 from ._design import CampaignPlan, design_campaign
-from ._job import _band, _Measured, _simulate_rows
+from ._job import Measured, _band, _simulate_rows
 from ._limits import LIMIT_POWER, fold_order, run_gains
 from ._rank import Catalogue
 
@@ -104,7 +104,7 @@ def plan_campaign(
     catalogue = system.catalogue if catalogue is None else catalogue
     if not isinstance(catalogue, Catalogue):
         raise ValueError(f"{system.name} has no catalogue of discrepancy causes")
-    measured = _Measured.of(system, campaign, calibration_runs(campaign, system.healthy))
+    measured = Measured.of(system, campaign, calibration_runs(campaign, system.healthy))
     if len(measured.runs) < 4:
         raise ValueError(f"{len(measured.runs)} calibration runs: need at least 4 to plan from")
     band = _band(fit)

@@ -76,7 +76,10 @@ def probability_bars(
             ax.plot(wrong, np.full(len(wrong), 1.06), "v", color="black", ms=4, clip_on=False)
         ood = [i for i, r in enumerate(members) if r["ood"]]
         if ood:
-            ax.plot(ood, np.full(len(ood), -0.08), "^", color="darkorange", ms=4, clip_on=False)
+            # hollow and black: a filled colour could be a state's
+            ax.plot(
+                ood, np.full(len(ood), -0.08), "^", color="black", mfc="none", ms=4, clip_on=False
+            )
         ax.set_xlim(-0.5, len(members) - 0.5)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylim(0, 1)
@@ -92,7 +95,7 @@ def probability_bars(
         ncol=len(classes), loc="lower right", bbox_to_anchor=(1, 1.12), frameon=False, fontsize=9
     )
     what = "of each true state" if known else "called each state"
-    axes[-1].set_xlabel(f"runs {what}, in campaign order (orange marks: flagged OOD)")
+    axes[-1].set_xlabel(f"runs {what}, in campaign order (hollow marks below: flagged OOD)")
     return H.png(fig, dpi=90)
 
 

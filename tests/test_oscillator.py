@@ -281,27 +281,3 @@ def test_the_oscillator_is_found_by_name_and_simulated_from_the_command_line(tmp
     assert abs(peaks[0] - 25.0) <= 1.0 and abs(peaks[2] - 25.0) <= 1.0
     assert abs(peaks[1] - 25.0 * np.sqrt(1 - loss)) <= 1.0
     json.dumps(oscillator.describe())
-
-
-def test_a_cut_motion_keeps_at_least_two_welch_segment_lengths():
-    """The quick fit's 1 s of motion is 1 segment of the oscillator's 1 s Welch segments: the
-    cut is raised to 2 lengths (3 half-overlapping segments); the door's 1 s holds 4 of its
-    0.25 s segments and is kept."""
-    from test_example_system import measured_campaign
-
-    from bayesdoor.inference import FitSettings
-    from bayesdoor.inference._calibration import MIN_SEGMENTS, campaign_data
-    from bayesdoor.io import operating
-
-    oscillator = Oscillator()
-    campaign = measured_campaign()
-    cap = FitSettings.quick().max_motion_s
-    segment_s = oscillator.features.nperseg / oscillator.sampling_rate_hz
-    assert MIN_SEGMENTS * segment_s > cap
-    _, duration = campaign_data(oscillator, campaign, [0, 1], max_motion_s=cap)
-    points = np.unique(operating(campaign.isel(run=[0, 1]), oscillator), axis=0)
-    start, _ = oscillator.motion_window(points)
-    whole = float(oscillator.record_duration(points))
-    expected = min(whole, float(np.max(start)) + MIN_SEGMENTS * segment_s)
-    assert duration == pytest.approx(expected)
-    assert duration > float(np.max(start)) + cap

@@ -49,11 +49,6 @@ def calibration_runs(campaign: xr.Dataset, healthy: str = HEALTHY) -> Int[np.nda
     return runs
 
 
-#: the shortest cut motion, in Welch segment lengths of the features: two lengths hold three
-#: half-overlapping segments, the fewest whose scatter estimates the features' noise at all
-MIN_SEGMENTS = 2
-
-
 def campaign_data(
     system: AbstractSystem,
     campaign: xr.Dataset,
@@ -81,9 +76,7 @@ def campaign_data(
     spec
         The feature definition; ``None`` means the system's (``FeatureSpec.of(system)``).
     max_motion_s
-        Longest stretch of motion (s) to use; ``None``: all of it. It is raised to
-        :data:`MIN_SEGMENTS` Welch segment lengths of the features where it is shorter (a
-        system whose segment is long would otherwise average one segment per run).
+        Longest stretch of motion (s) to use; ``None``: all of it.
 
     Returns
     -------
@@ -129,7 +122,6 @@ def campaign_data(
     index = index.reshape(-1)
     duration = float(system.record_duration(unique))
     if max_motion_s is not None:
-        max_motion_s = max(float(max_motion_s), MIN_SEGMENTS * spec.nperseg / fs)
         start, _ = system.motion_window(unique)
         duration = min(duration, float(np.max(start)) + float(max_motion_s))
     sim_start, sim_stop = system.motion_window(unique, duration=duration)

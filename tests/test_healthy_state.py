@@ -11,13 +11,12 @@ report's palette, the training data's description and the command line.
 from __future__ import annotations
 
 import json
-from pathlib import Path
-from types import SimpleNamespace
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from _toy_system import CENTER, DURATION, FS, REST, ToySystem
+from test_pipeline import StandInFit
 from typer.testing import CliRunner
 
 from bayesdoor.classify import TrainConfig
@@ -174,32 +173,6 @@ def test_trust_judges_the_known_runs_by_the_healthy_state_of_the_training():
     known = judge_trust(adequacy, _runs(["ok"] * 10), _runs(["ok"] * 10), _training(), [4])
     assert known["verdict"] == "trusted", known
     assert known["checks"]["unlike_healthy"]["called_healthy"] == 10
-
-
-class StandInFit:
-    """What the job reads of a fit: draws around CENTER."""
-
-    names = ("k", "m")
-
-    def __init__(self, seed):
-        rng = np.random.default_rng(seed)
-        self.point = dict(CENTER)
-        self.cmaes = SimpleNamespace(x_best=np.array([0.5, 1.0]))
-        self.j = 0.1
-        self._draws = {
-            "k": np.clip(0.5 + 0.02 * rng.standard_normal(200), 0, 1),
-            "m": np.clip(1.0 + 0.05 * rng.standard_normal(200), 0.5, 2),
-        }
-
-    def posterior_draws(self):
-        return self._draws
-
-    def model_error_draws(self):
-        return np.full((200, 2), 0.05)
-
-    def save(self, folder):
-        Path(folder).mkdir(parents=True)
-        (Path(folder) / "point.json").write_text(json.dumps(self.point))
 
 
 def stand_in_fit(system, campaign, *, method, seed, quick, progress):

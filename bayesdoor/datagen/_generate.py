@@ -25,6 +25,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from .._cluster import Cluster
 from .._types import Array
 from ..io import atomic_write
 from ..systems import HEALTHY, AbstractSystem
@@ -277,21 +278,11 @@ def _map_local(job: Job, pending: list[int], threads: int) -> _Chunks:
 
 
 def _map_dask(job: Job, pending: list[int], scheduler: str, n_workers: int) -> _Chunks:
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import as_completed
 
-    with contextlib.ExitStack() as stack:
-        if scheduler == "local":
-            cluster = stack.enter_context(
-                LocalCluster(
-                    n_workers=n_workers,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                )
-            )
-            client = stack.enter_context(Client(cluster))
-        else:
-            client = stack.enter_context(Client(scheduler))
+    cluster = Cluster(workers=n_workers) if scheduler == "local" else Cluster(address=scheduler)
+    with cluster.open() as pool:
+        client = pool.client
         shared = client.scatter(job, broadcast=True, hash=False)
         futures = [client.submit(run_chunk, shared, i, pure=False) for i in pending]
         for future in as_completed(futures):
@@ -380,6 +371,8 @@ def generate(
         threads = min(2, _cores())
     if threads < 1:
         raise ValueError(f"threads must be at least 1 (or None for the default), got {threads}")
+    if scheduler == "local" and n_workers < 1:
+        raise ValueError(f"n_workers must be at least 1 for a local cluster, got {n_workers}")
     job = Job(system, source, model_error, config, key, bool(jax.config.read("jax_enable_x64")))
     system.motion_window(np.asarray(config.speeds), duration=job.duration)
     out = Path(out)

@@ -510,7 +510,259 @@ _NUMBERS = dict(
 )
 
 
-FIGURES: dict[str, Callable[[], dict[str, list[str]]]] = {
+# --- the set-up of each result: what was measured on how much ----------------------------------
+
+
+def _count(text: str) -> int:
+    """How many values a command-line list gives: '0 1 2 3 4' -> 5."""
+    return len(text.split())
+
+
+def _classification_setup() -> dict[str, list[str]]:
+    name = "classification.md"
+    data = _find(name, r"(\d+) healthy calibration runs and (\d+) test runs")
+    seeds = _count(_find(name, r"--seeds ([\d ]+?) --").group(1))
+    bins = _find(name, r"ECE \((\d+) bins\)").group(1)
+    hum = [
+        _lead(cell)
+        for cell in _row(
+            name, "test runs + 50 Hz line of 0.03 m/s^2 (the rig's strongest mains_hum)"
+        )[1:]
+    ]
+    default = _row(name, "posterior draws + the measured discrepancy (the default)")
+    return {
+        "README.md": [
+            f"on {data.group(2)} rig test runs, trained on simulations only ({seeds} seeds)",
+            f"({default[1].split(' ±')[0]} % there",
+            f"a 50 Hz line at the rig's own level is flagged in {_span(hum, '.1f')} % of runs",
+        ],
+        "docs/validation.md": [
+            f"On the demo campaign ({data.group(1)} healthy calibration runs, {data.group(2)} rig "
+            f"test runs at three speeds)",
+            f"trained on simulations only, {seeds} seeds",
+            f"| ECE ({bins} bins) |",
+        ],
+    }
+
+
+def _transfer_setup() -> dict[str, list[str]]:
+    name = "transfer.md"
+    command = _find(name, r"--doors (\d+) --held-out-from (\d+)")
+    doors, held_from = int(command.group(1)), int(command.group(2))
+    runs = _find(name, r"(\d+) healthy calibration runs fit the door; (\d+) test runs per state")
+    targets = _find(name, r"targets of (\d+) % median and (\d+) % worst are not met")
+    ece_target = _find(name, r"above the target ([\d.]+)\.").group(1)
+    median = _lead(_row(name, "development", "`posterior+model_error`")[3])
+    return {
+        "README.md": [
+            f"{doors} other doors the model lacks",
+            f"a median of {_pct(median)} % at the quick sizes",
+        ],
+        "docs/validation.md": [
+            f"{held_from} doors are used in development and {doors - held_from} are held out",
+            f"The quick job on {doors} doors the model lacks, {runs.group(1)} healthy calibration "
+            f"runs and {runs.group(2)} test runs per state each",
+            f"one door of the {doors}",
+            f"falls below {targets.group(2)} % without a warning",
+            f"The targets ({targets.group(1)} % median, {targets.group(2)} % worst, ECE "
+            f"{ece_target})",
+        ],
+    }
+
+
+def _transfer_full_training_setup() -> dict[str, list[str]]:
+    name = "transfer_full_training.md"
+    quick = _find(name, r"own sizes \((\d+) simulated runs per").group(1)
+    short = _find(
+        name,
+        r"median \([\d./ ]+\) is under (\d+) % and the median ECE \([\d./ ]+\) "
+        r"over ([\d.]+)",
+    )
+    floor = _find(name, r"Every door is at or above (\d+) %").group(1)
+    rows = [_row(name, doors, "`posterior+model_error`") for doors in ("development", "held out")]
+    medians = [_pct(_lead(row[3])) for row in rows]
+    return {
+        "README.md": [f"{medians[0]} % / {medians[1]} % at the job's"],
+        "docs/validation.md": [
+            f"own generation and training sizes ({quick} simulated runs per state;",
+            f"every door is at or above {floor} %; the median stays under {short.group(1)} % and "
+            f"the ECE over {short.group(2)}",
+        ],
+    }
+
+
+def _transfer_extended_setup() -> dict[str, list[str]]:
+    doors = _count(_find("transfer_extended.md", r"--only ([\d ]+)`").group(1))
+    return {"README.md": [f"{doors} held-out doors"]}
+
+
+def _cwru_setup() -> dict[str, list[str]]:
+    name = "cwru.md"
+    jobs = [row for row in _rows(name) if row[0].startswith("nuts / posterior+model_error")][:3]
+    named = {row[7] for row in jobs}
+    segments = _find(name, r"runs of 1 s \([^)]*\) from (\d+) records")
+    band = _find(name, r"envelope spectrum of the resonance band\*\* \(([\d.]+-[\d.]+ kHz)")
+    rate = _find(name, r"envelope lines at a ([\d.]+) % false-alarm rate").group(1)
+    return {
+        "README.md": [
+            f"(quick, {len(jobs)} seeds)",
+            *(f"names {n} race records" for n in named if len(named) == 1),
+        ],
+        "docs/validation.md": [
+            f"one-second segments of the {segments.group(1)} CWRU records",
+            f"the envelope spectrum of {band.group(1)}",
+            f"threshold from a {rate} % false-alarm rate",
+        ],
+    }
+
+
+def _performance_setup() -> dict[str, list[str]]:
+    data = json.loads(_results("performance.json"))
+    run, job, targets = data["yardstick"], data["job"], data["targets"]
+    door = (
+        f"a {run['duration_s']:g} s door run against scipy LSODA, batch of {run['batch']}, float64 "
+        f"| {run['simulate_x_scipy']:.0f}x faster ({run['batch_float64_ms_per_run']:.1f} ms a run"
+    )
+    quick = f"{job['wall_s']:.0f} s ({job['scipy_runs']:.0f} scipy runs"
+    return {
+        "README.md": [door, f"{quick}; target {targets['quick']:.0f} s)"],
+        "docs/validation.md": [
+            f"| a {run['duration_s']:g} s door run, batch of {run['batch']}, float64, against "
+            f"scipy's LSODA on the same equations | {run['simulate_x_scipy']:.0f}x faster "
+            f"({run['batch_float64_ms_per_run']:.1f} ms a run) |",
+            f"| {quick}), of it",
+        ],
+    }
+
+
+def _diagnosis_setup() -> dict[str, list[str]]:
+    command = _find("diagnosis.md", r"--seeds ([\d ]+?) --none-seeds [\d ]+ --runs (\d+)")
+    runs, seeds = command.group(2), _count(command.group(1))
+    return {
+        "README.md": [f"{runs} runs per campaign, {seeds} seeds per effect"],
+        "docs/validation.md": [f"| {runs} runs, {seeds} seeds per effect, quick sizes |"],
+    }
+
+
+def _diagnosis_full_size_setup() -> dict[str, list[str]]:
+    name = "diagnosis_full_size.md"
+    runs = _find(name, r"\d+ of (\d+) runs gain").group(1)
+    cases = [
+        row[0].rsplit(" ", 1)[0] for row in _rows(name) if re.fullmatch(r"[a-z_]+ \d+", row[0])
+    ]
+    seeds = {cases.count(effect) for effect in set(cases)}
+    assert len(seeds) == 1, "results/diagnosis_full_size.md: as many seeds for every effect"
+    setup = f"{runs} runs, {seeds.pop()} seeds per effect"
+    within = sum(row[7] == "pass" for row in _rows(name) if re.fullmatch(r"frame_mode \d+", row[0]))
+    return {
+        "README.md": [setup],
+        "docs/validation.md": [
+            f"| {setup}, each campaign's own fit |",
+            f"(its frequency within tolerance in {within})",
+        ],
+    }
+
+
+def _diagnosis_limits_setup() -> dict[str, list[str]]:
+    name = "diagnosis_limits.md"
+    power = _find(name, r"limit \((\d+) %\)").group(1)
+    seeds = _find(name, r"--seeds (\d+)").group(1)
+    runs = _find(name, r"nothing-hidden (\d+)-run campaign").group(1)
+    factors = sorted({row[1] for row in _rows(name) if re.fullmatch(r"[\d.]+", row[1])}, key=float)
+    limit = _row(name, "wheel_eccentricity")[3]
+    return {
+        "README.md": [
+            f"detection limits ({power} % power) at {factors[-1]}x / {factors[0]}x, {seeds} "
+            "new rig seeds",
+            f"below its limit of {limit}",
+        ],
+        "docs/validation.md": [
+            f"| detection limits ({power} % power) on a {runs}-run campaign, each cause hidden "
+            f"at {' and '.join(factors)} times its limit, {seeds} seeds not used while building",
+        ],
+    }
+
+
+def _diagnosis_plan_wheel_setup() -> dict[str, list[str]]:
+    name = "diagnosis_plan_wheel.md"
+    plan = _find(name, r"From the nothing-hidden (\d+)-run campaign")
+    size = _row(name, "wheel_eccentricity")[1]
+    return {
+        "docs/validation.md": [
+            f"`plan_campaign` for a {size} wheel from the {plan.group(1)}-run campaign"
+        ]
+    }
+
+
+def _diagnosis_gain_setup() -> dict[str, list[str]]:
+    runs = _find("diagnosis_gain.md", r"With (\d+) test runs per case").group(1)
+    return {
+        "README.md": [f"({runs} test runs, quick sizes)"],
+        "docs/validation.md": [f"added to the model, {runs} test runs"],
+    }
+
+
+def _decision_rule_setup() -> dict[str, list[str]]:
+    draws = int(
+        _find("decision_rule.md", r"False alarms under noise \((\d+) draws per row").group(1)
+    )
+    return {"docs/validation.md": [f"{draws:,} draws per row"]}
+
+
+def _order_segment_setup() -> dict[str, list[str]]:
+    setup = _find(
+        "order_segment.md",
+        r"(\d+) rail campaigns \(each at every SNR\) and (\d+) comb campaigns, seed \d+\. "
+        r"Each campaign: (\d+-\d+) runs",
+    )
+    harmonics = _find("order_segment.md", r"harmonics (\d+) and (\d+)")
+    return {
+        "docs/validation.md": [
+            f"synthetic campaigns of {setup.group(3)} runs in white noise ({setup.group(1)} with "
+            f"a rail tone at each SNR, {setup.group(2)} with wheel harmonics "
+            f"{harmonics.group(1)} and {harmonics.group(2)})",
+        ]
+    }
+
+
+def _sbc_setup() -> dict[str, list[str]]:
+    sets = _find("sbc.md", r"passed the sampling gates: \d+ of (\d+)").group(1)
+    return {"README.md": [f"({sets} data sets, surrogate forward)"]}
+
+
+SETUP: dict[str, Callable[[], dict[str, list[str]]]] = {
+    "classification.md": _classification_setup,
+    "transfer.md": _transfer_setup,
+    "transfer_full_training.md": _transfer_full_training_setup,
+    "transfer_extended.md": _transfer_extended_setup,
+    "cwru.md": _cwru_setup,
+    "performance.md": _performance_setup,
+    "diagnosis.md": _diagnosis_setup,
+    "diagnosis_full_size.md": _diagnosis_full_size_setup,
+    "diagnosis_limits.md": _diagnosis_limits_setup,
+    "diagnosis_plan_wheel.md": _diagnosis_plan_wheel_setup,
+    "diagnosis_gain.md": _diagnosis_gain_setup,
+    "decision_rule.md": _decision_rule_setup,
+    "order_segment.md": _order_segment_setup,
+    "sbc.md": _sbc_setup,
+}
+
+
+def _with_setup(
+    name: str, results: Callable[[], dict[str, list[str]]]
+) -> Callable[[], dict[str, list[str]]]:
+    """A results file's figures and its set-up figures, per page."""
+
+    def figures() -> dict[str, list[str]]:
+        merged = {page: list(lines) for page, lines in results().items()}
+        for page, lines in SETUP.get(name, dict)().items():
+            merged.setdefault(page, []).extend(lines)
+        return merged
+
+    return figures
+
+
+_RESULTS_FIGURES: dict[str, Callable[[], dict[str, list[str]]]] = {
     "classification.md": _classification,
     "transfer.md": _transfer,
     "transfer_full_training.md": _transfer_full_training,
@@ -531,6 +783,7 @@ FIGURES: dict[str, Callable[[], dict[str, list[str]]]] = {
     "sbc.md": _sbc,
     "contact_law_ablation.md": _contact_law_ablation,
 }
+FIGURES = {name: _with_setup(name, f) for name, f in _RESULTS_FIGURES.items()}
 
 
 def _blocks(page: str) -> list[str]:
@@ -625,3 +878,64 @@ def test_the_span_prints_what_the_pages_print():
     assert _span([0.750, 0.750, 0.792], ".2f") == "0.75-0.79"
     assert _span([0.917, 0.917], ".3f") == "0.917"
     assert _span([89, 128, 99], "d") == "89-128"
+
+
+# --- every number the pages print is one of the figures above -------------------------------
+
+#: a date as the pages and the results files write it
+DAY = re.compile(r"\b\d{4}-\d{2}-\d{2}\b")
+#: a number as a figure: 92.3, 200,000, 4 of 4/5, 1.5 of 1.5x; not the digits of a name
+#: (H100, float64, A1, D2, log10), a commit (2d547b2) or a file (diagnosis_limits.md)
+NUMBER = re.compile(
+    r"(?<![\w.])\d{1,3}(?:,\d{3})+(?![\w])|(?<![\w.])\d+(?:\.\d+)?(?![a-wyzA-Z_\d])"
+)
+#: what a number in a page does not count as a figure within: code spans, link targets, commits
+_NOT_PROSE = re.compile(r"`[^`]*`|\]\([^)]*\)|\b[0-9a-f]{7,40}\b")
+#: numbers that describe the machine the figures were measured on, not a result
+MACHINE = {"2-core"}
+
+
+def _numbers(text: str) -> list[str]:
+    text = _NOT_PROSE.sub(" ", text)
+    text = DAY.sub(" ", text)
+    for phrase in MACHINE:
+        text = text.replace(phrase, " ")
+    return NUMBER.findall(text)
+
+
+def _measured_blocks(page: str) -> list[str]:
+    blocks = _blocks(page)
+    if page == "docs/validation.md":  # the page's introduction has no figure
+        blocks = [b for b in blocks if not b.startswith("# ")]
+    return [b for b in blocks if _numbers(b)]
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/validation.md"])
+def test_every_number_the_page_prints_is_a_figure_of_the_file_it_cites(page):
+    unsourced = []
+    for block in _measured_blocks(page):
+        files = set(re.findall(r"results/([a-z_]+\.md)", block))
+        figures = {
+            n
+            for name in files
+            if name in FIGURES
+            for n in _numbers(" ".join(FIGURES[name]().get(page, [])))
+        }
+        loose = [n for n in _numbers(block) if n not in figures]
+        if loose:
+            unsourced.append(f"{', '.join(loose)} in: {block[:100]}...")
+    assert not unsourced, (
+        f"{page} prints numbers that no results file it cites gives (cite the file and add the "
+        "figure to FIGURES, or remove the number):\n" + "\n".join(unsourced)
+    )
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/validation.md"])
+def test_the_dates_the_page_names_are_those_of_the_files_it_cites(page):
+    wrong = []
+    for block in _blocks(page):
+        files = set(re.findall(r"results/([a-z_]+\.md)", block))
+        for day in DAY.findall(block):
+            if not any(day in _results(name) for name in files):
+                wrong.append(f"{day} (cited with {', '.join(sorted(files)) or 'no results file'})")
+    assert not wrong, f"{page} names dates its results files do not: {wrong}"

@@ -22,10 +22,14 @@ from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
 
 from .._types import Array, Float
-from ..systems import AbstractExtension, ParameterSpec, build_extension, unsynchronised_line
+from ..systems import (
+    AbstractExtension,
+    ParameterSpec,
+    UnsynchronisedLines,
+    build_extension,
+)
 from ._model import resonance_response
 
 #: the default bearing's sampling rate, Hz: the supply's harmonics lie below its Nyquist
@@ -151,7 +155,7 @@ class StructuralMode(AbstractBearingExtension):
         return signal + jnp.asarray(v["gain"], dtype) * filtered
 
 
-class LineFrequency(AbstractBearingExtension):
+class LineFrequency(UnsynchronisedLines, AbstractBearingExtension):
     """An electrical line at the supply frequency and its harmonics (``line_frequency``).
 
     Adds ``sum_m a_m cos(2 pi m f0 t)`` for m = 1..``harmonics``, f0 = ``frequency_hz`` (50
@@ -168,18 +172,11 @@ class LineFrequency(AbstractBearingExtension):
     name: ClassVar[str] = "line_frequency"
     needs_resolve: ClassVar[bool] = False
     stage: ClassVar[int] = 2
+    supply_frequencies_hz: ClassVar[tuple[float, ...]] = SUPPLY_FREQUENCIES_HZ
+    sampling_rate_hz: ClassVar[float] = _FS
 
     frequency_hz: float = eqx.field(static=True, default=60.0)
     harmonics: int = eqx.field(static=True, default=6)
-
-    def __check_init__(self):
-        if self.frequency_hz not in SUPPLY_FREQUENCIES_HZ:
-            raise ValueError(
-                f"LineFrequency.frequency_hz={self.frequency_hz!r}: the supply is 50.0 or 60.0 Hz"
-            )
-        top = int(_FS / 2.0 // self.frequency_hz)
-        if not 1 <= self.harmonics <= top:
-            raise ValueError(f"LineFrequency.harmonics={self.harmonics!r} must lie in 1..{top}")
 
     @property
     def parameters(self) -> tuple[ParameterSpec, ...]:
@@ -196,15 +193,12 @@ class LineFrequency(AbstractBearingExtension):
             for m in range(1, self.harmonics + 1)
         )
 
-    def apply(self, signal, time, values):
-        v = self.local(values)
-        dtype = signal.dtype
-        phase = 2.0 * np.pi * self.frequency_hz * time.astype(dtype)
-        line = jnp.zeros_like(signal)
+    def weigh(self, units, values, dtype):
+        """The sum of every harmonic's unit line at its own amplitude."""
+        line = jnp.zeros_like(units[0])
         for m in range(1, self.harmonics + 1):
-            unit = unsynchronised_line(signal, m * phase)
-            line = line + jnp.asarray(v[f"amplitude_{m}"], dtype) * unit
-        return signal + line
+            line = line + jnp.asarray(values[f"amplitude_{m}"], dtype) * units[m - 1]
+        return line
 
 
 #: the extension class of every catalogue name (``none`` is the base model: no class)

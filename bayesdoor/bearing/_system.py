@@ -21,6 +21,8 @@ is a smooth function of the parameters and ``jax.grad`` holds the draws fixed).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -28,16 +30,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..systems import (
-    AbstractSystem,
     ConditionSpec,
     DamageSpec,
+    ExtensionHost,
     ParameterSpec,
     SimulationResult,
     SpectralFeatures,
-    apply_output_extensions,
 )
 from ._catalogue import BEARING_CATALOGUE
-from ._extensions import AbstractBearingExtension, ShaftHarmonics, extension
+from ._extensions import EXTENSIONS, AbstractBearingExtension, ShaftHarmonics
 from ._geometry import CWRU_DRIVE_END, BearingGeometry
 from ._model import impulse_capacity, run_signal
 from ._stand import BAND_HZ, FS
@@ -151,7 +152,7 @@ FEATURES = SpectralFeatures(
 )
 
 
-class BearingSystem(AbstractSystem):
+class BearingSystem(ExtensionHost):
     """A rolling-element bearing seen by one accelerometer ``DE``; by default the CWRU
     drive-end bearing (SKF 6205-2RS) at 12 kHz.
 
@@ -204,19 +205,11 @@ class BearingSystem(AbstractSystem):
         static=True, default=(), converter=tuple
     )
 
+    extension_base: ClassVar[type] = AbstractBearingExtension
+    extension_classes: ClassVar[Mapping[str, type[AbstractBearingExtension]]] = EXTENSIONS
+    extension_owner: ClassVar[str] = "the bearing"
+
     def __check_init__(self) -> None:
-        for e in self.extensions:
-            if not isinstance(e, AbstractBearingExtension):
-                raise ValueError(
-                    f"BearingSystem.extensions holds {e!r}, not a bearing model extension: "
-                    "pass catalogue names to BearingSystem().with_extensions(...)"
-                )
-        names = [e.name for e in self.extensions]
-        twice = sorted({n for n in names if names.count(n) > 1})
-        if twice:
-            raise ValueError(
-                f"BearingSystem.extensions holds {twice} more than once: at most one of each"
-            )
         if not self.segment_s > 0:
             raise ValueError(f"segment_s must be positive, got {self.segment_s!r}")
         if not (np.isfinite(self.sampling_rate_hz) and self.sampling_rate_hz > 2 * MODEL_TOP_HZ):
@@ -234,45 +227,14 @@ class BearingSystem(AbstractSystem):
         return "bearing"
 
     @property
-    def parameters(self) -> tuple[ParameterSpec, ...]:
-        """The base parameters, then each extension's (``"<extension>.<quantity>"``)."""
-        return PARAMETERS + tuple(p for e in self.extensions for p in e.parameters)
+    def base_parameters(self) -> tuple[ParameterSpec, ...]:
+        """The model's own parameters (the extensions' follow them in :attr:`parameters`)."""
+        return PARAMETERS
 
     @property
     def catalogue(self):
         """The bearing's catalogue of discrepancy causes (docs/bearing.md, "Diagnosis")."""
         return BEARING_CATALOGUE
-
-    @property
-    def extension_names(self) -> tuple[str, ...]:
-        return tuple(e.name for e in self.extensions)
-
-    @property
-    def output_extensions(self) -> tuple[AbstractBearingExtension, ...]:
-        """The extensions that act on the simulated signal only (no new simulation)."""
-        return tuple(e for e in self.extensions if not e.needs_resolve)
-
-    def with_extensions(self, *extensions) -> BearingSystem:
-        """This bearing with more extensions switched on: catalogue names or built modules.
-
-        Examples
-        --------
-        >>> BearingSystem().with_extensions("shaft_harmonics").extension_names
-        ('shaft_harmonics',)
-        """
-        added = tuple(extension(e) for e in extensions)
-        return dataclasses.replace(self, extensions=self.extensions + added)
-
-    def without_output_extensions(self) -> BearingSystem:
-        """This bearing with only the extensions that act inside the simulation."""
-        kept = tuple(e for e in self.extensions if e.needs_resolve)
-        return dataclasses.replace(self, extensions=kept)
-
-    def apply_output_extensions(self, signals, time, values):
-        """Signals of :meth:`without_output_extensions` with the output extensions applied
-        (``structural_mode`` before ``line_frequency``); ``values`` names at least their
-        parameters, scalars or arrays that broadcast to the batch shape of ``signals``."""
-        return apply_output_extensions(self.extensions, signals, time, values)
 
     @property
     def states(self) -> dict[str, DamageSpec]:
@@ -336,14 +298,7 @@ class BearingSystem(AbstractSystem):
         """Name, geometry and the model's fixed settings (JSON-able)."""
         return {
             "name": self.name,
-            "extensions": [
-                {
-                    "name": e.name,
-                    "config": {f.name: getattr(e, f.name) for f in dataclasses.fields(e)},
-                    "parameters": [p.name for p in e.parameters],
-                }
-                for e in self.extensions
-            ],
+            "extensions": self.extension_records(),
             "geometry": {
                 "n_balls": self.geometry.n_balls,
                 "ball_diameter_in": self.geometry.ball_diameter_in,
@@ -398,33 +353,9 @@ class BearingSystem(AbstractSystem):
         fs = self.sampling_rate_hz
         return [dict(rule.agrees(x, fs, float(s))) for x, s in zip(segments, rpm, strict=True)]
 
-    def _runs(self, operating) -> int:
-        return int(np.atleast_2d(np.asarray(operating)).shape[0])
-
     def record_duration(self, operating) -> float:
         """The segment length, s, whatever the operating conditions."""
         return float(self.segment_s)
-
-    def motion_window(self, operating, *, duration=None):
-        """The whole record, from its first sample to its last: the shaft turns throughout."""
-        runs = self._runs(operating)
-        fs = self.sampling_rate_hz
-        n_time = round((self.segment_s if duration is None else float(duration)) * fs)
-        return np.zeros(runs), np.full(runs, (n_time - 1) / fs)
-
-    def simulate(self, theta, damage, operating, *, duration=None) -> SimulationResult:
-        """Runs for parameter values ``theta`` (by name) and a damage.
-
-        ``damage`` is a state name (the fault's parameters at :data:`FAULT_DEFAULTS`) or a pair
-        ``(state, {"fault_size_in": ..., ...})``.
-        """
-        if isinstance(damage, str):
-            state, severity = damage, None
-        else:
-            state, severity = damage
-        return self.simulate_values(
-            theta, operating, state=state, severity=severity, duration=duration
-        )
 
     def simulate_values(
         self,

@@ -34,7 +34,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._types import Array, Float
-from ..systems import AbstractExtension, ParameterSpec, build_extension, unsynchronised_line
+from ..systems import (
+    AbstractExtension,
+    ParameterSpec,
+    UnsynchronisedLines,
+    build_extension,
+)
 from . import _geometry as g
 
 #: the door's two accelerometers and wheels (static choices of the extensions)
@@ -327,7 +332,7 @@ class SensorCrossAxis(AbstractDoorExtension):
         return signals.at[receiving].add(fraction * signals[source])
 
 
-class MainsHum(AbstractDoorExtension):
+class MainsHum(UnsynchronisedLines, AbstractDoorExtension):
     """Electrical interference in the measurement chain (``mains_hum``).
 
     Channel c receives a_c (cos(2 pi f t + phi_c1) + sum over h = 2..H of r_h cos(2 pi h f t +
@@ -351,21 +356,12 @@ class MainsHum(AbstractDoorExtension):
     name: ClassVar[str] = "mains_hum"
     needs_resolve: ClassVar[bool] = False
     stage: ClassVar[int] = 3
+    supply_frequencies_hz: ClassVar[tuple[float, ...]] = MAINS_FREQUENCIES_HZ
+    supply: ClassVar[str] = "mains"
+    sampling_rate_hz: ClassVar[float] = g.SAMPLING_RATE_HZ
 
     frequency_hz: float = eqx.field(static=True, default=50.0)
     harmonics: int = eqx.field(static=True, default=3)
-
-    def __check_init__(self):
-        if self.frequency_hz not in MAINS_FREQUENCIES_HZ:
-            raise ValueError(
-                f"MainsHum.frequency_hz={self.frequency_hz!r}: mains is 50.0 or 60.0 Hz"
-            )
-        top = int(g.SAMPLING_RATE_HZ / 2.0 // self.frequency_hz)
-        if not 1 <= self.harmonics <= top:
-            raise ValueError(
-                f"MainsHum.harmonics={self.harmonics!r} must be between 1 and {top} (the "
-                f"harmonics below the Nyquist frequency {g.SAMPLING_RATE_HZ / 2.0} Hz)"
-            )
 
     @property
     def parameters(self) -> tuple[ParameterSpec, ...]:
@@ -396,16 +392,14 @@ class MainsHum(AbstractDoorExtension):
             ),
         )
 
-    def apply(self, signals, time, values):
-        v = self.local(values)
-        dtype = signals.dtype
-        phase = 2.0 * np.pi * self.frequency_hz * time.astype(dtype)
-        line = unsynchronised_line(signals, phase)
+    def weigh(self, units, values, dtype):
+        """Each channel's amplitude times the fundamental plus the harmonics at their
+        ratios."""
+        line = units[0]
         for h in range(2, self.harmonics + 1):
-            harmonic = unsynchronised_line(signals, h * phase)
-            line = line + jnp.asarray(v[f"ratio_{h}"], dtype) * harmonic
-        a = jnp.stack([jnp.asarray(v[f"amplitude_{c}"], dtype) for c in g.CHANNELS])
-        return signals + a[:, None] * line
+            line = line + jnp.asarray(values[f"ratio_{h}"], dtype) * units[h - 1]
+        a = jnp.stack([jnp.asarray(values[f"amplitude_{c}"], dtype) for c in g.CHANNELS])
+        return a[:, None] * line
 
 
 class WheelEccentricity(AbstractDoorExtension):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -12,15 +13,14 @@ import numpy as np
 
 from .._types import Array, Float
 from ..systems import (
-    AbstractSystem,
     ConditionSpec,
     DamageSpec,
+    ExtensionHost,
     ParameterSpec,
     SimulationResult,
-    apply_output_extensions,
 )
 from . import _geometry as g
-from ._extensions import AbstractDoorExtension, extension
+from ._extensions import EXTENSIONS, AbstractDoorExtension
 from ._model import make_args
 from ._params import PARAMETERS, STATES, DoorDamage, DoorParameters, check_parameter_values
 from ._profile import max_speed_limit, motion_duration, record_duration
@@ -59,7 +59,7 @@ def check_speed(v_max) -> None:
             )
 
 
-class ElevatorDoor(AbstractSystem):
+class ElevatorDoor(ExtensionHost):
     """The reduced-order elevator landing door of the paper (``docs/model.md``).
 
     Parameters
@@ -86,21 +86,9 @@ class ElevatorDoor(AbstractSystem):
         static=True, default=(), converter=tuple
     )
 
-    def __check_init__(self):
-        for e in self.extensions:
-            if not isinstance(e, AbstractDoorExtension):
-                raise ValueError(
-                    f"ElevatorDoor.extensions holds {e!r}, not a door model extension: build "
-                    "one with bayesdoor.door.extension(name) or pass catalogue names "
-                    "to ElevatorDoor().with_extensions(...)"
-                )
-        names = [e.name for e in self.extensions]
-        twice = sorted({n for n in names if names.count(n) > 1})
-        if twice:
-            raise ValueError(
-                f"ElevatorDoor.extensions holds {twice} more than once: at most one of each "
-                "catalogue extension"
-            )
+    extension_base: ClassVar[type] = AbstractDoorExtension
+    extension_classes: ClassVar[Mapping[str, type[AbstractDoorExtension]]] = EXTENSIONS
+    extension_owner: ClassVar[str] = "the door"
 
     @property
     def catalogue(self):
@@ -116,35 +104,9 @@ class ElevatorDoor(AbstractSystem):
         return "elevator_door"
 
     @property
-    def parameters(self) -> tuple[ParameterSpec, ...]:
-        """Table 2, then each extension's parameters (named ``"<extension>.<quantity>"``)."""
-        return PARAMETERS + tuple(p for e in self.extensions for p in e.parameters)
-
-    @property
-    def extension_names(self) -> tuple[str, ...]:
-        return tuple(e.name for e in self.extensions)
-
-    @property
-    def output_extensions(self) -> tuple[AbstractDoorExtension, ...]:
-        """The extensions that act on the sensor signals only (no new solve to refit them)."""
-        return tuple(e for e in self.extensions if not e.needs_resolve)
-
-    def with_extensions(self, *extensions: str | AbstractDoorExtension) -> ElevatorDoor:
-        """This door with more extensions switched on: catalogue names or built modules.
-
-        Examples
-        --------
-        >>> door = ElevatorDoor().with_extensions("frame_mode", MainsHum(frequency_hz=60.0))
-        >>> door.extension_names
-        ('frame_mode', 'mains_hum')
-        """
-        added = tuple(extension(e) for e in extensions)
-        return dataclasses.replace(self, extensions=self.extensions + added)
-
-    def without_output_extensions(self) -> ElevatorDoor:
-        """This door with only the extensions that need a new solve (its "base signals")."""
-        kept = tuple(e for e in self.extensions if e.needs_resolve)
-        return dataclasses.replace(self, extensions=kept)
+    def base_parameters(self) -> tuple[ParameterSpec, ...]:
+        """Table 2 (the extensions' parameters follow it in :attr:`parameters`)."""
+        return PARAMETERS
 
     def describe(self) -> dict:
         """Name, solver settings and every extension with its configuration (JSON-able)."""
@@ -153,14 +115,7 @@ class ElevatorDoor(AbstractSystem):
             "config": {
                 f.name: getattr(self.config, f.name) for f in dataclasses.fields(SolverConfig)
             },
-            "extensions": [
-                {
-                    "name": e.name,
-                    "config": {f.name: getattr(e, f.name) for f in dataclasses.fields(e)},
-                    "parameters": [p.name for p in e.parameters],
-                }
-                for e in self.extensions
-            ],
+            "extensions": self.extension_records(),
         }
 
     def _extension_values(self, values) -> dict[str, Array]:
@@ -180,31 +135,6 @@ class ElevatorDoor(AbstractSystem):
         for name, value in values.items():
             for v in np.atleast_1d(np.asarray(value, dtype=float)).ravel():
                 specs[name].check(v)
-
-    def apply_output_extensions(
-        self,
-        signals: Float[Array, "*batch channel time"],
-        time: Float[Array, " time"],
-        values: Mapping[str, Float[Array, "*batch"] | float],
-    ) -> Float[Array, "*batch channel time"]:
-        """Signals of :meth:`without_output_extensions` with the output extensions applied.
-
-        ``frame_mode``, ``sensor_cross_axis`` and ``mains_hum`` act on the sensor signals
-        only, in that order (structure, sensor, measurement chain) whatever their order in
-        :attr:`extensions`; refitting them needs no new solve. ``values`` names at least
-        their parameters (others are ignored), scalars or arrays that broadcast to the
-        batch shape of ``signals``. Bounds are not checked (use :meth:`check_parameters`).
-
-        Examples
-        --------
-        >>> door = ElevatorDoor(extensions=(MainsHum(),))
-        >>> base = door.without_output_extensions()
-        >>> sim = base.simulate_values(DoorParameters.paper_optimum().to_dict(), 0.4)
-        >>> values = {**door.nominal(), "mains_hum.amplitude_A1X": 0.02}
-        >>> door.apply_output_extensions(sim.signals, sim.time, values).shape
-        (1, 4, 6349)
-        """
-        return apply_output_extensions(self.extensions, signals, time, values)
 
     @property
     def states(self) -> Mapping[str, DamageSpec]:

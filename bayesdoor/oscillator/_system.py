@@ -10,22 +10,22 @@ parameters, state and speed.
 
 from __future__ import annotations
 
-import dataclasses
+from collections.abc import Mapping
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
 from ..systems import (
-    AbstractSystem,
     ConditionSpec,
     DamageSpec,
+    ExtensionHost,
     ParameterSpec,
     SimulationResult,
     SpectralFeatures,
-    apply_output_extensions,
 )
-from ._extensions import AbstractOscillatorExtension, extension
+from ._extensions import EXTENSIONS, AbstractOscillatorExtension
 from ._model import base_velocity_psd, mass_acceleration, multisine_phases
 
 #: the updatable parameters: the mount's natural frequency and damping, the road's roughness
@@ -76,7 +76,7 @@ FEATURES = SpectralFeatures(
 )
 
 
-class Oscillator(AbstractSystem):
+class Oscillator(ExtensionHost):
     """A base-excited mass-spring-damper seen by one accelerometer ``A`` (m/s^2).
 
     Operating condition: ``speed`` (m/s), one value per run. A stiffness loss lowers k and
@@ -104,23 +104,17 @@ class Oscillator(AbstractSystem):
         static=True, default=(), converter=tuple
     )
 
-    def __check_init__(self) -> None:
-        names = [getattr(e, "name", repr(e)) for e in self.extensions]
-        if len(set(names)) != len(names) or not all(
-            isinstance(e, AbstractOscillatorExtension) for e in self.extensions
-        ):
-            raise ValueError(
-                f"Oscillator.extensions holds {names}: at most one of each oscillator extension; "
-                "pass catalogue names to Oscillator().with_extensions(...)"
-            )
+    extension_base: ClassVar[type] = AbstractOscillatorExtension
+    extension_classes: ClassVar[Mapping[str, type[AbstractOscillatorExtension]]] = EXTENSIONS
+    extension_owner: ClassVar[str] = "the oscillator"
 
     @property
     def name(self) -> str:
         return "oscillator"
 
     @property
-    def parameters(self) -> tuple[ParameterSpec, ...]:
-        return PARAMETERS + tuple(p for e in self.extensions for p in e.parameters)
+    def base_parameters(self) -> tuple[ParameterSpec, ...]:
+        return PARAMETERS
 
     @property
     def states(self) -> dict[str, DamageSpec]:
@@ -149,23 +143,6 @@ class Oscillator(AbstractSystem):
 
         return OSCILLATOR_CATALOGUE
 
-    @property
-    def extension_names(self) -> tuple[str, ...]:
-        return tuple(e.name for e in self.extensions)
-
-    def with_extensions(self, *extensions) -> Oscillator:
-        """This oscillator with more extensions switched on: catalogue names or modules."""
-        added = tuple(extension(e) for e in extensions)
-        return dataclasses.replace(self, extensions=self.extensions + added)
-
-    def without_output_extensions(self) -> Oscillator:
-        return dataclasses.replace(
-            self, extensions=tuple(e for e in self.extensions if e.needs_resolve)
-        )
-
-    def apply_output_extensions(self, signals, time, values):
-        return apply_output_extensions(self.extensions, signals, time, values)
-
     def describe(self) -> dict:
         return {
             "name": self.name,
@@ -178,20 +155,6 @@ class Oscillator(AbstractSystem):
 
     def record_duration(self, operating) -> float:
         return RECORD_S
-
-    def motion_window(self, operating, *, duration=None):
-        """The whole record: the base moves throughout."""
-        runs = np.atleast_1d(np.asarray(operating, dtype=float)).shape
-        n_time = round((RECORD_S if duration is None else float(duration)) * FS)
-        return np.zeros(runs), np.full(runs, (n_time - 1) / FS)
-
-    def simulate(self, theta, damage, operating, *, duration=None) -> SimulationResult:
-        """Runs for parameter values ``theta`` (by name) and ``damage``: a state's name (its
-        severity in the middle of its range) or ``(state, {severity: value})``."""
-        state, severity = (damage, None) if isinstance(damage, str) else damage
-        return self.simulate_values(
-            theta, operating, state=state, severity=severity, duration=duration
-        )
 
     def simulate_values(
         self,

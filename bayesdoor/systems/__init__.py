@@ -13,9 +13,11 @@ from ._base import ParameterSpec as ParameterSpec
 from ._base import SimulationResult as SimulationResult
 from ._base import SpectralFeatures as SpectralFeatures
 from ._extensions import AbstractExtension as AbstractExtension
+from ._extensions import UnsynchronisedLines as UnsynchronisedLines
 from ._extensions import apply_output_extensions as apply_output_extensions
 from ._extensions import build_extension as build_extension
 from ._extensions import unsynchronised_line as unsynchronised_line
+from ._host import ExtensionHost as ExtensionHost
 from ._registry import ENTRY_POINT_GROUP as ENTRY_POINT_GROUP
 from ._registry import DemoCampaign as DemoCampaign
 from ._registry import available_demos as available_demos

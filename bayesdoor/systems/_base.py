@@ -19,6 +19,9 @@ from .._types import Array, Float, Int
 #: (:attr:`AbstractSystem.healthy`), and of files written without one
 HEALTHY = "healthy"
 
+#: the Welch segments of a record by default (:meth:`AbstractSystem.record_duration`)
+DEFAULT_RECORD_SEGMENTS = 8
+
 
 @dataclasses.dataclass(frozen=True)
 class ParameterSpec:
@@ -176,17 +179,31 @@ class AbstractSystem(eqx.Module):
     @abc.abstractmethod
     def sampling_rate_hz(self) -> float: ...
 
-    @abc.abstractmethod
     def simulate(
         self, theta, damage, operating, *, duration: float | None = None
     ) -> SimulationResult:
-        """One run for parameters ``theta``, a damage state and an operating condition."""
+        """Runs for parameter values ``theta`` (by name), a damage and operating conditions.
 
-    @abc.abstractmethod
+        ``damage`` is a state's name (the severity :meth:`simulate_values` defaults to) or a
+        pair ``(state, {severity: value})``. Default: :meth:`simulate_values`; a system whose users
+        think in other terms (a parameter record, a damage object) overrides it.
+        """
+        state, severity = (damage, None) if isinstance(damage, str) else damage
+        return self.simulate_values(
+            theta, operating, state=state, severity=severity, duration=duration
+        )
+
     def record_duration(self, operating) -> float:
-        """Record length (s) that holds whole runs at every one of these operating conditions."""
+        """Record length (s) that holds whole runs at every one of these operating conditions.
 
-    @abc.abstractmethod
+        Default: :data:`DEFAULT_RECORD_SEGMENTS` Welch segments of the fit's features (their
+        ``nperseg`` samples at :attr:`sampling_rate_hz`), whatever the conditions: a
+        stationary system's record, long enough for a Welch estimate averaged over twice as
+        many half-overlapping segments less one. A system whose runs have a length of their
+        own (a door's stroke at its speed) overrides it.
+        """
+        return DEFAULT_RECORD_SEGMENTS * self.features.nperseg / self.sampling_rate_hz
+
     def motion_window(
         self, operating, *, duration: float | None = None
     ) -> tuple[Float[np.ndarray, " run"], Float[np.ndarray, " run"]]:
@@ -194,7 +211,18 @@ class AbstractSystem(eqx.Module):
 
         The window in which the system is excited (for example the stroke of a drive), in the
         time of the simulated record; with ``duration`` given, the stop is clipped to it.
+        Default: the whole record, from its first sample to its last (a system excited
+        throughout: a turning shaft, a vehicle on a road).
         """
+        values = np.asarray(operating, dtype=float)
+        runs = (
+            np.atleast_1d(values).shape
+            if len(self.conditions) == 1
+            else np.atleast_2d(values).shape[:-1]
+        )
+        seconds = self.record_duration(operating) if duration is None else float(duration)
+        n_time = round(seconds * self.sampling_rate_hz)
+        return np.zeros(runs), np.full(runs, (n_time - 1) / self.sampling_rate_hz)
 
     @abc.abstractmethod
     def simulate_values(

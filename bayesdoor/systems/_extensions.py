@@ -16,6 +16,7 @@ from typing import ClassVar, TypeVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._types import Array, Float
 from ._base import ParameterSpec
@@ -174,3 +175,63 @@ def unsynchronised_line(
     a_unit = jnp.where(some, a / scale, 0.0)
     b_unit = jnp.where(some, b / scale, 1.0)
     return b_unit[..., None] * cos - a_unit[..., None] * sin
+
+
+class UnsynchronisedLines(AbstractExtension):
+    """Lines at a supply frequency and its harmonics, each of chance phase (an output
+    extension).
+
+    An electrical supply (the mains, a motor's feed) is not synchronised with the machine:
+    its lines at ``frequency_hz`` and its first ``harmonics`` multiples meet the machine's own
+    content at a phase of chance, and each line carries the expectation over that phase, its
+    power added to the signal's (:func:`unsynchronised_line`). A system's line extension
+    states its parameters and how they weigh the unit lines (:meth:`weigh`: per channel, per
+    harmonic); the lines, their phases and the checks of the configuration are these.
+
+    Raises
+    ------
+    ValueError
+        For a frequency outside :attr:`supply_frequencies_hz`, or harmonics outside 1 to
+        the last one below the Nyquist frequency of :attr:`sampling_rate_hz`.
+    """
+
+    needs_resolve: ClassVar[bool] = False
+    #: the frequencies the supply may have, Hz, and its name in messages
+    supply_frequencies_hz: ClassVar[tuple[float, ...]] = (50.0, 60.0)
+    supply: ClassVar[str] = "the supply"
+    #: the sampling rate the lines are recorded at, Hz: the harmonics lie below its Nyquist
+    sampling_rate_hz: ClassVar[float]
+
+    frequency_hz: eqx.AbstractVar[float]
+    harmonics: eqx.AbstractVar[int]
+
+    def __check_init__(self):
+        kind = type(self).__name__
+        if self.frequency_hz not in self.supply_frequencies_hz:
+            allowed = " or ".join(f"{f}" for f in self.supply_frequencies_hz)
+            raise ValueError(
+                f"{kind}.frequency_hz={self.frequency_hz!r}: {self.supply} is {allowed} Hz"
+            )
+        nyquist = self.sampling_rate_hz / 2.0
+        top = int(nyquist // self.frequency_hz)
+        if not 1 <= self.harmonics <= top:
+            raise ValueError(
+                f"{kind}.harmonics={self.harmonics!r} must be between 1 and {top} (the "
+                f"harmonics below the Nyquist frequency {nyquist} Hz)"
+            )
+
+    @abc.abstractmethod
+    def weigh(
+        self,
+        units: Sequence[Float[Array, "channel time"]],
+        values: Mapping[str, Array],
+        dtype,
+    ) -> Float[Array, "channel time"]:
+        """The lines added to a run's signals, from the unit line of each harmonic 1..H
+        (``units[m - 1]``) and this extension's values by unprefixed name."""
+
+    def apply(self, signals, time, values):
+        phase = 2.0 * np.pi * self.frequency_hz * time.astype(signals.dtype)
+        units = [unsynchronised_line(signals, phase)]
+        units += [unsynchronised_line(signals, m * phase) for m in range(2, self.harmonics + 1)]
+        return signals + self.weigh(units, self.local(values), signals.dtype)

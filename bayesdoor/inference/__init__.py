@@ -3,6 +3,7 @@
 from ._calibration import calibration_runs as calibration_runs
 from ._calibration import campaign_data as campaign_data
 from ._cmaes import CMAESHistory as CMAESHistory
+from ._cmaes import CMAESOptions as CMAESOptions
 from ._cmaes import CMAESResult as CMAESResult
 from ._cmaes import minimize_cmaes as minimize_cmaes
 from ._cmaes import plot_cmaes_history as plot_cmaes_history

@@ -72,8 +72,11 @@ from bayesdoor.door import ElevatorDoor
 from bayesdoor.door.datasets import cache_dir, demo_paths, load_demo_campaign, load_demo_truth
 from bayesdoor.inference import (
     CalibrationData,
+    Discrepancy,
+    EmceeSettings,
     FitSettings,
     ModelError,
+    NUTSSettings,
     QuadraticSurrogate,
     SamplingTransform,
     SimulatorForward,
@@ -254,7 +257,7 @@ def build_problem(settings: FitSettings, refit: bool) -> Problem:
     inside = box[0] + np.clip((truth - box[0]) / (box[1] - box[0]), 0.02, 0.98) * (box[1] - box[0])
 
     def density(theta):
-        return log_likelihood(theta, sigma, data, surrogate, run_scatter=rho)
+        return log_likelihood(theta, Discrepancy(sigma, run_scatter=rho), data, surrogate)
 
     transform = SamplingTransform.box(free, box[0].tolist(), box[1].tolist()).whitened_at(
         density, jnp.asarray(inside)
@@ -336,6 +339,7 @@ def time_samplers(
         if name not in names:
             continue
         sampler = sample_nuts if name == "nuts" else sample_emcee
+        record = NUTSSettings if name == "nuts" else EmceeSettings
         first = kw if name == "nuts" else {**kw, "n_steps": 20, "burn": 0, "thin": 1}
         walls, cpus = [], []
         for seed, sizes in enumerate((first, kw)):
@@ -343,7 +347,11 @@ def time_samplers(
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 idata = sampler(
-                    model, key=jax.random.key(seed), init_values=init, progress=False, **sizes
+                    model,
+                    key=jax.random.key(seed),
+                    init_values=init,
+                    settings=record(**sizes),
+                    progress=False,
                 )
             walls.append(time.perf_counter() - t0)
             cpus.append(time.process_time() - c0)

@@ -115,7 +115,7 @@ def fit_datasets(indices: list[int], settings: dict, forward) -> list[dict]:
     _configure_jax()
     import jax
 
-    from bayesdoor.inference import make_model, run_sbc, sample_nuts, save_sbc
+    from bayesdoor.inference import NUTSSettings, make_model, run_sbc, sample_nuts, save_sbc
 
     data, exact, transform = build_problem({**settings, "forward": "exact"})
     model = make_model(data, forward if forward is not None else exact, transform)
@@ -126,10 +126,12 @@ def fit_datasets(indices: list[int], settings: dict, forward) -> list[dict]:
             model,
             key=key,
             model_kwargs=kwargs,
-            num_warmup=settings["warmup"],
-            num_samples=settings["samples"],
-            num_chains=settings["chains"],
-            jit_model_args=True,  # one compilation for every data set
+            settings=NUTSSettings(
+                num_warmup=settings["warmup"],
+                num_samples=settings["samples"],
+                num_chains=settings["chains"],
+                jit_model_args=True,
+            ),
             progress=False,
         )
 

@@ -15,6 +15,7 @@ import numpyro.distributions as dist
 import pytest
 
 from bayesdoor.inference import (
+    NUTSSettings,
     SBCResult,
     load_sbc,
     plot_sbc_ranks,
@@ -163,10 +164,9 @@ def nuts_sbc(y_scale):
             many_datasets,
             key=key,
             model_kwargs={**kwargs, "y_scale": y_scale},
-            num_warmup=300,
-            num_samples=300,
-            num_chains=2,
-            jit_model_args=True,  # as scripts/sbc.py: the data are arguments, not constants
+            settings=NUTSSettings(
+                num_warmup=300, num_samples=300, num_chains=2, jit_model_args=True
+            ),
             progress=False,
         )
 

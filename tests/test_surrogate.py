@@ -14,6 +14,7 @@ from bayesdoor.door import ElevatorDoor, SolverConfig
 from bayesdoor.inference import (
     AbstractForward,
     CalibrationData,
+    Discrepancy,
     ForwardOutput,
     ModelError,
     SamplingTransform,
@@ -215,7 +216,9 @@ def test_laplace_whitening_conditions_the_sampling_coordinates(door_case, box_po
     """
     data, sur, box = door_case["data"], door_case["surrogate"], door_case["box"]
     white = box.whitened_at(
-        lambda theta: log_likelihood(theta, jnp.full(4, 0.05), data, sur, shared=False),
+        lambda theta: log_likelihood(
+            theta, Discrepancy(jnp.full(4, 0.05), shared=False), data, sur
+        ),
         jnp.asarray(door_case["truth"]),
     )
     plain = np.asarray(box_posterior[0]["z"])

@@ -310,30 +310,10 @@ def minimize_cmaes(
     size", IEEE CEC 2005.
     """
     x0 = np.asarray(x0, dtype=np.float64)
-    lower = np.asarray(lower, dtype=np.float64)
-    upper = np.asarray(upper, dtype=np.float64)
-    _check_inputs(x0, lower, upper, integer_variables, seed, options)
-    opts = cmaes_options(
-        lower,
-        upper,
-        seed=seed,
-        max_evals=options.max_evals,
-        integer_variables=integer_variables,
-        popsize=options.popsize,
-        extra=options.pycma,
-    )
+    opts = _first_options(x0, lower, upper, integer_variables, seed, options)
     record = _Record(x0.shape)
     with _progress_bar(progress, options.max_evals) as advance:
-        for run in range(options.restarts + 1):
-            run_start = record.evaluations
-            es = _strategy(x0, options.sigma0, opts, integer_variables)
-            _run(objective, es, run, record, advance)
-            if not _restarts_after(es, run, run_start, record, options):
-                break
-            opts = dict(es.opts)
-            opts["verb_append"] = es.countevals
-            opts["popsize"] = options.incpopsize * es.sp.popsize
-            opts["seed"] = seed + run + 1
+        _runs(objective, x0, opts, integer_variables, seed, options, record, advance)
     return CMAESResult(
         x_best=record.x_best,
         f_best=record.f_best,
@@ -343,6 +323,29 @@ def minimize_cmaes(
         stop=tuple(record.stops),
         history=record.history(),
         seed=int(seed),
+    )
+
+
+def _first_options(
+    x0: np.ndarray,
+    lower: Sequence[float] | np.ndarray,
+    upper: Sequence[float] | np.ndarray,
+    integer_variables: Sequence[int],
+    seed: int,
+    options: CMAESOptions,
+) -> dict[str, Any]:
+    """The inputs checked, and the pycma options of the first run (:func:`cmaes_options`)."""
+    lower = np.asarray(lower, dtype=np.float64)
+    upper = np.asarray(upper, dtype=np.float64)
+    _check_inputs(x0, lower, upper, integer_variables, seed, options)
+    return cmaes_options(
+        lower,
+        upper,
+        seed=seed,
+        max_evals=options.max_evals,
+        integer_variables=integer_variables,
+        popsize=options.popsize,
+        extra=options.pycma,
     )
 
 
@@ -394,6 +397,30 @@ class _Record:
             popsize=np.asarray(columns[5], dtype=np.int64),
             failed=np.asarray(columns[6], dtype=np.int64),
         )
+
+
+def _runs(
+    objective: BatchObjective,
+    x0: np.ndarray,
+    opts: dict[str, Any],
+    integer_variables: Sequence[int],
+    seed: int,
+    options: CMAESOptions,
+    record: _Record,
+    advance: Callable[[int, float, int], None],
+) -> None:
+    """The first run and the IPOP restarts, into ``record`` and the progress bar: each
+    restart from ``x0`` with the population times ``incpopsize`` and the next seed."""
+    for run in range(options.restarts + 1):
+        run_start = record.evaluations
+        es = _strategy(x0, options.sigma0, opts, integer_variables)
+        _run(objective, es, run, record, advance)
+        if not _restarts_after(es, run, run_start, record, options):
+            break
+        opts = dict(es.opts)
+        opts["verb_append"] = es.countevals
+        opts["popsize"] = options.incpopsize * es.sp.popsize
+        opts["seed"] = seed + run + 1
 
 
 def _strategy(

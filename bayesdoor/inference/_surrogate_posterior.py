@@ -18,11 +18,11 @@ from numpyro.infer import Predictive
 
 from .._types import Array, Float
 from ._diagnostics import SamplingDiagnostics, diagnose_sampling
-from ._likelihood import CalibrationData, ModelError, log_likelihood, make_model
+from ._likelihood import CalibrationData, Discrepancy, ModelError, log_likelihood, make_model
 from ._model_error import _ErrorStart
 from ._parameterisation import SamplingTransform
 from ._population import _full, _j, _PartialForward, _Population, _simulate
-from ._samplers import _NUTS, _Emcee, _Sampler
+from ._samplers import EmceeSettings, NUTSSettings, _Sampler
 from ._search import _Optimum, _SearchSpace
 from ._settings import FitSettings
 from ._surrogate import box_around, fit_surrogate
@@ -110,16 +110,14 @@ def _whitened_model(
     transform = SamplingTransform.box(names, box[0].tolist(), box[1].tolist())
 
     def density(theta):
-        return log_likelihood(
-            theta,
+        discrepancy = Discrepancy(
             start.sigma,
-            data,
-            surrogate,
             run_scatter=start.rho,
-            shared=error.shared,
             correlation_length=start.length,
             common=start.tau,
+            shared=error.shared,
         )
+        return log_likelihood(theta, discrepancy, data, surrogate)
 
     note = None
     try:
@@ -277,14 +275,14 @@ _EMCEE_INIT_SCALE = 0.1
 
 #: the samplers of the posterior, by the method's name
 _SAMPLERS: dict[str, Callable[[FitSettings], _Sampler]] = {
-    "nuts": lambda s: _NUTS(
+    "nuts": lambda s: NUTSSettings(
         num_warmup=s.num_warmup,
         num_samples=s.num_samples,
         num_chains=s.num_chains,
         target_accept=s.target_accept,
         chain_method=s.chain_method,
     ),
-    "emcee": lambda s: _Emcee(
+    "emcee": lambda s: EmceeSettings(
         n_walkers=s.emcee_walkers,
         n_steps=s.emcee_steps,
         max_steps=s.emcee_max_steps,

@@ -174,8 +174,7 @@ def _fit_or_load_surrogate(
     t0, c0, load = time.perf_counter(), time.process_time(), os.getloadavg()[0]
     surrogate = fit_surrogate(
         exact,
-        jnp.asarray(box[0]),
-        jnp.asarray(box[1]),
+        (jnp.asarray(box[0]), jnp.asarray(box[1])),
         key=jax.random.fold_in(key_surrogate, 0),
         n_train=settings.train_per_term * n_terms,
         n_test=settings.n_test,

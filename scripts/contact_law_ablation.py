@@ -192,7 +192,7 @@ def fit_one(
     """
     _configure_jax()
     from bayesdoor.door import ElevatorDoor
-    from bayesdoor.inference import fit_campaign
+    from bayesdoor.inference import FitProblem, fit_campaign
 
     t0 = time.perf_counter()
     with warnings.catch_warnings():
@@ -201,11 +201,10 @@ def fit_one(
             ElevatorDoor(),
             _load(campaign_file),
             method="cmaes" if law is None else "nuts",
-            fixed=None if law is None else {"I": law},
+            problem=FitProblem(fixed=None if law is None else {"I": law}, x0=x0),
             seed=seed,
             progress=False,
             settings=settings_for("reference" if law is None else "law", quick),
-            x0=x0,
         )
     result.save(folder, force=True)
     return time.perf_counter() - t0

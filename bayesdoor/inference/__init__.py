@@ -41,6 +41,7 @@ from ._samplers import EmceeSettings as EmceeSettings
 from ._samplers import NUTSSettings as NUTSSettings
 from ._samplers import sample_emcee as sample_emcee
 from ._samplers import sample_nuts as sample_nuts
+from ._sbc import SBCDesign as SBCDesign
 from ._sbc import SBCResult as SBCResult
 from ._sbc import SBCUniformity as SBCUniformity
 from ._sbc import load_sbc as load_sbc
@@ -55,4 +56,5 @@ from ._surrogate import box_around as box_around
 from ._surrogate import box_from_samples as box_from_samples
 from ._surrogate import fit_surrogate as fit_surrogate
 from ._surrogate import simulate_design as simulate_design
+from ._update import FitProblem as FitProblem
 from ._update import fit_campaign as fit_campaign

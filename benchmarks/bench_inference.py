@@ -72,8 +72,11 @@ from bayesdoor.door import ElevatorDoor
 from bayesdoor.door.datasets import cache_dir, demo_paths, load_demo_campaign, load_demo_truth
 from bayesdoor.inference import (
     CalibrationData,
+    Discrepancy,
+    EmceeSettings,
     FitSettings,
     ModelError,
+    NUTSSettings,
     QuadraticSurrogate,
     SamplingTransform,
     SimulatorForward,
@@ -171,8 +174,7 @@ def _fit_or_load_surrogate(
     t0, c0, load = time.perf_counter(), time.process_time(), os.getloadavg()[0]
     surrogate = fit_surrogate(
         exact,
-        jnp.asarray(box[0]),
-        jnp.asarray(box[1]),
+        (jnp.asarray(box[0]), jnp.asarray(box[1])),
         key=jax.random.fold_in(key_surrogate, 0),
         n_train=settings.train_per_term * n_terms,
         n_test=settings.n_test,
@@ -254,7 +256,7 @@ def build_problem(settings: FitSettings, refit: bool) -> Problem:
     inside = box[0] + np.clip((truth - box[0]) / (box[1] - box[0]), 0.02, 0.98) * (box[1] - box[0])
 
     def density(theta):
-        return log_likelihood(theta, sigma, data, surrogate, run_scatter=rho)
+        return log_likelihood(theta, Discrepancy(sigma, run_scatter=rho), data, surrogate)
 
     transform = SamplingTransform.box(free, box[0].tolist(), box[1].tolist()).whitened_at(
         density, jnp.asarray(inside)
@@ -336,6 +338,7 @@ def time_samplers(
         if name not in names:
             continue
         sampler = sample_nuts if name == "nuts" else sample_emcee
+        record = NUTSSettings if name == "nuts" else EmceeSettings
         first = kw if name == "nuts" else {**kw, "n_steps": 20, "burn": 0, "thin": 1}
         walls, cpus = [], []
         for seed, sizes in enumerate((first, kw)):
@@ -343,7 +346,11 @@ def time_samplers(
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 idata = sampler(
-                    model, key=jax.random.key(seed), init_values=init, progress=False, **sizes
+                    model,
+                    key=jax.random.key(seed),
+                    init_values=init,
+                    settings=record(**sizes),
+                    progress=False,
                 )
             walls.append(time.perf_counter() - t0)
             cpus.append(time.process_time() - c0)

@@ -5,9 +5,10 @@ The design (so that nine full-size posteriors fit in well under an hour on two c
 1. **One shared search.** CMA-ES on the paper's J with the contact law searched as an integer
    variable, at the full settings of the campaign's own fit (``FitSettings()``: 1500
    evaluations, two IPOP restarts). Its optimum and law are the reference.
-2. **Per law, a warm-started fit.** For each of the nine laws, ``fit_campaign(fixed={"I": k},
-   method="nuts", x0=...)`` starts CMA-ES at the reference optimum with a smaller step and
-   budget (``cmaes_sigma0`` 0.1 of each range, 240 evaluations, no restart). The start's c_r
+2. **Per law, a warm-started fit.** For each of the nine laws, ``fit_campaign(method="nuts",
+   problem=FitProblem(fixed={"I": k}, x0=...))`` starts CMA-ES at the reference optimum with
+   a smaller step and budget (``cmaes_sigma0`` 0.1 of each range, 240 evaluations, no
+   restart). The start's c_r
    is the value whose hysteresis factor xi(c_r) equals the reference law's: in the persistent
    rolling contact of healthy runs the contact damping is xi(c_r) K d^n / floor, so the data
    fix xi, not c_r (see :func:`matched_c_r`). Then the surrogate and NUTS of
@@ -192,7 +193,7 @@ def fit_one(
     """
     _configure_jax()
     from bayesdoor.door import ElevatorDoor
-    from bayesdoor.inference import fit_campaign
+    from bayesdoor.inference import FitProblem, fit_campaign
 
     t0 = time.perf_counter()
     with warnings.catch_warnings():
@@ -201,11 +202,10 @@ def fit_one(
             ElevatorDoor(),
             _load(campaign_file),
             method="cmaes" if law is None else "nuts",
-            fixed=None if law is None else {"I": law},
+            problem=FitProblem(fixed=None if law is None else {"I": law}, x0=x0),
             seed=seed,
             progress=False,
             settings=settings_for("reference" if law is None else "law", quick),
-            x0=x0,
         )
     result.save(folder, force=True)
     return time.perf_counter() - t0

@@ -23,7 +23,13 @@ import bayesdoor
 from bayesdoor.door import ElevatorDoor
 from bayesdoor.door.datasets import load_demo_campaign, load_demo_truth
 from bayesdoor.features import objective_j
-from bayesdoor.inference import FitSettings, campaign_data, fit_campaign, run_features
+from bayesdoor.inference import (
+    FitProblem,
+    FitSettings,
+    campaign_data,
+    fit_campaign,
+    run_features,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -53,7 +59,12 @@ def main() -> None:
     door = ElevatorDoor()
     t0 = time.perf_counter()
     fit = fit_campaign(
-        door, healthy, method="cmaes", fixed={"I": truth["I"]}, progress=True, seed=0
+        door,
+        healthy,
+        method="cmaes",
+        problem=FitProblem(fixed={"I": truth["I"]}),
+        progress=True,
+        seed=0,
     )
     wall = time.perf_counter() - t0
     rig = {p.name: float(truth[p.name]) for p in door.parameters}

@@ -100,8 +100,7 @@ def build_problem(settings: dict):
     if settings["forward"] == "surrogate":
         forward = fit_surrogate(
             forward,
-            np.asarray(transform.lower),
-            np.asarray(transform.upper),
+            (np.asarray(transform.lower), np.asarray(transform.upper)),
             key=jax.random.key(settings["seed"] + 1),
             n_train=80,
             n_test=32,
@@ -115,7 +114,14 @@ def fit_datasets(indices: list[int], settings: dict, forward) -> list[dict]:
     _configure_jax()
     import jax
 
-    from bayesdoor.inference import make_model, run_sbc, sample_nuts, save_sbc
+    from bayesdoor.inference import (
+        NUTSSettings,
+        SBCDesign,
+        make_model,
+        run_sbc,
+        sample_nuts,
+        save_sbc,
+    )
 
     data, exact, transform = build_problem({**settings, "forward": "exact"})
     model = make_model(data, forward if forward is not None else exact, transform)
@@ -126,10 +132,12 @@ def fit_datasets(indices: list[int], settings: dict, forward) -> list[dict]:
             model,
             key=key,
             model_kwargs=kwargs,
-            num_warmup=settings["warmup"],
-            num_samples=settings["samples"],
-            num_chains=settings["chains"],
-            jit_model_args=True,  # one compilation for every data set
+            settings=NUTSSettings(
+                num_warmup=settings["warmup"],
+                num_samples=settings["samples"],
+                num_chains=settings["chains"],
+                jit_model_args=True,
+            ),
             progress=False,
         )
 
@@ -140,11 +148,9 @@ def fit_datasets(indices: list[int], settings: dict, forward) -> list[dict]:
             result = run_sbc(
                 model,
                 key=jax.random.key(settings["seed"]),
-                n_datasets=settings["n_datasets"],
+                design=SBCDesign(settings["n_datasets"], N_RANK_DRAWS, datasets=[index]),
                 fit=fit,
                 var_names=[*FREE, "sigma_model", "run_scatter"],
-                n_rank_draws=N_RANK_DRAWS,
-                datasets=[index],
             )
         save_sbc(result, work / f"dataset_{index:03d}.json", overwrite=True)
         records.append({"dataset": index, "seconds": float(result.seconds[0])})

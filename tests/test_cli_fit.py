@@ -92,9 +92,9 @@ def test_fix_and_each_reach_the_fit_and_give_one_folder_per_value(tmp_path, monk
     calls = []
 
     def fit(system, data, **options):
-        calls.append(options["fixed"])
+        calls.append(options["problem"].fixed)
         made = made_up_fit(system, data, **options)
-        held = dict(options["fixed"] or {})
+        held = dict(options["problem"].fixed or {})
         return dataclasses.replace(made, held=held, point={**made.point, **held})
 
     monkeypatch.setattr(bayesdoor.inference, "fit_campaign", fit)

@@ -4,7 +4,7 @@ import cma
 import numpy as np
 import pytest
 
-from bayesdoor.inference import CMAESResult, minimize_cmaes, plot_cmaes_history
+from bayesdoor.inference import CMAESOptions, CMAESResult, minimize_cmaes, plot_cmaes_history
 from bayesdoor.inference._cmaes import cmaes_options
 
 
@@ -49,9 +49,7 @@ def test_reproduces_plain_pycma_and_reaches_the_optimum(f, dim, optimum, restart
         lower=lower,
         upper=upper,
         seed=7,
-        sigma0=0.1,
-        max_evals=20_000,
-        restarts=restarts,
+        options=CMAESOptions(sigma0=0.1, max_evals=20_000, restarts=restarts),
         progress=False,
     )
     f_ref, x_ref, evals_ref = plain_pycma(
@@ -69,25 +67,36 @@ def test_reproduces_plain_pycma_and_reaches_the_optimum(f, dim, optimum, restart
 
 
 def test_ftarget_and_budget_stop_the_restarts():
-    kw = dict(lower=-np.ones(3), upper=np.ones(3), seed=2, restarts=3, progress=False)
-    hit = minimize_cmaes(sphere, np.zeros(3), options={"ftarget": 1e-3}, **kw)
+    kw = dict(lower=-np.ones(3), upper=np.ones(3), seed=2, progress=False)
+    hit = minimize_cmaes(
+        sphere, np.zeros(3), options=CMAESOptions(restarts=3, pycma={"ftarget": 1e-3}), **kw
+    )
     assert hit.restarts == 0 and hit.stop[0].startswith("ftarget")
     assert hit.f_best <= 1e-3
-    budget = minimize_cmaes(sphere, np.zeros(3), max_evals=200, **kw)
+    budget = minimize_cmaes(
+        sphere, np.zeros(3), options=CMAESOptions(restarts=3, max_evals=200), **kw
+    )
     # pycma checks the budget between iterations: at most one population over it
     assert 200 <= budget.evaluations < 200 + budget.history.popsize[-1]
     assert "maxfevals" in budget.stop[-1]
 
 
 def test_a_restart_the_budget_cannot_finish_is_skipped():
-    kw = dict(lower=-5.0 * np.ones(4), upper=5.0 * np.ones(4), seed=7, sigma0=0.1, progress=False)
+    kw = dict(lower=-5.0 * np.ones(4), upper=5.0 * np.ones(4), seed=7, progress=False)
     x0 = np.full(4, -1.0)
-    single = minimize_cmaes(rosenbrock, x0, max_evals=20_000, restarts=0, **kw)
+
+    def options(**changes):
+        return CMAESOptions(sigma0=0.1, **changes)
+
+    single = minimize_cmaes(rosenbrock, x0, options=options(max_evals=20_000, restarts=0), **kw)
     used = single.evaluations
     # half the first run's evaluations left after it: the restart (twice the population)
     # could not converge, so it is not started, and the first run is exactly the single run
     short = minimize_cmaes(
-        rosenbrock, x0, max_evals=used + used // 2, restarts=2, affordable_restarts=True, **kw
+        rosenbrock,
+        x0,
+        options=options(max_evals=used + used // 2, restarts=2, affordable_restarts=True),
+        **kw,
     )
     assert short.restarts == 0 and short.evaluations == used
     assert (
@@ -96,13 +105,18 @@ def test_a_restart_the_budget_cannot_finish_is_skipped():
     )
     np.testing.assert_array_equal(short.history.best_f, single.history.best_f)
     # without the rule the same budget starts a restart that the budget then cuts off
-    cut = minimize_cmaes(rosenbrock, x0, max_evals=used + used // 2, restarts=2, **kw)
+    cut = minimize_cmaes(
+        rosenbrock, x0, options=options(max_evals=used + used // 2, restarts=2), **kw
+    )
     assert cut.restarts == 1 and "maxfevals" in cut.stop[-1]
     # with room for every restart the rule changes nothing (fmin2's sequence, as above)
     roomy = minimize_cmaes(
-        rosenbrock, x0, max_evals=20_000, restarts=2, affordable_restarts=True, **kw
+        rosenbrock,
+        x0,
+        options=options(max_evals=20_000, restarts=2, affordable_restarts=True),
+        **kw,
     )
-    plain = minimize_cmaes(rosenbrock, x0, max_evals=20_000, restarts=2, **kw)
+    plain = minimize_cmaes(rosenbrock, x0, options=options(max_evals=20_000, restarts=2), **kw)
     assert roomy.restarts == plain.restarts == 2
     assert roomy.evaluations == plain.evaluations and roomy.f_best == plain.f_best
 
@@ -124,7 +138,9 @@ def test_history_is_consistent():
 
 
 def test_same_seed_same_result_other_seed_differs():
-    kw = dict(lower=-np.ones(4), upper=np.ones(4), max_evals=600, progress=False)
+    kw = dict(
+        lower=-np.ones(4), upper=np.ones(4), options=CMAESOptions(max_evals=600), progress=False
+    )
     a = minimize_cmaes(rosenbrock, np.zeros(4), seed=11, **kw)
     b = minimize_cmaes(rosenbrock, np.zeros(4), seed=11, **kw)
     c = minimize_cmaes(rosenbrock, np.zeros(4), seed=12, **kw)
@@ -143,7 +159,12 @@ def test_runs_in_threads_at_once_give_their_own_results():
         time.sleep(0.002)
         return rosenbrock(X)
 
-    kw = dict(lower=-np.ones(4), upper=np.ones(4), max_evals=300, progress=False, restarts=1)
+    kw = dict(
+        lower=-np.ones(4),
+        upper=np.ones(4),
+        options=CMAESOptions(max_evals=300, restarts=1),
+        progress=False,
+    )
     alone = [minimize_cmaes(slow, np.zeros(4), seed=s, **kw) for s in (3, 4)]
     with ThreadPoolExecutor(2) as pool:
         together = list(pool.map(lambda s: minimize_cmaes(slow, np.zeros(4), seed=s, **kw), (3, 4)))
@@ -186,7 +207,7 @@ def test_integer_variables_stay_integral_and_mixed_optimum_is_found():
         upper=[9.0, 2.0, 2.0],
         integer_variables=[0],
         seed=3,
-        restarts=2,
+        options=CMAESOptions(restarts=2),
         progress=False,
     )
     laws = np.concatenate(seen)
@@ -217,7 +238,7 @@ def test_all_failing_objective_returns_an_unsuccessful_result():
         lower=[-1.0, -1.0],
         upper=[1.0, 1.0],
         seed=1,
-        max_evals=100,
+        options=CMAESOptions(max_evals=100),
         progress=False,
     )
     assert not r.success
@@ -256,7 +277,14 @@ def test_wrong_objective_shape_is_named():
 
 
 def test_progress_bar_and_history_plot(tmp_path):
-    r = minimize_cmaes(sphere, [0.5, 0.5], lower=[-1.0, -1.0], upper=[1.0, 1.0], seed=9, restarts=1)
+    r = minimize_cmaes(
+        sphere,
+        [0.5, 0.5],
+        lower=[-1.0, -1.0],
+        upper=[1.0, 1.0],
+        seed=9,
+        options=CMAESOptions(restarts=1),
+    )
     assert isinstance(r, CMAESResult)
     out = plot_cmaes_history(r, tmp_path / "figs" / "history.png")
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -19,6 +19,7 @@ from bayesdoor.door.rig import VirtualRig
 from bayesdoor.inference import (
     CalibrationData,
     DiscrepancyNormal,
+    FitProblem,
     ModelError,
     SamplingTransform,
     fit_campaign,
@@ -208,7 +209,7 @@ def test_fit_and_predictive_with_a_common_part():
         method="nuts",
         quick=True,
         progress=False,
-        error=ModelError(common=True),
+        problem=FitProblem(error=ModelError(common=True)),
     )
     tau = result.common_draws()
     assert tau is not None and tau.shape[1] == 4 and np.all(tau > 0)

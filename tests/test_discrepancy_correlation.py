@@ -20,6 +20,7 @@ from bayesdoor.inference import (
     CorrelatedDiscrepancyNormal,
     DiscrepancyNormal,
     ModelError,
+    NUTSSettings,
     SamplingTransform,
     band_correlation,
     make_model,
@@ -255,9 +256,7 @@ def test_nuts_samples_the_length_and_replicates_are_finite(key):
         model,
         key=k3,
         init_values=init,
-        num_warmup=50,
-        num_samples=50,
-        num_chains=1,
+        settings=NUTSSettings(num_warmup=50, num_samples=50, num_chains=1),
         progress=False,
     )
     length = np.asarray(idata["posterior"]["discrepancy_length"].values)

@@ -25,7 +25,7 @@ from bayesdoor.door import (
     extension,
     motion_duration,
 )
-from bayesdoor.inference import FitSettings, fit_campaign
+from bayesdoor.inference import FitProblem, FitSettings, fit_campaign
 from bayesdoor.io import make_campaign
 
 FS = 2048.0
@@ -505,7 +505,9 @@ def test_fit_campaign_updates_the_extension_parameters_with_table_2(base_runs):
         v_max=SPEEDS,
     )
     settings = FitSettings(max_motion_s=0.5, cmaes_max_evals=8, cmaes_restarts=0, cmaes_popsize=4)
-    fit = fit_campaign(door, campaign, fixed={"I": 6}, settings=settings, progress=False)
+    fit = fit_campaign(
+        door, campaign, problem=FitProblem(fixed={"I": 6}), settings=settings, progress=False
+    )
     assert set(fit.point) == set(door.parameter_names()) and fit.held == {"I": 6.0}
     for p in door.parameters:
         assert p.lower <= fit.point[p.name] <= p.upper

@@ -17,6 +17,7 @@ from numpyro.infer.util import log_likelihood as numpyro_log_likelihood
 from bayesdoor.door import ElevatorDoor
 from bayesdoor.inference import (
     CalibrationData,
+    Discrepancy,
     DiscrepancyNormal,
     FeatureSpec,
     ModelError,
@@ -285,14 +286,10 @@ def test_shared_model_density_is_the_marginal_over_the_discrepancy(key, slope, p
         np.testing.assert_allclose(
             trace["sigma_model"]["value"], np.sqrt(np.mean(sigma**2, axis=0)), rtol=1e-12
         )
-    value = log_likelihood(
-        jnp.asarray(theta),
-        jnp.asarray(sigma),
-        data,
-        forward,
-        jnp.asarray(beta) if slope else None,
-        run_scatter=jnp.asarray(rho),
+    discrepancy = Discrepancy(
+        jnp.asarray(sigma), jnp.asarray(beta) if slope else None, run_scatter=jnp.asarray(rho)
     )
+    value = log_likelihood(jnp.asarray(theta), discrepancy, data, forward)
     assert float(value) == pytest.approx(joint, rel=1e-10)
 
 
@@ -314,7 +311,8 @@ def test_replicate_runs_do_not_average_the_discrepancy_away(key):
         forward = TableForward(("a",), data.operating, flat, flat, True)
 
         def loglik(theta):
-            return log_likelihood(theta, jnp.asarray([sigma]), data, forward, shared=shared)
+            discrepancy = Discrepancy(jnp.asarray([sigma]), shared=shared)
+            return log_likelihood(theta, discrepancy, data, forward)
 
         # the log likelihood is quadratic in theta: the second difference is exact
         low, mid, high = np.asarray(jax.vmap(loglik)(jnp.asarray([[-1.0], [0.0], [1.0]])))

@@ -17,6 +17,9 @@ from _toy_system import DURATION, FS, REST, ToySystem
 from numpyro.infer.util import potential_energy
 
 from bayesdoor.inference import (
+    EmceeSettings,
+    NUTSSettings,
+    SamplingGates,
     SamplingGateWarning,
     diagnose_sampling,
     fit_campaign,
@@ -98,9 +101,7 @@ def nuts_idata():
         conjugate_model,
         key=jax.random.key(3),
         model_kwargs=KWARGS,
-        num_warmup=300,
-        num_samples=500,
-        num_chains=4,
+        settings=NUTSSettings(num_warmup=300, num_samples=500, num_chains=4),
         progress=False,
     )
 
@@ -118,9 +119,7 @@ def emcee_idata():
         key=jax.random.key(4),
         model_kwargs=KWARGS,
         init_values={"theta": MU0, "lam": 2.0},
-        n_ensembles=4,
-        n_steps=EMCEE_STEPS,
-        burn=EMCEE_BURN,
+        settings=EmceeSettings(n_ensembles=4, n_steps=EMCEE_STEPS, burn=EMCEE_BURN),
         progress=False,
     )
 
@@ -222,10 +221,9 @@ def test_nuts_starts_at_init_values():
         two_modes,
         key=jax.random.key(8),
         init_values={"x": 10.0},
-        num_warmup=100,
-        num_samples=100,
-        num_chains=2,
-        chain_method="sequential",
+        settings=NUTSSettings(
+            num_warmup=100, num_samples=100, num_chains=2, chain_method="sequential"
+        ),
         progress=False,
     )
     x = idata.posterior["x"].values
@@ -245,10 +243,7 @@ def test_emcee_starts_in_a_small_ball_around_init_values():
         key=jax.random.key(0),
         model_kwargs=KWARGS,
         init_values=init,
-        n_walkers=10,
-        n_steps=1,
-        burn=0,
-        init_scale=1e-3,
+        settings=EmceeSettings(n_walkers=10, n_steps=1, burn=0, init_scale=1e-3),
         progress=False,
     )
     # one stretch move from a ball of radius ~1e-3 in unconstrained space (log lam for lam)
@@ -262,14 +257,20 @@ def test_emcee_starts_in_a_small_ball_around_init_values():
 @pytest.mark.long
 @pytest.mark.filterwarnings("ignore:More chains")
 def test_emcee_same_key_same_draws_other_key_differs():
-    kw = dict(model_kwargs=KWARGS, n_steps=40, burn=10, progress=False)
+    kw = dict(model_kwargs=KWARGS, settings=EmceeSettings(n_steps=40, burn=10), progress=False)
     a = sample_emcee(conjugate_model, key=jax.random.key(5), **kw).posterior["theta"].values
     b = sample_emcee(conjugate_model, key=jax.random.key(5), **kw).posterior["theta"].values
     c = sample_emcee(conjugate_model, key=jax.random.key(6), **kw).posterior["theta"].values
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
     # a single ensemble has no independent ensembles to compare: the split R-hat over walkers
-    one = sample_emcee(conjugate_model, key=jax.random.key(5), n_ensembles=1, **kw)
+    one = sample_emcee(
+        conjugate_model,
+        key=jax.random.key(5),
+        model_kwargs=KWARGS,
+        settings=EmceeSettings(n_ensembles=1, n_steps=40, burn=10),
+        progress=False,
+    )
     assert one.posterior["theta"].shape == (10, 30, 3)
     assert diagnose_sampling(one, warn=False).rhat_method == "split-rank"
 
@@ -288,17 +289,14 @@ def _short_run(sampler, progress):
             conjugate_model,
             key=jax.random.key(5),
             model_kwargs=KWARGS,
-            num_warmup=20,
-            num_samples=20,
-            num_chains=1,
+            settings=NUTSSettings(num_warmup=20, num_samples=20, num_chains=1),
             progress=progress,
         )
     return sample_emcee(
         conjugate_model,
         key=jax.random.key(5),
         model_kwargs=KWARGS,
-        n_steps=40,
-        burn=10,
+        settings=EmceeSettings(n_steps=40, burn=10),
         progress=progress,
     )
 
@@ -343,7 +341,10 @@ def test_too_few_walkers_is_named():
     for n_walkers in (4, 9):
         with pytest.raises(ValueError, match=rf"n_walkers={n_walkers} .* 2 \* ndim \+ 2 = 10"):
             sample_emcee(
-                conjugate_model, key=jax.random.key(0), model_kwargs=KWARGS, n_walkers=n_walkers
+                conjugate_model,
+                key=jax.random.key(0),
+                model_kwargs=KWARGS,
+                settings=EmceeSettings(n_walkers=n_walkers),
             )
 
 
@@ -359,10 +360,7 @@ def adaptive_idata():
         key=jax.random.key(11),
         model_kwargs=KWARGS,
         init_values={"theta": MU0, "lam": 2.0},
-        n_ensembles=2,
-        burn=300,
-        check_every=100,
-        thin=None,
+        settings=EmceeSettings(n_ensembles=2, burn=300, check_every=100, thin=None),
         progress=False,
     )
 
@@ -395,11 +393,14 @@ def test_adaptive_emcee_stops_by_itself_passes_its_gates_and_matches_the_moments
 # emcee runs; in the long tier, which CI runs after the default suite
 @pytest.mark.long
 def test_adaptive_emcee_capped_short_says_so_and_equals_a_fixed_run():
-    kw = dict(model_kwargs=KWARGS, init_values={"theta": MU0, "lam": 2.0}, burn=100, progress=False)
+    kw = dict(model_kwargs=KWARGS, init_values={"theta": MU0, "lam": 2.0}, progress=False)
     # 500 kept steps are about 9 autocorrelation times: the cap stops the run
     with pytest.warns(UserWarning, match=r"max_steps=600 .* raise max_steps"):
         capped = sample_emcee(
-            conjugate_model, key=jax.random.key(12), max_steps=600, check_every=100, **kw
+            conjugate_model,
+            key=jax.random.key(12),
+            settings=EmceeSettings(max_steps=600, check_every=100, burn=100),
+            **kw,
         )
     stats = capped.sample_stats.attrs
     assert stats["stopped"] == "max_steps" and stats["total_steps"] == 600
@@ -407,7 +408,9 @@ def test_adaptive_emcee_capped_short_says_so_and_equals_a_fixed_run():
     assert not diag.passed and diag.autocorr_lengths < 50
     assert any("autocorrelation times" in m for m in diag.messages)
     # six blocks of 100 steps continue one emcee state: the same draws as one run of 600
-    fixed = sample_emcee(conjugate_model, key=jax.random.key(12), n_steps=600, **kw)
+    fixed = sample_emcee(
+        conjugate_model, key=jax.random.key(12), settings=EmceeSettings(n_steps=600, burn=100), **kw
+    )
     np.testing.assert_array_equal(capped.posterior["theta"].values, fixed.posterior["theta"])
     np.testing.assert_array_equal(capped.posterior["lam"].values, fixed.posterior["lam"])
     np.testing.assert_array_equal(capped.sample_stats["lp"].values, fixed.sample_stats["lp"])
@@ -462,7 +465,10 @@ def test_every_emcee_draw_is_converted_whole_and_in_place(n_steps):
     site) against emcee's own log probability of that step, and numpy's norm of ``x`` against
     the deterministic site of the same draw."""
     idata = sample_emcee(
-        deterministic_model, key=jax.random.key(7), n_steps=n_steps, burn=10, thin=1, progress=False
+        deterministic_model,
+        key=jax.random.key(7),
+        settings=EmceeSettings(n_steps=n_steps, burn=10, thin=1),
+        progress=False,
     )
     post = idata.posterior
     assert (post.sizes["chain"], post.sizes["draw"]) == (32, n_steps - 10)
@@ -515,13 +521,15 @@ def test_a_seed_gives_the_pinned_draws():
         key=jax.random.key(21),
         model_kwargs=KWARGS,
         init_values={"theta": MU0, "lam": 2.0},
-        n_ensembles=2,
-        max_steps=400,
-        check_every=100,
-        min_autocorr_lengths=5,
-        tau_tolerance=0.5,
-        burn=50,
-        thin=None,
+        settings=EmceeSettings(
+            n_ensembles=2,
+            max_steps=400,
+            check_every=100,
+            min_autocorr_lengths=5,
+            tau_tolerance=0.5,
+            burn=50,
+            thin=None,
+        ),
         progress=False,
     )
     stats = emcee_run.sample_stats.attrs
@@ -530,9 +538,7 @@ def test_a_seed_gives_the_pinned_draws():
         conjugate_model,
         key=jax.random.key(22),
         model_kwargs=KWARGS,
-        num_warmup=50,
-        num_samples=20,
-        num_chains=2,
+        settings=NUTSSettings(num_warmup=50, num_samples=20, num_chains=2),
         progress=False,
     )
     for name, idata, rtol in (("emcee", emcee_run, 0.0), ("nuts", nuts_run, 1e-8)):
@@ -612,9 +618,7 @@ def test_neals_funnel_in_centred_form_fails_with_divergences():
     idata = sample_nuts(
         centred_funnel,
         key=jax.random.key(0),
-        num_warmup=200,
-        num_samples=200,
-        num_chains=2,
+        settings=NUTSSettings(num_warmup=200, num_samples=200, num_chains=2),
         progress=False,
     )
     with pytest.warns(SamplingGateWarning, match="divergent"):
@@ -626,7 +630,7 @@ def test_neals_funnel_in_centred_form_fails_with_divergences():
 
 
 def test_emcee_diagnostics_skip_hmc_checks_and_report_autocorrelation(emcee_idata):
-    diag = diagnose_sampling(emcee_idata, warn=False, min_autocorr_lengths=1)
+    diag = diagnose_sampling(emcee_idata, warn=False, gates=SamplingGates(min_autocorr_lengths=1))
     assert diag.divergences is None and diag.ebfmi is None
     assert not any("autocorrelation" in m for m in diag.messages)
     tau = json.loads(emcee_idata.sample_stats.attrs["autocorr_time"])
@@ -635,7 +639,9 @@ def test_emcee_diagnostics_skip_hmc_checks_and_report_autocorrelation(emcee_idat
     # two independent estimators of the same thing: arviz's bulk ESS over walkers and
     # walkers x kept steps / emcee's tau; both are noisy estimates, so agree within 2x
     assert 0.5 < diag.ess_bulk_min / (EMCEE_WALKERS * EMCEE_KEPT / max(tau)) < 2.0
-    strict = diagnose_sampling(emcee_idata, warn=False, min_autocorr_lengths=1000)
+    strict = diagnose_sampling(
+        emcee_idata, warn=False, gates=SamplingGates(min_autocorr_lengths=1000)
+    )
     assert any("autocorrelation times" in m and "after burn-in" in m for m in strict.messages)
 
 

@@ -15,6 +15,8 @@ import numpyro.distributions as dist
 import pytest
 
 from bayesdoor.inference import (
+    NUTSSettings,
+    SBCDesign,
     SBCResult,
     load_sbc,
     plot_sbc_ranks,
@@ -105,19 +107,23 @@ def exact_fit(sd_factor):
 
 
 def test_driver_passes_exact_posteriors_and_fails_an_overconfident_one(tmp_path):
-    kw = dict(key=jax.random.key(2), n_datasets=100, var_names=["mu"])
-    good = run_sbc(normal_model, fit=exact_fit(1.0), **kw)
+    kw = dict(key=jax.random.key(2), var_names=["mu"])
+    design = SBCDesign(n_datasets=100)
+    good = run_sbc(normal_model, design=design, fit=exact_fit(1.0), **kw)
     assert good.uniformity().passed, str(good.uniformity())
     assert good.ranks.shape == (100, 1) and good.names == ("mu",)
     # 600 independent draws: the bulk ESS estimate scatters about 600 (seen 380 to 770)
     assert np.all(good.ess_bulk > 250)
     # half the posterior sd: the truth falls outside the draws about 18 % of the time
-    narrow = run_sbc(normal_model, fit=exact_fit(0.5), **kw)
+    narrow = run_sbc(normal_model, design=design, fit=exact_fit(0.5), **kw)
     test = narrow.uniformity()
     assert not test.passed and test.spread[0] > 1.3
     np.testing.assert_array_equal(narrow.truth, good.truth)  # the same prior draws
     # data sets split over workers and joined equal one run over all of them
-    parts = [run_sbc(normal_model, fit=exact_fit(1.0), datasets=d, **kw) for d in ([5, 1], [0])]
+    parts = [
+        run_sbc(normal_model, design=SBCDesign(100, datasets=d), fit=exact_fit(1.0), **kw)
+        for d in ([5, 1], [0])
+    ]
     joined = SBCResult.concatenate(parts)
     np.testing.assert_array_equal(joined.datasets, [0, 1, 5])
     np.testing.assert_array_equal(joined.ranks, good.ranks[[0, 1, 5]])
@@ -132,7 +138,11 @@ def test_driver_passes_exact_posteriors_and_fails_an_overconfident_one(tmp_path)
 def test_driver_names_unknown_sites():
     with pytest.raises(ValueError, match=r"no sites \['nu'\]"):
         run_sbc(
-            normal_model, key=jax.random.key(0), n_datasets=3, fit=exact_fit(1.0), var_names=["nu"]
+            normal_model,
+            key=jax.random.key(0),
+            design=SBCDesign(n_datasets=3),
+            fit=exact_fit(1.0),
+            var_names=["nu"],
         )
 
 
@@ -163,17 +173,16 @@ def nuts_sbc(y_scale):
             many_datasets,
             key=key,
             model_kwargs={**kwargs, "y_scale": y_scale},
-            num_warmup=300,
-            num_samples=300,
-            num_chains=2,
-            jit_model_args=True,  # as scripts/sbc.py: the data are arguments, not constants
+            settings=NUTSSettings(
+                num_warmup=300, num_samples=300, num_chains=2, jit_model_args=True
+            ),
             progress=False,
         )
 
     result = run_sbc(
         many_datasets,
         key=jax.random.key(11),
-        n_datasets=1,
+        design=SBCDesign(n_datasets=1),
         fit=fit,
         var_names=["mu", "lam"],
         observed=("y", "c"),

@@ -14,6 +14,7 @@ from bayesdoor.door import ElevatorDoor, SolverConfig
 from bayesdoor.inference import (
     AbstractForward,
     CalibrationData,
+    Discrepancy,
     ForwardOutput,
     ModelError,
     SamplingTransform,
@@ -58,13 +59,14 @@ def test_surrogate_is_exact_on_a_quadratic(key):
     # basis of the reference: 1, x0, x1, x2, x0^2, x1^2, x2^2, x0 x1, x0 x2 (no x1 x2 term)
     coef = jax.random.normal(k1, (9, 12))
     forward = QuadraticForward(("a", "b", "c"), jnp.array([0.3, 0.4]), coef)
-    sur = fit_surrogate(forward, [-1.0, 0.0, 2.0], [1.0, 3.0, 2.5], key=k2, n_train=24, n_test=16)
+    box = ([-1.0, 0.0, 2.0], [1.0, 3.0, 2.5])
+    sur = fit_surrogate(forward, box, key=k2, n_train=24, n_test=16)
     # a quadratic reproduced by a quadratic: the held-out error is round-off
     assert float(jnp.max(sur.heldout_rms)) < 1e-6
     theta = jnp.array([0.3, 2.9, 2.1])
     np.testing.assert_allclose(sur(theta).features, forward(theta).features, atol=1e-6)
     with pytest.raises(ValueError, match="n_train >= 20"):
-        fit_surrogate(forward, [-1.0, 0.0, 2.0], [1.0, 3.0, 2.5], key=k2, n_train=12)
+        fit_surrogate(forward, box, key=k2, n_train=12)
 
 
 def test_simulate_design_on_threads_equals_one_thread(key):
@@ -116,7 +118,7 @@ def door_case():
         centre, [specs[n].lower for n in FREE], [specs[n].upper for n in FREE], 0.25
     )
     surrogate = fit_surrogate(
-        forward, lo, hi, key=jax.random.key(3), n_train=48, n_test=16, chunk=16
+        forward, (lo, hi), key=jax.random.key(3), n_train=48, n_test=16, chunk=16
     )
     return {
         "data": data,
@@ -215,7 +217,9 @@ def test_laplace_whitening_conditions_the_sampling_coordinates(door_case, box_po
     """
     data, sur, box = door_case["data"], door_case["surrogate"], door_case["box"]
     white = box.whitened_at(
-        lambda theta: log_likelihood(theta, jnp.full(4, 0.05), data, sur, shared=False),
+        lambda theta: log_likelihood(
+            theta, Discrepancy(jnp.full(4, 0.05), shared=False), data, sur
+        ),
         jnp.asarray(door_case["truth"]),
     )
     plain = np.asarray(box_posterior[0]["z"])
@@ -255,7 +259,7 @@ def test_exact_simulator_posterior_agrees_with_the_surrogate_posterior(door_case
     lo, hi = box_around(
         centre, [specs[n].lower for n in names], [specs[n].upper for n in names], 0.25
     )
-    sur = fit_surrogate(exact, lo, hi, key=jax.random.key(8), n_train=24, n_test=16, chunk=16)
+    sur = fit_surrogate(exact, (lo, hi), key=jax.random.key(8), n_train=24, n_test=16, chunk=16)
     box = SamplingTransform.box(names, lo, hi)
     start = time.perf_counter()
     s_sur, _ = _nuts(make_model(data, sur, box), jax.random.key(9), 300, 600)

@@ -16,6 +16,7 @@ from bayesdoor.door.rig import VirtualRig
 from bayesdoor.features import objective_j
 from bayesdoor.inference import (
     CalibrationData,
+    FitProblem,
     FitResult,
     FitSettings,
     calibration_runs,
@@ -67,19 +68,19 @@ def test_a_campaign_without_healthy_runs_is_refused_before_any_simulation():
         fit_campaign(ElevatorDoor(), faulty, method="lbfgs")  # type: ignore[arg-type]
     # the held values are checked before the runs: each against its ParameterSpec
     with pytest.raises(ValueError, match=r"parameter I=12.0 is outside its allowed range \[1, 9\]"):
-        fit_campaign(ElevatorDoor(), faulty, fixed={"I": 12})
+        fit_campaign(ElevatorDoor(), faulty, problem=FitProblem(fixed={"I": 12}))
     with pytest.raises(ValueError, match=r"parameter I=2.5 must be an integer"):
-        fit_campaign(ElevatorDoor(), faulty, fixed={"I": 2.5})
+        fit_campaign(ElevatorDoor(), faulty, problem=FitProblem(fixed={"I": 2.5}))
     with pytest.raises(ValueError, match=r"fixed names \['law', 'Q'\], which are not parameters"):
-        fit_campaign(ElevatorDoor(), faulty, fixed={"law": 3, "Q": 1.0, "I": 3})
+        fit_campaign(ElevatorDoor(), faulty, problem=FitProblem(fixed={"law": 3, "Q": 1.0, "I": 3}))
     with pytest.raises(ValueError, match=r"fixed\['K'\]='1e6' must be a number"):
-        fit_campaign(ElevatorDoor(), faulty, fixed={"K": "1e6"})
+        fit_campaign(ElevatorDoor(), faulty, problem=FitProblem(fixed={"K": "1e6"}))
     everything = dict(ElevatorDoor().nominal())
     with pytest.raises(ValueError, match="fixed holds every parameter of elevator_door"):
-        fit_campaign(ElevatorDoor(), faulty, fixed=everything)
+        fit_campaign(ElevatorDoor(), faulty, problem=FitProblem(fixed=everything))
     del everything["I"]
     with pytest.raises(ValueError, match="method='nuts' samples the continuous parameters"):
-        fit_campaign(ElevatorDoor(), faulty, method="nuts", fixed=everything)
+        fit_campaign(ElevatorDoor(), faulty, method="nuts", problem=FitProblem(fixed=everything))
 
 
 def _features(operating, y):
@@ -250,7 +251,7 @@ def test_every_integer_parameter_is_searched_then_held_and_a_continuous_one_may_
         toy,
         campaign,
         method="cmaes",
-        fixed={"mode": 2, "m": 1.0},
+        problem=FitProblem(fixed={"mode": 2, "m": 1.0}),
         settings=settings,
         progress=False,
     )
@@ -414,7 +415,9 @@ def demo_fit():
     truth = load_demo_truth()["parameters"]
     door = ElevatorDoor()
     t0 = time.perf_counter()
-    result = fit_campaign(door, campaign, method="nuts", fixed={"I": truth["I"]}, progress=False)
+    result = fit_campaign(
+        door, campaign, method="nuts", problem=FitProblem(fixed={"I": truth["I"]}), progress=False
+    )
     print(f"NUTS fit in {time.perf_counter() - t0:.0f} s: {result.timings}")
     print(result.diagnostics)
     print("notes:", result.notes)

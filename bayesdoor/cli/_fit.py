@@ -210,7 +210,7 @@ def run_fit(
     import json as json_module
     import warnings
 
-    from ..inference import METHODS, calibration_runs, fit_campaign
+    from ..inference import METHODS, FitProblem, calibration_runs, fit_campaign
     from ..io import load_campaign
 
     if method not in METHODS:
@@ -259,7 +259,7 @@ def run_fit(
                             system,
                             campaign,
                             method=method,  # type: ignore[arg-type]
-                            fixed=given or None,
+                            problem=FitProblem(fixed=given or None),
                             seed=seed,
                             quick=quick,
                             progress=not as_json,

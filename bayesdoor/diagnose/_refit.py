@@ -28,7 +28,7 @@ import scipy.optimize
 
 from .._types import Array, Bool, Float, Int
 from ..features import windowed_log_psd
-from ..inference import minimize_cmaes
+from ..inference import CMAESOptions, minimize_cmaes
 from ..inference._surrogate import map_padded_chunks
 from ._gain import Discrepancy, estimate_discrepancy, log_predictive
 
@@ -800,9 +800,7 @@ def _search(
         lower=lower,
         upper=upper,
         seed=seed,
-        sigma0=0.2,
-        max_evals=max_evals,
-        popsize=POPULATION,
+        options=CMAESOptions(sigma0=0.2, max_evals=max_evals, popsize=POPULATION),
         progress=progress,
     )
     return float(result.f_best), np.asarray(result.x_best, dtype=float), result.evaluations

@@ -3,10 +3,12 @@
 from ._calibration import calibration_runs as calibration_runs
 from ._calibration import campaign_data as campaign_data
 from ._cmaes import CMAESHistory as CMAESHistory
+from ._cmaes import CMAESOptions as CMAESOptions
 from ._cmaes import CMAESResult as CMAESResult
 from ._cmaes import minimize_cmaes as minimize_cmaes
 from ._cmaes import plot_cmaes_history as plot_cmaes_history
 from ._diagnostics import SamplingDiagnostics as SamplingDiagnostics
+from ._diagnostics import SamplingGates as SamplingGates
 from ._diagnostics import SamplingGateWarning as SamplingGateWarning
 from ._diagnostics import diagnose_sampling as diagnose_sampling
 from ._diagnostics import nested_rhat as nested_rhat
@@ -18,6 +20,7 @@ from ._features import welch_log10_variance as welch_log10_variance
 from ._likelihood import AbstractForward as AbstractForward
 from ._likelihood import CalibrationData as CalibrationData
 from ._likelihood import CorrelatedDiscrepancyNormal as CorrelatedDiscrepancyNormal
+from ._likelihood import Discrepancy as Discrepancy
 from ._likelihood import DiscrepancyNormal as DiscrepancyNormal
 from ._likelihood import ForwardOutput as ForwardOutput
 from ._likelihood import ModelError as ModelError
@@ -34,8 +37,11 @@ from ._posterior import record_system as record_system
 from ._posterior import save_posterior as save_posterior
 from ._predictive import posterior_predictive as posterior_predictive
 from ._result import FitResult as FitResult
+from ._samplers import EmceeSettings as EmceeSettings
+from ._samplers import NUTSSettings as NUTSSettings
 from ._samplers import sample_emcee as sample_emcee
 from ._samplers import sample_nuts as sample_nuts
+from ._sbc import SBCDesign as SBCDesign
 from ._sbc import SBCResult as SBCResult
 from ._sbc import SBCUniformity as SBCUniformity
 from ._sbc import load_sbc as load_sbc
@@ -50,4 +56,5 @@ from ._surrogate import box_around as box_around
 from ._surrogate import box_from_samples as box_from_samples
 from ._surrogate import fit_surrogate as fit_surrogate
 from ._surrogate import simulate_design as simulate_design
+from ._update import FitProblem as FitProblem
 from ._update import fit_campaign as fit_campaign

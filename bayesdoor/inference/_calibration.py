@@ -94,36 +94,16 @@ def campaign_data(
     runs = np.asarray(runs, dtype=int)
     if runs.size == 0:
         raise ValueError("runs is empty: pass the indices of at least one run")
-    fs = float(campaign.attrs.get("sampling_rate_hz", np.nan))
-    if fs != system.sampling_rate_hz:
-        raise ValueError(
-            f"the campaign's sampling_rate_hz={fs} differs from {system.name}'s "
-            f"{system.sampling_rate_hz} Hz: resample the measurements to the model's rate"
-        )
-    channels = [str(c) for c in campaign["channel"].values]
-    missing = [c for c in system.channels if c not in channels]
-    if missing:
-        raise ValueError(
-            f"the campaign lacks the channels {missing} of {system.name} (it has {channels})"
-        )
+    fs = _check_campaign(system, campaign)
     selected = campaign.isel(run=runs)
     signals = np.asarray(
         selected["acceleration"].sel(channel=list(system.channels)).values, dtype=float
     )
     operating = campaign_operating(selected, system)
-    if "t_start" in selected.variables and "t_stop" in selected.variables:
-        t_start = np.asarray(selected["t_start"].values, dtype=float)
-        t_stop = np.asarray(selected["t_stop"].values, dtype=float)
-    else:
-        t = np.arange(signals.shape[-1]) / fs
-        windows = np.array([detect_motion_window(t, s) for s in signals])
-        t_start, t_stop = windows[:, 0], windows[:, 1]
+    t_start, t_stop = _measured_windows(selected, signals, fs)
     unique, index = np.unique(operating, axis=0, return_inverse=True)
     index = index.reshape(-1)
-    duration = float(system.record_duration(unique))
-    if max_motion_s is not None:
-        start, _ = system.motion_window(unique)
-        duration = min(duration, float(np.max(start)) + float(max_motion_s))
+    duration = _simulated_duration(system, unique, max_motion_s)
     sim_start, sim_stop = system.motion_window(unique, duration=duration)
     length = (np.asarray(sim_stop) - np.asarray(sim_start))[index.reshape(-1)]
     t_stop = np.minimum(t_stop, t_start + length)
@@ -136,6 +116,50 @@ def campaign_data(
         spec,
     )
     return data, duration
+
+
+def _check_campaign(system: AbstractSystem, campaign: xr.Dataset) -> float:
+    """The campaign's sampling rate, checked to be the system's, and its channels to hold the
+    system's."""
+    fs = float(campaign.attrs.get("sampling_rate_hz", np.nan))
+    if fs != system.sampling_rate_hz:
+        raise ValueError(
+            f"the campaign's sampling_rate_hz={fs} differs from {system.name}'s "
+            f"{system.sampling_rate_hz} Hz: resample the measurements to the model's rate"
+        )
+    channels = [str(c) for c in campaign["channel"].values]
+    missing = [c for c in system.channels if c not in channels]
+    if missing:
+        raise ValueError(
+            f"the campaign lacks the channels {missing} of {system.name} (it has {channels})"
+        )
+    return fs
+
+
+def _measured_windows(
+    selected: xr.Dataset, signals: np.ndarray, fs: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each run's motion window: the campaign's ``t_start``/``t_stop``, else detected from
+    the signals."""
+    if "t_start" in selected.variables and "t_stop" in selected.variables:
+        t_start = np.asarray(selected["t_start"].values, dtype=float)
+        t_stop = np.asarray(selected["t_stop"].values, dtype=float)
+        return t_start, t_stop
+    t = np.arange(signals.shape[-1]) / fs
+    windows = np.array([detect_motion_window(t, s) for s in signals])
+    return windows[:, 0], windows[:, 1]
+
+
+def _simulated_duration(
+    system: AbstractSystem, unique: np.ndarray, max_motion_s: float | None
+) -> float:
+    """The simulated record length of the operating points ``unique``: the system's, cut to
+    ``max_motion_s`` of motion after the latest start when given."""
+    duration = float(system.record_duration(unique))
+    if max_motion_s is not None:
+        start, _ = system.motion_window(unique)
+        duration = min(duration, float(np.max(start)) + float(max_motion_s))
+    return duration
 
 
 def j_standard_error(data: CalibrationData) -> float | None:

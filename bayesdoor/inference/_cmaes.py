@@ -88,15 +88,48 @@ class CMAESResult:
         return bool(np.isfinite(self.f_best))
 
 
+@dataclasses.dataclass(frozen=True)
+class CMAESOptions:
+    """The settings of a :func:`minimize_cmaes` run: step, budget, restarts, population.
+
+    Attributes
+    ----------
+    sigma0
+        Initial step size as a fraction of each coordinate's box width.
+    max_evals
+        Budget of objective evaluations over all runs; the last population may overshoot it
+        by less than one population.
+    restarts
+        Maximum number of restarts after the first run.
+    popsize
+        Population size of the first run (``None``: pycma's default ``4 + 3 ln(dim)``).
+    incpopsize
+        Population factor per restart.
+    affordable_restarts
+        Start a restart only while the budget left is at least the evaluations the previous
+        run used: IPOP's larger population needs at least as many to converge, so a restart
+        with less would be cut off by ``max_evals`` and only cost time. The skip is noted
+        in the last run's ``stop`` text. ``False``: ``cma.fmin2``'s rule.
+    pycma
+        Further pycma options, e.g. ``{"tolfun": 1e-12, "ftarget": 1e-8}``.
+    """
+
+    sigma0: float = 0.25
+    max_evals: int = 10_000
+    restarts: int = 0
+    popsize: int | None = None
+    incpopsize: float = 2.0
+    affordable_restarts: bool = False
+    pycma: Mapping[str, Any] | None = None
+
+
 def _check_inputs(
     x0: np.ndarray,
     lower: np.ndarray,
     upper: np.ndarray,
     integer_variables: Sequence[int],
-    sigma0: float,
     seed: int,
-    max_evals: int,
-    restarts: int,
+    options: CMAESOptions,
 ) -> None:
     if x0.ndim != 1 or lower.shape != x0.shape or upper.shape != x0.shape:
         raise ValueError(
@@ -112,6 +145,25 @@ def _check_inputs(
         raise ValueError(
             f"x0={x0} lies outside the bounds [{lower}, {upper}]: start inside the box"
         )
+    _check_integers(x0, lower, upper, integer_variables)
+    if not options.sigma0 > 0:
+        raise ValueError(
+            f"sigma0={options.sigma0} must be positive (a fraction of the box width, e.g. 0.25)"
+        )
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 1:
+        raise ValueError(
+            f"seed={seed!r} must be a positive integer (pycma draws a time-based seed for 0); "
+            "pass e.g. seed=1"
+        )
+    if options.max_evals < 1:
+        raise ValueError(f"max_evals={options.max_evals} must be at least 1")
+    if options.restarts < 0:
+        raise ValueError(f"restarts={options.restarts} must be >= 0 (0: a single run)")
+
+
+def _check_integers(
+    x0: np.ndarray, lower: np.ndarray, upper: np.ndarray, integer_variables: Sequence[int]
+) -> None:
     for i in integer_variables:
         if not 0 <= i < x0.size:
             raise ValueError(
@@ -123,19 +175,6 @@ def _check_inputs(
                 f"integer variable {i} has non-integral bounds [{lower[i]}, {upper[i]}]: "
                 "use integral bounds for integer variables"
             )
-    if not sigma0 > 0:
-        raise ValueError(
-            f"sigma0={sigma0} must be positive (a fraction of the box width, e.g. 0.25)"
-        )
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 1:
-        raise ValueError(
-            f"seed={seed!r} must be a positive integer (pycma draws a time-based seed for 0); "
-            "pass e.g. seed=1"
-        )
-    if max_evals < 1:
-        raise ValueError(f"max_evals={max_evals} must be at least 1")
-    if restarts < 0:
-        raise ValueError(f"restarts={restarts} must be >= 0 (0: a single run)")
 
 
 def cmaes_options(
@@ -216,14 +255,8 @@ def minimize_cmaes(
     lower: Sequence[float] | Float[np.ndarray, " dim"],
     upper: Sequence[float] | Float[np.ndarray, " dim"],
     seed: int,
-    sigma0: float = 0.25,
     integer_variables: Sequence[int] = (),
-    max_evals: int = 10_000,
-    restarts: int = 0,
-    popsize: int | None = None,
-    incpopsize: float = 2.0,
-    options: Mapping[str, Any] | None = None,
-    affordable_restarts: bool = False,
+    options: CMAESOptions = CMAESOptions(),
     progress: bool = True,
 ) -> CMAESResult:
     """Minimise a batch objective over a box with CMA-ES (pycma), with IPOP restarts.
@@ -231,11 +264,11 @@ def minimize_cmaes(
     Each iteration asks pycma for a population, evaluates it with one call of
     ``objective`` (so a caller can run the population as one vectorised simulation) and tells
     pycma the values. Restarts follow ``cma.fmin2``'s IPOP scheme: each restart starts again
-    from ``x0`` with the population multiplied by ``incpopsize`` and the seed increased by
-    one, until ``restarts`` restarts are done, the budget ``max_evals`` is spent or an
-    ``ftarget`` option is reached. With the same options the sequence of candidates is
-    exactly that of ``cma.fmin2(None, x0, sigma0, options, parallel_objective=...,
-    restarts=..., incpopsize=..., eval_final_mean=False)``.
+    from ``x0`` with the population multiplied by ``options.incpopsize`` and the seed
+    increased by one, until ``options.restarts`` restarts are done, the budget
+    ``options.max_evals`` is spent or an ``ftarget`` option is reached. With the same options
+    the sequence of candidates is exactly that of ``cma.fmin2(None, x0, sigma0, options,
+    parallel_objective=..., restarts=..., incpopsize=..., eval_final_mean=False)``.
 
     Parameters
     ----------
@@ -251,27 +284,11 @@ def minimize_cmaes(
         a generator of its own seeded with it (pycma's numbers for that seed), so runs in
         several threads at once give each one's result; with ``integer_variables`` pycma
         seeds NumPy's global generator, which threads would share.
-    sigma0
-        Initial step size as a fraction of each coordinate's box width.
     integer_variables
         Indices of integer variables: pycma rounds them in every candidate and keeps a
         minimal step size so they keep moving (LB+IC-CMA-ES, Marty et al. 2024).
-    max_evals
-        Budget of objective evaluations over all runs; the last population may overshoot it
-        by less than one population.
-    restarts
-        Maximum number of restarts after the first run.
-    popsize
-        Population size of the first run (``None``: pycma's default ``4 + 3 ln(dim)``).
-    incpopsize
-        Population factor per restart.
     options
-        Further pycma options, e.g. ``{"tolfun": 1e-12, "ftarget": 1e-8}``.
-    affordable_restarts
-        Start a restart only while the budget left is at least the evaluations the previous
-        run used: IPOP's larger population needs at least as many to converge, so a restart
-        with less would be cut off by ``max_evals`` and only cost time. The skip is noted
-        in the last run's ``stop`` text. ``False``: ``cma.fmin2``'s rule.
+        Step size, budget, restarts, population and further pycma options.
     progress
         Show a rich progress bar over the evaluation budget.
 
@@ -293,100 +310,172 @@ def minimize_cmaes(
     size", IEEE CEC 2005.
     """
     x0 = np.asarray(x0, dtype=np.float64)
+    opts = _first_options(x0, lower, upper, integer_variables, seed, options)
+    record = _Record(x0.shape)
+    with _progress_bar(progress, options.max_evals) as advance:
+        _runs(objective, x0, opts, integer_variables, seed, options, record, advance)
+    return CMAESResult(
+        x_best=record.x_best,
+        f_best=record.f_best,
+        evaluations=record.evaluations,
+        restarts=len(record.stops) - 1,
+        failed=record.failed,
+        stop=tuple(record.stops),
+        history=record.history(),
+        seed=int(seed),
+    )
+
+
+def _first_options(
+    x0: np.ndarray,
+    lower: Sequence[float] | np.ndarray,
+    upper: Sequence[float] | np.ndarray,
+    integer_variables: Sequence[int],
+    seed: int,
+    options: CMAESOptions,
+) -> dict[str, Any]:
+    """The inputs checked, and the pycma options of the first run (:func:`cmaes_options`)."""
     lower = np.asarray(lower, dtype=np.float64)
     upper = np.asarray(upper, dtype=np.float64)
-    _check_inputs(x0, lower, upper, integer_variables, sigma0, seed, max_evals, restarts)
-    opts = cmaes_options(
+    _check_inputs(x0, lower, upper, integer_variables, seed, options)
+    return cmaes_options(
         lower,
         upper,
         seed=seed,
-        max_evals=max_evals,
+        max_evals=options.max_evals,
         integer_variables=integer_variables,
-        popsize=popsize,
-        extra=options,
+        popsize=options.popsize,
+        extra=options.pycma,
     )
 
-    rows: list[tuple[int, float, float, float, int, int, int]] = []
-    x_best = np.full(x0.shape, np.nan)
-    f_best = np.inf
-    failed = 0
-    stops: list[str] = []
-    evaluations = 0
-    with _progress_bar(progress, max_evals) as advance:
-        for run in range(restarts + 1):
-            run_start = evaluations
-            run_opts = dict(opts)
-            if not integer_variables:
-                # this run's own generator, not NumPy's global one that pycma seeds: the
-                # same numbers (np.random.seed(s) then np.random.randn), but runs in
-                # several threads at once no longer draw from one shared stream (pycma's
-                # integer handling draws from the global one, so it keeps pycma's seeding)
-                run_opts["randn"] = np.random.RandomState(int(run_opts.pop("seed"))).randn
-            es = cma.CMAEvolutionStrategy(x0, sigma0, run_opts)
-            while not es.stop():
-                population = es.ask()
-                values = np.asarray(objective(np.asarray(population)), dtype=np.float64)
-                if values.shape != (len(population),):
-                    raise ValueError(
-                        f"objective returned shape {values.shape} for a population of "
-                        f"{len(population)}: return one value per row of X"
-                    )
-                finite = np.isfinite(values)
-                failed += int(np.sum(~finite))
-                if finite.any():
-                    i = int(np.argmin(np.where(finite, values, np.inf)))
-                    if values[i] < f_best:
-                        f_best, x_best = float(values[i]), np.array(population[i])
-                es.tell(population, _penalised(values))
-                median = float(np.median(values[finite])) if finite.any() else np.nan
-                rows.append(
-                    (
-                        es.countevals,
-                        f_best,
-                        median,
-                        float(es.sigma),
-                        run,
-                        len(population),
-                        int(np.sum(~finite)),
-                    )
-                )
-                advance(es.countevals - evaluations, f_best, run)
-                evaluations = es.countevals
-            reasons = es.stop(check=False)
-            stops.append(", ".join(f"{k}={v}" for k, v in reasons.items()))
-            if "ftarget" in reasons or "maxfevals" in reasons or evaluations >= max_evals:
-                break
-            used, left = evaluations - run_start, max_evals - evaluations
-            if affordable_restarts and run < restarts and left < used:
-                stops[-1] += (
-                    f"; no restart: {left} evaluations left, fewer than the {used} run {run} used"
-                )
-                break
-            opts = dict(es.opts)
-            opts["verb_append"] = es.countevals
-            opts["popsize"] = incpopsize * es.sp.popsize
-            opts["seed"] = seed + run + 1
 
-    columns = list(zip(*rows, strict=True)) if rows else [()] * 7
-    history = CMAESHistory(
-        evaluations=np.asarray(columns[0], dtype=np.int64),
-        best_f=np.asarray(columns[1], dtype=np.float64),
-        median_f=np.asarray(columns[2], dtype=np.float64),
-        sigma=np.asarray(columns[3], dtype=np.float64),
-        restart=np.asarray(columns[4], dtype=np.int64),
-        popsize=np.asarray(columns[5], dtype=np.int64),
-        failed=np.asarray(columns[6], dtype=np.int64),
-    )
-    return CMAESResult(
-        x_best=x_best,
-        f_best=f_best,
-        evaluations=evaluations,
-        restarts=len(stops) - 1,
-        failed=failed,
-        stop=tuple(stops),
-        history=history,
-        seed=int(seed),
-    )
+class _Record:
+    """What the runs of :func:`minimize_cmaes` found so far: the best point and value, the
+    failed evaluations, the evaluations done, each run's stop and one history row per
+    iteration."""
+
+    def __init__(self, shape: tuple[int, ...]) -> None:
+        self.rows: list[tuple[int, float, float, float, int, int, int]] = []
+        self.x_best = np.full(shape, np.nan)
+        self.f_best = np.inf
+        self.failed = 0
+        self.stops: list[str] = []
+        self.evaluations = 0
+
+    def tell(self, es: cma.CMAEvolutionStrategy, population: list, values: np.ndarray, run: int):
+        """Keep the population's best and failures, tell pycma the (penalised) values, and
+        add the iteration's history row (pycma's counts and step size after the tell)."""
+        finite = np.isfinite(values)
+        self.failed += int(np.sum(~finite))
+        if finite.any():
+            i = int(np.argmin(np.where(finite, values, np.inf)))
+            if values[i] < self.f_best:
+                self.f_best, self.x_best = float(values[i]), np.array(population[i])
+        es.tell(population, _penalised(values))
+        median = float(np.median(values[finite])) if finite.any() else np.nan
+        self.rows.append(
+            (
+                es.countevals,
+                self.f_best,
+                median,
+                float(es.sigma),
+                run,
+                len(population),
+                int(np.sum(~finite)),
+            )
+        )
+
+    def history(self) -> CMAESHistory:
+        """The rows as a :class:`CMAESHistory`."""
+        columns = list(zip(*self.rows, strict=True)) if self.rows else [()] * 7
+        return CMAESHistory(
+            evaluations=np.asarray(columns[0], dtype=np.int64),
+            best_f=np.asarray(columns[1], dtype=np.float64),
+            median_f=np.asarray(columns[2], dtype=np.float64),
+            sigma=np.asarray(columns[3], dtype=np.float64),
+            restart=np.asarray(columns[4], dtype=np.int64),
+            popsize=np.asarray(columns[5], dtype=np.int64),
+            failed=np.asarray(columns[6], dtype=np.int64),
+        )
+
+
+def _runs(
+    objective: BatchObjective,
+    x0: np.ndarray,
+    opts: dict[str, Any],
+    integer_variables: Sequence[int],
+    seed: int,
+    options: CMAESOptions,
+    record: _Record,
+    advance: Callable[[int, float, int], None],
+) -> None:
+    """The first run and the IPOP restarts, into ``record`` and the progress bar: each
+    restart from ``x0`` with the population times ``incpopsize`` and the next seed."""
+    for run in range(options.restarts + 1):
+        run_start = record.evaluations
+        es = _strategy(x0, options.sigma0, opts, integer_variables)
+        _run(objective, es, run, record, advance)
+        if not _restarts_after(es, run, run_start, record, options):
+            break
+        opts = dict(es.opts)
+        opts["verb_append"] = es.countevals
+        opts["popsize"] = options.incpopsize * es.sp.popsize
+        opts["seed"] = seed + run + 1
+
+
+def _strategy(
+    x0: np.ndarray, sigma0: float, opts: dict[str, Any], integer_variables: Sequence[int]
+) -> cma.CMAEvolutionStrategy:
+    """pycma's strategy of one run; without integer variables it draws from a generator of
+    its own rather than NumPy's global one that pycma seeds: the same numbers
+    (``np.random.seed(s)`` then ``np.random.randn``), but runs in several threads at once no
+    longer draw from one shared stream (pycma's integer handling draws from the global one,
+    so it keeps pycma's seeding)."""
+    run_opts = dict(opts)
+    if not integer_variables:
+        run_opts["randn"] = np.random.RandomState(int(run_opts.pop("seed"))).randn
+    return cma.CMAEvolutionStrategy(x0, sigma0, run_opts)
+
+
+def _run(
+    objective: BatchObjective,
+    es: cma.CMAEvolutionStrategy,
+    run: int,
+    record: _Record,
+    advance: Callable[[int, float, int], None],
+) -> None:
+    """One run to pycma's stop: ask a population, evaluate it in one call, tell, record."""
+    while not es.stop():
+        population = es.ask()
+        values = np.asarray(objective(np.asarray(population)), dtype=np.float64)
+        if values.shape != (len(population),):
+            raise ValueError(
+                f"objective returned shape {values.shape} for a population of "
+                f"{len(population)}: return one value per row of X"
+            )
+        record.tell(es, population, values, run)
+        advance(es.countevals - record.evaluations, record.f_best, run)
+        record.evaluations = es.countevals
+
+
+def _restarts_after(
+    es: cma.CMAEvolutionStrategy, run: int, run_start: int, record: _Record, options: CMAESOptions
+) -> bool:
+    """Record the run's stop, and whether another run follows: not after an ``ftarget`` or
+    the budget, nor (``affordable_restarts``) when the budget left is less than the run
+    used (noted in its stop)."""
+    reasons = es.stop(check=False)
+    record.stops.append(", ".join(f"{k}={v}" for k, v in reasons.items()))
+    evaluations = record.evaluations
+    if "ftarget" in reasons or "maxfevals" in reasons or evaluations >= options.max_evals:
+        return False
+    used, left = evaluations - run_start, options.max_evals - evaluations
+    if options.affordable_restarts and run < options.restarts and left < used:
+        record.stops[-1] += (
+            f"; no restart: {left} evaluations left, fewer than the {used} run {run} used"
+        )
+        return False
+    return True
 
 
 @contextlib.contextmanager

@@ -221,35 +221,12 @@ def _nested_rhat_dataset(posterior: xr.Dataset, superchain: np.ndarray) -> xr.Da
     return xr.Dataset({name: one(da) for name, da in posterior.data_vars.items()})
 
 
-def diagnose_sampling(
-    idata: az.InferenceData,
-    *,
-    rhat_max: float = 1.01,
-    ess_bulk_min: float = 400.0,
-    ess_tail_min: float | None = None,
-    max_divergences: int = 0,
-    ebfmi_min: float = 0.3,
-    min_autocorr_lengths: float = 50.0,
-    var_names: Sequence[str] | None = None,
-    warn: bool = True,
-) -> SamplingDiagnostics:
-    """Check a posterior against convergence gates and explain every failure.
+@dataclasses.dataclass(frozen=True)
+class SamplingGates:
+    """The thresholds of :func:`diagnose_sampling`'s convergence gates.
 
-    Gates (Vehtari et al. 2021; Betancourt 2017): max R-hat at most ``rhat_max`` (the nested
-    R-hat over independent ensembles, :func:`nested_rhat`, where ``sample_stats`` has an
-    ``ensemble`` per chain, as :func:`sample_emcee` writes; else the split R-hat), min bulk
-    ESS at least ``ess_bulk_min``, min tail ESS at least ``ess_tail_min`` (when given), at
-    most ``max_divergences`` divergent transitions, E-BFMI at least ``ebfmi_min`` in every
-    chain, and (emcee) at least ``min_autocorr_lengths`` integrated autocorrelation times
-    kept. Divergences and E-BFMI are checked only when ``sample_stats`` holds ``diverging``
-    and ``energy`` (NUTS), the run length only when its attributes hold emcee's
-    ``autocorr_time``. A failed gate issues a :class:`SamplingGateWarning` (unless ``warn`` is
-    false) so that a failing run cannot pass silently.
-
-    Parameters
+    Attributes
     ----------
-    idata
-        A posterior with ``posterior`` and ``sample_stats`` groups.
     rhat_max
         Largest acceptable rank-normalised split R-hat.
     ess_bulk_min
@@ -263,6 +240,54 @@ def diagnose_sampling(
     min_autocorr_lengths
         Smallest acceptable emcee run length after burn-in, in autocorrelation times (emcee's
         documentation recommends 50).
+    """
+
+    rhat_max: float = 1.01
+    ess_bulk_min: float = 400.0
+    ess_tail_min: float | None = None
+    max_divergences: int = 0
+    ebfmi_min: float = 0.3
+    min_autocorr_lengths: float = 50.0
+
+    def as_dict(self) -> dict[str, float]:
+        """The thresholds by name (an ungated tail ESS as NaN)."""
+        return {
+            "rhat_max": self.rhat_max,
+            "ess_bulk_min": self.ess_bulk_min,
+            "ess_tail_min": np.nan if self.ess_tail_min is None else self.ess_tail_min,
+            "max_divergences": self.max_divergences,
+            "ebfmi_min": self.ebfmi_min,
+            "min_autocorr_lengths": self.min_autocorr_lengths,
+        }
+
+
+def diagnose_sampling(
+    idata: az.InferenceData,
+    *,
+    gates: SamplingGates = SamplingGates(),
+    var_names: Sequence[str] | None = None,
+    warn: bool = True,
+) -> SamplingDiagnostics:
+    """Check a posterior against convergence gates and explain every failure.
+
+    Gates (Vehtari et al. 2021; Betancourt 2017; :class:`SamplingGates`): max R-hat at most
+    ``rhat_max`` (the nested R-hat over independent ensembles, :func:`nested_rhat`, where
+    ``sample_stats`` has an ``ensemble`` per chain, as :func:`sample_emcee` writes; else the
+    split R-hat), min bulk ESS at least ``ess_bulk_min``, min tail ESS at least
+    ``ess_tail_min`` (when given), at most ``max_divergences`` divergent transitions, E-BFMI
+    at least ``ebfmi_min`` in every chain, and (emcee) at least ``min_autocorr_lengths``
+    integrated autocorrelation times kept. Divergences and E-BFMI are checked only when
+    ``sample_stats`` holds ``diverging`` and ``energy`` (NUTS), the run length only when its
+    attributes hold emcee's ``autocorr_time``. A failed gate issues a
+    :class:`SamplingGateWarning` (unless ``warn`` is false) so that a failing run cannot pass
+    silently.
+
+    Parameters
+    ----------
+    idata
+        A posterior with ``posterior`` and ``sample_stats`` groups.
+    gates
+        The thresholds.
     var_names
         Variables to check (default: every posterior variable).
     warn
@@ -285,117 +310,29 @@ def diagnose_sampling(
     Bayesian Analysis 16 (2021). M. Betancourt, "A conceptual introduction to Hamiltonian
     Monte Carlo", arXiv:1701.02434 (2017).
     """
-    if "posterior" not in idata.groups():
-        raise ValueError(
-            f"idata has no posterior group (groups: {list(idata.groups())}); pass the output "
-            "of sample_nuts or sample_emcee"
-        )
-    names = list(var_names) if var_names is not None else None
-    posterior = idata["posterior"] if names is None else idata["posterior"][names]
-    constant = posterior.max(("chain", "draw")) == posterior.min(("chain", "draw"))
-    stats_group = idata["sample_stats"] if "sample_stats" in idata.groups() else xr.Dataset()
-    # emcee's independent ensembles (one label per walker); a single ensemble has none
-    superchain = np.asarray(stats_group["ensemble"].values) if "ensemble" in stats_group else None
-    nested = superchain is not None and np.unique(superchain).size > 1
-    with np.errstate(invalid="ignore", divide="ignore"):  # constant elements give NaN
-        if superchain is not None and nested:
-            rhat_ds = _nested_rhat_dataset(posterior, superchain)
-        else:
-            rhat_ds = az.rhat(posterior)
-        bulk_ds = az.ess(posterior, method="bulk")
-        tail_ds = az.ess(posterior, method="tail")
-    rhat, rhat_at = _extreme(rhat_ds, largest=True, constant=constant)
-    bulk, bulk_at = _extreme(bulk_ds, largest=False, constant=constant)
-    tail, tail_at = _extreme(tail_ds, largest=False, constant=constant)
-    chains, draws = posterior.sizes["chain"], posterior.sizes["draw"]
-
-    messages = []
-    if not rhat <= rhat_max and nested:
-        messages.append(
-            f"nested R-hat {rhat:.3f} > {rhat_max} for {rhat_at}: the independent ensembles "
-            "(or the two halves of the run) disagree; run longer (more burn-in and steps), "
-            "start closer to the posterior, or use NUTS"
-        )
-    elif not rhat <= rhat_max:
-        messages.append(
-            f"R-hat {rhat:.3f} > {rhat_max} for {rhat_at}: the chains disagree; run longer "
-            "chains (more warm-up and samples), start them from a better point, or "
-            "reparameterise"
-        )
-    if not bulk >= ess_bulk_min:
-        messages.append(
-            f"bulk ESS {bulk:.0f} < {ess_bulk_min:.0f} for {bulk_at} ({chains} chains x "
-            f"{draws} draws): draw more samples or chains, or reparameterise to reduce "
-            "autocorrelation"
-        )
-    if ess_tail_min is not None and not tail >= ess_tail_min:
-        messages.append(
-            f"tail ESS {tail:.0f} < {ess_tail_min:.0f} for {tail_at}: the 5 %/95 % quantiles "
-            "are poorly resolved; draw more samples"
-        )
-
-    stats = stats_group
-    divergences = None
-    if "diverging" in stats:
-        divergences = int(np.asarray(stats["diverging"]).sum())
-        if divergences > max_divergences:
-            messages.append(
-                f"{divergences} divergent transitions ({100 * divergences / (chains * draws):.1f}"
-                f" % of draws) > {max_divergences}: the sampler cannot follow the posterior's "
-                "curvature; raise target_accept (e.g. 0.95), or reparameterise (a non-centred "
-                "form for hierarchical scales, standardised parameters)"
-            )
-    ebfmi = None
-    if "energy" in stats:
-        ebfmi = tuple(float(e) for e in az.bfmi(idata))
-        low = [(c, e) for c, e in enumerate(ebfmi) if not e >= ebfmi_min]
-        if low:
-            listed = ", ".join(f"chain {c}: {e:.2f}" for c, e in low)
-            messages.append(
-                f"E-BFMI below {ebfmi_min} ({listed}): the momentum resampling explores the "
-                "energy levels poorly, typical of heavy tails or funnels; reparameterise"
-            )
-
-    autocorr_lengths = None
-    if "autocorr_time" in stats.attrs:
-        tau = float(np.max(json.loads(stats.attrs["autocorr_time"])))
-        kept = int(stats.attrs["kept_steps"])
-        autocorr_lengths = kept / tau
-        if not np.isfinite(tau):
-            messages.append(
-                f"emcee's autocorrelation time could not be estimated from {kept} kept steps: "
-                f"run at least {min_autocorr_lengths:.0f} times longer than it is likely to be"
-            )
-        elif not autocorr_lengths >= min_autocorr_lengths:
-            messages.append(
-                f"emcee kept {kept} steps = {autocorr_lengths:.1f} autocorrelation times "
-                f"(largest tau {tau:.0f} steps) < {min_autocorr_lengths:.0f}: run about "
-                f"{int(np.ceil(min_autocorr_lengths * tau))} steps after burn-in, or use NUTS"
-            )
-
-    thresholds = {
-        "rhat_max": rhat_max,
-        "ess_bulk_min": ess_bulk_min,
-        "ess_tail_min": np.nan if ess_tail_min is None else ess_tail_min,
-        "max_divergences": max_divergences,
-        "ebfmi_min": ebfmi_min,
-        "min_autocorr_lengths": min_autocorr_lengths,
-    }
+    posterior = _posterior(idata, var_names)
+    stats = idata["sample_stats"] if "sample_stats" in idata.groups() else xr.Dataset()
+    mixing = _Mixing.of(posterior, stats)
+    total = mixing.chains * mixing.draws
+    divergences, divergence_messages = _divergences(stats, total, gates.max_divergences)
+    ebfmi, ebfmi_messages = _ebfmi(idata, stats, gates.ebfmi_min)
+    lengths, length_messages = _run_length(stats, gates.min_autocorr_lengths)
+    messages = mixing.messages(gates) + divergence_messages + ebfmi_messages + length_messages
     result = SamplingDiagnostics(
-        rhat_max=rhat,
-        rhat_worst=rhat_at,
-        ess_bulk_min=bulk,
-        ess_bulk_worst=bulk_at,
-        ess_tail_min=tail,
-        ess_tail_worst=tail_at,
+        rhat_max=mixing.rhat,
+        rhat_worst=mixing.rhat_at,
+        ess_bulk_min=mixing.bulk,
+        ess_bulk_worst=mixing.bulk_at,
+        ess_tail_min=mixing.tail,
+        ess_tail_worst=mixing.tail_at,
         divergences=divergences,
-        draws=chains * draws,
+        draws=total,
         ebfmi=ebfmi,
-        autocorr_lengths=autocorr_lengths,
+        autocorr_lengths=lengths,
         passed=not messages,
         messages=tuple(messages),
-        thresholds=thresholds,
-        rhat_method="nested" if nested else "split-rank",
+        thresholds=gates.as_dict(),
+        rhat_method="nested" if mixing.nested else "split-rank",
     )
     if messages and warn:
         warnings.warn(
@@ -404,6 +341,146 @@ def diagnose_sampling(
             stacklevel=2,
         )
     return result
+
+
+def _posterior(idata: az.InferenceData, var_names: Sequence[str] | None) -> xr.Dataset:
+    """The posterior group, of ``var_names`` only when given.
+
+    Raises
+    ------
+    ValueError
+        If ``idata`` has no ``posterior`` group.
+    """
+    if "posterior" not in idata.groups():
+        raise ValueError(
+            f"idata has no posterior group (groups: {list(idata.groups())}); pass the output "
+            "of sample_nuts or sample_emcee"
+        )
+    names = list(var_names) if var_names is not None else None
+    return idata["posterior"] if names is None else idata["posterior"][names]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Mixing:
+    """The worst R-hat, bulk and tail ESS of a posterior and where each occurs, its chains and
+    draws per chain, and whether the R-hat is the nested one over independent ensembles."""
+
+    rhat: float
+    rhat_at: str
+    bulk: float
+    bulk_at: str
+    tail: float
+    tail_at: str
+    chains: int
+    draws: int
+    nested: bool
+
+    @classmethod
+    def of(cls, posterior: xr.Dataset, stats: xr.Dataset) -> _Mixing:
+        """The figures of ``posterior``; the nested R-hat when ``stats`` labels two or more
+        ensembles (emcee's independent ensembles, one label per walker)."""
+        constant = posterior.max(("chain", "draw")) == posterior.min(("chain", "draw"))
+        superchain = np.asarray(stats["ensemble"].values) if "ensemble" in stats else None
+        nested = superchain is not None and np.unique(superchain).size > 1
+        with np.errstate(invalid="ignore", divide="ignore"):  # constant elements give NaN
+            if superchain is not None and nested:
+                rhat_ds = _nested_rhat_dataset(posterior, superchain)
+            else:
+                rhat_ds = az.rhat(posterior)
+            bulk_ds = az.ess(posterior, method="bulk")
+            tail_ds = az.ess(posterior, method="tail")
+        rhat, rhat_at = _extreme(rhat_ds, largest=True, constant=constant)
+        bulk, bulk_at = _extreme(bulk_ds, largest=False, constant=constant)
+        tail, tail_at = _extreme(tail_ds, largest=False, constant=constant)
+        chains, draws = posterior.sizes["chain"], posterior.sizes["draw"]
+        return cls(rhat, rhat_at, bulk, bulk_at, tail, tail_at, chains, draws, nested)
+
+    def messages(self, gates: SamplingGates) -> list[str]:
+        """One message per failed R-hat, bulk ESS or tail ESS gate."""
+        messages = []
+        rhat, rhat_max = self.rhat, gates.rhat_max
+        if not rhat <= rhat_max and self.nested:
+            messages.append(
+                f"nested R-hat {rhat:.3f} > {rhat_max} for {self.rhat_at}: the independent "
+                "ensembles (or the two halves of the run) disagree; run longer (more burn-in "
+                "and steps), start closer to the posterior, or use NUTS"
+            )
+        elif not rhat <= rhat_max:
+            messages.append(
+                f"R-hat {rhat:.3f} > {rhat_max} for {self.rhat_at}: the chains disagree; run "
+                "longer chains (more warm-up and samples), start them from a better point, or "
+                "reparameterise"
+            )
+        if not self.bulk >= gates.ess_bulk_min:
+            messages.append(
+                f"bulk ESS {self.bulk:.0f} < {gates.ess_bulk_min:.0f} for {self.bulk_at} "
+                f"({self.chains} chains x {self.draws} draws): draw more samples or chains, or "
+                "reparameterise to reduce autocorrelation"
+            )
+        if gates.ess_tail_min is not None and not self.tail >= gates.ess_tail_min:
+            messages.append(
+                f"tail ESS {self.tail:.0f} < {gates.ess_tail_min:.0f} for {self.tail_at}: the "
+                "5 %/95 % quantiles are poorly resolved; draw more samples"
+            )
+        return messages
+
+
+def _divergences(
+    stats: xr.Dataset, total: int, max_divergences: int
+) -> tuple[int | None, list[str]]:
+    """NUTS's divergent transitions (``None`` without a ``diverging`` statistic) and the
+    message when there are more than ``max_divergences`` (a share of the ``total`` draws)."""
+    if "diverging" not in stats:
+        return None, []
+    divergences = int(np.asarray(stats["diverging"]).sum())
+    if divergences <= max_divergences:
+        return divergences, []
+    return divergences, [
+        f"{divergences} divergent transitions ({100 * divergences / total:.1f}"
+        f" % of draws) > {max_divergences}: the sampler cannot follow the posterior's "
+        "curvature; raise target_accept (e.g. 0.95), or reparameterise (a non-centred "
+        "form for hierarchical scales, standardised parameters)"
+    ]
+
+
+def _ebfmi(
+    idata: az.InferenceData, stats: xr.Dataset, ebfmi_min: float
+) -> tuple[tuple[float, ...] | None, list[str]]:
+    """E-BFMI per chain (``None`` without an ``energy`` statistic) and the message naming the
+    chains below ``ebfmi_min``."""
+    if "energy" not in stats:
+        return None, []
+    ebfmi = tuple(float(e) for e in az.bfmi(idata))
+    low = [(c, e) for c, e in enumerate(ebfmi) if not e >= ebfmi_min]
+    if not low:
+        return ebfmi, []
+    listed = ", ".join(f"chain {c}: {e:.2f}" for c, e in low)
+    return ebfmi, [
+        f"E-BFMI below {ebfmi_min} ({listed}): the momentum resampling explores the "
+        "energy levels poorly, typical of heavy tails or funnels; reparameterise"
+    ]
+
+
+def _run_length(stats: xr.Dataset, min_autocorr_lengths: float) -> tuple[float | None, list[str]]:
+    """emcee's kept steps in autocorrelation times (``None`` without emcee's ``autocorr_time``
+    attribute) and the message when they are fewer than ``min_autocorr_lengths``."""
+    if "autocorr_time" not in stats.attrs:
+        return None, []
+    tau = float(np.max(json.loads(stats.attrs["autocorr_time"])))
+    kept = int(stats.attrs["kept_steps"])
+    lengths = kept / tau
+    if not np.isfinite(tau):
+        return lengths, [
+            f"emcee's autocorrelation time could not be estimated from {kept} kept steps: "
+            f"run at least {min_autocorr_lengths:.0f} times longer than it is likely to be"
+        ]
+    if not lengths >= min_autocorr_lengths:
+        return lengths, [
+            f"emcee kept {kept} steps = {lengths:.1f} autocorrelation times "
+            f"(largest tau {tau:.0f} steps) < {min_autocorr_lengths:.0f}: run about "
+            f"{int(np.ceil(min_autocorr_lengths * tau))} steps after burn-in, or use NUTS"
+        ]
+    return lengths, []
 
 
 def summary_table(

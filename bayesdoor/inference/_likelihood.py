@@ -688,17 +688,62 @@ def _frequency_position(band_centres: Float[Array, " band"]) -> Float[Array, " b
     return jnp.where(hi > lo, (band_centres - 0.5 * (lo + hi)) / jnp.maximum(hi - lo, 1e-30), 0.0)
 
 
+class Discrepancy(eqx.Module):
+    """The model error at one draw: the discrepancy's scales, their slope over the band, the
+    run scatter, the correlation length over the bands and the common part's scales.
+
+    Attributes
+    ----------
+    sigma_model
+        The discrepancy scale of each channel (decades), one for every operating point or one
+        per operating point (a leading axis in the order of ``data.operating``).
+    slope
+        The discrepancy's slope over the band per channel; ``None``: flat.
+    run_scatter
+        ``rho_c``, each channel's run scatter in Welch standard deviations; ``None``: 1.
+    correlation_length
+        The shared discrepancy's correlation length over the bands (in bands, positive;
+        :func:`band_correlation`); the forward model's own error stays independent over the
+        bands. ``None``: independent bands.
+    common
+        ``tau_c``, the scale (decades) of each channel's discrepancy common to every operating
+        point (needs ``shared``, not with ``correlation_length``); ``None``: none.
+    shared
+        The discrepancy is shared by the runs of an operating point (see the module
+        docstring); ``False``: each run's is independent.
+
+    Raises
+    ------
+    ValueError
+        For a correlation length or a common part without ``shared``, or both together.
+    """
+
+    sigma_model: Float[Array, "*op channel"]
+    slope: Float[Array, " channel"] | None = None
+    run_scatter: Float[Array, " channel"] | None = None
+    correlation_length: Float[Array, ""] | float | None = None
+    common: Float[Array, " channel"] | None = None
+    shared: bool = eqx.field(static=True, default=True)
+
+    def __check_init__(self):
+        if self.correlation_length is not None and self.common is None and not self.shared:
+            raise ValueError(
+                f"correlation_length={self.correlation_length!r} needs shared=True: only the "
+                "discrepancy shared by the runs of an operating point is correlated over bands"
+            )
+        if self.common is not None and (not self.shared or self.correlation_length is not None):
+            raise ValueError(
+                "common= needs shared=True and no correlation_length: the common part is added "
+                "to the discrepancy shared by the runs of an operating point, independent over "
+                "the bands"
+            )
+
+
 def feature_distribution(
     theta: Float[Array, " param"],
-    sigma_model: Float[Array, "*op channel"],
+    discrepancy: Discrepancy,
     data: CalibrationData,
     forward: AbstractForward,
-    slope: Float[Array, " channel"] | None = None,
-    *,
-    run_scatter: Float[Array, " channel"] | None = None,
-    shared: bool = True,
-    correlation_length: Float[Array, ""] | float | None = None,
-    common: Float[Array, " channel"] | None = None,
 ) -> tuple[DiscrepancyNormal, Bool[Array, ""]]:
     """The distribution of the measured features at ``theta``, and whether the model ran.
 
@@ -709,27 +754,12 @@ def feature_distribution(
     ----------
     theta
         The parameters, in the forward model's order.
-    sigma_model
-        The discrepancy scale of each channel (decades), one for every operating point or one
-        per operating point (a leading axis in the order of ``data.operating``).
+    discrepancy
+        The model error's values.
     data
         The measured runs.
     forward
         The simulator or a surrogate of it.
-    slope
-        The discrepancy's slope over the band per channel; ``None``: flat.
-    run_scatter
-        ``rho_c``, each channel's run scatter in Welch standard deviations; ``None``: 1.
-    shared
-        The discrepancy is shared by the runs of an operating point (see the module
-        docstring); ``False``: each run's is independent.
-    correlation_length
-        The shared discrepancy's correlation length over the bands (in bands, positive;
-        :func:`band_correlation`); the forward model's own error stays independent over the
-        bands. ``None``: independent bands.
-    common
-        ``tau_c``, the scale (decades) of each channel's discrepancy common to every operating
-        point (needs ``shared``, not with ``correlation_length``); ``None``: none.
 
     Returns
     -------
@@ -738,42 +768,27 @@ def feature_distribution(
         with a correlation length).
     ok
         False when the forward model failed.
-
-    Raises
-    ------
-    ValueError
-        For a correlation length or a common part without ``shared``, or both together.
     """
     out = forward(theta)
     loc = out.features[data.run_operating]
     x = _frequency_position(data.band_centres)
     n_channel = data.y.shape[1]
-    slope = jnp.zeros(n_channel) if slope is None else slope
-    rho = jnp.ones(n_channel) if run_scatter is None else run_scatter
-    discrepancy = (sigma_model[..., None] * jnp.exp(slope[:, None] * x[None, :])) ** 2
+    d = discrepancy
+    slope = jnp.zeros(n_channel) if d.slope is None else d.slope
+    rho = jnp.ones(n_channel) if d.run_scatter is None else d.run_scatter
+    variance = (d.sigma_model[..., None] * jnp.exp(slope[:, None] * x[None, :])) ** 2
     run_variance = data.welch_variance[:, None, None] * rho[None, :, None] ** 2
     ok = out.ok & jnp.all(jnp.isfinite(loc))
     loc = jnp.where(ok, loc, data.y)
-    if correlation_length is not None and common is None:
-        if not shared:
-            raise ValueError(
-                f"correlation_length={correlation_length!r} needs shared=True: only the "
-                "discrepancy shared by the runs of an operating point is correlated over bands"
-            )
-        scale = jnp.sqrt(jnp.broadcast_to(discrepancy, out.features.shape))
-        correlation = band_correlation(data.y.shape[-1], correlation_length)
+    if d.correlation_length is not None and d.common is None:
+        scale = jnp.sqrt(jnp.broadcast_to(variance, out.features.shape))
+        correlation = band_correlation(data.y.shape[-1], d.correlation_length)
         covariance = scale[..., :, None] * correlation * scale[..., None, :]
         covariance = covariance + jax.vmap(jax.vmap(jnp.diag))(out.variance)
         return CorrelatedDiscrepancyNormal(loc, run_variance, covariance, data.run_operating), ok
-    if common is not None:
-        if not shared or correlation_length is not None:
-            raise ValueError(
-                "common= needs shared=True and no correlation_length: the common part is added "
-                "to the discrepancy shared by the runs of an operating point, independent over "
-                "the bands"
-            )
-        shared_variance = jnp.broadcast_to(discrepancy + out.variance, out.features.shape)
-        common_variance = jnp.broadcast_to(common[:, None] ** 2, data.y.shape[1:])
+    shared_variance = jnp.broadcast_to(variance + out.variance, out.features.shape)
+    if d.common is not None:
+        common_variance = jnp.broadcast_to(d.common[:, None] ** 2, data.y.shape[1:])
         return DiscrepancyNormal(
             loc,
             run_variance,
@@ -781,8 +796,7 @@ def feature_distribution(
             data.run_operating,
             common_variance=common_variance,
         ), ok
-    shared_variance = jnp.broadcast_to(discrepancy + out.variance, out.features.shape)
-    if not shared:
+    if not d.shared:
         run_variance = run_variance + shared_variance[data.run_operating]
         shared_variance = jnp.zeros_like(shared_variance)
     return DiscrepancyNormal(loc, run_variance, shared_variance, data.run_operating), ok
@@ -790,15 +804,9 @@ def feature_distribution(
 
 def predictive_normal(
     theta: Float[Array, " param"],
-    sigma_model: Float[Array, "*op channel"],
+    discrepancy: Discrepancy,
     data: CalibrationData,
     forward: AbstractForward,
-    slope: Float[Array, " channel"] | None = None,
-    *,
-    run_scatter: Float[Array, " channel"] | None = None,
-    shared: bool = True,
-    correlation_length: Float[Array, ""] | float | None = None,
-    common: Float[Array, " channel"] | None = None,
 ) -> tuple[Float[Array, "run channel band"], Float[Array, "run channel band"], Bool[Array, ""]]:
     """Mean and marginal standard deviation of each measured feature, and whether the model ran.
 
@@ -813,47 +821,21 @@ def predictive_normal(
     ok
         False when the forward model failed.
     """
-    d, ok = feature_distribution(
-        theta,
-        sigma_model,
-        data,
-        forward,
-        slope,
-        run_scatter=run_scatter,
-        shared=shared,
-        correlation_length=correlation_length,
-        common=common,
-    )
+    d, ok = feature_distribution(theta, discrepancy, data, forward)
     return d.mean, jnp.sqrt(d.variance), ok
 
 
 def log_likelihood(
     theta: Float[Array, " param"],
-    sigma_model: Float[Array, "*op channel"],
+    discrepancy: Discrepancy,
     data: CalibrationData,
     forward: AbstractForward,
-    slope: Float[Array, " channel"] | None = None,
-    *,
-    run_scatter: Float[Array, " channel"] | None = None,
-    shared: bool = True,
-    correlation_length: Float[Array, ""] | float | None = None,
-    common: Float[Array, " channel"] | None = None,
 ) -> Float[Array, ""]:
     """The log likelihood of all runs; ``-inf`` (with finite gradients) where the model failed.
 
     See :func:`feature_distribution` for the parameters.
     """
-    d, ok = feature_distribution(
-        theta,
-        sigma_model,
-        data,
-        forward,
-        slope,
-        run_scatter=run_scatter,
-        shared=shared,
-        correlation_length=correlation_length,
-        common=common,
-    )
+    d, ok = feature_distribution(theta, discrepancy, data, forward)
     return jnp.where(ok, d.joint_log_prob(data.y), -jnp.inf)
 
 
@@ -902,19 +884,7 @@ def make_model(
     >>> mcmc.run(jax.random.key(0))  # doctest: +SKIP
     """
     error = ModelError() if error is None else error
-    if tuple(transform.names) != tuple(forward.names):
-        raise ValueError(
-            f"the transform's parameters {transform.names} differ from the forward model's "
-            f"{forward.names}: build both on the same names, in the same order"
-        )
-    if forward.operating.shape != data.operating.shape or not np.allclose(
-        np.asarray(forward.operating), np.asarray(data.operating)
-    ):
-        raise ValueError(
-            f"the forward model's operating points {np.asarray(forward.operating).tolist()} "
-            f"differ from the data's {np.asarray(data.operating).tolist()}: build the forward "
-            "model on data.operating"
-        )
+    _check_alignment(data, forward, transform)
     n_run, n_channel, n_band = data.y.shape
     n_op = data.operating.shape[0]
 
@@ -923,47 +893,8 @@ def make_model(
         theta = transform.from_sampling(z)
         for i, name in enumerate(transform.names):
             numpyro.deterministic(name, theta[i])
-        length = (
-            numpyro.sample(
-                "discrepancy_length",
-                dist.LogNormal(jnp.log(error.correlation), error.correlation_scale),
-            )
-            if error.infer_correlation
-            else error.correlation_length()
-        )
-        with numpyro.plate("channel", n_channel):
-            if error.shared and error.per_operating:
-                with numpyro.plate("operating", n_op, dim=-2):
-                    sigma = numpyro.sample("sigma_operating", dist.HalfNormal(error.scale))
-                numpyro.deterministic("sigma_model", jnp.sqrt(jnp.mean(sigma**2, axis=0)))
-            else:
-                sigma = numpyro.sample("sigma_model", dist.HalfNormal(error.scale))
-            slope = (
-                numpyro.sample("sigma_slope", dist.Normal(0.0, error.slope_scale))
-                if error.slope
-                else None
-            )
-            rho = (
-                numpyro.sample("run_scatter", dist.LogNormal(0.0, error.scatter_scale))
-                if error.shared
-                else None
-            )
-            tau = (
-                numpyro.sample("sigma_common", dist.HalfNormal(error.scale))
-                if error.common
-                else None
-            )
-        features, ok = feature_distribution(
-            theta,
-            sigma,
-            data,
-            forward,
-            slope,
-            run_scatter=rho,
-            shared=error.shared,
-            correlation_length=length,
-            common=tau,
-        )
+        discrepancy = _discrepancy_sites(error, n_channel, n_op)
+        features, ok = feature_distribution(theta, discrepancy, data, forward)
         numpyro.factor("solver_failed", jnp.where(ok, 0.0, -jnp.inf))
         if y is not None and error.shared:
             numpyro.factor(
@@ -977,3 +908,56 @@ def make_model(
             numpyro.sample("y", features, obs=y)
 
     return model
+
+
+def _check_alignment(
+    data: CalibrationData, forward: AbstractForward, transform: SamplingTransform
+) -> None:
+    """Raise when the names of ``transform`` and ``forward`` or the operating points of
+    ``forward`` and ``data`` disagree."""
+    if tuple(transform.names) != tuple(forward.names):
+        raise ValueError(
+            f"the transform's parameters {transform.names} differ from the forward model's "
+            f"{forward.names}: build both on the same names, in the same order"
+        )
+    if forward.operating.shape != data.operating.shape or not np.allclose(
+        np.asarray(forward.operating), np.asarray(data.operating)
+    ):
+        raise ValueError(
+            f"the forward model's operating points {np.asarray(forward.operating).tolist()} "
+            f"differ from the data's {np.asarray(data.operating).tolist()}: build the forward "
+            "model on data.operating"
+        )
+
+
+def _discrepancy_sites(error: ModelError, n_channel: int, n_op: int) -> Discrepancy:
+    """The model error's sample sites of :func:`make_model`, in its order: the correlation
+    length, then per channel the discrepancy scales (per operating point with
+    ``per_operating``), their slope, the run scatter and the common part's scales."""
+    length = (
+        numpyro.sample(
+            "discrepancy_length",
+            dist.LogNormal(jnp.log(error.correlation), error.correlation_scale),
+        )
+        if error.infer_correlation
+        else error.correlation_length()
+    )
+    with numpyro.plate("channel", n_channel):
+        if error.shared and error.per_operating:
+            with numpyro.plate("operating", n_op, dim=-2):
+                sigma = numpyro.sample("sigma_operating", dist.HalfNormal(error.scale))
+            numpyro.deterministic("sigma_model", jnp.sqrt(jnp.mean(sigma**2, axis=0)))
+        else:
+            sigma = numpyro.sample("sigma_model", dist.HalfNormal(error.scale))
+        slope = (
+            numpyro.sample("sigma_slope", dist.Normal(0.0, error.slope_scale))
+            if error.slope
+            else None
+        )
+        rho = (
+            numpyro.sample("run_scatter", dist.LogNormal(0.0, error.scatter_scale))
+            if error.shared
+            else None
+        )
+        tau = numpyro.sample("sigma_common", dist.HalfNormal(error.scale)) if error.common else None
+    return Discrepancy(sigma, slope, rho, length, tau, shared=error.shared)

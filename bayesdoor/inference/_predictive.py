@@ -71,54 +71,18 @@ def posterior_predictive(
         Whether each replicate's simulation succeeded.
     """
     runs = result.runs if runs is None else np.asarray(runs, dtype=int)
-    data, duration = campaign_data(
-        system,
-        campaign,
-        runs,
-        spec=result.feature_spec,
-        max_motion_s=result.settings.max_motion_s,
-    )
+    data, duration = _campaign_data(result, system, campaign, runs)
     draws = result.posterior_draws()
     total = len(next(iter(draws.values())))
     pick = np.resize(np.linspace(0, total - 1, min(n_draws, total)).round().astype(int), n_draws)
-    sigma = np.asarray(result.model_error_draws())
-    sigma = sigma[pick % len(sigma)]
-    sigma_op = result.discrepancy_draws()
-    sigma_op = sigma_op[pick % len(sigma_op)]
-    rho = np.asarray(result.run_scatter_draws())
-    rho = rho[pick % len(rho)]
+    sigma = _picked(np.asarray(result.model_error_draws()), pick)
     mean, ok = _draw_features(result, system, data, duration, draws, pick)
     welch = np.asarray(data.welch_variance)[None, :, None, None]
     if result.model_error.shared:
-        calibration, cal_duration = campaign_data(
-            system,
-            campaign,
-            result.runs,
-            spec=result.feature_spec,
-            max_motion_s=result.settings.max_motion_s,
-        )
-        cal_mean, cal_ok = _draw_features(result, system, calibration, cal_duration, draws, pick)
-        length = _length_draws(result)
-        length = length[pick % len(length)]
-        tau = result.common_draws()
-        tau = None if tau is None else tau[pick % len(tau)]
-        delta_mean, delta_var, common_mean, common_var = _discrepancy_posterior(
-            calibration, cal_mean, sigma_op, rho, length, tau
+        shift, spread, rho, cal_ok = _shared_discrepancy(
+            result, system, campaign, data, draws, pick
         )
         ok = ok & cal_ok
-        ops = np.asarray(data.operating)[np.asarray(data.run_operating)]
-        measured = np.asarray(calibration.operating)
-        own = sigma_op if sigma_op.ndim == 2 else np.sqrt(np.mean(sigma_op**2, axis=1))
-        shift = np.broadcast_to(common_mean[:, None], mean.shape).copy()
-        spread = np.broadcast_to(
-            own[:, None, :, None] ** 2 + common_var[:, None], mean.shape
-        ).copy()
-        for i, op in enumerate(ops):
-            same = np.isclose(measured, op)
-            match = np.flatnonzero(same if measured.ndim == 1 else np.all(same, axis=-1))
-            if match.size:
-                shift[:, i] = delta_mean[:, match[0]]
-                spread[:, i] = delta_var[:, match[0]]
         mean = mean + shift
         variance = spread + rho[:, None, :, None] ** 2 * welch
     else:
@@ -126,6 +90,61 @@ def posterior_predictive(
     noise = np.asarray(jax.random.normal(key, mean.shape, dtype=jnp.float64))
     replicates = np.where(ok[:, None, None, None], mean + np.sqrt(variance) * noise, np.nan)
     return replicates, data, ok
+
+
+def _campaign_data(
+    result: FitResult, system: AbstractSystem, campaign: xr.Dataset, runs: np.ndarray
+) -> tuple[CalibrationData, float]:
+    """:func:`campaign_data` of ``runs`` with the fit's features and motion length."""
+    return campaign_data(
+        system,
+        campaign,
+        runs,
+        spec=result.feature_spec,
+        max_motion_s=result.settings.max_motion_s,
+    )
+
+
+def _picked(values: np.ndarray, pick: np.ndarray) -> np.ndarray:
+    """The draws ``pick`` of ``values``, cycling through them when there are fewer."""
+    return values[pick % len(values)]
+
+
+def _shared_discrepancy(
+    result: FitResult,
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    data: CalibrationData,
+    draws: dict[str, np.ndarray],
+    pick: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per picked draw, the shared discrepancy's mean and variance at each run of ``data`` (its
+    posterior given the fit's calibration runs at a measured operating point, else the common
+    part plus a fresh draw of the operating point's own), the run scatter, and whether the
+    calibration runs' simulation succeeded."""
+    sigma_op = _picked(result.discrepancy_draws(), pick)
+    rho = _picked(np.asarray(result.run_scatter_draws()), pick)
+    calibration, cal_duration = _campaign_data(result, system, campaign, result.runs)
+    cal_mean, cal_ok = _draw_features(result, system, calibration, cal_duration, draws, pick)
+    length = _picked(_length_draws(result), pick)
+    tau = result.common_draws()
+    tau = None if tau is None else _picked(tau, pick)
+    delta_mean, delta_var, common_mean, common_var = _discrepancy_posterior(
+        calibration, cal_mean, sigma_op, rho, length, tau
+    )
+    ops = np.asarray(data.operating)[np.asarray(data.run_operating)]
+    measured = np.asarray(calibration.operating)
+    own = sigma_op if sigma_op.ndim == 2 else np.sqrt(np.mean(sigma_op**2, axis=1))
+    shape = (len(pick), *data.y.shape)
+    shift = np.broadcast_to(common_mean[:, None], shape).copy()
+    spread = np.broadcast_to(own[:, None, :, None] ** 2 + common_var[:, None], shape).copy()
+    for i, op in enumerate(ops):
+        same = np.isclose(measured, op)
+        match = np.flatnonzero(same if measured.ndim == 1 else np.all(same, axis=-1))
+        if match.size:
+            shift[:, i] = delta_mean[:, match[0]]
+            spread[:, i] = delta_var[:, match[0]]
+    return shift, spread, rho, cal_ok
 
 
 def _draw_features(

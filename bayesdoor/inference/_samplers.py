@@ -153,8 +153,35 @@ class _Sampler(Protocol):
 
 
 @dataclasses.dataclass(frozen=True)
-class _NUTS:
-    """NUTS with its settings checked and fixed (the parameters of :func:`sample_nuts`)."""
+class NUTSSettings:
+    """The settings of :func:`sample_nuts`, checked; ``sample`` runs NUTS with them.
+
+    Attributes
+    ----------
+    num_warmup, num_samples
+        Warm-up (adaptation) and kept iterations per chain.
+    num_chains
+        Number of chains.
+    dense_mass
+        Adapt a dense mass matrix (for strongly correlated parameters) instead of a diagonal.
+    target_accept
+        Target acceptance probability of the step-size adaptation; raise it (e.g. 0.95) when
+        there are divergences.
+    max_tree_depth
+        Maximum tree depth (at most ``2**max_tree_depth - 1`` leapfrog steps per draw).
+    chain_method
+        ``"vectorized"`` (chains vmapped in one program) or ``"sequential"``.
+    jit_model_args
+        Pass ``model_kwargs`` to the compiled sampler as arguments rather than constants
+        (numpyro's ``jit_model_args``), so fits of many data sets of one shape compile once
+        and share the persistent compilation cache (simulation-based calibration); every
+        keyword argument must then be an array.
+
+    Raises
+    ------
+    ValueError
+        If a count, ``target_accept`` or ``chain_method`` is invalid.
+    """
 
     num_warmup: int = 1000
     num_samples: int = 1000
@@ -245,14 +272,7 @@ def sample_nuts(
     key: jax.Array,
     model_kwargs: Mapping[str, Any] | None = None,
     init_values: Mapping[str, Any] | None = None,
-    num_warmup: int = 1000,
-    num_samples: int = 1000,
-    num_chains: int = 4,
-    dense_mass: bool = False,
-    target_accept: float = 0.8,
-    max_tree_depth: int = 10,
-    chain_method: str = "vectorized",
-    jit_model_args: bool = False,
+    settings: NUTSSettings = NUTSSettings(),
     progress: bool = True,
 ) -> az.InferenceData:
     """Sample a numpyro model's posterior with NUTS.
@@ -269,24 +289,9 @@ def sample_nuts(
     init_values
         Constrained start values by site, e.g. a CMA-ES optimum (``init_to_value``; every
         chain starts there and warm-up separates them). ``None``: the prior median.
-    num_warmup, num_samples
-        Warm-up (adaptation) and kept iterations per chain.
-    num_chains
-        Number of chains.
-    dense_mass
-        Adapt a dense mass matrix (for strongly correlated parameters) instead of a diagonal.
-    target_accept
-        Target acceptance probability of the step-size adaptation; raise it (e.g. 0.95) when
-        there are divergences.
-    max_tree_depth
-        Maximum tree depth (at most ``2**max_tree_depth - 1`` leapfrog steps per draw).
-    chain_method
-        ``"vectorized"`` (chains vmapped in one program) or ``"sequential"``.
-    jit_model_args
-        Pass ``model_kwargs`` to the compiled sampler as arguments rather than constants
-        (numpyro's ``jit_model_args``), so fits of many data sets of one shape compile once
-        and share the persistent compilation cache (simulation-based calibration); every
-        keyword argument must then be an array.
+    settings
+        Warm-up, samples, chains, mass matrix, step-size target, tree depth and how the
+        chains run (:class:`NUTSSettings`).
     progress
         Show numpyro's progress bar, when standard error is a terminal.
 
@@ -297,26 +302,11 @@ def sample_nuts(
         ``step_size``, ``lp``, ``n_steps``, ``acceptance_rate``), ``log_likelihood``,
         ``observed_data`` and provenance attributes.
 
-    Raises
-    ------
-    ValueError
-        If a count, ``target_accept`` or ``chain_method`` is invalid.
-
     References
     ----------
     M. D. Hoffman and A. Gelman, "The No-U-Turn Sampler", JMLR 15 (2014).
     """
-    sampler = _NUTS(
-        num_warmup=num_warmup,
-        num_samples=num_samples,
-        num_chains=num_chains,
-        dense_mass=dense_mass,
-        target_accept=target_accept,
-        max_tree_depth=max_tree_depth,
-        chain_method=chain_method,
-        jit_model_args=jit_model_args,
-    )
-    return sampler.sample(
+    return settings.sample(
         model, key=key, init_values=init_values, progress=progress, model_kwargs=model_kwargs
     )
 
@@ -478,9 +468,74 @@ def _thinning(thin: int | None, tau: np.ndarray) -> int:
 
 
 @dataclasses.dataclass(frozen=True)
-class _Emcee:
-    """Independent emcee ensembles with their settings checked and fixed (the parameters of
-    :func:`sample_emcee`)."""
+class _EmceeRun:
+    """A finished emcee run: the sampler with its chain, the space it ran on, the walkers per
+    ensemble, the autocorrelation time per coordinate and why it stopped."""
+
+    sampler: emcee.EnsembleSampler
+    space: _Unconstrained
+    n_walkers: int
+    tau: np.ndarray
+    stopped: str
+
+
+@dataclasses.dataclass(frozen=True)
+class EmceeSettings:
+    """The settings of :func:`sample_emcee`, checked; ``sample`` runs the ensembles with them.
+
+    The run length is adaptive by default (``n_steps=None``), as emcee's documentation
+    recommends: the ensembles advance in blocks of ``check_every`` steps (emcee's own
+    ``sample``, continuing from the last state); after each block emcee's integrated
+    autocorrelation time ``tau`` of every unconstrained coordinate is estimated on the
+    steps after ``burn``, and the run stops once those steps number at least
+    ``min_autocorr_lengths`` times the largest ``tau`` and no ``tau`` moved by
+    ``tau_tolerance`` (relative) since the previous block (the checks thin long chains
+    to about 2000 steps for speed; a stop is confirmed on the full chain), or at
+    ``max_steps``. A run that
+    the cap stops short of that length warns, and fails the length gate of
+    :func:`diagnose_sampling`. The blocks do not change the draws: a run that stops after
+    ``N`` steps equals a run of ``n_steps=N`` with the same key.
+
+    Attributes
+    ----------
+    n_walkers
+        Walkers per ensemble, at least ``2 * ndim + 2`` for ``ndim`` unconstrained
+        dimensions: a walker's stretch partner comes from the other half of its ensemble,
+        whose ``n_walkers / 2`` walkers must span all ``ndim`` directions (an affine hull of
+        dimension ``n_walkers / 2 - 1``). ``None``: exactly that. In the output each walker is
+        a ``chain``, as in ``arviz.from_emcee``, ensemble by ensemble.
+    n_ensembles
+        Independent ensembles (at least 2 for the nested R-hat of :func:`diagnose_sampling`;
+        1 is a single emcee ensemble, whose R-hat is taken over walkers).
+    n_steps
+        Ensemble steps, including the burn-in, for a run of fixed length; ``None``: the
+        adaptive length described above.
+    max_steps
+        Adaptive runs: the most ensemble steps, including the burn-in.
+    check_every
+        Adaptive runs: steps between two estimates of the autocorrelation time.
+    min_autocorr_lengths
+        Adaptive runs: steps after the burn-in, in autocorrelation times, at which the run
+        may stop (emcee's documentation recommends 50; :func:`diagnose_sampling`'s gate).
+    tau_tolerance
+        Adaptive runs: the largest relative change of every ``tau`` between two checks at
+        which the run may stop (emcee's documentation uses 1 %).
+    burn
+        Steps discarded at the start.
+    thin
+        Keep every ``thin``-th step after the burn-in; ``None``: every ``max(1, min(tau) //
+        2)``-th, emcee's documented choice, which keeps nearly all the effective samples
+        of the fastest coordinate in a fraction of the draws (the pointwise log-likelihood
+        is stored for every draw: 960 features x 8 bytes each on the door's demo fit). The
+        autocorrelation time is estimated on every step.
+    init_scale
+        Standard deviation of the start ball in unconstrained coordinates.
+
+    Raises
+    ------
+    ValueError
+        If a count is invalid.
+    """
 
     n_walkers: int | None = None
     n_ensembles: int = 4
@@ -553,9 +608,8 @@ class _Emcee:
         tau = _autocorr_time(sampler, self.burn)
         if stopped == "max_steps":
             self._warn_short(sampler.iteration, tau)
-        return self._inference_data(
-            model, model_kwargs, init_values, key, sampler, space, n_walkers, tau, stopped
-        )
+        run = _EmceeRun(sampler, space, n_walkers, tau, stopped)
+        return self._inference_data(model, model_kwargs, init_values, key, run)
 
     def _run(self, sampler: emcee.EnsembleSampler, state: emcee.State, progress: bool) -> str:
         """Advance the ensembles from ``state``: a fixed run in one go to ``n_steps``; an
@@ -618,16 +672,13 @@ class _Emcee:
         model_kwargs: Mapping[str, Any],
         init_values: Mapping[str, Any] | None,
         key: jax.Array,
-        sampler: emcee.EnsembleSampler,
-        space: _Unconstrained,
-        n_walkers: int,
-        tau: np.ndarray,
-        stopped: str,
+        run: _EmceeRun,
     ) -> az.InferenceData:
         """The run as ArviZ data: the kept steps, thinned (:func:`_thinning`) and mapped back
         (:func:`_emcee_draws`), the settings with the walker count used, each walker's
         acceptance fraction and ensemble, and the run's length, stop and ``tau`` as
         attributes of ``sample_stats``."""
+        sampler, n_walkers, tau = run.sampler, run.n_walkers, run.tau
         every = _thinning(self.thin, tau)
         settings = {
             **dataclasses.asdict(self),
@@ -636,7 +687,7 @@ class _Emcee:
         }
         idata = to_inference_data(
             model,
-            **_emcee_draws(sampler, space, self.burn, every),
+            **_emcee_draws(sampler, run.space, self.burn, every),
             model_kwargs=model_kwargs,
             sampler="emcee",
             settings=settings,
@@ -652,7 +703,7 @@ class _Emcee:
         stats["autocorr_time"] = json.dumps(np.asarray(tau).tolist())
         stats["kept_steps"] = sampler.iteration - self.burn
         stats["total_steps"] = sampler.iteration
-        stats["stopped"] = stopped
+        stats["stopped"] = run.stopped
         stats["thin"] = every
         return idata
 
@@ -681,16 +732,7 @@ def sample_emcee(
     key: jax.Array,
     model_kwargs: Mapping[str, Any] | None = None,
     init_values: Mapping[str, Any] | None = None,
-    n_walkers: int | None = None,
-    n_ensembles: int = 4,
-    n_steps: int | None = None,
-    max_steps: int = 40000,
-    check_every: int = 500,
-    min_autocorr_lengths: float = 50.0,
-    tau_tolerance: float = 0.01,
-    burn: int = 1000,
-    thin: int | None = 1,
-    init_scale: float = 1e-2,
+    settings: EmceeSettings = EmceeSettings(),
     progress: bool = True,
 ) -> az.InferenceData:
     """Sample a numpyro model's posterior with independent emcee ensembles, walkers vmapped.
@@ -709,19 +751,7 @@ def sample_emcee(
     near ``1 + tau / N`` for ``N`` kept steps and reaches 1.01 only after about 100 to 150
     autocorrelation times; independent ensembles are what :func:`diagnose_sampling` compares
     instead (a nested R-hat, Margossian et al. 2024). All ensembles start in the same ball.
-
-    The run length is adaptive by default (``n_steps=None``), as emcee's documentation
-    recommends: the ensembles advance in blocks of ``check_every`` steps (emcee's own
-    ``sample``, continuing from the last state); after each block emcee's integrated
-    autocorrelation time ``tau`` of every unconstrained coordinate is estimated on the
-    steps after ``burn``, and the run stops once those steps number at least
-    ``min_autocorr_lengths`` times the largest ``tau`` and no ``tau`` moved by
-    ``tau_tolerance`` (relative) since the previous block (the checks thin long chains
-    to about 2000 steps for speed; a stop is confirmed on the full chain), or at
-    ``max_steps``. A run that
-    the cap stops short of that length warns here, and fails the length gate of
-    :func:`diagnose_sampling`. The blocks do not change the draws: a run that stops after
-    ``N`` steps equals a run of ``n_steps=N`` with the same key.
+    The run length is adaptive by default (:class:`EmceeSettings`).
 
     Parameters
     ----------
@@ -734,38 +764,9 @@ def sample_emcee(
     init_values
         Constrained values around which the walkers start, e.g. a CMA-ES optimum;
         ``None``: the prior median.
-    n_walkers
-        Walkers per ensemble, at least ``2 * ndim + 2`` for ``ndim`` unconstrained
-        dimensions: a walker's stretch partner comes from the other half of its ensemble,
-        whose ``n_walkers / 2`` walkers must span all ``ndim`` directions (an affine hull of
-        dimension ``n_walkers / 2 - 1``). ``None``: exactly that. In the output each walker is
-        a ``chain``, as in ``arviz.from_emcee``, ensemble by ensemble.
-    n_ensembles
-        Independent ensembles (at least 2 for the nested R-hat of :func:`diagnose_sampling`;
-        1 is a single emcee ensemble, whose R-hat is taken over walkers).
-    n_steps
-        Ensemble steps, including the burn-in, for a run of fixed length; ``None``: the
-        adaptive length described above.
-    max_steps
-        Adaptive runs: the most ensemble steps, including the burn-in.
-    check_every
-        Adaptive runs: steps between two estimates of the autocorrelation time.
-    min_autocorr_lengths
-        Adaptive runs: steps after the burn-in, in autocorrelation times, at which the run
-        may stop (emcee's documentation recommends 50; :func:`diagnose_sampling`'s gate).
-    tau_tolerance
-        Adaptive runs: the largest relative change of every ``tau`` between two checks at
-        which the run may stop (emcee's documentation uses 1 %).
-    burn
-        Steps discarded at the start.
-    thin
-        Keep every ``thin``-th step after the burn-in; ``None``: every ``max(1, min(tau) //
-        2)``-th, emcee's documented choice, which keeps nearly all the effective samples
-        of the fastest coordinate in a fraction of the draws (the pointwise log-likelihood
-        is stored for every draw: 960 features x 8 bytes each on the door's demo fit). The
-        autocorrelation time is estimated on every step.
-    init_scale
-        Standard deviation of the start ball in unconstrained coordinates.
+    settings
+        Walkers, ensembles, run length, burn-in, thinning and start ball
+        (:class:`EmceeSettings`).
     progress
         Show emcee's progress bar (one per block of an adaptive run), when standard
         error is a terminal.
@@ -783,9 +784,8 @@ def sample_emcee(
     Raises
     ------
     ValueError
-        If a count is invalid, there are fewer than ``2 * ndim + 2`` walkers, or a walker of
-        the start ball has a non-finite log density (start closer to the posterior, or
-        shrink ``init_scale``).
+        If there are fewer than ``2 * ndim + 2`` walkers, or a walker of the start ball has
+        a non-finite log density (start closer to the posterior, or shrink ``init_scale``).
 
     Warns
     -----
@@ -799,18 +799,6 @@ def sample_emcee(
     CAMCoS 5 (2010); emcee's documentation, "Autocorrelation analysis & convergence" and
     "Saving & monitoring progress".
     """
-    sampler = _Emcee(
-        n_walkers=n_walkers,
-        n_ensembles=n_ensembles,
-        n_steps=n_steps,
-        max_steps=max_steps,
-        check_every=check_every,
-        min_autocorr_lengths=min_autocorr_lengths,
-        tau_tolerance=tau_tolerance,
-        burn=burn,
-        thin=thin,
-        init_scale=init_scale,
-    )
-    return sampler.sample(
+    return settings.sample(
         model, key=key, init_values=init_values, progress=progress, model_kwargs=model_kwargs
     )

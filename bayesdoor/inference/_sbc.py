@@ -212,6 +212,48 @@ def sbc_uniformity(
     inference algorithms with simulation-based calibration", arXiv:1804.06788 (2018).
     """
     ranks = np.asarray(ranks)
+    bins = _checked_bins(ranks, n_rank_draws, bins, alpha)
+    n, p = ranks.shape
+    names = _parameter_names(names, p)
+    edges = _bin_edges(n_rank_draws, bins)
+    expected = n * np.diff(edges) / (n_rank_draws + 1)
+    level = alpha / (2 * p)
+    scaled = (ranks + 0.5) / (n_rank_draws + 1)
+    tests = [_rank_test(ranks[:, i], scaled[:, i], edges, expected) for i in range(p)]
+    columns = list(zip(*tests, strict=True)) or [()] * 5
+    counts, chi2_p, ks_p, means, spreads = (tuple(column) for column in columns)
+    messages = [
+        f"{name}: chi2 p={chi:.2g}, KS p={ks:.2g} < {level:.2g} (level {alpha} over "
+        f"{2 * p} tests); " + "; ".join(_rank_causes(mean, spread, n))
+        for name, (_, chi, ks, mean, spread) in zip(names, tests, strict=True)
+        if min(chi, ks) < level
+    ]
+    return SBCUniformity(
+        names=names,
+        n_datasets=n,
+        n_rank_draws=int(n_rank_draws),
+        bins=bins,
+        counts=counts,
+        chi2_pvalue=chi2_p,
+        ks_pvalue=ks_p,
+        mean_rank=means,
+        spread=spreads,
+        alpha=alpha,
+        passed=not messages,
+        messages=tuple(messages),
+    )
+
+
+def _checked_bins(ranks: np.ndarray, n_rank_draws: int, bins: int | None, alpha: float) -> int:
+    """The chi-square test's bins (default ``min(10, n_datasets // 5)``, at least 2), with the
+    ranks and the level checked.
+
+    Raises
+    ------
+    ValueError
+        For ranks that are not (dataset, param) with 10 data sets or more or lie outside
+        ``0..n_rank_draws``, bins outside ``2..n_rank_draws + 1``, or a level outside (0, 1).
+    """
     if ranks.ndim != 2 or ranks.shape[0] < 10:
         raise ValueError(
             f"ranks must be (dataset, param) with at least 10 data sets; got {ranks.shape}: "
@@ -222,75 +264,62 @@ def sbc_uniformity(
             f"ranks run from {ranks.min()} to {ranks.max()}, outside 0..n_rank_draws="
             f"{n_rank_draws}: pass the number of draws the ranks were taken among"
         )
-    n, p = ranks.shape
-    bins = max(2, min(10, n // 5)) if bins is None else int(bins)
+    bins = max(2, min(10, ranks.shape[0] // 5)) if bins is None else int(bins)
     if not 2 <= bins <= n_rank_draws + 1:
         raise ValueError(f"bins={bins} must lie in 2..{n_rank_draws + 1} (the number of ranks)")
     if not 0 < alpha < 1:
         raise ValueError(f"alpha={alpha} must lie in (0, 1), e.g. 0.01")
+    return bins
+
+
+def _parameter_names(names: Sequence[str] | None, p: int) -> tuple[str, ...]:
+    """``names`` checked to name ``p`` parameters; ``None``: ``p0, p1, ...``."""
     names = tuple(f"p{i}" for i in range(p)) if names is None else tuple(names)
     if len(names) != p:
         raise ValueError(f"names has {len(names)} entries for {p} parameters: {names}")
-    edges = _bin_edges(n_rank_draws, bins)
-    expected = n * np.diff(edges) / (n_rank_draws + 1)
-    level = alpha / (2 * p)
-    scaled = (ranks + 0.5) / (n_rank_draws + 1)
-    counts, chi2_p, ks_p, means, spreads, messages = [], [], [], [], [], []
-    for i, name in enumerate(names):
-        c = np.histogram(ranks[:, i], bins=edges - 0.5)[0]
-        # the last edge sits at L + 1 - 0.5, so rank L falls in the last bin
-        chi = float(stats.chisquare(c, expected).pvalue)
-        ks = float(stats.kstest(scaled[:, i], "uniform").pvalue)
-        mean = float(scaled[:, i].mean())
-        spread = float(scaled[:, i].var() * 12.0)
-        counts.append(tuple(int(x) for x in c))
-        chi2_p.append(chi)
-        ks_p.append(ks)
-        means.append(mean)
-        spreads.append(spread)
-        if min(chi, ks) < level:
-            causes = []
-            # standard errors of the mean and of 12 x the variance of n uniform draws
-            mean_sd, spread_sd = np.sqrt(1.0 / (12.0 * n)), np.sqrt(0.8 / n)
-            if abs(mean - 0.5) > 2.0 * mean_sd:
-                side = "below" if mean > 0.5 else "above"
-                causes.append(
-                    f"mean rank {mean:.2f} (0.5 +- {mean_sd:.2f}): the posterior sits {side} the "
-                    "truth (a biased likelihood, forward model or prior)"
-                )
-            if spread > 1.0 + 2.0 * spread_sd:
-                causes.append(
-                    f"spread {spread:.2f} (1 +- {spread_sd:.2f}), a U shape: the posterior is too "
-                    "narrow (noise or model error underestimated, or chains that do not mix)"
-                )
-            elif spread < 1.0 - 2.0 * spread_sd:
-                causes.append(
-                    f"spread {spread:.2f} (1 +- {spread_sd:.2f}), a hump: the posterior is too "
-                    "wide (noise or model error overestimated)"
-                )
-            if not causes:
-                causes.append(
-                    "neither a shift nor a width: lumpy ranks (too few independent draws per "
-                    "rank, or a posterior of the wrong shape)"
-                )
-            messages.append(
-                f"{name}: chi2 p={chi:.2g}, KS p={ks:.2g} < {level:.2g} (level {alpha} over "
-                f"{2 * p} tests); " + "; ".join(causes)
-            )
-    return SBCUniformity(
-        names=names,
-        n_datasets=n,
-        n_rank_draws=int(n_rank_draws),
-        bins=bins,
-        counts=tuple(counts),
-        chi2_pvalue=tuple(chi2_p),
-        ks_pvalue=tuple(ks_p),
-        mean_rank=tuple(means),
-        spread=tuple(spreads),
-        alpha=alpha,
-        passed=not messages,
-        messages=tuple(messages),
-    )
+    return names
+
+
+def _rank_test(
+    ranks: np.ndarray, scaled: np.ndarray, edges: np.ndarray, expected: np.ndarray
+) -> tuple[tuple[int, ...], float, float, float, float]:
+    """One parameter's counts per bin, chi-square and KS p-values, mean scaled rank and 12 x
+    the variance of the scaled ranks (1 for uniform ranks)."""
+    c = np.histogram(ranks, bins=edges - 0.5)[0]
+    # the last edge sits at L + 1 - 0.5, so rank L falls in the last bin
+    chi = float(stats.chisquare(c, expected).pvalue)
+    ks = float(stats.kstest(scaled, "uniform").pvalue)
+    return tuple(int(x) for x in c), chi, ks, float(scaled.mean()), float(scaled.var() * 12.0)
+
+
+def _rank_causes(mean: float, spread: float, n: int) -> list[str]:
+    """The likely causes of non-uniform ranks from their scaled mean and 12 x variance over
+    ``n`` data sets: a shift, a U shape, a hump, else lumpiness."""
+    causes = []
+    # standard errors of the mean and of 12 x the variance of n uniform draws
+    mean_sd, spread_sd = np.sqrt(1.0 / (12.0 * n)), np.sqrt(0.8 / n)
+    if abs(mean - 0.5) > 2.0 * mean_sd:
+        side = "below" if mean > 0.5 else "above"
+        causes.append(
+            f"mean rank {mean:.2f} (0.5 +- {mean_sd:.2f}): the posterior sits {side} the "
+            "truth (a biased likelihood, forward model or prior)"
+        )
+    if spread > 1.0 + 2.0 * spread_sd:
+        causes.append(
+            f"spread {spread:.2f} (1 +- {spread_sd:.2f}), a U shape: the posterior is too "
+            "narrow (noise or model error underestimated, or chains that do not mix)"
+        )
+    elif spread < 1.0 - 2.0 * spread_sd:
+        causes.append(
+            f"spread {spread:.2f} (1 +- {spread_sd:.2f}), a hump: the posterior is too "
+            "wide (noise or model error overestimated)"
+        )
+    if not causes:
+        causes.append(
+            "neither a shift nor a width: lumpy ranks (too few independent draws per "
+            "rank, or a posterior of the wrong shape)"
+        )
+    return causes
 
 
 @dataclasses.dataclass(frozen=True)
@@ -431,17 +460,49 @@ def _prior_predictive(
     return jax.tree_util.tree_map(np.asarray, jax.jit(jax.vmap(draw))(keys))
 
 
+@dataclasses.dataclass(frozen=True)
+class SBCDesign:
+    """How many data sets a simulation-based calibration draws, which of them one call
+    simulates and fits, and how many posterior draws each rank is taken among.
+
+    Attributes
+    ----------
+    n_datasets
+        Number of data sets (Talts et al. use hundreds; 20 is the least for a coarse test).
+    n_rank_draws
+        Posterior draws per rank (``L``); keep it below the fits' effective sample size.
+    datasets
+        Indices of the data sets this call simulates and fits (default all).
+    """
+
+    n_datasets: int
+    n_rank_draws: int = 99
+    datasets: Sequence[int] | None = None
+
+    def indices(self) -> np.ndarray:
+        """The indices of the data sets of this call, checked.
+
+        Raises
+        ------
+        ValueError
+            For an index outside ``0..n_datasets - 1``, or none.
+        """
+        n = self.n_datasets
+        indices = np.arange(n) if self.datasets is None else np.asarray(self.datasets, dtype=int)
+        if indices.size == 0 or indices.min() < 0 or indices.max() >= n:
+            raise ValueError(f"datasets {indices.tolist()} must be non-empty indices in 0..{n - 1}")
+        return indices
+
+
 def run_sbc(
     model: Callable[..., Any],
     *,
     key: jax.Array,
-    n_datasets: int,
+    design: SBCDesign,
     fit: SBCFit,
     var_names: Sequence[str],
     observed: Sequence[str] = ("y",),
     model_kwargs: Mapping[str, Any] | None = None,
-    n_rank_draws: int = 99,
-    datasets: Sequence[int] | None = None,
     on_dataset: Callable[[SBCResult], None] | None = None,
 ) -> SBCResult:
     """Simulation-based calibration of a numpyro model and a posterior fit.
@@ -460,8 +521,8 @@ def run_sbc(
         as the sites (``model(y=None)`` draws ``y``), as :func:`make_model` builds.
     key
         PRNG key of the whole calibration.
-    n_datasets
-        Number of data sets (Talts et al. use hundreds; 20 is the least for a coarse test).
+    design
+        The data sets, those of this call, and the draws per rank (:class:`SBCDesign`).
     fit
         ``fit(model_kwargs, *, key) -> InferenceData``: the posterior of ``model`` given the
         keyword arguments (the observations included), e.g. a wrapper of :func:`sample_nuts`.
@@ -471,10 +532,6 @@ def run_sbc(
         The observed sites (keyword arguments of ``model``).
     model_kwargs
         Other keyword arguments of ``model``.
-    n_rank_draws
-        Posterior draws per rank (``L``); keep it below the fits' effective sample size.
-    datasets
-        Indices of the data sets this call simulates and fits (default all).
     on_dataset
         Called with the one-data-set result after each fit (to save it as it comes).
 
@@ -495,20 +552,11 @@ def run_sbc(
     inference algorithms with simulation-based calibration", arXiv:1804.06788 (2018).
     """
     model_kwargs = dict(model_kwargs or {})
-    indices = np.arange(n_datasets) if datasets is None else np.asarray(datasets, dtype=int)
-    if indices.size == 0 or indices.min() < 0 or indices.max() >= n_datasets:
-        raise ValueError(
-            f"datasets {indices.tolist()} must be non-empty indices in 0..{n_datasets - 1}"
-        )
+    indices = design.indices()
     key_prior, key_fit = jax.random.split(key)
     keys = jax.vmap(functools.partial(jax.random.fold_in, key_prior))(jnp.asarray(indices))
     prior = _prior_predictive(model, model_kwargs, tuple(observed), keys)
-    missing = sorted(set(var_names).union(observed) - set(prior))
-    if missing:
-        raise ValueError(
-            f"the model has no sites {missing}; its sites are {sorted(prior)}: check var_names "
-            "and observed"
-        )
+    _check_sites(prior, var_names, observed)
     names, truth = _scalars(prior, var_names, 1)
     parts = []
     for row, index in enumerate(indices):
@@ -516,27 +564,55 @@ def run_sbc(
         start = time.perf_counter()
         idata = fit(kwargs, key=jax.random.fold_in(key_fit, int(index)))
         seconds = time.perf_counter() - start
-        post = idata["posterior"]
-        _, draws = _scalars({v: post[v].values for v in var_names}, var_names, 2)
-        thinned = thin_evenly(draws, n_rank_draws)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ess = az.ess(post[list(var_names)], method="bulk")
-        ess_min = float(np.nanmin([np.min(ess[v].values) for v in var_names]))
-        gates = diagnose_sampling(idata, var_names=var_names, warn=False).passed
-        part = SBCResult(
-            names=names,
-            datasets=np.array([index]),
-            truth=truth[row : row + 1],
-            ranks=sbc_ranks(truth[row : row + 1], thinned[None]),
-            n_rank_draws=n_rank_draws,
-            ess_bulk=np.array([ess_min]),
-            gates_passed=np.array([gates]),
-            seconds=np.array([seconds]),
-        )
+        truth_row = (names, truth[row : row + 1])
+        part = _ranked(idata, var_names, truth_row, int(index), design.n_rank_draws, seconds)
         if on_dataset is not None:
             on_dataset(part)
         parts.append(part)
     return SBCResult.concatenate(parts)
+
+
+def _check_sites(
+    prior: Mapping[str, Any], var_names: Sequence[str], observed: Sequence[str]
+) -> None:
+    """Raise naming the sites of ``var_names`` and ``observed`` the prior draws lack."""
+    missing = sorted(set(var_names).union(observed) - set(prior))
+    if missing:
+        raise ValueError(
+            f"the model has no sites {missing}; its sites are {sorted(prior)}: check var_names "
+            "and observed"
+        )
+
+
+def _ranked(
+    idata: az.InferenceData,
+    var_names: Sequence[str],
+    truth: tuple[tuple[str, ...], np.ndarray],
+    index: int,
+    n_rank_draws: int,
+    seconds: float,
+) -> SBCResult:
+    """The one-data-set result of data set ``index``: its ``truth`` (the scalars' names and
+    values) ranked among ``n_rank_draws`` thinned draws of the fit ``idata``, the smallest
+    bulk ESS, whether the sampling gates passed, and the fit's time."""
+    names, values = truth
+    post = idata["posterior"]
+    _, draws = _scalars({v: post[v].values for v in var_names}, var_names, 2)
+    thinned = thin_evenly(draws, n_rank_draws)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ess = az.ess(post[list(var_names)], method="bulk")
+    ess_min = float(np.nanmin([np.min(ess[v].values) for v in var_names]))
+    gates = diagnose_sampling(idata, var_names=var_names, warn=False).passed
+    return SBCResult(
+        names=names,
+        datasets=np.array([index]),
+        truth=values,
+        ranks=sbc_ranks(values, thinned[None]),
+        n_rank_draws=n_rank_draws,
+        ess_bulk=np.array([ess_min]),
+        gates_passed=np.array([gates]),
+        seconds=np.array([seconds]),
+    )
 
 
 def plot_sbc_ranks(

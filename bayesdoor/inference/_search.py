@@ -12,7 +12,7 @@ import numpy as np
 from .._types import Float
 from ..systems import AbstractSystem
 from ._calibration import j_standard_error, welch_j_standard_error
-from ._cmaes import CMAESResult, minimize_cmaes
+from ._cmaes import CMAESOptions, CMAESResult, minimize_cmaes
 from ._likelihood import CalibrationData
 from ._population import _full, _j, _Population, _simulate
 from ._settings import FitSettings
@@ -211,13 +211,15 @@ def _optimise(
         lower=lower,
         upper=upper,
         seed=seed + 1,
-        sigma0=settings.cmaes_sigma0,
         integer_variables=integers,
-        max_evals=settings.cmaes_max_evals,
-        restarts=settings.cmaes_restarts,
-        popsize=settings.cmaes_popsize,
-        options=None if tolerance is None else {"tolfun": tolerance, "tolfunhist": tolerance},
-        affordable_restarts=True,
+        options=CMAESOptions(
+            sigma0=settings.cmaes_sigma0,
+            max_evals=settings.cmaes_max_evals,
+            restarts=settings.cmaes_restarts,
+            popsize=settings.cmaes_popsize,
+            affordable_restarts=True,
+            pycma=None if tolerance is None else {"tolfun": tolerance, "tolfunhist": tolerance},
+        ),
         progress=progress,
     )
     seconds = time.perf_counter() - t0

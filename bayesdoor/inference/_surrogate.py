@@ -243,8 +243,7 @@ def _ridge_fit(
 
 def fit_surrogate(
     forward: AbstractForward,
-    lower: Float[Array, " param"],
-    upper: Float[Array, " param"],
+    box: tuple[Float[Array, " param"], Float[Array, " param"]],
     *,
     key: jax.Array,
     n_train: int = 256,
@@ -265,8 +264,8 @@ def fit_surrogate(
     ----------
     forward
         The exact forward model (usually :class:`~bayesdoor.inference.SimulatorForward`).
-    lower, upper
-        The training box (see :func:`box_around`).
+    box
+        The training box ``(lower, upper)`` (see :func:`box_around`).
     key
         Seeds the designs.
     n_train, n_test
@@ -289,27 +288,13 @@ def fit_surrogate(
         For too few training points for a quadratic, an empty box, or when more than 10 % of
         the simulations fail (the box reaches where the simulator breaks down).
     """
-    lo = np.asarray(lower, dtype=float)
-    hi = np.asarray(upper, dtype=float)
-    d = lo.size
-    n_terms = 1 + d + d * (d + 1) // 2
-    if lo.shape != (len(forward.names),) or hi.shape != lo.shape or np.any(hi <= lo):
-        raise ValueError(
-            f"lower and upper must be ({len(forward.names)},) with upper > lower for "
-            f"{forward.names}; got {lo.tolist()} and {hi.tolist()}"
-        )
-    if n_train < 2 * n_terms or n_test < 8:
-        raise ValueError(
-            f"a quadratic in {d} parameters has {n_terms} terms: pass n_train >= {2 * n_terms} "
-            f"(got {n_train}) and n_test >= 8 (got {n_test})"
-        )
+    lo = np.asarray(box[0], dtype=float)
+    hi = np.asarray(box[1], dtype=float)
+    _check_design(forward, lo, hi, n_train, n_test)
     penalties = np.logspace(-8, 2, 21) if ridges is None else np.asarray(ridges, dtype=float)
-    train_key, test_key = jax.random.split(key)
-    seed_train, seed_test = (
-        int(jax.random.randint(k, (), 0, 2**31 - 1)) for k in (train_key, test_key)
-    )
-    unit_train = qmc.LatinHypercube(d, rng=np.random.default_rng(seed_train)).random(n_train)
-    unit_test = np.random.default_rng(seed_test).uniform(size=(n_test, d))
+    seed_train, seed_test = _design_seeds(key)
+    unit_train = qmc.LatinHypercube(lo.size, rng=np.random.default_rng(seed_train)).random(n_train)
+    unit_test = np.random.default_rng(seed_test).uniform(size=(n_test, lo.size))
     design = lo + (hi - lo) * np.concatenate([unit_train, unit_test])
     features, ok = simulate_design(forward, design, chunk=chunk, workers=workers)
     if np.mean(~ok) > 0.1:
@@ -322,13 +307,7 @@ def fit_surrogate(
     train = np.arange(len(design)) < n_train
     n_op = features.shape[1]
     flat = features.reshape(len(design), n_op, -1)
-    coefs, lams, errors = [], [], []
-    for o in range(n_op):
-        coef, lam, _ = _ridge_fit(phi[train & ok], flat[train & ok, o], penalties)
-        pred = phi[~train & ok] @ coef
-        errors.append(np.mean((pred - flat[~train & ok, o]) ** 2, axis=0))
-        coefs.append(coef)
-        lams.append(lam)
+    coefs, lams, errors = _ridge_per_operating(phi, flat, train & ok, ~train & ok, penalties)
     return QuadraticSurrogate(
         names=tuple(forward.names),
         operating=jnp.asarray(forward.operating),
@@ -339,3 +318,52 @@ def fit_surrogate(
         ridge=jnp.asarray(lams),
         n_train=int(np.sum(train & ok)),
     )
+
+
+def _check_design(
+    forward: AbstractForward, lo: np.ndarray, hi: np.ndarray, n_train: int, n_test: int
+) -> None:
+    """Raise for a box that is not one interval per parameter of ``forward`` with upper above
+    lower, or too few simulations for a quadratic's terms and its held-out error."""
+    d = lo.size
+    n_terms = 1 + d + d * (d + 1) // 2
+    if lo.shape != (len(forward.names),) or hi.shape != lo.shape or np.any(hi <= lo):
+        raise ValueError(
+            f"lower and upper must be ({len(forward.names)},) with upper > lower for "
+            f"{forward.names}; got {lo.tolist()} and {hi.tolist()}"
+        )
+    if n_train < 2 * n_terms or n_test < 8:
+        raise ValueError(
+            f"a quadratic in {d} parameters has {n_terms} terms: pass n_train >= {2 * n_terms} "
+            f"(got {n_train}) and n_test >= 8 (got {n_test})"
+        )
+
+
+def _design_seeds(key: jax.Array) -> tuple[int, int]:
+    """The seeds of the NumPy generators of the training design and of the held-out points,
+    one from each half of ``key``."""
+    train_key, test_key = jax.random.split(key)
+    seed_train, seed_test = (
+        int(jax.random.randint(k, (), 0, 2**31 - 1)) for k in (train_key, test_key)
+    )
+    return seed_train, seed_test
+
+
+def _ridge_per_operating(
+    phi: np.ndarray,
+    flat: np.ndarray,
+    fit: np.ndarray,
+    held_out: np.ndarray,
+    penalties: np.ndarray,
+) -> tuple[list[np.ndarray], list[float], list[np.ndarray]]:
+    """Per operating point, the ridge fit of the polynomial on the ``fit`` rows
+    (:func:`_ridge_fit`): its coefficients, its penalty and the mean squared error of each
+    feature on the ``held_out`` rows."""
+    coefs, lams, errors = [], [], []
+    for o in range(flat.shape[1]):
+        coef, lam, _ = _ridge_fit(phi[fit], flat[fit, o], penalties)
+        pred = phi[held_out] @ coef
+        errors.append(np.mean((pred - flat[held_out, o]) ** 2, axis=0))
+        coefs.append(coef)
+        lams.append(lam)
+    return coefs, lams, errors

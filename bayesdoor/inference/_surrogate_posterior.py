@@ -18,11 +18,11 @@ from numpyro.infer import Predictive
 
 from .._types import Array, Float
 from ._diagnostics import SamplingDiagnostics, diagnose_sampling
-from ._likelihood import CalibrationData, ModelError, log_likelihood, make_model
+from ._likelihood import CalibrationData, Discrepancy, ModelError, log_likelihood, make_model
 from ._model_error import _ErrorStart
 from ._parameterisation import SamplingTransform
 from ._population import _full, _j, _PartialForward, _Population, _simulate
-from ._samplers import _NUTS, _Emcee, _Sampler
+from ._samplers import EmceeSettings, NUTSSettings, _Sampler
 from ._search import _Optimum, _SearchSpace
 from ._settings import FitSettings
 from ._surrogate import box_around, fit_surrogate
@@ -48,24 +48,30 @@ def _box_room(
     return np.minimum(below, above)
 
 
-def _box_fractions(
-    search: _SearchSpace,
-    population: _Population,
-    data: CalibrationData,
-    optimum: _Optimum,
-    settings: FitSettings,
-) -> Array:
+@dataclasses.dataclass(frozen=True)
+class _Problem:
+    """What the posterior of a fit starts from: the parameters searched and held, the
+    simulator over the operating points, the calibration features and CMA-ES's optimum."""
+
+    search: _SearchSpace
+    population: _Population
+    data: CalibrationData
+    optimum: _Optimum
+
+
+def _box_fractions(problem: _Problem, settings: FitSettings) -> Array:
     """The surrogate box's half-width per parameter, as a fraction of its range: the whole
     range for a parameter whose move across its bounds (the others at the optimum) changes no
     feature by ``settings.insensitive`` Welch sds, else ``settings.box_fraction``."""
+    search, optimum = problem.search, problem.optimum
     d, (lower, upper) = len(search.free), search.bounds()
     ends = np.repeat(optimum.theta[None], 2 * d, axis=0)
     ends[2 * np.arange(d), np.arange(d)] = lower
     ends[2 * np.arange(d) + 1, np.arange(d)] = upper
     full = _full(search.system, ends, search.free, optimum.held)
-    end_features, _ = _simulate(population, full, optimum.chunk, settings.workers)
+    end_features, _ = _simulate(problem.population, full, optimum.chunk, settings.workers)
     reach = np.max(np.abs(end_features[0::2] - end_features[1::2]), axis=(1, 2, 3))
-    welch_sd = float(np.sqrt(np.median(np.asarray(data.welch_variance))))
+    welch_sd = float(np.sqrt(np.median(np.asarray(problem.data.welch_variance))))
     loose = reach < settings.insensitive * welch_sd
     return jnp.asarray(np.where(loose, 1.0, settings.box_fraction))
 
@@ -84,8 +90,7 @@ def _surrogate_in_box(
     box = box_around(jnp.asarray(centre), jnp.asarray(bounds[0]), jnp.asarray(bounds[1]), fractions)
     surrogate = fit_surrogate(
         forward,
-        jnp.asarray(box[0]),
-        jnp.asarray(box[1]),
+        (jnp.asarray(box[0]), jnp.asarray(box[1])),
         key=key,
         n_train=settings.train_per_term * n_terms,
         n_test=settings.n_test,
@@ -110,16 +115,14 @@ def _whitened_model(
     transform = SamplingTransform.box(names, box[0].tolist(), box[1].tolist())
 
     def density(theta):
-        return log_likelihood(
-            theta,
+        discrepancy = Discrepancy(
             start.sigma,
-            data,
-            surrogate,
             run_scatter=start.rho,
-            shared=error.shared,
             correlation_length=start.length,
             common=start.tau,
+            shared=error.shared,
         )
+        return log_likelihood(theta, discrepancy, data, surrogate)
 
     note = None
     try:
@@ -163,10 +166,7 @@ class _Posterior:
 
 
 def _sample_posterior(
-    search: _SearchSpace,
-    population: _Population,
-    data: CalibrationData,
-    optimum: _Optimum,
+    problem: _Problem,
     start: _ErrorStart,
     sampler: _Sampler,
     error: ModelError,
@@ -183,11 +183,12 @@ def _sample_posterior(
     posterior sds each side, and the posterior is sampled again from the posterior means.
     """
     key_sur, key_sample = keys
+    search, data, optimum = problem.search, problem.data, problem.optimum
     names, bounds = search.free, search.bounds()
     notes: list[str] = []
     t0 = time.perf_counter()
-    fractions = _box_fractions(search, population, data, optimum, settings)
-    forward = _PartialForward.build(search.system, population, names, optimum.held)
+    fractions = _box_fractions(problem, settings)
+    forward = _PartialForward.build(search.system, problem.population, names, optimum.held)
     timings = {"sensitivity": time.perf_counter() - t0, "surrogate": 0.0, "sampling": 0.0}
     centre = optimum.theta
     for stage in range(settings.box_moves + 1):
@@ -226,8 +227,8 @@ def _sample_posterior(
             start = start.moved(post, error)
         else:
             message += "; raise box_fraction or box_moves"
-            # stacklevel 3: the caller of fit_campaign
-            warnings.warn(message, UserWarning, stacklevel=3)
+            # stacklevel 4: the caller of fit_campaign
+            warnings.warn(message, UserWarning, stacklevel=4)
         notes.append(message)
     return _Posterior(idata, model, draws, box, surrogate_rms, tuple(notes), timings)
 
@@ -243,13 +244,7 @@ class _Summary:
 
 
 def _summarise(
-    posterior: _Posterior,
-    search: _SearchSpace,
-    population: _Population,
-    data: CalibrationData,
-    optimum: _Optimum,
-    settings: FitSettings,
-    key: jax.Array,
+    posterior: _Posterior, problem: _Problem, settings: FitSettings, key: jax.Array
 ) -> _Summary:
     """The sampling gates (their warnings passed on when they fail), the posterior predictive
     draws added to ``posterior.idata``, the posterior mean and its J (exact simulator)."""
@@ -260,14 +255,15 @@ def _summarise(
     if not diagnostics.passed:
         notes = tuple(f"SAMPLING GATES FAILED: {m}" for m in diagnostics.messages)
         for w in caught:
-            # stacklevel 3: the caller of fit_campaign
-            warnings.warn(w.message, w.category, stacklevel=3)
+            # stacklevel 4: the caller of fit_campaign
+            warnings.warn(w.message, w.category, stacklevel=4)
     _add_predictive(posterior.idata, posterior.model, settings.predictive_draws, key)
+    search, optimum = problem.search, problem.optimum
     names = search.free
     point = {n: float(np.mean(posterior.draws[:, i])) for i, n in enumerate(names)}
     point.update(optimum.held)
     x_mean = _full(search.system, np.array([point[n] for n in names]), names, optimum.held)
-    j = float(_j(*_simulate(population, x_mean, optimum.chunk), data)[0])
+    j = float(_j(*_simulate(problem.population, x_mean, optimum.chunk), problem.data)[0])
     return _Summary(diagnostics, point, j, notes)
 
 
@@ -277,14 +273,14 @@ _EMCEE_INIT_SCALE = 0.1
 
 #: the samplers of the posterior, by the method's name
 _SAMPLERS: dict[str, Callable[[FitSettings], _Sampler]] = {
-    "nuts": lambda s: _NUTS(
+    "nuts": lambda s: NUTSSettings(
         num_warmup=s.num_warmup,
         num_samples=s.num_samples,
         num_chains=s.num_chains,
         target_accept=s.target_accept,
         chain_method=s.chain_method,
     ),
-    "emcee": lambda s: _Emcee(
+    "emcee": lambda s: EmceeSettings(
         n_walkers=s.emcee_walkers,
         n_steps=s.emcee_steps,
         max_steps=s.emcee_max_steps,

@@ -171,8 +171,8 @@ class JobConfig:
         Sizes of the generation and training; ``None``: the paper's, or the quick ones.
     fit_options
         Further keyword arguments of the fit (for example ``settings``, a
-        :class:`bayesdoor.inference.FitSettings`, or ``fixed={"I": 3}``); they enter the fit
-        stage's configuration through their ``repr``.
+        :class:`bayesdoor.inference.FitSettings`, or ``problem=FitProblem(fixed={"I": 3})``); they
+        enter the fit stage's configuration through their ``repr``.
     html
         Write the HTML report stage (``False`` for batch studies that need the metrics only;
         the JSON is always written).

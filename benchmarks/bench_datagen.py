@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from _timing import median_s
 
-from bayesdoor.classify import fit_classifier, predict
+from bayesdoor.classify import FitOptions, fit_classifier, predict
 from bayesdoor.datagen import (
     GaussianScatter,
     GenerationConfig,
@@ -230,7 +230,7 @@ def time_training(data) -> tuple[dict, object]:
             val.labels,
             data.states,
             key=jax.random.key(seed),
-            progress="none",
+            options=FitOptions(progress="none"),
         ).ensemble
 
     t0 = time.perf_counter()

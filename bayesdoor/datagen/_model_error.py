@@ -146,7 +146,8 @@ def model_error_draws(
 
     Draw ``j`` is ``residuals[i_j] + sqrt(variance) * z_j`` with ``i_j`` uniform over the
     residuals and ``z_j`` standard normal per feature; either part may be left out. Pass
-    them to :func:`bayesdoor.classify.fit_classifier` as ``ood_model_error``.
+    them to :func:`bayesdoor.classify.fit_classifier` as
+    ``FitOptions(ood_model_error=...)``.
 
     Parameters
     ----------

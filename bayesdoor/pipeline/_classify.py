@@ -16,6 +16,7 @@ import xarray as xr
 from ..classify import (
     SELECTIVE_RISK,
     Ensemble,
+    FitOptions,
     TrainConfig,
     classification_metrics,
     combine_evidence,
@@ -118,9 +119,11 @@ def train_stage(
         data.states,
         key=key,
         config=config,
-        ood_quantile=ood_quantile,
-        ood_model_error=ood_model_error,
-        progress="rich" if progress else "none",
+        options=FitOptions(
+            ood_quantile=ood_quantile,
+            ood_model_error=ood_model_error,
+            progress="rich" if progress else "none",
+        ),
     )
     ensemble = training.ensemble
     save_ensemble(folder / ENSEMBLE, ensemble)

@@ -46,6 +46,7 @@ from _timing import median_s
 
 from bayesdoor.classify import FitOptions, fit_classifier, predict
 from bayesdoor.datagen import (
+    Execution,
     GaussianScatter,
     GenerationConfig,
     TrainingData,
@@ -84,9 +85,11 @@ def time_generation(
         folder,
         key=jax.random.key(0),
         progress=False,
-        scheduler="local" if dask_workers else None,
-        n_workers=max(dask_workers, 1),
-        threads=threads,
+        execution=Execution(
+            scheduler="local" if dask_workers else None,
+            n_workers=max(dask_workers, 1),
+            threads=threads,
+        ),
     )
     wall_s = time.perf_counter() - t0
     summary = json.loads((folder / "summary.json").read_text())

@@ -63,7 +63,11 @@ def _assert_matches_scipy(psd, ref):
 def test_welch_matches_scipy(kind, n, nperseg, noverlap, detrend, window):
     x = _signals(kind, (2, 3, n))
     freqs, psd = _welch(
-        jnp.asarray(x), FS, nperseg=nperseg, noverlap=noverlap, detrend=detrend, window=window
+        jnp.asarray(x),
+        FS,
+        nperseg=nperseg,
+        noverlap=noverlap,
+        options=WelchOptions(window=window, detrend=detrend),
     )
     f_ref, p_ref = scipy.signal.welch(
         x, FS, nperseg=nperseg, noverlap=noverlap, detrend=detrend, window=window

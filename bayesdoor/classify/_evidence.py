@@ -161,7 +161,7 @@ def _gibbs(
     burn_in: int,
 ) -> _Draws:
     """The Gibbs sampler of the checked runs' hypotheses and states and the campaign's rates."""
-    n, n_state = pc.shape
+    n, n_state = len(pc), pc.shape[1]
     # hypothesis B: the ensemble's healthy share kept, the damage states sharing the rest
     b = np.repeat(((1 - pc[:, healthy]) / (n_state - 1))[:, None], n_state, axis=1)
     b[:, healthy] = pc[:, healthy]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any, Literal
 
 import equinox as eqx
@@ -69,7 +70,8 @@ class GenerationConfig(eqx.Module):
         Redraw rounds per chunk before a still-failing run is dropped.
     """
 
-    speeds: tuple[float, ...] | tuple[tuple[float, ...], ...] = eqx.field(
+    # any sequence of operating points in, tuples of floats stored (``_points``)
+    speeds: Sequence[float] | Sequence[Sequence[float]] | np.ndarray = eqx.field(
         static=True, converter=_points
     )
     runs_per_state: int = eqx.field(static=True, default=600, converter=int, kw_only=True)

@@ -40,7 +40,7 @@ import numpy as np
 
 from bayesdoor import Cluster, configure_jax
 from bayesdoor._cluster import Pool, in_process
-from bayesdoor.datagen import GaussianScatter, GenerationConfig, generate
+from bayesdoor.datagen import Execution, GaussianScatter, GenerationConfig, generate
 from bayesdoor.door import DoorParameters, ElevatorDoor
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,8 +58,7 @@ def _generation(pool: Pool, folder: Path) -> Any:
         folder,
         key=jax.random.key(0),
         progress=False,
-        scheduler=pool.address,
-        threads=pool.threads,
+        execution=Execution(scheduler=pool.address, threads=pool.threads),
     )
     return data.features
 

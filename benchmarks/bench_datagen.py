@@ -44,8 +44,9 @@ import jax.numpy as jnp
 import numpy as np
 from _timing import median_s
 
-from bayesdoor.classify import fit_classifier, predict
+from bayesdoor.classify import FitOptions, fit_classifier, predict
 from bayesdoor.datagen import (
+    Execution,
     GaussianScatter,
     GenerationConfig,
     TrainingData,
@@ -84,9 +85,11 @@ def time_generation(
         folder,
         key=jax.random.key(0),
         progress=False,
-        scheduler="local" if dask_workers else None,
-        n_workers=max(dask_workers, 1),
-        threads=threads,
+        execution=Execution(
+            scheduler="local" if dask_workers else None,
+            n_workers=max(dask_workers, 1),
+            threads=threads,
+        ),
     )
     wall_s = time.perf_counter() - t0
     summary = json.loads((folder / "summary.json").read_text())
@@ -230,7 +233,7 @@ def time_training(data) -> tuple[dict, object]:
             val.labels,
             data.states,
             key=jax.random.key(seed),
-            progress="none",
+            options=FitOptions(progress="none"),
         ).ensemble
 
     t0 = time.perf_counter()

@@ -14,6 +14,7 @@ from bayesdoor.classify import (
     FORMAT_VERSION,
     ConvNet,
     Ensemble,
+    FitOptions,
     NetworkConfig,
     TrainConfig,
     classification_metrics,
@@ -61,7 +62,13 @@ def fitted():
     x_train, y_train = synthetic(1260, 0)
     x_val, y_val = synthetic(540, 1)
     return fit_classifier(
-        x_train, y_train, x_val, y_val, CLASSES, key=jax.random.key(7), progress="none"
+        x_train,
+        y_train,
+        x_val,
+        y_val,
+        CLASSES,
+        key=jax.random.key(7),
+        options=FitOptions(progress="none"),
     ).ensemble
 
 
@@ -146,7 +153,13 @@ def test_calibrated_on_overlapping_classes():
     x_val, y_val = overlapping(540, 11)
     x_test, y_test = overlapping(5000, 12)
     ensemble = fit_classifier(
-        x_train, y_train, x_val, y_val, CLASSES, key=jax.random.key(3), progress="none"
+        x_train,
+        y_train,
+        x_val,
+        y_val,
+        CLASSES,
+        key=jax.random.key(3),
+        options=FitOptions(progress="none"),
     ).ensemble
     p = np.asarray(predict(ensemble, jnp.asarray(x_test)).probabilities, dtype=np.float64)
     metrics = classification_metrics(p, y_test)

@@ -263,12 +263,14 @@ def test_demo_passes_the_jobs_options_on(tmp_path, monkeypatch):
         "Shipped", (), {"cached_path": lambda self: tmp_path, "load": lambda self, **k: campaign}
     )()
     monkeypatch.setattr(systems, "get_demo", lambda name: shipped)
-    monkeypatch.setattr(run_module, "run", lambda c, out, **kwargs: seen.append((c, kwargs)))
+    monkeypatch.setattr(
+        run_module, "run", lambda c, out, request, **kwargs: seen.append((c, request))
+    )
     args = ["demo", "--out", str(tmp_path / "d"), "--json"]
     assert runner.invoke(app, args).exit_code == 0
     more = ["--method", "cmaes", "--source", "gaussian", "--extend"]
     assert runner.invoke(app, args + more).exit_code == 0
     (first, default), (_, chosen) = seen
     assert first is campaign
-    assert (default["method"], default["source"], default["extend"]) == ("nuts", None, False)
-    assert (chosen["method"], chosen["source"], chosen["extend"]) == ("cmaes", "gaussian", True)
+    assert (default.method, default.source, default.extend) == ("nuts", None, False)
+    assert (chosen.method, chosen.source, chosen.extend) == ("cmaes", "gaussian", True)

@@ -17,7 +17,7 @@ from bayesdoor import Cluster
 from bayesdoor._cluster import in_process
 from bayesdoor.bearing import BearingSystem
 from bayesdoor.cli import app
-from bayesdoor.datagen import generate
+from bayesdoor.datagen import Execution, generate
 from bayesdoor.diagnose import DiagnosisSettings, diagnose_campaign
 
 
@@ -68,8 +68,8 @@ def test_a_local_cluster_gives_the_numbers_of_this_process(tmp_path, key):
             toy_config(),
             tmp_path / "d",
             key=key,
-            scheduler=pool.address,
             progress=False,
+            execution=Execution(scheduler=pool.address),
         )
     assert folders == [_cache_folder(0)] * 4
     assert_same_data(remote, local)

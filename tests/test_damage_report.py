@@ -6,7 +6,7 @@ from html.parser import HTMLParser
 
 import numpy as np
 
-from bayesdoor.report import write_damage_report
+from bayesdoor.report import ReportContext, write_damage_report
 
 CLASSES = ["healthy", "D1", "D2"]
 
@@ -61,7 +61,9 @@ def _report(tmp_path, runs):
         features=features,
         frequencies=np.arange(8.0),
         channels=["X", "Z"],
-        trust={"verdict": "limited", "reasons": ["one run flagged"], "flagged_runs": [3]},
+        context=ReportContext(
+            trust={"verdict": "limited", "reasons": ["one run flagged"], "flagged_runs": [3]}
+        ),
     )
     parser = _Text()
     parser.feed(index.read_text())

@@ -21,6 +21,7 @@ import scipy.signal
 from _toy_system import CENTER, FS, ToySystem
 
 from bayesdoor.datagen import (
+    Execution,
     GaussianScatter,
     GenerationConfig,
     ModelErrorDraws,
@@ -35,7 +36,7 @@ from bayesdoor.datagen import (
     model_error_draws,
 )
 from bayesdoor.door import ElevatorDoor
-from bayesdoor.features import segment_weights
+from bayesdoor.features import MotionDetection, segment_weights
 from bayesdoor.inference import FeatureSpec, welch_log10_variance
 from bayesdoor.io import make_campaign
 
@@ -184,9 +185,15 @@ def test_measured_features_use_given_or_detected_window():
     np.testing.assert_array_equal(given, featurize(signals, FS, start, stop))
     # the toy's motion starts abruptly at REST = 0.1 s and lasts to the end: the envelope
     # finds it within one 20 ms RMS window, before the first whole segment at 0.125 s
-    detected = measured_features(t, signals, FS, rest_duration=0.08)
+    detected = measured_features(t, signals, FS, detection=MotionDetection(rest_duration=0.08))
     np.testing.assert_array_equal(detected, given)
-    half = measured_features(t, signals, FS, t_start=np.array([np.nan, 0.25]), rest_duration=0.08)
+    half = measured_features(
+        t,
+        signals,
+        FS,
+        t_start=np.array([np.nan, 0.25]),
+        detection=MotionDetection(rest_duration=0.08),
+    )
     np.testing.assert_array_equal(half[0], given[0])
     assert not np.array_equal(half[1], given[1])
     campaign = make_campaign(
@@ -199,7 +206,9 @@ def test_measured_features_use_given_or_detected_window():
         t_stop=stop,
         system="toy",
     )
-    np.testing.assert_array_equal(campaign_features(campaign, rest_duration=0.08), half)
+    np.testing.assert_array_equal(
+        campaign_features(campaign, detection=MotionDetection(rest_duration=0.08)), half
+    )
     with pytest.raises(ValueError, match="sampling_rate_hz"):
         campaign_features(campaign.drop_attrs())
 
@@ -217,14 +226,16 @@ def test_reproducible_and_seed_dependent(tmp_path, key):
             toy_config(),
             tmp_path / f"b{threads}",
             key=key,
-            threads=threads,
             progress=False,
+            execution=Execution(threads=threads),
         )
         assert_same_data(a, b)
         summary = json.loads((tmp_path / f"b{threads}" / "summary.json").read_text())
         assert summary["threads"] == threads
     with pytest.raises(ValueError, match="threads must be at least 1"):
-        generate(TOY, toy_source(), toy_config(), tmp_path / "t", key=key, threads=0)
+        generate(
+            TOY, toy_source(), toy_config(), tmp_path / "t", key=key, execution=Execution(threads=0)
+        )
     c = generate(
         TOY, toy_source(), toy_config(), tmp_path / "c", key=jax.random.key(7), progress=False
     )
@@ -254,9 +265,8 @@ def test_resume_equals_uninterrupted(tmp_path, key):
             toy_config(),
             tmp_path / "r",
             key=key,
-            on_chunk=interrupt,
-            threads=2,
             progress=False,
+            execution=Execution(threads=2, on_chunk=interrupt),
         )
     assert len(list((tmp_path / "r" / "chunks").glob("*.npz"))) == 3
     with pytest.raises(ValueError, match="interrupted"):
@@ -267,7 +277,13 @@ def test_resume_equals_uninterrupted(tmp_path, key):
     assert summary["chunks_computed"] == 9 - 3
     # a finished folder is only reloaded, even with a Dask scheduler named
     again = generate(
-        TOY, toy_source(), toy_config(), tmp_path / "r", key=key, scheduler="local", progress=False
+        TOY,
+        toy_source(),
+        toy_config(),
+        tmp_path / "r",
+        key=key,
+        progress=False,
+        execution=Execution(scheduler="local"),
     )
     assert_same_data(again, whole)
     assert json.loads((tmp_path / "r" / "summary.json").read_text())["chunks_computed"] == 0
@@ -279,7 +295,15 @@ def test_config_change_refused_on_resume(tmp_path, key):
 
     out = tmp_path / "g"
     with pytest.raises(KeyboardInterrupt):
-        generate(TOY, toy_source(), toy_config(), out, key=key, on_chunk=stop, progress=False)
+        generate(
+            TOY,
+            toy_source(),
+            toy_config(),
+            out,
+            key=key,
+            progress=False,
+            execution=Execution(on_chunk=stop),
+        )
     before = sorted(p.name for p in (out / "chunks").iterdir())
     for source, config, k in (
         (toy_source(0.05), toy_config(), key),
@@ -387,8 +411,8 @@ def test_dask_local_cluster_equals_local(tmp_path, key, monkeypatch):
         toy_config(),
         tmp_path / "d",
         key=key,
-        scheduler="local",
         progress=False,
+        execution=Execution(scheduler="local"),
     )
     assert_same_data(dask, local)
     assert dask.features.dtype == np.float64
@@ -407,8 +431,8 @@ def test_dask_scheduler_address_equals_local(tmp_path, key, monkeypatch):
             toy_config(),
             tmp_path / "d",
             key=key,
-            scheduler=cluster.scheduler_address,
             progress=False,
+            execution=Execution(scheduler=cluster.scheduler_address),
         )
     assert cluster.scheduler_address.startswith("tcp://")
     assert_same_data(remote, local)
@@ -565,8 +589,8 @@ def test_door_dask_equals_local(tmp_path, key):
             config,
             tmp_path / str(scheduler),
             key=key,
-            scheduler=scheduler,
             progress=False,
+            execution=Execution(scheduler=scheduler),
         )
         for scheduler in (None, "local")
     ]

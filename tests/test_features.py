@@ -10,6 +10,8 @@ import scipy.signal
 from bayesdoor.features import (
     LOG_FLOOR,
     CNNInputSpec,
+    MotionDetection,
+    WelchOptions,
     band_envelope,
     band_features,
     cnn_input,
@@ -61,7 +63,11 @@ def _assert_matches_scipy(psd, ref):
 def test_welch_matches_scipy(kind, n, nperseg, noverlap, detrend, window):
     x = _signals(kind, (2, 3, n))
     freqs, psd = _welch(
-        jnp.asarray(x), FS, nperseg=nperseg, noverlap=noverlap, detrend=detrend, window=window
+        jnp.asarray(x),
+        FS,
+        nperseg=nperseg,
+        noverlap=noverlap,
+        options=WelchOptions(window=window, detrend=detrend),
     )
     f_ref, p_ref = scipy.signal.welch(
         x, FS, nperseg=nperseg, noverlap=noverlap, detrend=detrend, window=window
@@ -83,8 +89,11 @@ def test_numpy_welch_and_cross_spectrum_match_scipy(n, nperseg, noverlap, nfft, 
     x = _signals("sinusoid", (2, n))
     y = 0.3 * x + _signals("random", (2, n), seed=1)
     kw = dict(nperseg=nperseg, noverlap=noverlap, nfft=nfft, detrend=detrend)
-    freqs, psd = welch_psd(x, FS, **kw)
-    f_csd, csd = welch_csd(x, y, FS, **kw)
+    ours = dict(
+        nperseg=nperseg, noverlap=noverlap, options=WelchOptions(nfft=nfft, detrend=detrend)
+    )
+    freqs, psd = welch_psd(x, FS, **ours)
+    f_csd, csd = welch_csd(x, y, FS, **ours)
     # numpy in, numpy out: the same code run by numpy (diagnosis), without compiling
     assert type(psd) is type(csd) is type(freqs) is np.ndarray
     f_ref, p_ref = scipy.signal.welch(x, FS, **kw)
@@ -96,10 +105,10 @@ def test_numpy_welch_and_cross_spectrum_match_scipy(n, nperseg, noverlap, nfft, 
     scale = np.abs(c_ref).max(axis=-1, keepdims=True)
     assert np.all(np.abs(csd - c_ref) <= 1e-12 * np.abs(c_ref) + 1e-14 * scale)
     # the JAX path of the same code agrees with the numpy one
-    _, psd_jax = welch_psd(jnp.asarray(x), FS, **kw)
+    _, psd_jax = welch_psd(jnp.asarray(x), FS, **ours)
     _assert_matches_scipy(psd_jax, psd)
     # the cross spectrum of a signal with itself is its power spectrum
-    np.testing.assert_allclose(welch_csd(x, x, FS, **kw)[1].real, psd, rtol=1e-12)
+    np.testing.assert_allclose(welch_csd(x, x, FS, **ours)[1].real, psd, rtol=1e-12)
 
 
 def test_segment_count_is_the_number_of_segments_averaged():
@@ -117,7 +126,7 @@ def test_segment_count_is_the_number_of_segments_averaged():
     ref = scipy.signal.spectrogram(x, FS, nperseg=512, noverlap=256)[2]
     assert welch_segment_count(7168, 512) == ref.shape[-1]
     with pytest.raises(ValueError, match="nfft must be an integer of at least nperseg=128"):
-        welch_psd(np.zeros(300), FS, nperseg=128, nfft=100)
+        welch_psd(np.zeros(300), FS, nperseg=128, options=WelchOptions(nfft=100))
     with pytest.raises(ValueError, match="segment_weights sum to zero"):
         welch_psd(np.zeros(300), FS, nperseg=128, segment_weights=np.zeros(3))
 
@@ -125,7 +134,9 @@ def test_segment_count_is_the_number_of_segments_averaged():
 def test_welch_along_another_axis_and_with_a_window_array():
     x = _signals("random", (3, 900, 2))
     win = scipy.signal.get_window(("kaiser", 6.0), 200)
-    _, psd = welch_psd(jnp.asarray(x), FS, nperseg=200, window=jnp.asarray(win), axis=1)
+    _, psd = welch_psd(
+        jnp.asarray(x), FS, nperseg=200, axis=1, options=WelchOptions(window=jnp.asarray(win))
+    )
     _, p_ref = scipy.signal.welch(x, FS, nperseg=200, window=win, axis=1)
     assert psd.shape == p_ref.shape == (3, 101, 2)
     _assert_matches_scipy(np.moveaxis(psd, 1, -1), np.moveaxis(p_ref, 1, -1))
@@ -147,9 +158,9 @@ def test_welch_refuses_bad_options():
     with pytest.raises(ValueError, match=r"noverlap must lie in \[0, nperseg\) = \[0, 128\)"):
         welch_psd(x, FS, nperseg=128, noverlap=128)
     with pytest.raises(ValueError, match="detrend must be 'constant', 'linear' or False"):
-        welch_psd(x, FS, nperseg=128, detrend="quadratic")
+        welch_psd(x, FS, nperseg=128, options=WelchOptions(detrend="quadratic"))
     with pytest.raises(ValueError, match=r"window array must have shape \(nperseg,\) = \(128,\)"):
-        welch_psd(x, FS, nperseg=128, window=jnp.ones(100))
+        welch_psd(x, FS, nperseg=128, options=WelchOptions(window=jnp.ones(100)))
     with pytest.raises(ValueError, match="must end with an axis of 3 segments"):
         welch_psd(x, FS, nperseg=128, segment_weights=jnp.ones(4))
 
@@ -379,6 +390,6 @@ def test_motion_window_keeps_given_times_and_refuses_a_still_record():
         with pytest.raises(ValueError, match="no motion detected"):
             motion_window(t, record)
     with pytest.raises(ValueError, match=r"rest_duration=10.0 s gives 7168 rest samples of 7168"):
-        motion_window(t, x, rest_duration=10.0)
+        motion_window(t, x, detection=MotionDetection(rest_duration=10.0))
     with pytest.raises(ValueError, match=r"got shapes \(7168,\) and \(4, 100\)"):
         motion_window(t, x[:, :100])

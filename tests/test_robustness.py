@@ -854,7 +854,7 @@ def test_demo_says_once_that_it_recorded_the_campaign_and_where(tmp_path, monkey
 
     jobs = []
     monkeypatch.setattr(bayesdoor.door.datasets._demo, "load_demo_campaign", record)
-    monkeypatch.setattr(bayesdoor.cli._run, "run", lambda data, out, **o: jobs.append(data))
+    monkeypatch.setattr(bayesdoor.cli._run, "run", lambda data, *a, **o: jobs.append(data))
     first = invoke("demo", "--out", tmp_path / "demo", "--quick")
     assert first.exit_code == 0, first.output
     said = " ".join(first.output.split())

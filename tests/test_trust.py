@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from test_pipeline import SIZES, SYSTEM, job, tone_campaign
 
-from bayesdoor.datagen import TrainingData, fit_adequacy, healthy_outliers
+from bayesdoor.datagen import AdequacyCheck, TrainingData, fit_adequacy, healthy_outliers
 from bayesdoor.door.rig import OtherDoor, coloured_noise
 from bayesdoor.pipeline._trust import judge_trust
 
@@ -71,7 +71,9 @@ def test_adequacy_false_alarm_rate_is_at_most_its_alpha():
     alarms = 0
     for seed in range(60):
         x = measured(np.random.default_rng(100 + seed), 8)
-        a = fit_adequacy(data, x, np.resize([0.3, 0.5], 8), VARIANCE, seed=seed, alpha=0.05)
+        a = fit_adequacy(
+            data, x, np.resize([0.3, 0.5], 8), VARIANCE, seed=seed, check=AdequacyCheck(alpha=0.05)
+        )
         alarms += not a.reproduces
     # binomial(60, 0.05): P(X >= 9) < 0.01
     assert alarms <= 8
@@ -83,7 +85,7 @@ def test_adequacy_finds_the_discrepancy_where_it_is():
     offset = np.zeros((len(CHANNELS), N_FREQ))
     offset[1, 8:10] = 0.15  # 1.5 dB on channel B, bins 8-9 (32-36 Hz)
     x = measured(rng, 10, offset)
-    a = fit_adequacy(data, x, np.resize([0.3, 0.5], 10), VARIANCE, bands=6)
+    a = fit_adequacy(data, x, np.resize([0.3, 0.5], 10), VARIANCE, check=AdequacyCheck(bands=6))
     assert a.verdict == "does not reproduce"
     worst = a.failing()[0]
     assert worst["channel"] == "B"
@@ -109,7 +111,9 @@ def test_healthy_outliers_flag_about_alpha_of_like_runs_and_all_unlike_ones():
     rng = np.random.default_rng(3)
     data = synthetic_data(rng, runs_per_speed=60)
     like = measured(rng, 400)
-    scores, bounds = healthy_outliers(data, like, np.full(400, 0.3), VARIANCE, alpha=0.05)
+    scores, bounds = healthy_outliers(
+        data, like, np.full(400, 0.3), VARIANCE, check=AdequacyCheck(alpha=0.05)
+    )
     assert np.mean(scores > bounds) < 0.1
     unlike = measured(rng, 20, offset=0.4)
     scores, bounds = healthy_outliers(data, unlike, np.full(20, 0.5), VARIANCE)

@@ -15,6 +15,7 @@ from ._ensemble import Prediction as Prediction
 from ._ensemble import predict as predict
 from ._evidence import Evidence as Evidence
 from ._evidence import combine_evidence as combine_evidence
+from ._fit import FitOptions as FitOptions
 from ._fit import calibrate as calibrate
 from ._fit import fit_classifier as fit_classifier
 from ._fit import fit_ood as fit_ood

@@ -99,6 +99,118 @@ def _truncated_beta(rng: np.random.Generator, a, b, low: float) -> np.ndarray:
     return np.clip(beta.ppf(u, a, b), low, 1 - 1e-12)
 
 
+def _check(
+    p: np.ndarray, s: np.ndarray, healthy: int, false_alarm_rate: float, sweeps: int, burn_in: int
+) -> None:
+    """Refuse shapes, probabilities, rates or sweep counts that :func:`combine_evidence` cannot
+    use."""
+    if p.ndim != 2 or s.shape != p.shape:
+        raise ValueError(
+            f"probabilities and shows must both have shape (run, state), got {p.shape} and "
+            f"{s.shape}"
+        )
+    n_state = p.shape[1]
+    if n_state < 2 or not 0 <= healthy < n_state:
+        raise ValueError(f"need at least two states and a healthy index among them, got {healthy}")
+    if not np.all(np.isfinite(p)) or np.any(np.abs(p.sum(axis=1) - 1) > 1e-6):
+        raise ValueError("probabilities must be finite and sum to 1 over the states of each run")
+    if not 0 < false_alarm_rate < 1:
+        raise ValueError(f"false_alarm_rate must be in (0, 1), got {false_alarm_rate!r}")
+    if sweeps < 1 or burn_in < 0:
+        raise ValueError(
+            f"sweeps must be positive and burn_in not negative, got {sweeps}, {burn_in}"
+        )
+
+
+def _prior_evidence(p: np.ndarray, damage: list[int], alpha: float) -> Evidence:
+    """Nothing learned (no run has a check): the ensemble's probabilities, and the priors'
+    means and central 90 % intervals."""
+    flat = (
+        float((1 + alpha) / 2),
+        float(alpha + 0.05 * (1 - alpha)),
+        float(1 - 0.05 * (1 - alpha)),
+    )
+    return Evidence(
+        p.copy(),
+        np.full(len(p), np.nan),
+        (0.5, 0.05, 0.95),
+        dict.fromkeys(damage, flat),
+        dict.fromkeys(damage, flat),
+        0,
+        alpha,
+    )
+
+
+class _Draws(NamedTuple):
+    """What the Gibbs sweeps after the burn-in add up and keep."""
+
+    total: np.ndarray
+    total_a: np.ndarray
+    pis: list[float]
+    ds: list[np.ndarray]
+    leaks: list[np.ndarray]
+
+
+def _gibbs(
+    pc: np.ndarray,
+    sc: np.ndarray,
+    healthy: int,
+    alpha: float,
+    rng: np.random.Generator,
+    sweeps: int,
+    burn_in: int,
+) -> _Draws:
+    """The Gibbs sampler of the checked runs' hypotheses and states and the campaign's rates."""
+    n, n_state = len(pc), pc.shape[1]
+    # hypothesis B: the ensemble's healthy share kept, the damage states sharing the rest
+    b = np.repeat(((1 - pc[:, healthy]) / (n_state - 1))[:, None], n_state, axis=1)
+    b[:, healthy] = pc[:, healthy]
+    seen = np.isfinite(sc)
+    shown = (seen & (sc == 1)).astype(float)
+    hidden = (seen & (sc == 0)).astype(float)
+    is_damage = np.arange(n_state) != healthy
+    pi = 0.5
+    d = np.full(n_state, (1 + alpha) / 2)
+    leak = np.full(n_state, (1 + alpha) / 2)
+    draws = _Draws(np.zeros_like(pc), np.zeros(n), [], [], [])
+    for sweep in range(burn_in + sweeps):
+        # q[y, k]: the probability that state k's signature shows on a run of state y
+        q = np.where(is_damage[:, None], leak[None, :], alpha)
+        q[np.diag_indices(n_state)] = np.where(is_damage, d, alpha)
+        like = np.exp(shown @ np.log(q).T + hidden @ np.log1p(-q).T)  # (run, y)
+        a_term = pc * like  # the ensemble's belief times the check's likelihood
+        b_term = b * like
+        m_a, m_b = a_term.sum(axis=1), b_term.sum(axis=1)  # P(s | A), P(s | B)
+        applies_now = pi * m_a / (pi * m_a + (1 - pi) * m_b)
+        given_b = b_term / m_b[:, None]
+        if sweep >= burn_in:
+            # the predictive: under A the ensemble's probabilities (it read the signal the
+            # check reads, so the check adds nothing to them), under B the check's posterior
+            draws.total[...] += applies_now[:, None] * pc + (1 - applies_now)[:, None] * given_b
+            draws.total_a[...] += applies_now
+            draws.pis.append(pi)
+            draws.ds.append(d.copy())
+            draws.leaks.append(leak.copy())
+        # draw each run's hypothesis, then its state from the ensemble's belief and the check
+        # together (the check's rates are learned from states that the check informs, as if
+        # the two were independent given the state), then pi, d and the leaks from their
+        # conjugate posteriors
+        is_a = rng.random(n) < applies_now
+        weights = np.where(is_a[:, None], a_term / m_a[:, None], given_b)
+        cdf = np.cumsum(weights, axis=1)
+        state = np.minimum((rng.random(n)[:, None] > cdf).sum(axis=1), n_state - 1)
+        pi = float(rng.beta(1 + is_a.sum(), 1 + (~is_a).sum()))
+        mine = state[:, None] == np.arange(n_state)[None]
+        other = is_damage[state][:, None] & ~mine
+        d = _truncated_beta(
+            rng, 1.0 + (mine * shown).sum(axis=0), 1.0 + (mine * hidden).sum(axis=0), alpha
+        )
+        leak = _truncated_beta(
+            rng, 1.0 + (other * shown).sum(axis=0), 1.0 + (other * hidden).sum(axis=0), alpha
+        )
+    return draws
+
+
 def combine_evidence(
     probabilities: Float[ArrayLike, "run state"],
     shows: Float[ArrayLike, "run state"],
@@ -140,106 +252,29 @@ def combine_evidence(
     """
     p = np.asarray(probabilities, dtype=float)
     s = np.array(shows, dtype=float)
-    if p.ndim != 2 or s.shape != p.shape:
-        raise ValueError(
-            f"probabilities and shows must both have shape (run, state), got {p.shape} and "
-            f"{s.shape}"
-        )
-    n_run, n_state = p.shape
-    if n_state < 2 or not 0 <= healthy < n_state:
-        raise ValueError(f"need at least two states and a healthy index among them, got {healthy}")
-    if not np.all(np.isfinite(p)) or np.any(np.abs(p.sum(axis=1) - 1) > 1e-6):
-        raise ValueError("probabilities must be finite and sum to 1 over the states of each run")
-    if not 0 < false_alarm_rate < 1:
-        raise ValueError(f"false_alarm_rate must be in (0, 1), got {false_alarm_rate!r}")
-    if sweeps < 1 or burn_in < 0:
-        raise ValueError(
-            f"sweeps must be positive and burn_in not negative, got {sweeps}, {burn_in}"
-        )
+    _check(p, s, healthy, false_alarm_rate, sweeps, burn_in)
+    n_state = p.shape[1]
     s[:, healthy] = np.nan
     if np.any(np.isfinite(s) & (s != 0) & (s != 1)):
         raise ValueError("shows must hold 1, 0 or NaN")
     alpha = float(false_alarm_rate)
     damage = [k for k in range(n_state) if k != healthy]
     checked = np.isfinite(s).any(axis=1)
-    out = p.copy()
-    applies = np.full(n_run, np.nan)
     if not checked.any():
-        # nothing learned: the priors' means and central 90 % intervals
-        flat = (
-            float((1 + alpha) / 2),
-            float(alpha + 0.05 * (1 - alpha)),
-            float(1 - 0.05 * (1 - alpha)),
-        )
-        return Evidence(
-            out,
-            applies,
-            (0.5, 0.05, 0.95),
-            dict.fromkeys(damage, flat),
-            dict.fromkeys(damage, flat),
-            0,
-            alpha,
-        )
-    pc, sc = p[checked], s[checked]
-    n = len(pc)
-    # hypothesis B: the ensemble's healthy share kept, the damage states sharing the rest
-    b = np.repeat(((1 - pc[:, healthy]) / (n_state - 1))[:, None], n_state, axis=1)
-    b[:, healthy] = pc[:, healthy]
-    seen = np.isfinite(sc)
-    shown = (seen & (sc == 1)).astype(float)
-    hidden = (seen & (sc == 0)).astype(float)
-    is_damage = np.arange(n_state) != healthy
+        return _prior_evidence(p, damage, alpha)
     rng = np.random.default_rng(seed)
-    pi = 0.5
-    d = np.full(n_state, (1 + alpha) / 2)
-    leak = np.full(n_state, (1 + alpha) / 2)
-    total = np.zeros_like(pc)
-    total_a = np.zeros(n)
-    pis, ds, leaks = [], [], []
-    for sweep in range(burn_in + sweeps):
-        # q[y, k]: the probability that state k's signature shows on a run of state y
-        q = np.where(is_damage[:, None], leak[None, :], alpha)
-        q[np.diag_indices(n_state)] = np.where(is_damage, d, alpha)
-        like = np.exp(shown @ np.log(q).T + hidden @ np.log1p(-q).T)  # (run, y)
-        a_term = pc * like  # the ensemble's belief times the check's likelihood
-        b_term = b * like
-        m_a, m_b = a_term.sum(axis=1), b_term.sum(axis=1)  # P(s | A), P(s | B)
-        applies_now = pi * m_a / (pi * m_a + (1 - pi) * m_b)
-        given_b = b_term / m_b[:, None]
-        if sweep >= burn_in:
-            # the predictive: under A the ensemble's probabilities (it read the signal the
-            # check reads, so the check adds nothing to them), under B the check's posterior
-            total += applies_now[:, None] * pc + (1 - applies_now)[:, None] * given_b
-            total_a += applies_now
-            pis.append(pi)
-            ds.append(d.copy())
-            leaks.append(leak.copy())
-        # draw each run's hypothesis, then its state from the ensemble's belief and the check
-        # together (the check's rates are learned from states that the check informs, as if
-        # the two were independent given the state), then pi, d and the leaks from their
-        # conjugate posteriors
-        is_a = rng.random(n) < applies_now
-        weights = np.where(is_a[:, None], a_term / m_a[:, None], given_b)
-        cdf = np.cumsum(weights, axis=1)
-        state = np.minimum((rng.random(n)[:, None] > cdf).sum(axis=1), n_state - 1)
-        pi = float(rng.beta(1 + is_a.sum(), 1 + (~is_a).sum()))
-        mine = state[:, None] == np.arange(n_state)[None]
-        other = is_damage[state][:, None] & ~mine
-        d = _truncated_beta(
-            rng, 1.0 + (mine * shown).sum(axis=0), 1.0 + (mine * hidden).sum(axis=0), alpha
-        )
-        leak = _truncated_beta(
-            rng, 1.0 + (other * shown).sum(axis=0), 1.0 + (other * hidden).sum(axis=0), alpha
-        )
-    out[checked] = total / sweeps
-    applies[checked] = total_a / sweeps
-    ds_arr = np.asarray(ds)
+    draws = _gibbs(p[checked], s[checked], healthy, alpha, rng, sweeps, burn_in)
+    out = p.copy()
+    applies = np.full(len(p), np.nan)
+    out[checked] = draws.total / sweeps
+    applies[checked] = draws.total_a / sweeps
+    ds_arr = np.asarray(draws.ds)
     return Evidence(
         out,
         applies,
-        _summary(np.asarray(pis)),
+        _summary(np.asarray(draws.pis)),
         {k: _summary(ds_arr[:, k]) for k in damage},
-        {k: _summary(np.asarray(leaks)[:, k]) for k in damage},
+        {k: _summary(np.asarray(draws.leaks)[:, k]) for k in damage},
         int(checked.sum()),
         alpha,
     )

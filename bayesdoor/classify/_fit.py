@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -69,6 +70,32 @@ def fit_ood(
     return eqx.tree_at(lambda e: e.ood, ensemble, detector, is_leaf=lambda v: v is None)
 
 
+@dataclasses.dataclass(frozen=True)
+class FitOptions:
+    """The rarely set knobs of :func:`fit_classifier`.
+
+    Parameters
+    ----------
+    network
+        Architecture; ``None`` means the paper's Table 3 network sized to the inputs and the
+        classes (see :func:`train_ensemble`).
+    ood_quantile
+        Quantile of the validation OOD scores that becomes the threshold.
+    ood_model_error
+        Draws of the model error for the OOD detector (see :func:`fit_ood`); ``None``
+        compares inputs with the simulations alone.
+    progress
+        Progress bar per epoch: ``"rich"``, ``"tqdm"`` or ``"none"``.
+    """
+
+    network: NetworkConfig | None = None
+    ood_quantile: float = 0.99
+    ood_model_error: (
+        Float[Array, "draw channel freq"] | Float[np.ndarray, "draw channel freq"] | None
+    ) = None
+    progress: Progress = "rich"
+
+
 def fit_classifier(
     x_train: Float[Array, "sample channel freq"],
     y_train: Int[Array, " sample"],
@@ -77,13 +104,8 @@ def fit_classifier(
     class_names: Sequence[str],
     *,
     key: Array,
-    network: NetworkConfig | None = None,
     config: TrainConfig | None = None,
-    ood_quantile: float = 0.99,
-    ood_model_error: Float[Array, "draw channel freq"]
-    | Float[np.ndarray, "draw channel freq"]
-    | None = None,
-    progress: Progress = "rich",
+    options: FitOptions = FitOptions(),
 ) -> Training:
     """Train the ensemble, fit its temperature and its OOD threshold on the validation split.
 
@@ -94,13 +116,10 @@ def fit_classifier(
     x_val, y_val
         Validation inputs and class indices (the other 30 %), used for the temperature and the
         OOD threshold, never for the weights.
-    class_names, key, network, config, progress
+    class_names, key, config
         As in :func:`train_ensemble`.
-    ood_quantile
-        Quantile of the validation OOD scores that becomes the threshold.
-    ood_model_error
-        Draws of the model error for the OOD detector (see :func:`fit_ood`); ``None``
-        compares inputs with the simulations alone.
+    options
+        The network, the OOD detector's quantile and model error, and the progress bar.
 
     Returns
     -------
@@ -108,7 +127,13 @@ def fit_classifier(
         The calibrated ensemble with its detector, and the training loss history.
     """
     training = train_ensemble(
-        x_train, y_train, class_names, key=key, network=network, config=config, progress=progress
+        x_train,
+        y_train,
+        class_names,
+        key=key,
+        network=options.network,
+        config=config,
+        progress=options.progress,
     )
     ensemble = calibrate(training.ensemble, x_val, y_val)
     ensemble = fit_ood(
@@ -116,8 +141,8 @@ def fit_classifier(
         x_train,
         y_train,
         x_val,
-        quantile=ood_quantile,
-        model_error=ood_model_error,
+        quantile=options.ood_quantile,
+        model_error=options.ood_model_error,
         key=jax.random.fold_in(key, 1),
     )
     return Training(ensemble, training.loss)

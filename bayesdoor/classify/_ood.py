@@ -90,6 +90,63 @@ def ledoit_wolf(residuals: np.ndarray) -> tuple[np.ndarray, float]:
     return (1.0 - shrinkage) * s + shrinkage * mu * np.eye(p), shrinkage
 
 
+def _tied_scatter(z_train, labels, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
+    """The class means of the flattened training inputs and their Ledoit-Wolf shrunk
+    within-class covariance; a ``ValueError`` for a class without inputs."""
+    z = np.asarray(z_train, dtype=np.float64).reshape(len(z_train), -1)
+    y = np.asarray(labels)
+    counts = np.bincount(y, minlength=n_classes)
+    if np.any(counts == 0):
+        raise ValueError(
+            f"every class needs training inputs for the OOD score; counts per class: "
+            f"{counts.tolist()}"
+        )
+    means = np.stack([z[y == k].mean(axis=0) for k in range(n_classes)])
+    cov, _ = ledoit_wolf(z - means[y])
+    return means, cov
+
+
+def _add_model_error(
+    cov: np.ndarray, heldout: np.ndarray, model_error, key: Array | None, shape: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """The covariance plus the model error's second moment (first half of the draws), the
+    held-out inputs each plus one draw of the second half, and the number of draws."""
+    if key is None:
+        raise ValueError(
+            "model_error needs key=: it picks the draw added to each held-out input for "
+            "the threshold (e.g. key=jax.random.key(0))"
+        )
+    e = check_model_error(model_error, shape)
+    n_draws = len(e)
+    if n_draws < 2:
+        raise ValueError(
+            f"model_error holds {n_draws} draw: give at least 2 (half for the covariance, "
+            "half for the threshold), better thousands"
+        )
+    # half of the draws for the covariance, the other half for the threshold: a draw
+    # scored against a covariance estimated from it looks closer than a fresh one (by a
+    # factor n / (n - p - 1) in the squared distance), which would bias the threshold low
+    half = n_draws // 2
+    flat = e[:half].reshape(half, -1)
+    pick = np.asarray(jax.random.randint(key, (len(heldout),), half, n_draws))
+    return cov + flat.T @ flat / half, heldout + e[pick], n_draws
+
+
+def _whitened(
+    means: np.ndarray, cov: np.ndarray, quantile: float, n_draws: int, dtype
+) -> MahalanobisOOD:
+    """The detector of the class means and covariance, its threshold not yet set (infinite)."""
+    eigval, eigvec = np.linalg.eigh(cov)
+    whitening = (eigvec / np.sqrt(eigval)).T
+    return MahalanobisOOD(
+        means=jnp.asarray(means @ whitening.T, dtype=dtype),
+        whitening=jnp.asarray(whitening, dtype=dtype),
+        threshold=jnp.asarray(np.inf, dtype=dtype),
+        quantile=float(quantile),
+        model_error_draws=n_draws,
+    )
+
+
 def fit_mahalanobis(
     z_train: Float[Array, "sample channel freq"],
     labels: Int[Array, " sample"],
@@ -150,54 +207,21 @@ def fit_mahalanobis(
     """
     if not 0.0 < quantile < 1.0:
         raise ValueError(f"quantile must lie in (0, 1), got {quantile!r}")
-    z = np.asarray(z_train, dtype=np.float64).reshape(len(z_train), -1)
-    y = np.asarray(labels)
-    counts = np.bincount(y, minlength=n_classes)
-    if np.any(counts == 0):
-        raise ValueError(
-            f"every class needs training inputs for the OOD score; counts per class: "
-            f"{counts.tolist()}"
-        )
+    means, cov = _tied_scatter(z_train, labels, n_classes)
     if len(z_heldout) == 0:
         raise ValueError("z_heldout is empty: the threshold needs held-out in-distribution inputs")
-    means = np.stack([z[y == k].mean(axis=0) for k in range(n_classes)])
-    cov, _ = ledoit_wolf(z - means[y])
     heldout = np.asarray(z_heldout, dtype=np.float64)
     n_draws = 0
     if model_error is not None:
-        if key is None:
-            raise ValueError(
-                "model_error needs key=: it picks the draw added to each held-out input for "
-                "the threshold (e.g. key=jax.random.key(0))"
-            )
-        e = check_model_error(model_error, tuple(np.shape(z_train)[1:]))
-        n_draws = len(e)
-        if n_draws < 2:
-            raise ValueError(
-                f"model_error holds {n_draws} draw: give at least 2 (half for the covariance, "
-                "half for the threshold), better thousands"
-            )
-        # half of the draws for the covariance, the other half for the threshold: a draw
-        # scored against a covariance estimated from it looks closer than a fresh one (by a
-        # factor n / (n - p - 1) in the squared distance), which would bias the threshold low
-        half = n_draws // 2
-        flat = e[:half].reshape(half, -1)
-        cov = cov + flat.T @ flat / half
-        pick = np.asarray(jax.random.randint(key, (len(heldout),), half, n_draws))
-        heldout = heldout + e[pick]
-    eigval, eigvec = np.linalg.eigh(cov)
-    whitening = (eigvec / np.sqrt(eigval)).T
-    dtype = jnp.asarray(z_train).dtype
-    detector = MahalanobisOOD(
-        means=jnp.asarray(means @ whitening.T, dtype=dtype),
-        whitening=jnp.asarray(whitening, dtype=dtype),
-        threshold=jnp.asarray(np.inf, dtype=dtype),
-        quantile=float(quantile),
-        model_error_draws=n_draws,
-    )
-    scores = np.asarray(detector.score(jnp.asarray(heldout, dtype=dtype)))
+        cov, heldout, n_draws = _add_model_error(
+            cov, heldout, model_error, key, tuple(np.shape(z_train)[1:])
+        )
+    detector = _whitened(means, cov, quantile, n_draws, jnp.asarray(z_train).dtype)
+    scores = np.asarray(detector.score(jnp.asarray(heldout, dtype=detector.means.dtype)))
     threshold = np.quantile(scores, quantile)
-    return eqx.tree_at(lambda d: d.threshold, detector, jnp.asarray(threshold, dtype=dtype))
+    return eqx.tree_at(
+        lambda d: d.threshold, detector, jnp.asarray(threshold, dtype=detector.means.dtype)
+    )
 
 
 def check_model_error(model_error, shape: tuple[int, ...]) -> np.ndarray:

@@ -126,14 +126,16 @@ def _member_epoch(params, opt_state, key, x, y, static, learning_rate, batch_siz
 
 
 @eqx.filter_jit
-def _epoch(params, opt_state, member_keys, epoch, x, y, static, learning_rate, batch_size):
+def _epoch(params, opt_state, member_keys, epoch, data, static, learning_rate, batch_size):
     """One epoch of every member: ``eqx.filter_vmap`` over the members of :func:`_member_epoch`.
 
-    Each member shuffles with its own key folded with the epoch number.
+    ``data`` is the pair of standardised inputs and labels. Each member shuffles with its own
+    key folded with the epoch number.
 
     Module level and jitted once per (shapes, architecture, rate, batch size), so a second
     training with the same settings does not compile again.
     """
+    x, y = data
     # optax's Adam bias correction raises a float to its int32 step count, which JAX's strict
     # dtype promotion refuses; standard promotion is confined to this trace
     with jax.numpy_dtype_promotion("standard"):
@@ -142,6 +144,45 @@ def _epoch(params, opt_state, member_keys, epoch, x, y, static, learning_rate, b
                 p, s, jax.random.fold_in(k, epoch), x, y, static, learning_rate, batch_size
             )
         )(params, opt_state, member_keys)
+
+
+def _network(network: NetworkConfig | None, x: np.ndarray, class_names: tuple) -> NetworkConfig:
+    """``network``, or the paper's network sized to ``x`` and the classes when ``None``; a
+    ``ValueError`` when it does not fit them."""
+    if network is None:
+        network = NetworkConfig(
+            in_channels=x.shape[1], n_bins=x.shape[2], n_classes=len(class_names)
+        )
+    if network.input_shape != x.shape[1:] or network.n_classes != len(class_names):
+        raise ValueError(
+            f"the network takes inputs {network.input_shape} into {network.n_classes} classes, "
+            f"the data are {x.shape[1:]} with {len(class_names)} class names: make them agree"
+        )
+    return network
+
+
+def _train_members(members, data, config: TrainConfig, key: Array, progress: Progress):
+    """The stacked members after ``config.epochs`` epochs on ``data`` (standardised inputs and
+    labels), and each epoch's mean loss per member."""
+    params, static = eqx.partition(members, eqx.is_inexact_array)
+    opt_state = eqx.filter_vmap(optax.adam(config.learning_rate).init)(params)
+    member_keys = jax.random.split(key, config.members)
+    history = []
+    with _progress_bar(progress, config.epochs) as advance:
+        for e in range(config.epochs):
+            params, opt_state, loss = _epoch(
+                params,
+                opt_state,
+                member_keys,
+                jnp.asarray(e, dtype=jnp.int32),
+                data,
+                static,
+                config.learning_rate,
+                config.batch_size,
+            )
+            history.append(np.asarray(loss))
+            advance(float(history[-1].mean()))
+    return eqx.combine(params, static), np.stack(history)
 
 
 def train_ensemble(
@@ -198,15 +239,7 @@ def train_ensemble(
     class_names = tuple(class_names)
     x_np, y_np = _check_data(x, labels, class_names)
     config = TrainConfig() if config is None else config
-    if network is None:
-        network = NetworkConfig(
-            in_channels=x_np.shape[1], n_bins=x_np.shape[2], n_classes=len(class_names)
-        )
-    if network.input_shape != x_np.shape[1:] or network.n_classes != len(class_names):
-        raise ValueError(
-            f"the network takes inputs {network.input_shape} into {network.n_classes} classes, "
-            f"the data are {x_np.shape[1:]} with {len(class_names)} class names: make them agree"
-        )
+    network = _network(network, x_np, class_names)
     dtype = jnp.dtype(config.dtype)
     mean, scale = _standardisation(x_np.astype(np.float64))
     z = jnp.asarray((x_np - mean) / scale, dtype=dtype)
@@ -214,33 +247,13 @@ def train_ensemble(
 
     init_key, shuffle_key = jax.random.split(key)
     members = stacked_members(network, config.members, dtype, init_key)
-    params, static = eqx.partition(members, eqx.is_inexact_array)
-    opt_state = eqx.filter_vmap(optax.adam(config.learning_rate).init)(params)
-    member_keys = jax.random.split(shuffle_key, config.members)
-
-    history = []
-    with _progress_bar(progress, config.epochs) as advance:
-        for e in range(config.epochs):
-            params, opt_state, loss = _epoch(
-                params,
-                opt_state,
-                member_keys,
-                jnp.asarray(e, dtype=jnp.int32),
-                z,
-                y,
-                static,
-                config.learning_rate,
-                config.batch_size,
-            )
-            history.append(np.asarray(loss))
-            advance(float(history[-1].mean()))
-
+    members, loss = _train_members(members, (z, y), config, shuffle_key, progress)
     ensemble = Ensemble(
-        members=eqx.combine(params, static),
+        members=members,
         mean=jnp.asarray(mean, dtype=dtype),
         scale=jnp.asarray(scale, dtype=dtype),
         temperature=jnp.asarray(1.0, dtype=dtype),
         class_names=class_names,
         train_config=config,
     )
-    return Training(ensemble, np.stack(history))
+    return Training(ensemble, loss)

@@ -234,13 +234,9 @@ def run(
     _run.run(
         _run.load(path),
         out,
-        quick=quick,
-        seed=seed,
-        source=source,
-        method=method,
+        _run.RunRequest(quick=quick, seed=seed, source=source, method=method, extend=extend),
         force=force,
         json=json,
-        extend=extend,
         cluster=cluster,
     )
 
@@ -320,13 +316,9 @@ def demo(
     _run.run(
         campaign,
         out,
-        quick=quick,
-        seed=seed,
-        source=source,
-        method=method,
+        _run.RunRequest(quick=quick, seed=seed, source=source, method=method, extend=extend),
         force=force,
         json=json,
-        extend=extend,
         cluster=cluster,
     )
 
@@ -481,7 +473,7 @@ def inspect(
     (warnings do not fail).
     """
     configure_jax()
-    from ..io import atomic_write, validate_campaign
+    from ..io import validate_campaign
     from . import _inspect
 
     known = _inspect.condition_names(system)
@@ -497,13 +489,7 @@ def inspect(
     if out is not None and out.exists() and not out.is_dir():
         raise fail(f"--out {out} is a file: give a folder for the plots")
     if out is not None and ds is not None:
-        targets = [*_inspect.plot_paths(out, info["sampling_rate_hz"]), out / "inspect.json"]
-        for target in targets:
-            check_output_path(target, force)
-        check_writable(out)
-        title = f"{path.name} ({info['system'] or 'no system'})"
-        with writing(out):
-            written, notes = _inspect.plot(ds, problems, targets[:2], title)
+        written, notes = _inspect_plots(ds, problems, path, out, info, force)
         warnings += notes
     result = {
         "file": str(path),
@@ -516,10 +502,7 @@ def inspect(
         "summary_file": None,
     }
     if out is not None and ds is not None:
-        result["summary_file"] = str(out / "inspect.json")
-        text = json_module.dumps(result, indent=2) + "\n"
-        with writing(out):
-            atomic_write(out / "inspect.json", lambda tmp: tmp.write_text(text), overwrite=True)
+        _write_inspect_summary(result, out)
     if json:
         emit_json(result)
     elif ds is not None:
@@ -528,6 +511,30 @@ def inspect(
         typer.echo(f"problem: {message}", err=True)
     if problems:
         raise fail(f"{path} is not a valid campaign: {len(problems)} problem(s) found", code=1)
+
+
+def _write_inspect_summary(result: dict, out: Path) -> None:
+    """``inspect --out``: ``inspect.json``, the result, which names itself."""
+    from ..io import atomic_write
+
+    result["summary_file"] = str(out / "inspect.json")
+    text = json_module.dumps(result, indent=2) + "\n"
+    with writing(out):
+        atomic_write(out / "inspect.json", lambda tmp: tmp.write_text(text), overwrite=True)
+
+
+def _inspect_plots(ds, problems, path: Path, out: Path, info: dict, force: bool):
+    """``inspect --out``: the PSD plots of a loaded campaign, after checking that they and
+    the summary may be written; the files written and the notes of the plotting."""
+    from . import _inspect
+
+    targets = [*_inspect.plot_paths(out, info["sampling_rate_hz"]), out / "inspect.json"]
+    for target in targets:
+        check_output_path(target, force)
+    check_writable(out)
+    title = f"{path.name} ({info['system'] or 'no system'})"
+    with writing(out):
+        return _inspect.plot(ds, problems, targets[:2], title)
 
 
 @app.command()
@@ -570,9 +577,10 @@ def fit(
 ) -> None:
     """Update the model on the healthy calibration runs: CMA-ES, then NUTS or emcee."""
     configure_jax()
-    from ._fit import run_fit
+    from ._fit import FitRequest, run_fit
 
-    payload = run_fit(path, out, method, fix or [], each, seed, quick, force, json)
+    request = FitRequest(method=method, fix=fix or [], each=each, seed=seed, quick=quick)
+    payload = run_fit(path, out, request, force=force, as_json=json)
     if json:
         emit_json(payload)
 

@@ -16,6 +16,50 @@ from ._run import print_summary
 _err = Console(stderr=True)
 
 
+def _checked_model(model: Path, campaign: xr.Dataset) -> Path:
+    """The ensemble file of ``model``, its header and weights read, its channels the
+    campaign's; a failure that says which otherwise."""
+    from ..classify import load_ensemble
+    from ..pipeline import model_file
+
+    try:
+        ensemble = model_file(model)
+        # the header's version and the weights, before any work
+        expected = load_ensemble(ensemble).network.input_shape[0]
+    except ValueError as err:
+        raise fail(str(err)) from None
+    channels = [str(c) for c in campaign["channel"].values]
+    if len(channels) != expected:
+        raise fail(
+            f"the model in {ensemble.parent} takes {expected} channels, the campaign has "
+            f"{len(channels)} ({', '.join(channels)}): pass a campaign with the channels the "
+            "model was trained on"
+        )
+    return ensemble
+
+
+def _check_out(out: Path, config: dict, force: bool) -> None:
+    """Refuse an existing ``out`` that is a file, holds other files, or holds the
+    classification of another configuration (unless ``force``)."""
+    from ..pipeline import configuration_hash
+
+    record = out / "classify" / "stage.json"
+    if not out.is_dir():
+        raise fail(f"--out {out} is a file: pass a folder")
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in ("classify", "report"))
+    if foreign and not force:
+        raise fail(
+            f"--out {out} holds other files ({', '.join(foreign[:5])}); pass an empty or new "
+            "folder, or --force"
+        )
+    if record.is_file() and not force:
+        if json_module.loads(record.read_text()).get("config_hash") != configuration_hash(config):
+            raise fail(
+                f"{out} holds a classification by another model or of other runs; pass "
+                "--force to replace it, or use another folder"
+            )
+
+
 def classify(
     campaign: xr.Dataset,
     model: Path,
@@ -33,29 +77,10 @@ def classify(
     ``out/classify`` (the JSON and the features) and ``out/report`` (the HTML) are stages:
     the same model and runs reuse them; other ones replace them only with ``force``.
     """
-    from ..classify import SELECTIVE_RISK, load_ensemble
-    from ..pipeline import (
-        classify_stage,
-        configuration_hash,
-        digest_runs,
-        model_file,
-        report_stage,
-        run_stage,
-    )
+    from ..classify import SELECTIVE_RISK
+    from ..pipeline import classify_stage, digest_runs, report_stage, run_stage
 
-    try:
-        ensemble = model_file(model)
-        # the header's version and the weights, before any work
-        expected = load_ensemble(ensemble).network.input_shape[0]
-    except ValueError as err:
-        raise fail(str(err)) from None
-    channels = [str(c) for c in campaign["channel"].values]
-    if len(channels) != expected:
-        raise fail(
-            f"the model in {ensemble.parent} takes {expected} channels, the campaign has "
-            f"{len(channels)} ({', '.join(channels)}): pass a campaign with the channels the "
-            "model was trained on"
-        )
+    ensemble = _checked_model(model, campaign)
     risk = SELECTIVE_RISK if selective_risk is None else selective_risk
     if not 0 <= risk < 1:
         raise fail(f"--selective-risk must lie in [0, 1), got {risk:g} (0: call every run)")
@@ -65,24 +90,8 @@ def classify(
         "runs": digest_runs(campaign),
         "selective_risk": risk,
     }
-    record = out / "classify" / "stage.json"
     if out.exists():
-        if not out.is_dir():
-            raise fail(f"--out {out} is a file: pass a folder")
-        foreign = sorted(p.name for p in out.iterdir() if p.name not in ("classify", "report"))
-        if foreign and not force:
-            raise fail(
-                f"--out {out} holds other files ({', '.join(foreign[:5])}); pass an empty or new "
-                "folder, or --force"
-            )
-        if record.is_file() and not force:
-            if json_module.loads(record.read_text()).get("config_hash") != configuration_hash(
-                config
-            ):
-                raise fail(
-                    f"{out} holds a classification by another model or of other runs; pass "
-                    "--force to replace it, or use another folder"
-                )
+        _check_out(out, config, force)
 
     def line(text: str) -> None:
         if not json:

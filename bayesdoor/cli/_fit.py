@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json as json_module
 import os
 import shutil
 import uuid
@@ -124,7 +126,12 @@ def write_figures(result, system, campaign, folder: Path, seed: int) -> dict[str
     import jax
 
     from ..inference import plot_cmaes_history, posterior_predictive
-    from ..report import plot_posterior_pairs, plot_posterior_trace, plot_predictive_bands
+    from ..report import (
+        OperatingPoints,
+        plot_posterior_pairs,
+        plot_posterior_trace,
+        plot_predictive_bands,
+    )
 
     files = {"history": str(plot_cmaes_history(result.cmaes, folder / "cmaes_history.png"))}
     if result.idata is not None:
@@ -137,8 +144,11 @@ def write_figures(result, system, campaign, folder: Path, seed: int) -> dict[str
     path, coverage = plot_predictive_bands(
         replicates,
         np.asarray(data.y),
-        np.asarray(data.run_operating),
-        np.asarray(data.operating),
+        OperatingPoints(
+            np.asarray(data.operating),
+            np.asarray(data.run_operating),
+            [(c.name, c.unit) for c in system.conditions],
+        ),
         np.asarray(data.band_centres),
         system.channels,
         folder / "predictive_psd.png",
@@ -146,7 +156,6 @@ def write_figures(result, system, campaign, folder: Path, seed: int) -> dict[str
             [f"{result.method} fit", *([held_text(result.held)] if result.held else [])]
         )
         + ", calibration runs",
-        conditions=[(c.name, c.unit) for c in system.conditions],
     )
     files["predictive_psd"] = str(path)
     return {"files": files, "predictive_coverage_90": coverage}
@@ -189,43 +198,34 @@ def _move_into(work: Path, out: Path) -> None:
     shutil.rmtree(work)
 
 
+@dataclasses.dataclass(frozen=True)
+class FitRequest:
+    """What the ``fit`` command fits: ``--method``, ``--fix`` items, ``--each`` (empty: one
+    fit), ``--seed`` and ``--quick``."""
+
+    method: str
+    fix: list[str]
+    each: str
+    seed: int
+    quick: bool
+
+
 def run_fit(
-    path: Path,
-    out: Path,
-    method: str,
-    fix: list[str],
-    each: str,
-    seed: int,
-    quick: bool,
-    force: bool,
-    as_json: bool,
+    path: Path, out: Path, request: FitRequest, *, force: bool, as_json: bool
 ) -> dict[str, Any]:
-    """The ``fit`` command: load, fit (once per value of ``each``), write the folder(s),
-    return the JSON payload.
+    """The ``fit`` command: load, fit (once per value of ``request.each``), write the
+    folder(s), return the JSON payload.
 
     Everything is computed in a hidden folder under ``out`` and moved into place when every
     fit is finished, so an interrupted fit leaves no partial result (a hidden folder left by a
     killed one is removed by the next).
     """
-    import json as json_module
-    import warnings
+    from ..inference import calibration_runs
 
-    from ..inference import METHODS, FitProblem, calibration_runs, fit_campaign
-    from ..io import load_campaign
-
-    if method not in METHODS:
-        raise fail(f"--method {method!r}: use one of {', '.join(METHODS)}")
-    if not path.exists():
-        raise fail(f"no campaign file at {path}: give a NetCDF file written by bayesdoor")
-    if out.exists() and not out.is_dir():
-        raise fail(f"--out {out} is a file: give a folder")
-    check_writable(out)
-    try:
-        campaign = load_campaign(path, check=False)
-    except (ValueError, OSError) as err:
-        raise fail(str(err)) from None
+    campaign = _load_for_fit(path, out, request.method)
     system = system_named(campaign)
-    fixed = parse_fixed(fix, system)
+    each = request.each
+    fixed = parse_fixed(request.fix, system)
     values: list[int | None] = list(parse_each(each, system, fixed)) if each else [None]
     check_for_job(campaign, system, str(path), calibration_runs)
     several = len(values) > 1
@@ -233,7 +233,7 @@ def run_fit(
     results: dict[Any, Any] = {}
     payload: dict[str, Any] = {
         "file": str(path),
-        "method": method,
+        "method": request.method,
         "out": str(out),
         "fixed": fixed,
         "each": each or None,
@@ -249,46 +249,19 @@ def run_fit(
                 given = fixed if value is None else {**fixed, each: float(value)}
                 if not as_json:
                     _err.print(
-                        f"fitting {path.name} with {method}"
+                        f"fitting {path.name} with {request.method}"
                         + (f", {held_text(given)}" if given else "")
                     )
-                try:
-                    with warnings.catch_warnings():
-                        warnings.simplefilter("ignore" if as_json else "default")
-                        result = fit_campaign(
-                            system,
-                            campaign,
-                            method=method,  # type: ignore[arg-type]
-                            problem=FitProblem(fixed=given or None),
-                            seed=seed,
-                            quick=quick,
-                            progress=not as_json,
-                        )
-                except ValueError as err:
-                    raise fail(str(err)) from None
-                folder = fit_folder(work, each, value, several)
-                result.save(folder, force=True)
-                figures = write_figures(result, system, campaign, folder, seed)
-                target = fit_folder(out, each, value, several)
-                figures["files"] = {
-                    k: str(target / Path(v).name) for k, v in figures["files"].items()
-                }
-                entry = {**result.to_json(), **figures, "folder": str(target)}
+                result = _fit(system, campaign, given, request, as_json)
                 results[value] = result
+                entry = _save_fit(result, system, campaign, work, out, request, value, several)
                 payload["fits"].append(entry)
                 if not as_json:
                     _err.print(summary_text(result))
-                    coverage = 100 * figures["predictive_coverage_90"]
+                    coverage = 100 * entry["predictive_coverage_90"]
                     _err.print(f"predictive coverage (90 % band): {coverage:.1f} %")
             if several:
-                from ..report import ablation_table
-
-                rows, table = ablation_table(results, each)
-                payload["ablation"] = rows
-                (work / "ablation.md").write_text(table)
-                payload["ablation_table"] = str(out / "ablation.md")
-                if not as_json:
-                    _err.print(table)
+                _write_ablation(results, each, work, out, payload, as_json)
             if len(payload["fits"]) == 1:
                 payload.update(payload["fits"][0])
             text = json_module.dumps(payload, indent=2, default=float) + "\n"
@@ -299,3 +272,78 @@ def run_fit(
     if not as_json:
         _err.print(f"wrote {out}")
     return payload
+
+
+def _load_for_fit(path: Path, out: Path, method: str):
+    """The campaign at ``path``, after checking the method and that ``out`` may be written."""
+    from ..inference import METHODS
+    from ..io import load_campaign
+
+    if method not in METHODS:
+        raise fail(f"--method {method!r}: use one of {', '.join(METHODS)}")
+    if not path.exists():
+        raise fail(f"no campaign file at {path}: give a NetCDF file written by bayesdoor")
+    if out.exists() and not out.is_dir():
+        raise fail(f"--out {out} is a file: give a folder")
+    check_writable(out)
+    try:
+        return load_campaign(path, check=False)
+    except (ValueError, OSError) as err:
+        raise fail(str(err)) from None
+
+
+def _fit(system, campaign, given: dict[str, float], request: FitRequest, as_json: bool):
+    """One fit with the parameters ``given`` held (warnings shown unless ``as_json``)."""
+    import warnings
+
+    from ..inference import FitProblem, fit_campaign
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore" if as_json else "default")
+            return fit_campaign(
+                system,
+                campaign,
+                method=request.method,  # type: ignore[arg-type]
+                problem=FitProblem(fixed=given or None),
+                seed=request.seed,
+                quick=request.quick,
+                progress=not as_json,
+            )
+    except ValueError as err:
+        raise fail(str(err)) from None
+
+
+def _save_fit(
+    result,
+    system,
+    campaign,
+    work: Path,
+    out: Path,
+    request: FitRequest,
+    value: int | None,
+    several: bool,
+) -> dict[str, Any]:
+    """Save one fit and its figures into its folder under ``work``; its JSON entry, whose
+    files name where they will be under ``out``."""
+    folder = fit_folder(work, request.each, value, several)
+    result.save(folder, force=True)
+    figures = write_figures(result, system, campaign, folder, request.seed)
+    target = fit_folder(out, request.each, value, several)
+    figures["files"] = {k: str(target / Path(v).name) for k, v in figures["files"].items()}
+    return {**result.to_json(), **figures, "folder": str(target)}
+
+
+def _write_ablation(
+    results: dict[Any, Any], each: str, work: Path, out: Path, payload: dict, as_json: bool
+) -> None:
+    """The comparison of the fits of every ``--each`` value: ``ablation.md`` and the payload's
+    ``ablation`` rows."""
+    from ..report import ablation_table
+
+    rows, table = ablation_table(results, each)
+    payload["ablation"] = rows
+    (work / "ablation.md").write_text(table)
+    payload["ablation_table"] = str(out / "ablation.md")
+    if not as_json:
+        _err.print(table)

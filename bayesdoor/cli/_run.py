@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import time
 from pathlib import Path
@@ -113,16 +114,47 @@ def print_summary(
     (and with ``extend`` the job with the diagnosed extension beside it)."""
     fit = result.get("fit")
     if fit is not None:
-        table = Table(title=f"model updating ({fit['method']}, J = {_fmt(fit['j'])})")
-        for column in ("parameter", "CMA-ES optimum", "posterior mean", "sd", "90 % interval"):
-            table.add_column(column, justify="left" if column == "parameter" else "right")
-        for name, row in fit["parameters"].items():
-            interval = "-" if row["q5"] is None else f"{row['q5']:.4g} .. {row['q95']:.4g}"
-            table.add_row(name, _fmt(row["point"]), _fmt(row["mean"]), _fmt(row["sd"], 2), interval)
-        console.print(table)
+        console.print(_fit_table(fit))
         gates = gates_line(fit.get("diagnostics"), quick=quick)
         if gates is not None:
             console.print(gates, markup=False, highlight=False)
+    console.print(_classification_table(result))
+    adequacy = (fit or {}).get("adequacy") or {}
+    if adequacy.get("summary"):
+        console.print(f"fit adequacy: {adequacy['summary']}", markup=False, highlight=False)
+    model = adequacy.get("model") or {}
+    if model.get("summary") and model.get("summary") != adequacy.get("summary"):
+        console.print(f"the model alone: {model['summary']}", markup=False, highlight=False)
+    trust = result.get("trust")
+    if trust is not None:
+        _print_trust(trust, console)
+    diagnosis = result.get("diagnosis")
+    if diagnosis is not None:
+        verdict = diagnosis["verdict"]
+        shown = "undecided (no cause has decisive evidence)" if verdict is None else verdict
+        if diagnosis.get("error"):
+            console.print(f"discrepancy diagnosis not made: {diagnosis['error']}")
+        else:
+            console.print(f"discrepancy diagnosis: {shown} ({diagnosis['report']})")
+    if extend:
+        for line in extension_lines(result):
+            console.print(line, markup=False, highlight=False)
+    console.print(f"report: {result['report']}")
+
+
+def _fit_table(fit: dict[str, Any]) -> Table:
+    """The model updating's parameters: optimum, posterior mean, sd and 90 % interval."""
+    table = Table(title=f"model updating ({fit['method']}, J = {_fmt(fit['j'])})")
+    for column in ("parameter", "CMA-ES optimum", "posterior mean", "sd", "90 % interval"):
+        table.add_column(column, justify="left" if column == "parameter" else "right")
+    for name, row in fit["parameters"].items():
+        interval = "-" if row["q5"] is None else f"{row['q5']:.4g} .. {row['q95']:.4g}"
+        table.add_row(name, _fmt(row["point"]), _fmt(row["mean"]), _fmt(row["sd"], 2), interval)
+    return table
+
+
+def _classification_table(result: dict[str, Any]) -> Table:
+    """The classification's metrics and counts of called, flagged and failed runs."""
     metrics = result.get("metrics")
     table = Table(title=f"classification of {len(result['runs'])} runs")
     table.add_column("metric")
@@ -154,41 +186,25 @@ def print_summary(
         )
     if result["n_failed"]:
         table.add_row("not classified (bad records)", str(result["n_failed"]))
-    console.print(table)
-    adequacy = (fit or {}).get("adequacy") or {}
-    if adequacy.get("summary"):
-        console.print(f"fit adequacy: {adequacy['summary']}", markup=False, highlight=False)
-    model = adequacy.get("model") or {}
-    if model.get("summary") and model.get("summary") != adequacy.get("summary"):
-        console.print(f"the model alone: {model['summary']}", markup=False, highlight=False)
-    trust = result.get("trust")
-    if trust is not None:
-        if trust["verdict"] == "not trusted":
-            console.print(
-                "[bold red]the classification cannot be trusted:[/] "
-                + escape("; ".join(trust["reasons"])),
-                highlight=False,
-            )
-        elif trust["verdict"] == "limited":
-            console.print(
-                "[bold yellow]the classification is limited:[/] "
-                + escape("; ".join(trust.get("warnings", []))),
-                highlight=False,
-            )
-        else:
-            console.print("trust: the checks passed (fit adequacy, known runs, OOD rate)")
-    diagnosis = result.get("diagnosis")
-    if diagnosis is not None:
-        verdict = diagnosis["verdict"]
-        shown = "undecided (no cause has decisive evidence)" if verdict is None else verdict
-        if diagnosis.get("error"):
-            console.print(f"discrepancy diagnosis not made: {diagnosis['error']}")
-        else:
-            console.print(f"discrepancy diagnosis: {shown} ({diagnosis['report']})")
-    if extend:
-        for line in extension_lines(result):
-            console.print(line, markup=False, highlight=False)
-    console.print(f"report: {result['report']}")
+    return table
+
+
+def _print_trust(trust: dict[str, Any], console: Console) -> None:
+    """The trust verdict: not trusted (with its reasons), limited (with its warnings) or passed."""
+    if trust["verdict"] == "not trusted":
+        console.print(
+            "[bold red]the classification cannot be trusted:[/] "
+            + escape("; ".join(trust["reasons"])),
+            highlight=False,
+        )
+    elif trust["verdict"] == "limited":
+        console.print(
+            "[bold yellow]the classification is limited:[/] "
+            + escape("; ".join(trust.get("warnings", []))),
+            highlight=False,
+        )
+    else:
+        console.print("trust: the checks passed (fit adequacy, known runs, OOD rate)")
 
 
 def cluster_option(workers: int, scheduler: str | None) -> Cluster:
@@ -207,61 +223,41 @@ def cluster_option(workers: int, scheduler: str | None) -> Cluster:
         ) from None
 
 
+@dataclasses.dataclass(frozen=True)
+class RunRequest:
+    """What the job runs with: ``--quick``, ``--seed``, ``--source`` (``None``: the method's
+    default), ``--method`` and ``--extend`` (when the diagnosis names a cause, the job on the
+    extended system as well)."""
+
+    quick: bool
+    seed: int
+    source: str | None
+    method: str
+    extend: bool = False
+
+
 def run(
     campaign: xr.Dataset,
     out: Path,
+    request: RunRequest,
     *,
-    quick: bool,
-    seed: int,
-    source: str | None,
-    method: str,
     force: bool,
     json: bool,
-    extend: bool = False,
     cluster: Cluster | None = None,
 ) -> None:
-    """Run the job, print its summary (or its JSON); ``source`` ``None``: the method's default.
+    """Run the job, print its summary (or its JSON).
 
-    ``extend``: when the diagnosis names a cause, the job on the extended system as well;
     ``cluster``: where the simulation-heavy steps run (``None``: this process).
     """
-    from ..pipeline import (
-        SOURCES,
-        JobConfig,
-        Source,
-        calibration_runs,
-        default_diagnose,
-        default_source,
-        run_job,
-    )
+    from ..pipeline import JobConfig, Source, calibration_runs, default_diagnose, run_job
 
-    if method in ("nuts", "emcee", "cmaes") and source is None:
-        source = default_source(method)
-    if source not in SOURCES:
-        raise fail(f"--source {source!r}: use one of {', '.join(SOURCES)}")
-    if method not in ("nuts", "emcee", "cmaes"):
-        raise fail(f"--method {method!r}: use nuts, emcee or cmaes")
-    if method == "cmaes" and source != "gaussian":
-        raise fail(
-            f"--method cmaes gives a point, not a posterior: use --source gaussian with it "
-            f"(got --source {source})"
-        )
+    source = _checked_source(request.method, request.source)
     system = system_for(campaign)
     check_writable(out)
     check_for_job(
         campaign, system, str(campaign.encoding.get("source", "the campaign")), calibration_runs
     )
-    start = time.perf_counter()
-
-    def line(text: str) -> None:
-        if not json:
-            _err.print(
-                f"[{time.perf_counter() - start:6.1f} s] {text}",
-                markup=False,
-                highlight=False,
-                soft_wrap=True,  # a long line stays one line in a log
-            )
-
+    line = _timed_lines(quiet=json)
     cluster = Cluster() if cluster is None else cluster
     stages = StageLog(out, line)
     opened = contextlib.ExitStack()
@@ -278,11 +274,11 @@ def run(
                 campaign,
                 out,
                 JobConfig(
-                    quick=quick,
-                    seed=seed,
+                    quick=request.quick,
+                    seed=request.seed,
                     source=cast(Source, source),
-                    method=method,
-                    extend=extend,
+                    method=request.method,
+                    extend=request.extend,
                 ),
                 diagnose=functools.partial(default_diagnose, catalogue=system.catalogue),
                 cluster=pool,
@@ -298,4 +294,40 @@ def run(
     if json:
         emit_json(payload)
     else:
-        print_summary(payload, Console(), quick=quick, extend=extend)
+        print_summary(payload, Console(), quick=request.quick, extend=request.extend)
+
+
+def _checked_source(method: str, source: str | None) -> str | None:
+    """The training-data source of ``--source`` (``None``: the method's default), after
+    checking that it and ``--method`` are known and go together."""
+    from ..pipeline import SOURCES, default_source
+
+    if method in ("nuts", "emcee", "cmaes") and source is None:
+        source = default_source(method)
+    if source not in SOURCES:
+        raise fail(f"--source {source!r}: use one of {', '.join(SOURCES)}")
+    if method not in ("nuts", "emcee", "cmaes"):
+        raise fail(f"--method {method!r}: use nuts, emcee or cmaes")
+    if method == "cmaes" and source != "gaussian":
+        raise fail(
+            f"--method cmaes gives a point, not a posterior: use --source gaussian with it "
+            f"(got --source {source})"
+        )
+    return source
+
+
+def _timed_lines(*, quiet: bool):
+    """A printer of progress lines to stderr, each with the seconds since it was made;
+    silent when ``quiet``."""
+    start = time.perf_counter()
+
+    def line(text: str) -> None:
+        if not quiet:
+            _err.print(
+                f"[{time.perf_counter() - start:6.1f} s] {text}",
+                markup=False,
+                highlight=False,
+                soft_wrap=True,  # a long line stays one line in a log
+            )
+
+    return line

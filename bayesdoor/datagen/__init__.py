@@ -1,6 +1,7 @@
 """Simulated training data for the classifier: parameter sources, features, chunked generation."""
 
 from ._adequacy import Adequacy as Adequacy
+from ._adequacy import AdequacyCheck as AdequacyCheck
 from ._adequacy import fit_adequacy as fit_adequacy
 from ._adequacy import healthy_outliers as healthy_outliers
 from ._config import GenerationConfig as GenerationConfig
@@ -9,6 +10,7 @@ from ._features import featurize as featurize
 from ._features import measured_features as measured_features
 from ._features import measured_windows as measured_windows
 from ._generate import FORMAT as FORMAT
+from ._generate import Execution as Execution
 from ._generate import TrainingData as TrainingData
 from ._generate import describe_system as describe_system
 from ._generate import generate as generate

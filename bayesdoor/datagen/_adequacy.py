@@ -153,6 +153,22 @@ class Adequacy:
         }
 
 
+@dataclasses.dataclass(frozen=True)
+class AdequacyCheck:
+    """The statistics of :func:`fit_adequacy` and :func:`healthy_outliers`.
+
+    Parameters
+    ----------
+    alpha
+        Family-wise false-alarm rate of the verdict (per run for :func:`healthy_outliers`).
+    bands
+        Number of frequency bands (equal groups of the features' bins).
+    """
+
+    alpha: float = ALPHA
+    bands: int = BANDS
+
+
 def band_edges(n_bins: int, bands: int = BANDS) -> list[np.ndarray]:
     """Bin indices of ``bands`` contiguous, nearly equal groups of ``n_bins`` bins."""
     if not 1 <= bands <= n_bins:
@@ -168,9 +184,8 @@ def fit_adequacy(
     *,
     state: str | None = None,
     seed: int = 0,
-    alpha: float = ALPHA,
-    bands: int = BANDS,
     discrepancy: bool = False,
+    check: AdequacyCheck = AdequacyCheck(),
 ) -> Adequacy:
     """Hold measured runs of a known state against the simulated runs of that state.
 
@@ -190,15 +205,13 @@ def fit_adequacy(
         (:attr:`TrainingData.healthy`).
     seed
         Seed of the scatter draws.
-    alpha
-        Family-wise false-alarm rate of the verdict.
-    bands
-        Number of frequency bands.
     discrepancy
         The training data carry the measured discrepancy of these runs
         (:func:`with_measured_discrepancy` is applied here, to ``data`` without it): each
         run is then held against simulations that carry the discrepancies of the *other*
         runs only (leave one run out), so the check is not in-sample.
+    check
+        The false-alarm rate of the verdict and the number of frequency bands.
 
     Returns
     -------
@@ -211,46 +224,56 @@ def fit_adequacy(
         than 5 simulated runs of the state exist.
     """
     state = data.healthy if state is None else state
-    x, v, var, groups = _inputs(data, features, speeds, variance, state, alpha, bands)
+    x, v, var, groups = _inputs(data, features, speeds, variance, state, check)
     if not discrepancy:
         scores = _scores(data, x, v, var, state, groups)
     else:
-        if len(x) < 2:
-            raise ValueError("a leave-one-run-out check of the discrepancy needs two runs or more")
-        parts = []
-        for i in range(len(x)):
-            others = np.delete(np.arange(len(x)), i)
-            shifted = with_measured_discrepancy(
-                data, x[others], v[others], seed=seed + 1 + i, state=state
-            )
-            parts.append(_scores(shifted, x[i : i + 1], v[i : i + 1], var, state, groups))
-        scores = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    gauss, diff, ratio = scores["gauss"], scores["diff"], scores["ratio"]
+        scores = _left_out_scores(data, x, v, var, state, groups, seed)
     # the runs share their predictive sample: the p-values of two runs at one speed correlate
     # by about 1/m (m simulated runs there), so the sum's variance is n (1 + (n - 1) / m)
     m = float(np.min(scores["simulations"]))
     n = len(x)
-    statistic = gauss.sum(axis=0) / np.sqrt(n * (1.0 + (n - 1) / m))
-    cells = statistic.size
-    threshold = float(stats.norm.isf(alpha / (2 * cells)))
+    statistic = scores["gauss"].sum(axis=0) / np.sqrt(n * (1.0 + (n - 1) / m))
+    threshold = float(stats.norm.isf(check.alpha / (2 * statistic.size)))
     verdict = "reproduces" if np.all(np.abs(statistic) <= threshold) else "does not reproduce"
-    freqs = np.asarray(data.frequencies, dtype=float)
-    step = float(freqs[1] - freqs[0]) if len(freqs) > 1 else 1.0
-    edges = tuple(
-        (float(freqs[g[0]] - step / 2 if g[0] else freqs[g[0]]), float(freqs[g[-1]] + step / 2))
-        for g in groups
-    )
     return Adequacy(
         verdict=verdict,
         state=state,
         runs=len(x),
-        alpha=alpha,
+        alpha=check.alpha,
         threshold=threshold,
         channels=tuple(data.channels),
-        bands_hz=edges,
+        bands_hz=_bands_hz(data.frequencies, groups),
         statistic=statistic,
-        offset_db=10.0 * diff.mean(axis=0),
-        offset_sd=ratio.mean(axis=0),
+        offset_db=10.0 * scores["diff"].mean(axis=0),
+        offset_sd=scores["ratio"].mean(axis=0),
+    )
+
+
+def _left_out_scores(data, x, v, var, state, groups, seed: int) -> dict[str, np.ndarray]:
+    """:func:`_scores` of each run against the simulations that carry the measured
+    discrepancies of the other runs (:func:`with_measured_discrepancy`, seed ``seed + 1 + i``
+    for run ``i``)."""
+    if len(x) < 2:
+        raise ValueError("a leave-one-run-out check of the discrepancy needs two runs or more")
+    parts = []
+    for i in range(len(x)):
+        others = np.delete(np.arange(len(x)), i)
+        shifted = with_measured_discrepancy(
+            data, x[others], v[others], seed=seed + 1 + i, state=state
+        )
+        parts.append(_scores(shifted, x[i : i + 1], v[i : i + 1], var, state, groups))
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def _bands_hz(frequencies, groups: list[np.ndarray]) -> tuple[tuple[float, float], ...]:
+    """``(low, high)`` edges (Hz) of each band: half a bin beyond its outer bins' centres
+    (the first band starts at its first bin's centre when that is the lowest bin)."""
+    freqs = np.asarray(frequencies, dtype=float)
+    step = float(freqs[1] - freqs[0]) if len(freqs) > 1 else 1.0
+    return tuple(
+        (float(freqs[g[0]] - step / 2 if g[0] else freqs[g[0]]), float(freqs[g[-1]] + step / 2))
+        for g in groups
     )
 
 
@@ -262,17 +285,17 @@ def healthy_outliers(
     *,
     state: str | None = None,
     seed: int = 0,
-    alpha: float = ALPHA,
-    bands: int = BANDS,
     replicates: int = 20,
+    check: AdequacyCheck = AdequacyCheck(),
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per run: is it unlike the simulated runs of ``state`` (``None``: the training data's
     healthy state) at its speed?
 
     The run's score is ``T = sum(Phi^-1(u)^2)`` over the channel-band cells of
     :func:`fit_adequacy` (``u`` its predictive p-values); its threshold is the ``1 - alpha``
-    quantile of the same score over the predictive draws at that speed, so a run of the
-    state is flagged with probability ``alpha`` when the simulations describe it.
+    quantile (``check.alpha``) of the same score over ``replicates`` predictive draws per
+    simulated run at that speed, so a run of the state is flagged with probability ``alpha``
+    when the simulations describe it.
 
     Returns
     -------
@@ -285,19 +308,19 @@ def healthy_outliers(
         As :func:`fit_adequacy`.
     """
     state = data.healthy if state is None else state
-    x, v, var, groups = _inputs(data, features, speeds, variance, state, alpha, bands)
-    null = (np.random.default_rng(seed), replicates, alpha)
+    x, v, var, groups = _inputs(data, features, speeds, variance, state, check)
+    null = (np.random.default_rng(seed), replicates, check.alpha)
     out = _scores(data, x, v, var, state, groups, null=null)
     return (out["gauss"] ** 2).sum(axis=(1, 2)), out["threshold"]
 
 
-def _inputs(data, features, speeds, variance, state, alpha, bands):
+def _inputs(data, features, speeds, variance, state, check: AdequacyCheck):
     """The checked inputs of :func:`fit_adequacy` and :func:`healthy_outliers`: the features
     and speeds as arrays, the variance broadcast to a feature's shape, the bands' bins."""
     if state not in data.states:
         raise ValueError(f"state={state!r} is not one of the training data's {data.states}")
-    if not 0.0 < alpha < 1.0:
-        raise ValueError(f"alpha={alpha!r} must be in (0, 1)")
+    if not 0.0 < check.alpha < 1.0:
+        raise ValueError(f"alpha={check.alpha!r} must be in (0, 1)")
     x = np.asarray(features, dtype=float)
     v = _measured_points(speeds, data.speeds)
     shape = data.features.shape[1:]
@@ -307,7 +330,7 @@ def _inputs(data, features, speeds, variance, state, alpha, bands):
             f"at least one run; got features {x.shape}, speeds {v.shape}"
         )
     var = np.broadcast_to(np.asarray(variance, dtype=float), shape)
-    return x, v, var, band_edges(shape[1], bands)
+    return x, v, var, band_edges(shape[1], check.bands)
 
 
 def _scores(data, x, v, var, state, groups, null=None):

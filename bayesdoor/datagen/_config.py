@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any, Literal
 
 import equinox as eqx
@@ -10,6 +11,26 @@ import numpy as np
 
 from ..features import CNNInputSpec
 from ..systems import AbstractSystem
+
+
+def _points(speeds) -> tuple[float, ...] | tuple[tuple[float, ...], ...]:
+    """Operating points as a tuple of numbers, or of rows for several conditions."""
+    points = np.asarray(list(speeds), dtype=float)
+    if points.ndim == 2:
+        return tuple(tuple(float(v) for v in row) for row in points)
+    return tuple(float(v) for v in points)
+
+
+def _state_names(states) -> tuple[str, ...] | None:
+    return None if states is None else tuple(str(s) for s in states)
+
+
+def _optional_float(value) -> float | None:
+    return None if value is None else float(value)
+
+
+def _input_spec(spec: CNNInputSpec | None) -> CNNInputSpec:
+    return CNNInputSpec() if spec is None else spec
 
 
 class GenerationConfig(eqx.Module):
@@ -49,42 +70,22 @@ class GenerationConfig(eqx.Module):
         Redraw rounds per chunk before a still-failing run is dropped.
     """
 
-    speeds: tuple[float, ...] | tuple[tuple[float, ...], ...] = eqx.field(static=True)
-    runs_per_state: int = eqx.field(static=True, default=600)
-    states: tuple[str, ...] | None = eqx.field(static=True, default=None)
-    validation_fraction: float = eqx.field(static=True, default=0.3)
-    chunk_size: int = eqx.field(static=True, default=100)
-    duration: float | None = eqx.field(static=True, default=None)
-    spec: CNNInputSpec = eqx.field(static=True, default=CNNInputSpec())
-    on_failure: Literal["redraw", "drop"] = eqx.field(static=True, default="redraw")
-    max_redraws: int = eqx.field(static=True, default=5)
-
-    def __init__(
-        self,
-        speeds,
-        *,
-        runs_per_state: int = 600,
-        states=None,
-        validation_fraction: float = 0.3,
-        chunk_size: int = 100,
-        duration: float | None = None,
-        spec: CNNInputSpec | None = None,
-        on_failure: Literal["redraw", "drop"] = "redraw",
-        max_redraws: int = 5,
-    ):
-        points = np.asarray(list(speeds), dtype=float)
-        if points.ndim == 2:
-            self.speeds = tuple(tuple(float(v) for v in row) for row in points)
-        else:
-            self.speeds = tuple(float(v) for v in points)
-        self.runs_per_state = int(runs_per_state)
-        self.states = None if states is None else tuple(str(s) for s in states)
-        self.validation_fraction = float(validation_fraction)
-        self.chunk_size = int(chunk_size)
-        self.duration = None if duration is None else float(duration)
-        self.spec = CNNInputSpec() if spec is None else spec
-        self.on_failure = on_failure
-        self.max_redraws = int(max_redraws)
+    # any sequence of operating points in, tuples of floats stored (``_points``)
+    speeds: Sequence[float] | Sequence[Sequence[float]] | np.ndarray = eqx.field(
+        static=True, converter=_points
+    )
+    runs_per_state: int = eqx.field(static=True, default=600, converter=int, kw_only=True)
+    states: tuple[str, ...] | None = eqx.field(
+        static=True, default=None, converter=_state_names, kw_only=True
+    )
+    validation_fraction: float = eqx.field(static=True, default=0.3, converter=float, kw_only=True)
+    chunk_size: int = eqx.field(static=True, default=100, converter=int, kw_only=True)
+    duration: float | None = eqx.field(
+        static=True, default=None, converter=_optional_float, kw_only=True
+    )
+    spec: CNNInputSpec = eqx.field(static=True, default=None, converter=_input_spec, kw_only=True)
+    on_failure: Literal["redraw", "drop"] = eqx.field(static=True, default="redraw", kw_only=True)
+    max_redraws: int = eqx.field(static=True, default=5, converter=int, kw_only=True)
 
     def __check_init__(self):
         if not self.speeds:

@@ -289,6 +289,127 @@ def _map_dask(job: Job, pending: list[int], scheduler: str, n_workers: int) -> _
             yield future.result()
 
 
+@dataclasses.dataclass(frozen=True)
+class Execution:
+    """Where and how :func:`generate` computes its chunks (the data are the same for all).
+
+    Parameters
+    ----------
+    scheduler
+        ``None``: compute chunks in this process; ``"local"``: start a
+        ``distributed.LocalCluster`` of ``n_workers`` processes with one thread each;
+        ``"tcp://host:port"``: use that Dask scheduler. Every path gives identical data.
+    n_workers
+        Worker processes of the local cluster.
+    threads
+        With ``scheduler=None``: chunks computed at once in this process, each in its own
+        thread (the data are the same for any number). ``None`` means 2, or 1 on a machine
+        with one core; 2 was measured on a 2-core machine, more is untested.
+    on_chunk
+        Called with the chunk index after each chunk has been saved (in the order the chunks
+        finish, which with several threads or workers is not the index order).
+    """
+
+    scheduler: str | None = None
+    n_workers: int = 2
+    threads: int | None = None
+    on_chunk: Callable[[int], None] | None = None
+
+
+def _check_job(
+    system: AbstractSystem,
+    source: AbstractParameterSource,
+    config: GenerationConfig,
+    execution: Execution,
+) -> int:
+    """Refuse a source, states or execution settings that do not fit; the number of threads."""
+    names = set(system.parameter_names())
+    if set(source.names) != names:
+        raise ValueError(
+            f"the parameter source gives {sorted(source.names)} but {system.name} needs exactly "
+            f"{sorted(names)}: missing {sorted(names - set(source.names))}, unknown "
+            f"{sorted(set(source.names) - names)}"
+        )
+    for state in config.states or ():
+        system.check_state(state)
+    threads = min(2, _cores()) if execution.threads is None else execution.threads
+    if threads < 1:
+        raise ValueError(f"threads must be at least 1 (or None for the default), got {threads}")
+    if execution.scheduler == "local" and execution.n_workers < 1:
+        raise ValueError(
+            f"n_workers must be at least 1 for a local cluster, got {execution.n_workers}"
+        )
+    return threads
+
+
+def _pending_chunks(job: Job, out: Path) -> tuple[str, list[int]]:
+    """Open or check the folder's manifest and the chunks already there; the configuration
+    hash and the chunks still to compute."""
+    manifest = _manifest(job)
+    _open_folder(out, manifest)
+    config_hash = manifest["config_hash"]
+    for index in range(job.n_chunks):
+        if _chunk_path(out, index).exists():
+            _load_chunk(out, index, config_hash)
+    return config_hash, [i for i in range(job.n_chunks) if not _chunk_path(out, i).exists()]
+
+
+def _compute_chunks(
+    job: Job,
+    out: Path,
+    config_hash: str,
+    pending: list[int],
+    execution: Execution,
+    threads: int,
+    progress: bool,
+) -> list[float]:
+    """Compute and save the pending chunks; the times (``perf_counter``) of the start and
+    of each saved chunk."""
+    arrivals = [time.perf_counter()]
+    with _progress(progress, job.n_chunks, job.n_chunks - len(pending)) as advance:
+        # a finished folder needs no cluster
+        chunks = (
+            _map_local(job, pending, threads)
+            if execution.scheduler is None or not pending
+            else _map_dask(job, pending, execution.scheduler, execution.n_workers)
+        )
+        with contextlib.closing(chunks):
+            for index, arrays in chunks:
+                _save_chunk(out, index, arrays, config_hash)
+                arrivals.append(time.perf_counter())
+                advance()
+                if execution.on_chunk is not None:
+                    execution.on_chunk(index)
+    return arrivals
+
+
+def _write_summary(
+    out: Path,
+    data: TrainingData,
+    new_runs: int,
+    arrivals: list[float],
+    seconds: float,
+    execution: Execution,
+    threads: int,
+) -> None:
+    """``summary.json``: counts, dropped and redrawn runs, and timing."""
+    summary = {
+        "runs": int(data.labels.size),
+        "counts": data.counts(),
+        "dropped_run_ids": data.dropped_run_ids.tolist(),
+        "redrawn_runs": int(np.sum(data.redraws > 0)),
+        "chunks_computed": len(arrivals) - 1,
+        # time between saved chunks: the first includes compilation (and cluster start-up)
+        "chunk_seconds": np.diff(arrivals).tolist(),
+        "seconds": seconds,
+        "seconds_per_run": seconds / new_runs if new_runs else None,
+        "scheduler": execution.scheduler,
+        "threads": threads if execution.scheduler is None else None,
+    }
+    text = json.dumps(summary, indent=1)
+    atomic_write(out / "summary.json", lambda tmp: tmp.write_text(text), overwrite=True)
+
+
 def generate(
     system: AbstractSystem,
     source: AbstractParameterSource,
@@ -297,11 +418,8 @@ def generate(
     *,
     key: Array,
     model_error: ModelErrorDraws | None = None,
-    scheduler: str | None = None,
-    n_workers: int = 2,
-    threads: int | None = None,
     progress: bool = True,
-    on_chunk: Callable[[int], None] | None = None,
+    execution: Execution = Execution(),
 ) -> TrainingData:
     """Simulate labelled training runs in chunks, save them under ``out`` and return them all.
 
@@ -330,21 +448,11 @@ def generate(
         The PRNG key of the whole generation.
     model_error
         Optional model-error draws added to the features.
-    scheduler
-        ``None``: compute chunks in this process; ``"local"``: start a
-        ``distributed.LocalCluster`` of ``n_workers`` processes with one thread each;
-        ``"tcp://host:port"``: use that Dask scheduler. Every path gives identical data.
-    n_workers
-        Worker processes of the local cluster.
-    threads
-        With ``scheduler=None``: chunks computed at once in this process, each in its own
-        thread (the data are the same for any number). ``None`` means 2, or 1 on a machine
-        with one core; 2 was measured on a 2-core machine, more is untested.
     progress
         Show a progress bar (rich).
-    on_chunk
-        Called with the chunk index after each chunk has been saved (in the order the chunks
-        finish, which with several threads or workers is not the index order).
+    execution
+        The scheduler, workers and threads that compute the chunks, and a callback per
+        saved chunk (:class:`Execution`).
 
     Returns
     -------
@@ -358,67 +466,16 @@ def generate(
         speeds (through the system), draws outside the bounds, or an output folder of a
         different configuration.
     """
-    names = set(system.parameter_names())
-    if set(source.names) != names:
-        raise ValueError(
-            f"the parameter source gives {sorted(source.names)} but {system.name} needs exactly "
-            f"{sorted(names)}: missing {sorted(names - set(source.names))}, unknown "
-            f"{sorted(set(source.names) - names)}"
-        )
-    for state in config.states or ():
-        system.check_state(state)
-    if threads is None:
-        threads = min(2, _cores())
-    if threads < 1:
-        raise ValueError(f"threads must be at least 1 (or None for the default), got {threads}")
-    if scheduler == "local" and n_workers < 1:
-        raise ValueError(f"n_workers must be at least 1 for a local cluster, got {n_workers}")
+    threads = _check_job(system, source, config, execution)
     job = Job(system, source, model_error, config, key, bool(jax.config.read("jax_enable_x64")))
     system.motion_window(np.asarray(config.speeds), duration=job.duration)
     out = Path(out)
-    manifest = _manifest(job)
-    _open_folder(out, manifest)
-    config_hash = manifest["config_hash"]
-    for index in range(job.n_chunks):
-        if _chunk_path(out, index).exists():
-            _load_chunk(out, index, config_hash)
-    pending = [i for i in range(job.n_chunks) if not _chunk_path(out, i).exists()]
+    config_hash, pending = _pending_chunks(job, out)
     new_runs = sum(job.chunk_runs(i)[1].size for i in pending)
-
-    start = time.perf_counter()
-    arrivals = [start]
-    with _progress(progress, job.n_chunks, job.n_chunks - len(pending)) as advance:
-        # a finished folder needs no cluster
-        chunks = (
-            _map_local(job, pending, threads)
-            if scheduler is None or not pending
-            else _map_dask(job, pending, scheduler, n_workers)
-        )
-        with contextlib.closing(chunks):
-            for index, arrays in chunks:
-                _save_chunk(out, index, arrays, config_hash)
-                arrivals.append(time.perf_counter())
-                advance()
-                if on_chunk is not None:
-                    on_chunk(index)
-    seconds = time.perf_counter() - start
-
+    arrivals = _compute_chunks(job, out, config_hash, pending, execution, threads, progress)
+    seconds = time.perf_counter() - arrivals[0]
     data = load_training_data(out)
-    summary = {
-        "runs": int(data.labels.size),
-        "counts": data.counts(),
-        "dropped_run_ids": data.dropped_run_ids.tolist(),
-        "redrawn_runs": int(np.sum(data.redraws > 0)),
-        "chunks_computed": len(pending),
-        # time between saved chunks: the first includes compilation (and cluster start-up)
-        "chunk_seconds": np.diff(arrivals).tolist(),
-        "seconds": seconds,
-        "seconds_per_run": seconds / new_runs if new_runs else None,
-        "scheduler": scheduler,
-        "threads": threads if scheduler is None else None,
-    }
-    text = json.dumps(summary, indent=1)
-    atomic_write(out / "summary.json", lambda tmp: tmp.write_text(text), overwrite=True)
+    _write_summary(out, data, new_runs, arrivals, seconds, execution, threads)
     if data.dropped_run_ids.size:
         warnings.warn(
             f"{data.dropped_run_ids.size} simulated runs were dropped after failed solves "

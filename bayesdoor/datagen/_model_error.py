@@ -146,7 +146,8 @@ def model_error_draws(
 
     Draw ``j`` is ``residuals[i_j] + sqrt(variance) * z_j`` with ``i_j`` uniform over the
     residuals and ``z_j`` standard normal per feature; either part may be left out. Pass
-    them to :func:`bayesdoor.classify.fit_classifier` as ``ood_model_error``.
+    them to :func:`bayesdoor.classify.fit_classifier` as
+    ``FitOptions(ood_model_error=...)``.
 
     Parameters
     ----------
@@ -253,15 +254,7 @@ def with_measured_discrepancy(
             f"speed per run and at least one run; got {x.shape} and {v.shape}"
         )
     own = data.labels == data.states.index(state)
-    residuals = np.empty_like(x)
-    for i, speed in enumerate(v):
-        at = own & at_point(data.speeds, speed)
-        if not at.any():
-            raise ValueError(
-                f"measured run {i} has speed {_show(speed)} but no simulated {state} run is at "
-                f"that speed (simulated: {point_list(data.speeds)})"
-            )
-        residuals[i] = x[i] - data.features[at].mean(axis=0)
+    residuals = _residuals(data, x, v, own, state)
     rng = np.random.default_rng(seed)
     shifted = np.empty_like(data.features)
     for speed in unique_points(data.speeds):
@@ -276,6 +269,23 @@ def with_measured_discrepancy(
         shifted[runs] = _add_discrepancy(data.features[runs], drawn, base)
     offsets = shifted - data.features
     return dataclasses.replace(data, features=shifted, model_error=data.model_error + offsets)
+
+
+def _residuals(
+    data: TrainingData, x: np.ndarray, v: np.ndarray, own: np.ndarray, state: str
+) -> np.ndarray:
+    """Each measured run's features minus the mean of the simulated runs of ``state``
+    (``own``) at its speed."""
+    residuals = np.empty_like(x)
+    for i, speed in enumerate(v):
+        at = own & at_point(data.speeds, speed)
+        if not at.any():
+            raise ValueError(
+                f"measured run {i} has speed {_show(speed)} but no simulated {state} run is at "
+                f"that speed (simulated: {point_list(data.speeds)})"
+            )
+        residuals[i] = x[i] - data.features[at].mean(axis=0)
+    return residuals
 
 
 #: the discrepancy's form (the generation stage's configuration names it)

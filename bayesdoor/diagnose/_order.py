@@ -15,7 +15,13 @@ import numpy as np
 import scipy.signal
 
 from .._types import Float
-from ..features import log10_psd_variance, welch_dof, welch_psd, welch_segment_count
+from ..features import (
+    WelchOptions,
+    log10_psd_variance,
+    welch_dof,
+    welch_psd,
+    welch_segment_count,
+)
 
 #: the resampled span is where the speed is at least this fraction of the run's peak speed
 MOVING_FRACTION = 0.2
@@ -134,7 +140,9 @@ def order_log_psd(
             )
         span = slice(idx[0], idx[-1] + 1)
         resampled = np.stack([np.interp(grid, distance[span], c[span]) for c in low[r]])
-        wavenumbers, psd = welch_psd(resampled, 1.0 / step, nperseg=nperseg, nfft=PADDING * nperseg)
+        wavenumbers, psd = welch_psd(
+            resampled, 1.0 / step, nperseg=nperseg, options=WelchOptions(nfft=PADDING * nperseg)
+        )
         n_segments = welch_segment_count(grid.size, nperseg)
         psds.append(np.log10(np.maximum(psd, 1e-300)))
         log_var.append(float(log10_psd_variance(welch_dof(n_segments, nperseg))))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -16,6 +17,28 @@ def _moving_rms(x: np.ndarray, m: int, *, leading: bool) -> np.ndarray:
     return np.sqrt(np.maximum(cs[..., hi] - cs[..., lo], 0.0) / (hi - lo))
 
 
+@dataclasses.dataclass(frozen=True)
+class MotionDetection:
+    """The thresholds of :func:`motion_window`.
+
+    Parameters
+    ----------
+    rest_duration
+        Length (s) of the still segment at the start of the record.
+    rms_window
+        Length (s) of the short-time RMS window.
+    k
+        Threshold as a multiple of the rest RMS.
+    relative_floor
+        Threshold as a fraction of the channel's peak short-time RMS, whichever is larger.
+    """
+
+    rest_duration: float = 0.25
+    rms_window: float = 0.02
+    k: float = 5.0
+    relative_floor: float = 0.05
+
+
 def motion_window(
     t: np.ndarray,
     signals: np.ndarray,
@@ -23,10 +46,7 @@ def motion_window(
     t_start: float | None = None,
     t_stop: float | None = None,
     channels: Sequence[int] | None = None,
-    rest_duration: float = 0.25,
-    rms_window: float = 0.02,
-    k: float = 5.0,
-    relative_floor: float = 0.05,
+    detection: MotionDetection = MotionDetection(),
 ) -> tuple[float, float]:
     """Start and stop of the motion in one run, detected from the signal envelope.
 
@@ -53,14 +73,8 @@ def motion_window(
     channels
         Indices of the channels whose envelope counts (for the door, its sliding-direction
         channels ``A1Z`` and ``A2Z``); ``None`` means all.
-    rest_duration
-        Length (s) of the still segment at the start of the record.
-    rms_window
-        Length (s) of the short-time RMS window.
-    k
-        Threshold as a multiple of the rest RMS.
-    relative_floor
-        Threshold as a fraction of the channel's peak short-time RMS, whichever is larger.
+    detection
+        ``rest_duration``, ``rms_window``, ``k`` and ``relative_floor`` (:class:`MotionDetection`).
 
     Returns
     -------
@@ -84,6 +98,17 @@ def motion_window(
         return float(t_start), float(t_stop)
     if channels is not None:
         x = x[list(channels)]
+    first, last = _active_span(t, x, detection)
+    return (
+        first if t_start is None else float(t_start),
+        last if t_stop is None else float(t_stop),
+    )
+
+
+def _active_span(t: np.ndarray, x: np.ndarray, detection: MotionDetection) -> tuple[float, float]:
+    """The first time some channel of ``x`` is active in the window ending there, and the
+    last time some channel is active in the window starting there (see :func:`motion_window`)."""
+    rest_duration, k = detection.rest_duration, detection.k
     rest = t < t[0] + rest_duration
     if rest.sum() < 2 or rest.all():
         raise ValueError(
@@ -91,21 +116,19 @@ def motion_window(
             f"{t.size}: it must cover at least two samples and leave some record after it"
         )
     x = x - x[:, rest].mean(axis=1, keepdims=True)
-    m = max(1, round(rms_window / np.median(np.diff(t))))
+    m = max(1, round(detection.rms_window / np.median(np.diff(t))))
     trailing = _moving_rms(x, m, leading=False)
     leading = _moving_rms(x, m, leading=True)
     rest_rms = np.sqrt(np.mean(x[:, rest] ** 2, axis=1))
-    threshold = np.maximum(k * rest_rms, relative_floor * trailing.max(axis=1))[:, None]
+    floor = detection.relative_floor * trailing.max(axis=1)
+    threshold = np.maximum(k * rest_rms, floor)[:, None]
     starts = np.flatnonzero((trailing > threshold).any(axis=0))
     stops = np.flatnonzero((leading > threshold).any(axis=0))
     if starts.size == 0 or stops.size == 0:
         raise ValueError(
-            f"no motion detected: no channel's {rms_window} s RMS exceeds {k} x its rest RMS "
-            f"({rest_rms.tolist()}); (a) the record holds no motion, (b) rest_duration="
+            f"no motion detected: no channel's {detection.rms_window} s RMS exceeds {k} x its "
+            f"rest RMS ({rest_rms.tolist()}); (a) the record holds no motion, (b) rest_duration="
             f"{rest_duration} s reaches into the motion, (c) k is too large; or pass t_start "
             "and t_stop"
         )
-    return (
-        float(t[starts[0]]) if t_start is None else float(t_start),
-        float(t[stops[-1]]) if t_stop is None else float(t_stop),
-    )
+    return float(t[starts[0]]), float(t[stops[-1]])

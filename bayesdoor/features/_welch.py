@@ -7,6 +7,7 @@ detrending and scaling are the same code for both.
 
 from __future__ import annotations
 
+import dataclasses
 from types import ModuleType
 from typing import TypeVar
 
@@ -24,6 +25,28 @@ _A = TypeVar("_A", np.ndarray, Array)
 
 #: how far (in sample periods) a time may lie from a sample and still count as on it
 _TIME_TOLERANCE = 1e-6
+
+
+@dataclasses.dataclass(frozen=True)
+class WelchOptions:
+    """How :func:`welch_psd` and :func:`welch_csd` treat each segment (scipy's defaults).
+
+    Parameters
+    ----------
+    window
+        A ``scipy.signal.get_window`` specification or an array of ``nperseg`` values.
+    detrend
+        ``"constant"`` (remove each segment's mean), ``"linear"`` (remove its least-squares
+        line) or ``False``.
+    nfft
+        FFT length of each segment, at least ``nperseg``: the windowed segment is zero-padded
+        to it, which interpolates the spectrum on a finer grid without narrowing the window's
+        main lobe; ``None`` means ``nperseg``.
+    """
+
+    window: str | tuple | Float[Array, " nperseg"] = "hann"
+    detrend: str | bool | None = "constant"
+    nfft: int | None = None
 
 
 def welch_segment_count(n_time: int, nperseg: int, noverlap: int | None = None) -> int:
@@ -102,17 +125,17 @@ def _time_last(x, axis, xp):
     return x
 
 
-def _segment_spectra(x, nperseg, noverlap, window, detrend, nfft, xp):
+def _segment_spectra(x, nperseg, noverlap, options: WelchOptions, xp):
     """The FFT of every detrended, windowed segment of ``x`` (time last): (..., segment, freq);
     the window, the number of segments and the FFT length."""
     noverlap, n_segments = _segment_layout(x.shape[-1], nperseg, noverlap)
-    nfft = nperseg if nfft is None else nfft
+    nfft = nperseg if options.nfft is None else options.nfft
     if isinstance(nfft, bool) or not isinstance(nfft, int | np.integer) or nfft < nperseg:
         raise ValueError(f"nfft must be an integer of at least nperseg={nperseg}, got {nfft!r}")
-    win = _window(window, nperseg)
+    win = _window(options.window, nperseg)
     starts = np.arange(n_segments) * (nperseg - noverlap)
     segments = x[..., starts[:, None] + np.arange(nperseg)]
-    segments = _detrend(segments, detrend, xp) * xp.asarray(win, dtype=x.dtype)
+    segments = _detrend(segments, options.detrend, xp) * xp.asarray(win, dtype=x.dtype)
     return xp.fft.rfft(segments, n=int(nfft), axis=-1), win, n_segments, int(nfft)
 
 
@@ -157,12 +180,10 @@ def welch_psd(
     fs: float,
     nperseg: int = 512,
     noverlap: int | None = None,
-    window: str | tuple | Float[Array, " nperseg"] = "hann",
-    detrend: str | bool | None = "constant",
     axis: int = -1,
     *,
     segment_weights: Float[_A, "*#batch segment"] | None = None,
-    nfft: int | None = None,
+    options: WelchOptions = WelchOptions(),
 ) -> tuple[Float[_A, " freq"], Float[_A, "*batch freq"]]:
     """One-sided Welch power spectral density, as ``scipy.signal.welch`` computes it.
 
@@ -183,11 +204,6 @@ def welch_psd(
         Samples per segment; at most the record length.
     noverlap
         Samples shared by consecutive segments; ``None`` means ``nperseg // 2``.
-    window
-        A ``scipy.signal.get_window`` specification or an array of ``nperseg`` values.
-    detrend
-        ``"constant"`` (remove each segment's mean), ``"linear"`` (remove its least-squares
-        line) or ``False``.
     axis
         The time axis of ``x``; the frequency axis of the result takes its place.
     segment_weights
@@ -198,10 +214,8 @@ def welch_psd(
         with ``axis`` removed. The number of segments stays static, only the weights are
         traced, so a per-run motion window works inside ``jit`` and ``vmap``. With all
         weights equal it is plain Welch.
-    nfft
-        FFT length of each segment, at least ``nperseg``: the windowed segment is zero-padded
-        to it, which interpolates the spectrum on a finer grid without narrowing the window's
-        main lobe; ``None`` means ``nperseg``.
+    options
+        The window, the detrending and the FFT length (:class:`WelchOptions`).
 
     Returns
     -------
@@ -233,9 +247,7 @@ def welch_psd(
     """
     xp = _namespace(x, segment_weights)
     x = _time_last(x, axis, xp)
-    spectrum, win, n_segments, nfft = _segment_spectra(
-        x, nperseg, noverlap, window, detrend, nfft, xp
-    )
+    spectrum, win, n_segments, nfft = _segment_spectra(x, nperseg, noverlap, options, xp)
     power = xp.real(spectrum) ** 2 + xp.imag(spectrum) ** 2
     layout = (x.shape[-1], nperseg, noverlap, n_segments)
     psd = _average(power, segment_weights, layout, xp)
@@ -248,12 +260,10 @@ def welch_csd(
     fs: float,
     nperseg: int = 512,
     noverlap: int | None = None,
-    window: str | tuple | Float[Array, " nperseg"] = "hann",
-    detrend: str | bool | None = "constant",
     axis: int = -1,
     *,
     segment_weights: Float[_A, "*#batch segment"] | None = None,
-    nfft: int | None = None,
+    options: WelchOptions = WelchOptions(),
 ) -> tuple[Float[_A, " freq"], Complex[_A, "*batch freq"]]:
     """One-sided Welch cross spectral density ``P_xy``, as ``scipy.signal.csd`` computes it.
 
@@ -267,7 +277,7 @@ def welch_csd(
     ----------
     x, y
         The two signals, of one shape (or shapes that broadcast), time on ``axis``.
-    fs, nperseg, noverlap, window, detrend, axis, segment_weights, nfft
+    fs, nperseg, noverlap, axis, segment_weights, options
         As in :func:`welch_psd`.
 
     Returns
@@ -284,8 +294,8 @@ def welch_csd(
     """
     xp = _namespace(x, y, segment_weights)
     x, y = xp.broadcast_arrays(_time_last(x, axis, xp), _time_last(y, axis, xp))
-    sx, win, n_segments, nfft = _segment_spectra(x, nperseg, noverlap, window, detrend, nfft, xp)
-    sy, _, _, _ = _segment_spectra(y, nperseg, noverlap, window, detrend, nfft, xp)
+    sx, win, n_segments, nfft = _segment_spectra(x, nperseg, noverlap, options, xp)
+    sy, _, _, _ = _segment_spectra(y, nperseg, noverlap, options, xp)
     layout = (x.shape[-1], nperseg, noverlap, n_segments)
     cross = _average(xp.conj(sx) * sy, segment_weights, layout, xp)
     return _density(cross, win, nfft, fs, x.dtype, axis, xp)

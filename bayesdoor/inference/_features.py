@@ -12,6 +12,7 @@ import numpy as np
 
 from .._types import Array, Float
 from ..features import (
+    WelchOptions,
     band_features,
     log10_psd_variance,
     segment_weights,
@@ -181,8 +182,8 @@ def run_features(
         fs,
         nperseg=spec.nperseg,
         noverlap=spec.noverlap,
-        window=spec.window,
         segment_weights=weights[..., None, :],
+        options=WelchOptions(window=spec.window),
     )
     return band_features(freqs, psd, edges.tolist()), jnp.sum(weights, axis=-1)
 

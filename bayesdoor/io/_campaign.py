@@ -20,10 +20,7 @@ def make_campaign(
     fs: float,
     state: Sequence[str] | np.ndarray,
     system: str,
-    split: Sequence[str] | np.ndarray | None = None,
-    t_start: Sequence[float] | np.ndarray | None = None,
-    t_stop: Sequence[float] | np.ndarray | None = None,
-    **extra_run_coords,
+    **run_coords,
 ) -> xr.Dataset:
     """Build a campaign dataset: the one constructor every producer of campaigns uses.
 
@@ -41,14 +38,12 @@ def make_campaign(
         system that is not registered accepts any label.
     system
         The system's name (attribute ``system``), as the registry knows it.
-    split
-        Per run, optional: ``calibration`` or ``test``.
-    t_start, t_stop
-        Per run, optional: when the motion starts and stops, s.
-    **extra_run_coords
-        Further per-run coordinates, kept as given: the operating conditions under the names
-        the system declares (the door's ``v_max``, NaN where unknown:
-        :func:`validate_campaign` reports it), damage severities, record names.
+    **run_coords
+        Optional per-run coordinates: ``split`` (``calibration`` or ``test``), ``t_start``
+        and ``t_stop`` (when the motion starts and stops, s), and further ones kept as
+        given: the operating conditions under the names the system declares (the door's
+        ``v_max``, NaN where unknown: :func:`validate_campaign` reports it), damage
+        severities, record names.
 
     Returns
     -------
@@ -84,26 +79,8 @@ def make_campaign(
         )
     if not (np.isfinite(fs) and fs > 0):
         raise ValueError(f"fs must be a positive sampling rate in Hz, got {fs!r}")
-    per_run = {"state": np.asarray(state, dtype=str)}
-    for name, value, dtype in (
-        ("split", split, str),
-        ("t_start", t_start, float),
-        ("t_stop", t_stop, float),
-    ):
-        if value is not None:
-            per_run[name] = np.asarray(value, dtype=dtype)
-    per_run.update({k: np.asarray(v) for k, v in extra_run_coords.items()})
-    for name, value in per_run.items():
-        if value.shape != (runs,):
-            raise ValueError(f"{name} needs one entry per run ({runs}), got shape {value.shape}")
-    known = system_of(system)
-    labels: dict[str, tuple[str, ...]] = {"split": SPLIT_LABELS}
-    if known is not None:
-        labels["state"] = state_labels(known)
-    for name, allowed in labels.items():
-        bad = sorted(set(map(str, per_run.get(name, ()))) - set(allowed))
-        if bad:
-            raise ValueError(f"unknown {name} labels {bad}: allowed {', '.join(allowed)}")
+    per_run = _per_run(np.asarray(state, dtype=str), run_coords, runs)
+    _check_labels(per_run, system)
     return xr.Dataset(
         {"acceleration": (("run", "channel", "time"), acc, {"units": "m/s^2"})},
         coords={
@@ -114,6 +91,36 @@ def make_campaign(
         },
         attrs={"sampling_rate_hz": float(fs), "system": system, "units": "m/s^2"},
     )
+
+
+#: the optional per-run coordinates of the format, in their order, with their types
+_RUN_TYPES = {"split": str, "t_start": float, "t_stop": float}
+
+
+def _per_run(state: np.ndarray, given: dict, runs: int) -> dict[str, np.ndarray]:
+    """The per-run coordinates as arrays: the state, the format's optional ones (as their
+    types), then the others as given; a ``ValueError`` for one without one entry per run."""
+    per_run = {"state": state}
+    for name, dtype in _RUN_TYPES.items():
+        if given.get(name) is not None:
+            per_run[name] = np.asarray(given[name], dtype=dtype)
+    per_run.update({k: np.asarray(v) for k, v in given.items() if k not in _RUN_TYPES})
+    for name, value in per_run.items():
+        if value.shape != (runs,):
+            raise ValueError(f"{name} needs one entry per run ({runs}), got shape {value.shape}")
+    return per_run
+
+
+def _check_labels(per_run: dict[str, np.ndarray], system: str) -> None:
+    """Refuse split labels outside the format's, and state labels outside a known system's."""
+    known = system_of(system)
+    labels: dict[str, tuple[str, ...]] = {"split": SPLIT_LABELS}
+    if known is not None:
+        labels["state"] = state_labels(known)
+    for name, allowed in labels.items():
+        bad = sorted(set(map(str, per_run.get(name, ()))) - set(allowed))
+        if bad:
+            raise ValueError(f"unknown {name} labels {bad}: allowed {', '.join(allowed)}")
 
 
 def save_campaign(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False) -> Path:

@@ -251,12 +251,9 @@ def from_csv(
     channels: Sequence[str] | None = None,
     fs: float | None = None,
     state: Sequence[str] | None = None,
-    split: Sequence[str] | None = None,
-    t_start: Sequence[float] | np.ndarray | None = None,
-    t_stop: Sequence[float] | np.ndarray | None = None,
     system: str | None = None,
     check: bool = True,
-    **extra_run_coords,
+    **run_coords,
 ) -> xr.Dataset:
     """Read a campaign from CSV files, one per run (``time`` plus one column per channel).
 
@@ -277,9 +274,10 @@ def from_csv(
         (last time - first time), which time stamps rounded by the acquisition do not upset.
     state
         Per run; ``None`` labels every run ``unknown``.
-    split, t_start, t_stop, **extra_run_coords
-        As in :func:`make_campaign` (the operating conditions among them, under the names
-        the system declares; those not given are left NaN, which ``check`` reports).
+    **run_coords
+        As in :func:`make_campaign`: ``split``, ``t_start``, ``t_stop`` and further per-run
+        coordinates (the operating conditions among them, under the names the system
+        declares; those not given are left NaN, which ``check`` reports).
     system
         The system's name, as the registry knows it.
     check
@@ -303,46 +301,13 @@ def from_csv(
     """
     folder = Path(source) if isinstance(source, str | os.PathLike) else None
     if folder is not None and (folder / SIDECAR).is_file():
-        given = {
-            k: v
-            for k, v in dict(
-                channels=channels, fs=fs, state=state, split=split,
-                t_start=t_start, t_stop=t_stop, system=system, **extra_run_coords,
-            ).items()
-            if v is not None
-        }  # fmt: skip
-        if given:
-            raise ValueError(
-                f"{folder / SIDECAR} defines the metadata; got {sorted(given)} as well: "
-                "edit the sidecar, or pass the CSV files as a list to use the arguments"
-            )
+        _refuse_metadata(
+            folder, dict(channels=channels, fs=fs, state=state, system=system, **run_coords)
+        )
         ds = _from_sidecar(folder)
     else:
-        if folder is None:
-            paths = [Path(p) for p in source]  # type: ignore[union-attr]
-        elif folder.is_dir():
-            paths = sorted(folder.glob("*.csv"))
-            if not paths:
-                raise FileNotFoundError(f"no *.csv files in {folder}")
-        else:
-            paths = [folder]
-        names, time, acc = _read_runs(paths, channels)
-        runs = len(paths)
-        known = system_of(system)
-        for name in [] if known is None else known.condition_names():
-            extra_run_coords.setdefault(name, np.full(runs, np.nan))
-        ds = make_campaign(
-            acc,
-            channels=names,
-            fs=(time.size - 1) / float(time[-1] - time[0]) if fs is None else fs,
-            state=["unknown"] * runs if state is None else state,
-            split=split,
-            t_start=t_start,
-            t_stop=t_stop,
-            system="" if system is None else system,
-            **extra_run_coords,
-        )
-        ds = ds.assign_coords(time=("time", time, ds["time"].attrs))
+        paths = _csv_paths(source, folder)
+        ds = _assemble(paths, channels, fs, state, system, run_coords)
     if check:
         check_campaign(
             ds,
@@ -351,6 +316,53 @@ def from_csv(
             else f"{paths[0].parent} ({len(paths)} CSV files)",
         )
     return ds
+
+
+def _refuse_metadata(folder: Path, arguments: dict[str, Any]) -> None:
+    """A ``ValueError`` when metadata arguments come with a folder whose sidecar has them."""
+    given = {k: v for k, v in arguments.items() if v is not None}
+    if given:
+        raise ValueError(
+            f"{folder / SIDECAR} defines the metadata; got {sorted(given)} as well: "
+            "edit the sidecar, or pass the CSV files as a list to use the arguments"
+        )
+
+
+def _assemble(
+    paths: list[Path],
+    channels: Sequence[str] | None,
+    fs: float | None,
+    state: Sequence[str] | None,
+    system: str | None,
+    run_coords: dict[str, Any],
+) -> xr.Dataset:
+    """The campaign of the run files, through :func:`make_campaign`, with the files' times."""
+    names, time, acc = _read_runs(paths, channels)
+    runs = len(paths)
+    known = system_of(system)
+    for name in [] if known is None else known.condition_names():
+        run_coords.setdefault(name, np.full(runs, np.nan))
+    ds = make_campaign(
+        acc,
+        channels=names,
+        fs=(time.size - 1) / float(time[-1] - time[0]) if fs is None else fs,
+        state=["unknown"] * runs if state is None else state,
+        system="" if system is None else system,
+        **run_coords,
+    )
+    return ds.assign_coords(time=("time", time, ds["time"].attrs))
+
+
+def _csv_paths(source, folder: Path | None) -> list[Path]:
+    """The run files: the given list, a folder's ``*.csv`` files in name order, or one file."""
+    if folder is None:
+        return [Path(p) for p in source]
+    if folder.is_dir():
+        paths = sorted(folder.glob("*.csv"))
+        if not paths:
+            raise FileNotFoundError(f"no *.csv files in {folder}")
+        return paths
+    return [folder]
 
 
 def _from_sidecar(folder: Path) -> xr.Dataset:

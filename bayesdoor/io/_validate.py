@@ -446,6 +446,26 @@ def validate_campaign(
     problems
         In the order of the checks above; an empty list for a valid campaign.
     """
+    fatal = _fatal_problems(ds)
+    if fatal:
+        return fatal
+    problems = _channel_problems(ds, channels)
+    problems += _units_problems(ds)
+    min_samples = _min_samples(ds, nperseg, min_duration_s)
+    time_problems, fs = _time_problems(ds, sampling_rate_hz, min_samples, nperseg)
+    problems += time_problems
+    problems += _sample_problems(ds, clip_run, clip_fraction)
+    if system is None:
+        system, settings_problems = _named_system(ds)
+        problems += settings_problems
+    problems += _run_problems(ds, system, fs, nperseg)
+    if not str(ds.attrs.get("system", "")).strip():
+        problems.append(_missing_system())
+    return problems
+
+
+def _fatal_problems(ds: xr.Dataset) -> list[Problem]:
+    """``no_acceleration`` or ``no_runs``, after which nothing else is checked; else none."""
     var = ds.get("acceleration")
     if var is None or set(var.dims) != {"run", "channel", "time"}:
         found = "no acceleration variable" if var is None else f"dims {var.dims}"
@@ -464,30 +484,33 @@ def validate_campaign(
                 "check the selection that produced the file",
             )
         ]
+    return []
+
+
+def _min_samples(ds: xr.Dataset, nperseg: int, min_duration_s: float | None) -> int:
+    """The samples a record must hold: ``nperseg``, or ``min_duration_s`` at the campaign's
+    sampling rate when that is more."""
     fs_attr = ds.attrs.get("sampling_rate_hz")
-    min_samples = nperseg
     if min_duration_s is not None and isinstance(fs_attr, int | float | np.number):
-        min_samples = max(nperseg, int(np.ceil(min_duration_s * float(fs_attr))))
-    problems = _channel_problems(ds, channels)
-    problems += _units_problems(ds)
-    time_problems, fs = _time_problems(ds, sampling_rate_hz, min_samples, nperseg)
-    problems += time_problems
-    problems += _sample_problems(ds, clip_run, clip_fraction)
-    if system is None:
-        try:
-            system = system_of(ds)
-        except ValueError as err:
-            problems.append(Problem("bad_system_settings", str(err)))
-    problems += _run_problems(ds, system, fs, nperseg)
-    if not str(ds.attrs.get("system", "")).strip():
-        problems.append(
-            Problem(
-                "missing_system",
-                "attrs['system'] is missing: name the system (one of "
-                f"{', '.join(available_systems()) or 'the registered systems'})",
-            )
-        )
-    return problems
+        return max(nperseg, int(np.ceil(min_duration_s * float(fs_attr))))
+    return nperseg
+
+
+def _named_system(ds: xr.Dataset) -> tuple[AbstractSystem | None, list[Problem]]:
+    """The registered system the campaign names, or ``bad_system_settings`` when its
+    settings do not build it."""
+    try:
+        return system_of(ds), []
+    except ValueError as err:
+        return None, [Problem("bad_system_settings", str(err))]
+
+
+def _missing_system() -> Problem:
+    return Problem(
+        "missing_system",
+        "attrs['system'] is missing: name the system (one of "
+        f"{', '.join(available_systems()) or 'the registered systems'})",
+    )
 
 
 def check_campaign(ds: xr.Dataset, *, source: str | None = None, **options) -> None:

@@ -16,6 +16,7 @@ import xarray as xr
 from ..classify import (
     SELECTIVE_RISK,
     Ensemble,
+    FitOptions,
     TrainConfig,
     classification_metrics,
     combine_evidence,
@@ -38,7 +39,7 @@ from ..datagen._points import point_key
 from ..features import CNNInputSpec
 from ..io import atomic_write, system_of
 from ..io import operating as campaign_operating
-from ..report import diagnosis_section, extension_section, write_damage_report
+from ..report import ReportContext, diagnosis_section, extension_section, write_damage_report
 from ..systems import HEALTHY, AbstractSystem
 from ._bands import PredictiveBands
 from ._fit import FitSummary
@@ -118,9 +119,11 @@ def train_stage(
         data.states,
         key=key,
         config=config,
-        ood_quantile=ood_quantile,
-        ood_model_error=ood_model_error,
-        progress="rich" if progress else "none",
+        options=FitOptions(
+            ood_quantile=ood_quantile,
+            ood_model_error=ood_model_error,
+            progress="rich" if progress else "none",
+        ),
     )
     ensemble = training.ensemble
     save_ensemble(folder / ENSEMBLE, ensemble)
@@ -761,21 +764,27 @@ def report_stage(
         features=features,
         frequencies=frequencies,
         channels=channels,
-        bands=None
-        if bands is None
-        else {
-            "states": bands.states,
-            "speeds": bands.speeds,
-            "values": bands.values,
-        },
-        training=training,
-        fit=None if fit is None else {"method": fit.method, "j": fit.j, "table": fit.table()},
         title=title,
-        adequacy=adequacy,
-        trust=trust,
-        sections=(
-            *(() if diagnosis is None else (diagnosis_section(diagnosis, _sibling(diagnosis)),)),
-            *(() if extension is None else (extension_section(extension),)),
+        context=ReportContext(
+            bands=None
+            if bands is None
+            else {
+                "states": bands.states,
+                "speeds": bands.speeds,
+                "values": bands.values,
+            },
+            training=training,
+            fit=None if fit is None else {"method": fit.method, "j": fit.j, "table": fit.table()},
+            adequacy=adequacy,
+            trust=trust,
+            sections=(
+                *(
+                    ()
+                    if diagnosis is None
+                    else (diagnosis_section(diagnosis, _sibling(diagnosis)),)
+                ),
+                *(() if extension is None else (extension_section(extension),)),
+            ),
         ),
     )
 

@@ -38,6 +38,7 @@ from ..classify import TrainConfig
 from ..datagen import (
     DISCREPANCY_FORM,
     AbstractParameterSource,
+    Execution,
     GaussianScatter,
     GenerationConfig,
     PosteriorDraws,
@@ -929,7 +930,7 @@ def _generate(job: _Job, folder: Path) -> None:
         folder / "data",
         key=jax.random.fold_in(job.key, 1),
         progress=job.progress,
-        scheduler=job.pool.address,
+        execution=Execution(scheduler=job.pool.address),
     )
 
 

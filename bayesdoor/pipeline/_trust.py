@@ -52,6 +52,7 @@ import xarray as xr
 from scipy import stats
 
 from ..datagen import (
+    AdequacyCheck,
     TrainingData,
     campaign_features,
     fit_adequacy,
@@ -150,7 +151,8 @@ def _adequacy(
 ) -> dict[str, Any]:
     features = campaign_features(known, spec=data_spec(data))
     variance = measurement_variance(data)
-    model = fit_adequacy(data, features, speeds, variance, seed=seed, alpha=TRUST_ALPHA)
+    check = AdequacyCheck(alpha=TRUST_ALPHA)
+    model = fit_adequacy(data, features, speeds, variance, seed=seed, check=check)
     payload = model.to_json()
     if discrepancy and known.sizes["run"] >= 2:
         payload = fit_adequacy(
@@ -159,8 +161,8 @@ def _adequacy(
             speeds,
             variance,
             seed=seed,
-            alpha=TRUST_ALPHA,
             discrepancy=True,
+            check=check,
         ).to_json()
         payload["summary"] = (
             "with the measured discrepancy (each run left out of its own), " + payload["summary"]
@@ -407,7 +409,7 @@ def trust_stage(
                 np.asarray([picks[j][1]["operating"] for j in at], dtype=float),
                 measurement_variance(data),
                 seed=seed,
-                alpha=TRUST_ALPHA,
+                check=AdequacyCheck(alpha=TRUST_ALPHA),
             )
         except ValueError:  # too few simulated healthy runs at a speed: no per-run check
             at, scores, bounds = [], np.zeros(0), np.zeros(0)

@@ -5,6 +5,7 @@ from ._colors import HEALTHY_COLOR as HEALTHY_COLOR
 from ._colors import STATE_COLORMAP as STATE_COLORMAP
 from ._colors import UNKNOWN_COLOR as UNKNOWN_COLOR
 from ._colors import state_colors as state_colors
+from ._damage import ReportContext as ReportContext
 from ._damage import bands_figure as bands_figure
 from ._damage import confusion_figure as confusion_figure
 from ._damage import probability_bars as probability_bars
@@ -24,6 +25,7 @@ from ._diagnosis import residual_map_figure as residual_map_figure
 from ._diagnosis import rest_figure as rest_figure
 from ._diagnosis import speed_figure as speed_figure
 from ._diagnosis import write_diagnosis_report as write_diagnosis_report
+from ._posterior import OperatingPoints as OperatingPoints
 from ._posterior import ablation_table as ablation_table
 from ._posterior import plot_posterior_pairs as plot_posterior_pairs
 from ._posterior import plot_posterior_trace as plot_posterior_trace

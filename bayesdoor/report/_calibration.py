@@ -12,6 +12,74 @@ from ..classify import Binning, expected_calibration_error, reliability_bins
 from ..io import atomic_write
 
 
+def _reliability_panel(ax, ax_n, binning: Binning, sets: dict, labels, n_bins: int) -> None:
+    """One binning's column: accuracy against confidence above, confidences' histogram below."""
+    ax.plot([0, 1], [0, 1], color="0.3", lw=1, ls=":", label="perfect calibration")
+    for name, p in sets.items():
+        bins = reliability_bins(p, labels, n_bins, binning)
+        ece = expected_calibration_error(p, labels, n_bins, binning)
+        used = bins.counts > 0
+        label = f"{name}: ECE = {ece:.3f}"
+        if name == "uncalibrated":
+            ax.plot(
+                bins.confidence[used],
+                bins.accuracy[used],
+                "o--",
+                color="0.45",
+                ms=4,
+                label=label,
+            )
+            continue
+        if binning == "width":
+            _accuracy_bars(ax, bins, used, label)
+        else:
+            ax.plot(bins.confidence, bins.accuracy, "o-", color="tab:blue", ms=5, label=label)
+            for edge in bins.upper[:-1]:
+                ax_n.axvline(edge, color="0.5", lw=0.6)
+        ax_n.hist(
+            np.max(np.asarray(p), axis=1),
+            bins=np.linspace(0, 1, 51),
+            color="tab:blue",
+            alpha=0.85,
+        )
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.02)
+    ax.set_ylabel("accuracy")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper left", fontsize=9, frameon=False)
+    kind = "equal-width" if binning == "width" else "equal-mass"
+    ax.set_title(f"{n_bins} {kind} bins", fontsize=11)
+    ax_n.set_xlabel("confidence (top-label probability)")
+    ax_n.set_ylabel("samples per 0.02")
+    ax_n.grid(True, alpha=0.3)
+
+
+def _accuracy_bars(ax, bins, used: np.ndarray, label: str) -> None:
+    """Equal-width bins: a bar of the accuracy per bin and the hatched gap to its confidence."""
+    centres = (bins.lower + bins.upper) / 2
+    width = bins.upper - bins.lower
+    ax.bar(
+        centres[used],
+        bins.accuracy[used],
+        width[used],
+        color="tab:blue",
+        edgecolor="white",
+        alpha=0.85,
+        label=f"{label} (accuracy per bin)",
+    )
+    ax.bar(
+        centres[used],
+        bins.confidence[used] - bins.accuracy[used],
+        width[used],
+        bottom=bins.accuracy[used],
+        facecolor="none",
+        edgecolor="tab:red",
+        hatch="///",
+        lw=0.8,
+        label="gap to the bin's mean confidence",
+    )
+
+
 def plot_reliability(
     probabilities: Float[ArrayLike, "sample class"],
     labels: Int[ArrayLike, " sample"],
@@ -68,66 +136,7 @@ def plot_reliability(
     )
     binnings: tuple[Binning, Binning] = ("width", "mass")
     for col, binning in enumerate(binnings):
-        ax, ax_n = axes[0, col], axes[1, col]
-        ax.plot([0, 1], [0, 1], color="0.3", lw=1, ls=":", label="perfect calibration")
-        for name, p in sets.items():
-            bins = reliability_bins(p, labels, n_bins, binning)
-            ece = expected_calibration_error(p, labels, n_bins, binning)
-            used = bins.counts > 0
-            label = f"{name}: ECE = {ece:.3f}"
-            if name == "uncalibrated":
-                ax.plot(
-                    bins.confidence[used],
-                    bins.accuracy[used],
-                    "o--",
-                    color="0.45",
-                    ms=4,
-                    label=label,
-                )
-                continue
-            if binning == "width":
-                centres = (bins.lower + bins.upper) / 2
-                width = bins.upper - bins.lower
-                ax.bar(
-                    centres[used],
-                    bins.accuracy[used],
-                    width[used],
-                    color="tab:blue",
-                    edgecolor="white",
-                    alpha=0.85,
-                    label=f"{label} (accuracy per bin)",
-                )
-                ax.bar(
-                    centres[used],
-                    bins.confidence[used] - bins.accuracy[used],
-                    width[used],
-                    bottom=bins.accuracy[used],
-                    facecolor="none",
-                    edgecolor="tab:red",
-                    hatch="///",
-                    lw=0.8,
-                    label="gap to the bin's mean confidence",
-                )
-            else:
-                ax.plot(bins.confidence, bins.accuracy, "o-", color="tab:blue", ms=5, label=label)
-                for edge in bins.upper[:-1]:
-                    ax_n.axvline(edge, color="0.5", lw=0.6)
-            ax_n.hist(
-                np.max(np.asarray(p), axis=1),
-                bins=np.linspace(0, 1, 51),
-                color="tab:blue",
-                alpha=0.85,
-            )
-        ax.set_xlim(0, 1)
-        ax.set_ylim(0, 1.02)
-        ax.set_ylabel("accuracy")
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper left", fontsize=9, frameon=False)
-        kind = "equal-width" if binning == "width" else "equal-mass"
-        ax.set_title(f"{n_bins} {kind} bins", fontsize=11)
-        ax_n.set_xlabel("confidence (top-label probability)")
-        ax_n.set_ylabel("samples per 0.02")
-        ax_n.grid(True, alpha=0.3)
+        _reliability_panel(axes[0, col], axes[1, col], binning, sets, labels, n_bins)
     n = len(np.asarray(labels))
     fig.suptitle(f"{title} ({n} samples)" if title else f"Reliability diagram ({n} samples)")
     fig.tight_layout()

@@ -395,6 +395,38 @@ class _Inputs:
         return state_colors([*self.classes, *(r["state"] for r in self.runs)], self.healthy)
 
 
+@dataclasses.dataclass(frozen=True)
+class ReportContext:
+    """What a job adds to a damage report besides the classification, each part optional.
+
+    Parameters
+    ----------
+    bands
+        Posterior-predictive bands: ``states``, ``speeds`` and ``values`` of shape
+        ``(state, speed, quantile, channel, freq)`` with quantiles (0.05, 0.5, 0.95).
+    training
+        The training record (simulated validation metrics, temperature), shown when given.
+    fit
+        The model updating's ``method``, ``j`` and parameter ``table``, shown when given.
+    adequacy
+        The fit-adequacy JSON (:func:`bayesdoor.datagen.fit_adequacy`), shown first.
+    trust
+        The trust JSON of the job (``verdict``, ``reasons``, ``flagged_runs``): when it is
+        ``"not trusted"`` the page opens with a warning and its reasons, and the
+        classification below is marked as not to be relied on.
+    sections
+        Further HTML sections of the campaign page (for example the discrepancy diagnosis's
+        verdict and link), placed after the model updating.
+    """
+
+    bands: Mapping[str, Any] | None = None
+    training: Mapping[str, Any] | None = None
+    fit: Mapping[str, Any] | None = None
+    adequacy: Mapping[str, Any] | None = None
+    trust: Mapping[str, Any] | None = None
+    sections: Sequence[str] = ()
+
+
 def write_damage_report(
     folder: str | Path,
     classification: Mapping[str, Any],
@@ -402,13 +434,8 @@ def write_damage_report(
     features: Float[np.ndarray, "run channel freq"],
     frequencies: Float[np.ndarray, " freq"],
     channels: Sequence[str],
-    bands: Mapping[str, Any] | None = None,
-    training: Mapping[str, Any] | None = None,
-    fit: Mapping[str, Any] | None = None,
     title: str = "Damage report",
-    sections: Sequence[str] = (),
-    adequacy: Mapping[str, Any] | None = None,
-    trust: Mapping[str, Any] | None = None,
+    context: ReportContext = ReportContext(),
 ) -> Path:
     """Write ``index.html`` (the campaign) and ``runs/run-NNNN.html`` (each run) into ``folder``.
 
@@ -424,24 +451,11 @@ def write_damage_report(
         The classifier's input of each run, in the order of ``classification["runs"]``.
     frequencies, channels
         The feature bins (Hz) and channel names.
-    bands
-        Posterior-predictive bands: ``states``, ``speeds`` and ``values`` of shape
-        ``(state, speed, quantile, channel, freq)`` with quantiles (0.05, 0.5, 0.95).
-    training
-        The training record (simulated validation metrics, temperature), shown when given.
-    fit
-        The model updating's ``method``, ``j`` and parameter ``table``, shown when given.
     title
         The page title.
-    sections
-        Further HTML sections of the campaign page (for example the discrepancy diagnosis's
-        verdict and link), placed after the model updating.
-    adequacy
-        The fit-adequacy JSON (:func:`bayesdoor.datagen.fit_adequacy`), shown first.
-    trust
-        The trust JSON of the job (``verdict``, ``reasons``, ``flagged_runs``): when it is
-        ``"not trusted"`` the page opens with a warning and its reasons, and the
-        classification below is marked as not to be relied on.
+    context
+        The predictive bands, training record, fit, adequacy, trust and further sections
+        (:class:`ReportContext`).
 
     Returns
     -------
@@ -450,6 +464,7 @@ def write_damage_report(
     """
     folder = Path(folder)
     (folder / "runs").mkdir(parents=True, exist_ok=True)
+    bands = context.bands
     inputs = _Inputs(
         classes=list(classification["classes"]),
         healthy=str(classification.get("healthy_state", HEALTHY)),
@@ -466,25 +481,33 @@ def write_damage_report(
         band_classes=list(classification["classes"] if bands is None else bands["states"]),
     )
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    index = folder / "index.html"
+    subtitle = f"{len(inputs.runs)} runs, generated {stamp}"
+    body = "".join(_campaign_sections(inputs, classification, context))
+    _write_text(index, H.page(title, subtitle, body))
+    _write_run_pages(folder / "runs", inputs, f"{title}, generated {stamp}")
+    return index
+
+
+def _campaign_sections(
+    inputs: _Inputs, classification: Mapping[str, Any], context: ReportContext
+) -> list[str]:
+    """The campaign page's sections, in their order."""
+    adequacy, trust, fit = context.adequacy, context.trust, context.fit
     opening = [] if adequacy is None and trust is None else [trust_section(adequacy, trust)]
-    parts = [
+    return [
         _answer_section(inputs, trust),
         *opening,
         *_summary(inputs),
         _probabilities_section(inputs),
-        *([] if inputs.metrics is None else [_calibration_section(inputs, training)]),
-        *_selective_section(classification, training),
+        *([] if inputs.metrics is None else [_calibration_section(inputs, context.training)]),
+        *_selective_section(classification, context.training),
         _uncertainty_section(inputs),
         *_bands_section(inputs),
         *([] if fit is None else [_fit_section(fit)]),
-        *sections,
+        *context.sections,
         _runs_section(inputs),
     ]
-    index = folder / "index.html"
-    subtitle = f"{len(inputs.runs)} runs, generated {stamp}"
-    _write_text(index, H.page(title, subtitle, "".join(parts)))
-    _write_run_pages(folder / "runs", inputs, f"{title}, generated {stamp}")
-    return index
 
 
 #: the runs the answer lists first, at most

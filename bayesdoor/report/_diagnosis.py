@@ -578,6 +578,34 @@ def diagnosis_page(
     verdict = diagnosis.get("verdict")
     causes = list(diagnosis.get("causes", []))
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    parts = _verdict_parts(diagnosis, features)
+    if features is not None:
+        parts.append(
+            H.section(
+                "Where the model is wrong",
+                H.img(
+                    residual_map_figure(features.residuals),
+                    "residual map",
+                    "posterior-predictive residuals of the measured runs, combined over runs",
+                ),
+                _feature_list(features),
+            )
+        )
+    cause_parts = [
+        _cause_part(rank, cause, features, catalogue) for rank, cause in enumerate(causes, 1)
+    ]
+    parts.append(H.section("Ranked causes", *cause_parts))
+    parts += _gain_section(causes, features)
+    parts += _limits_sections(diagnosis.get("limits") or {}, verdict)
+    if fit is not None:
+        parts.append(H.section("Base model", _fit_table(fit)))
+    return H.page(title, f"bayesdoor diagnose, {stamp}", "".join(parts))
+
+
+def _verdict_parts(diagnosis: Mapping[str, Any], features: Features | None) -> list[str]:
+    """The headline cards, the verdict in words, the decision rule and the notes."""
+    verdict = diagnosis.get("verdict")
+    causes = list(diagnosis.get("causes", []))
     parts: list[str] = []
     named = verdict not in (None, "none")
     headline = [
@@ -608,99 +636,96 @@ def diagnosis_page(
         parts.append(H.note(f"Decision rule: {diagnosis['rule']}"))
     for message in diagnosis.get("notes", []) or []:
         parts.append(H.warning(str(message)))
+    return parts
 
-    if features is not None:
-        parts.append(
-            H.section(
-                "Where the model is wrong",
-                H.img(
-                    residual_map_figure(features.residuals),
-                    "residual map",
-                    "posterior-predictive residuals of the measured runs, combined over runs",
-                ),
-                _feature_list(features),
-            )
-        )
 
-    cause_parts = []
-    for rank, cause in enumerate(causes, start=1):
-        name = str(cause.get("name"))
-        header = f"{rank}. {name}"
-        if cause.get("score") is not None:
-            header += f" (signature score {_number(cause['score'])})"
-        if cause.get("confirmed"):
-            header += ", confirmed by its refit"
-        body = [f"<h3>{html.escape(header)}</h3>"]
-        if cause.get("description"):
-            body.append(H.note(str(cause["description"])))
-        if cause.get("configuration"):
-            body.append(H.note(f"Extension refitted: {cause['configuration']}"))
-        body.append(_evidence_list(cause.get("evidence", "")))
-        for alternative in cause.get("alternatives", []) or []:
-            body.append(H.warning(f"The same symptom could come from {alternative}."))
-        body.append(_parameters_table(cause.get("parameters") or {}))
-        if features is not None and name != "none":
-            signature = _signature_of(name, catalogue)
-            for data, caption in cause_figures(cause, features, signature):
-                body.append(H.img(data, f"{name} evidence", caption))
-        cause_parts.append("".join(body))
-    parts.append(H.section("Ranked causes", *cause_parts))
+def _cause_part(
+    rank: int, cause: Mapping[str, Any], features: Features | None, catalogue: Catalogue | None
+) -> str:
+    """One ranked cause: its header, description, evidence, parameters and figures."""
+    name = str(cause.get("name"))
+    header = f"{rank}. {name}"
+    if cause.get("score") is not None:
+        header += f" (signature score {_number(cause['score'])})"
+    if cause.get("confirmed"):
+        header += ", confirmed by its refit"
+    body = [f"<h3>{html.escape(header)}</h3>"]
+    if cause.get("description"):
+        body.append(H.note(str(cause["description"])))
+    if cause.get("configuration"):
+        body.append(H.note(f"Extension refitted: {cause['configuration']}"))
+    body.append(_evidence_list(cause.get("evidence", "")))
+    for alternative in cause.get("alternatives", []) or []:
+        body.append(H.warning(f"The same symptom could come from {alternative}."))
+    body.append(_parameters_table(cause.get("parameters") or {}))
+    if features is not None and name != "none":
+        signature = _signature_of(name, catalogue)
+        for data, caption in cause_figures(cause, features, signature):
+            body.append(H.img(data, f"{name} evidence", caption))
+    return "".join(body)
 
+
+def _gain_section(causes: list, features: Features | None) -> list[str]:
+    """The held-out gain of each cause's extension, when the causes carry one."""
     gain_header, rows = gain_rows(causes)
-    if rows:
-        speeds = None if features is None else features.residuals.speeds
-        figure = None if speeds is None else gain_figure(causes, speeds)
+    if not rows:
+        return []
+    speeds = None if features is None else features.residuals.speeds
+    figure = None if speeds is None else gain_figure(causes, speeds)
+    return [
+        H.section(
+            "Gain of the extensions",
+            H.note(
+                "Held-out measures of the base model and of the model extended with each "
+                "cause (fitted on part of the healthy runs, judged on the others)."
+            ),
+            H.table(gain_header, rows),
+            ""
+            if figure is None
+            else H.img(figure, "gain per run", "held-out gain of each run against its speed"),
+        )
+    ]
+
+
+def _limits_sections(limits: Mapping[str, Any], verdict: Any) -> list[str]:
+    """The detection limits of the causes and, after a verdict of none, the campaigns that
+    would see smaller ones."""
+    if not limits:
+        return []
+    limit_header, limit_table = limit_rows(limits)
+    power = power_figure(limits)
+    parts = [
+        H.section(
+            "Limits: what these runs could not have shown",
+            H.note(
+                "Per cause, the size of its key parameter that the decision rule would "
+                "name with the stated probability in these runs, from the expected "
+                "held-out gain of the extension at that size against the Welch variance "
+                "and the base model's error (docs/diagnosis.md, Limits). A cause smaller "
+                "than its limit is not excluded by a verdict of none."
+            ),
+            H.table(limit_header, limit_table),
+            ""
+            if power is None
+            else H.img(power, "power curves", "probability of naming against size"),
+        )
+    ]
+    plan_header, plan_table = plan_rows(limits)
+    if verdict == "none" and plan_table:
         parts.append(
             H.section(
-                "Gain of the extensions",
+                "Campaigns that would see smaller causes",
                 H.note(
-                    "Held-out measures of the base model and of the model extended with each "
-                    "cause (fitted on part of the healthy runs, judged on the others)."
+                    "Per cause, the cheapest campaign at this campaign's operating "
+                    "conditions that the decision rule would name the cause in, at half "
+                    "its limit here (its typical configuration), with the stated "
+                    "probability, the refit's estimation included (docs/diagnosis.md, "
+                    "Planning a campaign; bayesdoor plan for another size)."
                 ),
-                H.table(gain_header, rows),
-                ""
-                if figure is None
-                else H.img(figure, "gain per run", "held-out gain of each run against its speed"),
+                H.table(plan_header, plan_table),
             )
         )
-    limits = diagnosis.get("limits") or {}
-    if limits:
-        limit_header, limit_table = limit_rows(limits)
-        power = power_figure(limits)
-        parts.append(
-            H.section(
-                "Limits: what these runs could not have shown",
-                H.note(
-                    "Per cause, the size of its key parameter that the decision rule would "
-                    "name with the stated probability in these runs, from the expected "
-                    "held-out gain of the extension at that size against the Welch variance "
-                    "and the base model's error (docs/diagnosis.md, Limits). A cause smaller "
-                    "than its limit is not excluded by a verdict of none."
-                ),
-                H.table(limit_header, limit_table),
-                ""
-                if power is None
-                else H.img(power, "power curves", "probability of naming against size"),
-            )
-        )
-        plan_header, plan_table = plan_rows(limits)
-        if verdict == "none" and plan_table:
-            parts.append(
-                H.section(
-                    "Campaigns that would see smaller causes",
-                    H.note(
-                        "Per cause, the cheapest campaign at this campaign's operating "
-                        "conditions that the decision rule would name the cause in, at half "
-                        "its limit here (its typical configuration), with the stated "
-                        "probability, the refit's estimation included (docs/diagnosis.md, "
-                        "Planning a campaign; bayesdoor plan for another size)."
-                    ),
-                    H.table(plan_header, plan_table),
-                )
-            )
-    if fit is not None:
-        parts.append(H.section("Base model", _fit_table(fit)))
-    return H.page(title, f"bayesdoor diagnose, {stamp}", "".join(parts))
+    return parts
 
 
 def _feature_list(features: Features) -> str:

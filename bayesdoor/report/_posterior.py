@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -29,17 +30,35 @@ def _point_label(conditions: Sequence[tuple[str, str]], point) -> str:
     )
 
 
+@dataclasses.dataclass(frozen=True)
+class OperatingPoints:
+    """The operating points of :func:`plot_predictive_bands`' runs.
+
+    Parameters
+    ----------
+    points
+        The distinct operating points.
+    run_index
+        The index into ``points`` of each run.
+    conditions
+        The name and unit of each operating condition, in the order of a point's values (a
+        system's ``(c.name, c.unit) for c in system.conditions``).
+    """
+
+    points: np.ndarray
+    run_index: np.ndarray
+    conditions: Sequence[tuple[str, str]] = (("operating point", ""),)
+
+
 def plot_predictive_bands(
     replicates: np.ndarray,
     measured: np.ndarray,
-    run_operating: np.ndarray,
-    operating: np.ndarray,
+    operating: OperatingPoints,
     band_centres: np.ndarray,
     channels: Sequence[str],
     path: str | Path,
     *,
     title: str = "posterior-predictive log PSD",
-    conditions: Sequence[tuple[str, str]] = (("operating point", ""),),
 ) -> tuple[Path, float]:
     """Posterior-predictive 90 % bands of the log-PSD features against the measured ones.
 
@@ -53,10 +72,8 @@ def plot_predictive_bands(
         Replicated features, (draw, run, channel, band); NaN rows (failed simulations) skipped.
     measured
         Measured features, (run, channel, band).
-    run_operating
-        The index into ``operating`` of each run.
     operating
-        The distinct operating points.
+        The distinct operating points, each run's among them, and the conditions' names.
     band_centres
         Band centre frequencies, Hz.
     channels
@@ -65,9 +82,6 @@ def plot_predictive_bands(
         The PNG to write (its folder is created).
     title
         Figure title.
-    conditions
-        The name and unit of each operating condition, in the order of an operating point's
-        values (a system's ``(c.name, c.unit) for c in system.conditions``).
 
     Returns
     -------
@@ -81,47 +95,61 @@ def plot_predictive_bands(
     lo, hi = np.quantile(reps, [0.05, 0.95], axis=0)
     inside = (measured >= lo) & (measured <= hi)
     coverage = float(np.mean(inside))
-    n_ch, n_op = len(channels), len(operating)
+    n_ch, n_op = len(channels), len(operating.points)
     fig, axes = plt.subplots(
         n_ch, n_op, figsize=(3.6 * n_op + 0.6, 2.2 * n_ch + 0.8), sharex=True, squeeze=False
     )
     for o in range(n_op):
-        runs = np.flatnonzero(np.asarray(run_operating) == o)
+        runs = np.flatnonzero(np.asarray(operating.run_index) == o)
         pooled = reps[:, runs].reshape(-1, *reps.shape[2:])
         p_lo, p_mid, p_hi = np.quantile(pooled, [0.05, 0.5, 0.95], axis=0)
         for c in range(n_ch):
             ax = axes[c, o]
             ax.fill_between(band_centres, p_lo[c], p_hi[c], color="tab:blue", alpha=0.25)
             ax.plot(band_centres, p_mid[c], color="tab:blue", linewidth=1.2)
-            for r in runs:
-                ax.plot(
-                    band_centres,
-                    measured[r, c],
-                    linestyle="none",
-                    marker="o",
-                    markersize=2.5,
-                    color="black",
-                    alpha=0.7,
-                )
-            share = np.mean(inside[runs, c])
-            ax.text(
-                0.98,
-                0.95,
-                f"{100 * share:.0f} % inside",
-                transform=ax.transAxes,
-                ha="right",
-                va="top",
-                fontsize=8,
-            )
-            ax.grid(alpha=0.3)
+            _measured_dots(ax, band_centres, measured[runs, c], np.mean(inside[runs, c]))
             if o == 0:
                 ax.set_ylabel(f"{channels[c]}\nlog10 PSD")
             if c == 0:
-                ax.set_title(
-                    f"{_point_label(conditions, operating[o])} ({runs.size} runs)", fontsize=10
-                )
+                point = _point_label(operating.conditions, operating.points[o])
+                ax.set_title(f"{point} ({runs.size} runs)", fontsize=10)
             if c == n_ch - 1:
                 ax.set_xlabel("frequency (Hz)")
+    _band_legend(fig)
+    fig.suptitle(f"{title}: {100 * coverage:.1f} % of measured features inside")
+    fig.tight_layout(rect=(0, 0.04, 1, 0.97))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path, coverage
+
+
+def _measured_dots(ax, band_centres: np.ndarray, measured: np.ndarray, share: float) -> None:
+    """The measured features of a panel's runs as dots, and the share inside the band."""
+    for row in measured:
+        ax.plot(
+            band_centres,
+            row,
+            linestyle="none",
+            marker="o",
+            markersize=2.5,
+            color="black",
+            alpha=0.7,
+        )
+    ax.text(
+        0.98,
+        0.95,
+        f"{100 * share:.0f} % inside",
+        transform=ax.transAxes,
+        ha="right",
+        va="top",
+        fontsize=8,
+    )
+    ax.grid(alpha=0.3)
+
+
+def _band_legend(fig) -> None:
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -131,13 +159,6 @@ def plot_predictive_bands(
         Line2D([], [], color="black", marker="o", linestyle="none", markersize=3, label="measured"),
     ]
     fig.legend(handles=handles, loc="lower center", ncol=3, frameon=False)
-    fig.suptitle(f"{title}: {100 * coverage:.1f} % of measured features inside")
-    fig.tight_layout(rect=(0, 0.04, 1, 0.97))
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path, coverage
 
 
 def plot_posterior_pairs(idata: az.InferenceData, names: Sequence[str], path: str | Path) -> Path:

@@ -191,6 +191,68 @@ def campaign_psds(
     )
 
 
+def _state_curves(axes, psds: RunPSDs, shown: np.ndarray, colors: dict, band) -> list:
+    """Each state's mean log PSD and its band over runs on every channel's panel; the legend
+    handles."""
+    import matplotlib.pyplot as plt
+    from matplotlib.artist import Artist
+    from matplotlib.patches import Patch
+
+    lo, hi = band
+    freqs, values = psds.freqs[shown], psds.log_psd[..., shown]
+    labels = [s for s in colors if s in psds.states]
+    handles: list[Artist] = []
+    for state in labels:
+        member = np.array([s == state for s in psds.states])
+        count = int(member.sum())
+        runs = values[member]
+        color = colors[state]
+        for ax, ch in zip(axes.flat, range(len(psds.channels)), strict=False):
+            if count > 1:
+                ax.fill_between(
+                    freqs,
+                    np.percentile(runs[:, ch], lo, axis=0),
+                    np.percentile(runs[:, ch], hi, axis=0),
+                    color=color,
+                    alpha=0.2,
+                    lw=0,
+                )
+            ax.plot(freqs, runs[:, ch].mean(axis=0), color=color, lw=1.4)
+        runs_text = "1 run" if count == 1 else f"mean of {count} runs"
+        handles.append(plt.Line2D([], [], color=color, lw=1.6, label=f"{state} ({runs_text})"))
+    if any(psds.states.count(s) > 1 for s in labels):
+        handles.append(Patch(color="0.5", alpha=0.3, label=f"{lo:g}-{hi:g} percentile over runs"))
+    return handles
+
+
+def _decorate(fig, axes, psds: RunPSDs, fmax: float, title: str | None, handles: list) -> None:
+    """Channel titles, axes' labels and limits, the analysis settings and the legend."""
+    n_channels = len(psds.channels)
+    for ax, name in zip(axes.flat, psds.channels, strict=False):
+        ax.set_title(name, fontsize=11, fontweight="bold")
+        ax.set_xlim(0, fmax)
+        ax.grid(True, alpha=0.3)
+    for ax in axes.flat[n_channels:]:
+        ax.set_visible(False)
+    for ax in axes[-1]:
+        ax.set_xlabel("frequency (Hz)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("log$_{10}$ PSD ((m/s$^2$)$^2$/Hz)")
+    settings = (
+        f"Welch PSD within each run's motion window, Hann, {psds.nperseg} samples "
+        f"({psds.fs / psds.nperseg:g} Hz bins), 50 % overlap, fs = {psds.fs:g} Hz"
+    )
+    fig.suptitle(f"{title}\n{settings}" if title else settings, fontsize=11)
+    fig.legend(
+        handles=handles,
+        loc="lower center",
+        ncol=min(len(handles), 4),
+        frameon=False,
+        fontsize=10,
+    )
+    fig.tight_layout(rect=(0, 0.06 + 0.02 * (len(handles) > 4), 1, 1))
+
+
 def plot_state_psds(
     psds: RunPSDs,
     path: str | os.PathLike,
@@ -241,8 +303,6 @@ def plot_state_psds(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.artist import Artist
-    from matplotlib.patches import Patch
 
     lo, hi = band
     if not 0 <= lo < hi <= 100:
@@ -253,59 +313,15 @@ def plot_state_psds(
     shown = psds.freqs <= fmax + 1e-9
     if shown.sum() < 2:
         raise ValueError(f"fmax={fmax} Hz shows fewer than two bins (spacing {psds.freqs[1]} Hz)")
-    freqs, values = psds.freqs[shown], psds.log_psd[..., shown]
-    colors = state_colors([*states, *psds.states], healthy)
-    labels = [s for s in colors if s in psds.states]
     n_channels = len(psds.channels)
     ncols = 2 if n_channels > 1 else 1
     nrows = -(-n_channels // ncols)
     fig, axes = plt.subplots(
         nrows, ncols, figsize=(6.2 * ncols, 3.6 * nrows + 1.1), sharex=True, squeeze=False
     )
-    handles: list[Artist] = []
-    for state in labels:
-        member = np.array([s == state for s in psds.states])
-        count = int(member.sum())
-        runs = values[member]
-        color = colors[state]
-        for ax, ch in zip(axes.flat, range(n_channels), strict=False):
-            if count > 1:
-                ax.fill_between(
-                    freqs,
-                    np.percentile(runs[:, ch], lo, axis=0),
-                    np.percentile(runs[:, ch], hi, axis=0),
-                    color=color,
-                    alpha=0.2,
-                    lw=0,
-                )
-            ax.plot(freqs, runs[:, ch].mean(axis=0), color=color, lw=1.4)
-        runs_text = "1 run" if count == 1 else f"mean of {count} runs"
-        handles.append(plt.Line2D([], [], color=color, lw=1.6, label=f"{state} ({runs_text})"))
-    if any(psds.states.count(s) > 1 for s in labels):
-        handles.append(Patch(color="0.5", alpha=0.3, label=f"{lo:g}-{hi:g} percentile over runs"))
-    for ax, name in zip(axes.flat, psds.channels, strict=False):
-        ax.set_title(name, fontsize=11, fontweight="bold")
-        ax.set_xlim(0, fmax)
-        ax.grid(True, alpha=0.3)
-    for ax in axes.flat[n_channels:]:
-        ax.set_visible(False)
-    for ax in axes[-1]:
-        ax.set_xlabel("frequency (Hz)")
-    for ax in axes[:, 0]:
-        ax.set_ylabel("log$_{10}$ PSD ((m/s$^2$)$^2$/Hz)")
-    settings = (
-        f"Welch PSD within each run's motion window, Hann, {psds.nperseg} samples "
-        f"({psds.fs / psds.nperseg:g} Hz bins), 50 % overlap, fs = {psds.fs:g} Hz"
-    )
-    fig.suptitle(f"{title}\n{settings}" if title else settings, fontsize=11)
-    fig.legend(
-        handles=handles,
-        loc="lower center",
-        ncol=min(len(handles), 4),
-        frameon=False,
-        fontsize=10,
-    )
-    fig.tight_layout(rect=(0, 0.06 + 0.02 * (len(handles) > 4), 1, 1))
+    colors = state_colors([*states, *psds.states], healthy)
+    handles = _state_curves(axes, psds, shown, colors, band)
+    _decorate(fig, axes, psds, fmax, title, handles)
     try:
         atomic_write(
             Path(path), lambda tmp: fig.savefig(tmp, format="png", dpi=120), overwrite=True

@@ -383,10 +383,18 @@ def test_second_training_does_not_compile():
 
 
 @pytest.mark.parametrize("progress", ["rich", "tqdm"])
-def test_progress_bars(progress):
+def test_progress_bars_show_the_epochs_and_change_nothing(progress, capsys):
     x, y = synthetic(230, 6)
     config = TrainConfig(members=3, epochs=2, batch_size=50)
-    train_ensemble(x, y, CLASSES, key=jax.random.key(1), config=config, progress=progress)
+    _, shown = train_ensemble(
+        x, y, CLASSES, key=jax.random.key(1), config=config, progress=progress
+    )
+    printed = capsys.readouterr()
+    _, silent = train_ensemble(x, y, CLASSES, key=jax.random.key(1), config=config, progress="none")
+    np.testing.assert_array_equal(shown, silent)
+    if progress == "tqdm":  # rich's bar is transient: it leaves nothing behind
+        assert "training ensemble" in printed.err and "2/2" in printed.err
+    assert capsys.readouterr().err == ""  # "none" prints nothing
 
 
 def test_bad_inputs_are_refused_with_the_fix(fitted):

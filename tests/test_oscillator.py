@@ -281,3 +281,26 @@ def test_the_oscillator_is_found_by_name_and_simulated_from_the_command_line(tmp
     assert abs(peaks[0] - 25.0) <= 1.0 and abs(peaks[2] - 25.0) <= 1.0
     assert abs(peaks[1] - 25.0 * np.sqrt(1 - loss)) <= 1.0
     json.dumps(oscillator.describe())
+
+
+def test_the_demo_campaign_is_recorded_once_by_the_rig_and_valid(tmp_path, monkeypatch):
+    from bayesdoor.io import validate_campaign
+    from bayesdoor.oscillator.datasets import CALIBRATION_RUNS, TEST_RUNS_PER_STATE
+    from bayesdoor.systems import available_demos, get_demo
+
+    monkeypatch.setenv("BAYESDOOR_DATA", str(tmp_path))
+    assert "oscillator" in available_demos()
+    demo = get_demo("oscillator")
+    assert not demo.cached_path().exists()
+    campaign = demo.load(show_progress=False)
+    assert demo.cached_path().parent == tmp_path and demo.cached_path().exists()
+    assert validate_campaign(campaign, system=Oscillator()) == []
+    states = campaign["state"].values.astype(str)
+    split = campaign["split"].values.astype(str)
+    assert list(split).count("calibration") == CALIBRATION_RUNS
+    assert set(states[split == "calibration"]) == {"healthy"}
+    test_states = list(states[split == "test"])
+    assert all(test_states.count(s) == TEST_RUNS_PER_STATE for s in Oscillator().states)
+    # the second load reads the cached file: the same runs
+    again = demo.load(show_progress=False)
+    assert (again["acceleration"].values == campaign["acceleration"].values).all()

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Mapping, Sequence
-from typing import ClassVar, TypeVar
+from typing import TYPE_CHECKING, ClassVar, TypeVar
 
 import equinox as eqx
 import jax
@@ -202,8 +202,9 @@ class UnsynchronisedLines(AbstractExtension):
     #: the sampling rate the lines are recorded at, Hz: the harmonics lie below its Nyquist
     sampling_rate_hz: ClassVar[float]
 
-    frequency_hz: eqx.AbstractVar[float]
-    harmonics: eqx.AbstractVar[int]
+    if TYPE_CHECKING:  # fields of the subclass, in its own place among its fields
+        frequency_hz: float
+        harmonics: int
 
     def __check_init__(self):
         kind = type(self).__name__

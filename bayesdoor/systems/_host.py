@@ -13,9 +13,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 from collections.abc import Mapping
-from typing import ClassVar
-
-import equinox as eqx
+from typing import TYPE_CHECKING, ClassVar
 
 from .._types import Array, Float
 from ._base import AbstractSystem, ParameterSpec
@@ -38,7 +36,8 @@ class ExtensionHost(AbstractSystem):
         extension twice.
     """
 
-    extensions: eqx.AbstractVar[tuple[AbstractExtension, ...]]
+    if TYPE_CHECKING:  # a field of the subclass, in its own place among its fields
+        extensions: tuple[AbstractExtension, ...]
     #: the class the system's extensions derive from
     extension_base: ClassVar[type]
     #: the extension class of every catalogue name (``none``, the base model, has none)

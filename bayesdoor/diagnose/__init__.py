@@ -38,6 +38,9 @@ from ._coherence import CoherenceMap as CoherenceMap
 from ._coherence import PairCoherence as PairCoherence
 from ._coherence import coherence_map as coherence_map
 from ._design import CampaignPlan as CampaignPlan
+from ._diagnosis import Cause as Cause
+from ._diagnosis import Diagnosis as Diagnosis
+from ._diagnosis import DiagnosisSettings as DiagnosisSettings
 from ._extend import HeldExtension as HeldExtension
 from ._extend import VerdictExtension as VerdictExtension
 from ._extend import extend_system as extend_system
@@ -51,9 +54,6 @@ from ._gain import Gain as Gain
 from ._gain import capped_t as capped_t
 from ._gain import rule_passes as rule_passes
 from ._gain import rule_thresholds as rule_thresholds
-from ._job import Cause as Cause
-from ._job import Diagnosis as Diagnosis
-from ._job import DiagnosisSettings as DiagnosisSettings
 from ._job import diagnose_campaign as diagnose_campaign
 from ._limits import LIMIT_POWER as LIMIT_POWER
 from ._limits import CauseLimit as CauseLimit

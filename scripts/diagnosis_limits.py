@@ -151,7 +151,6 @@ def _judge(campaign: Any, proposal: Any, fit: Any, seed: int, tracking: bool) ->
         folds,
         seed=seed,
         max_evals=settings.refit_evals,
-        bases={},
         tracking=tracking,
         workers=settings.workers,
     )

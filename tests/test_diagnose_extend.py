@@ -125,9 +125,7 @@ def test_folds_refitted_at_once_give_the_fits_of_one_at_a_time():
     )
     folds = held_out_folds(speeds, 2)
     runs = [
-        _cross_validate(
-            setup, proposal, folds, seed=3, max_evals=24, bases={}, tracking=False, workers=w
-        )
+        _cross_validate(setup, proposal, folds, seed=3, max_evals=24, tracking=False, workers=w)
         for w in (1, 2)
     ]
     (fits_1, gain_1), (fits_2, gain_2) = runs

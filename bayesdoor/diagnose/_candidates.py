@@ -11,6 +11,7 @@ import numpy as np
 
 from .._cluster import Pool
 from ._diagnosis import Cause, DiagnosisSettings
+from ._gain import Gain
 from ._held_out import (
     _Bases,
     _fold_tasks,
@@ -25,6 +26,7 @@ from ._measured import Measured, _fold_order
 from ._rank import NONE, Catalogue, CauseScore, Ranking
 from ._refit import (
     ExtensionProposal,
+    RefitOptions,
     RefitResult,
     RefitSetup,
     held_out_spectra,
@@ -192,6 +194,84 @@ def _candidate(catalogue: Catalogue, name: str) -> Any:
     return next(c for c in catalogue.candidates if c.name == name)
 
 
+@dataclasses.dataclass(frozen=True)
+class _Trial:
+    """One proposal of a candidate, refitted fold by fold and judged on held-out runs."""
+
+    proposal: ExtensionProposal
+    fits: list[RefitResult]
+    gain: Gain
+    bases: _Bases
+
+    @property
+    def train_lpd(self) -> float:
+        """The folds' training log predictive density, summed: what picks the best trial."""
+        return sum(f.train_lpd for f in self.fits)
+
+
+def _judged_trials(
+    setup: RefitSetup,
+    entry: Any,
+    candidate: Proposed,
+    folds: Sequence[tuple[np.ndarray, np.ndarray]],
+    fitted: Sequence[Sequence[RefitResult | Exception]],
+    shared_bases: Sequence[_Bases],
+) -> tuple[list[_Trial], list[str]]:
+    """Each proposal's fold refits judged on held-out runs, and a note for each proposal
+    whose refit failed."""
+    notes: list[str] = []
+    trials = []
+    for proposal, results, shared in zip(candidate.proposals, fitted, shared_bases, strict=True):
+        fits = [f for f in results if isinstance(f, RefitResult)]
+        failed = [f for f in results if not isinstance(f, RefitResult)]
+        try:
+            if failed:
+                raise failed[0]
+            gain = _judge_refits(
+                setup, proposal, folds, fits, tracking=tracks_speed(entry.signature)
+            )
+        except (ValueError, RuntimeError) as err:
+            notes.append(f"{candidate.score.name} ({proposal.label}): refit failed: {err}")
+            continue
+        trials.append(_Trial(proposal, fits, gain, shared))
+    return trials, notes
+
+
+def _final_refit(
+    setup: RefitSetup,
+    recipe: Any,
+    extended_system: Any,
+    trial: _Trial,
+    by_fold: Mapping[str, list[float]],
+    settings: DiagnosisSettings,
+    seed: int,
+) -> tuple[dict[str, Any], dict[str, str]]:
+    """A confirmed trial refitted on every run from the folds' mean (seeded ``seed + 997``),
+    with Laplace standard deviations: its parameters (the recipe's derived ones with them)
+    and the ends of its search box it stopped at."""
+    proposal = trial.proposal
+    final = refit_extension(
+        setup,
+        dataclasses.replace(
+            proposal,
+            start={**proposal.start, **{n: float(np.mean(v)) for n, v in by_fold.items()}},
+        ),
+        np.arange(len(setup.operating)),
+        seed=seed + 997,
+        max_evals=settings.refit_evals,
+        bases=trial.bases,
+        options=RefitOptions(uncertainty=True, workers=settings.workers),
+    )
+    parameters: dict[str, Any] = {
+        n: {"mean": final.values[n], "sd": final.sd[n], "folds": by_fold[n]} for n in proposal.free
+    }
+    derived = recipe.derived(proposal, extended_system, {**setup.point, **final.values})
+    derived_sd = recipe.derived_sd(proposal, final.values, final.sd)
+    parameters.update({n: {"mean": v, "sd": derived_sd.get(n)} for n, v in derived.items()})
+    # a value at an end of its search box is not an estimate: the all-runs fit's
+    return parameters, final.at_bound()
+
+
 def _refit_candidate(
     setup: RefitSetup,
     entry: Any,
@@ -206,25 +286,12 @@ def _refit_candidate(
     held-out runs, the best on the training runs kept, its symptom checked, and, when
     confirmed, its final refit on every run; and a note for each proposal whose refit
     failed."""
-    score, proposals, recipe = candidate.score, candidate.proposals, entry.refit
-    notes: list[str] = []
-    trials = []
-    for proposal, results, shared in zip(proposals, fitted, shared_bases, strict=True):
-        fits = [f for f in results if isinstance(f, RefitResult)]
-        failed = [f for f in results if not isinstance(f, RefitResult)]
-        try:
-            if failed:
-                raise failed[0]
-            gain = _judge_refits(
-                setup, proposal, folds, fits, tracking=tracks_speed(entry.signature)
-            )
-        except (ValueError, RuntimeError) as err:
-            notes.append(f"{score.name} ({proposal.label}): refit failed: {err}")
-            continue
-        trials.append((sum(f.train_lpd for f in fits), proposal, fits, gain, shared))
+    score, recipe = candidate.score, entry.refit
+    trials, notes = _judged_trials(setup, entry, candidate, folds, fitted, shared_bases)
     if not trials:
         return None, notes
-    _, proposal, fits, gain, bases = max(trials, key=lambda t: t[0])
+    trial = max(trials, key=lambda t: t.train_lpd)
+    proposal, fits, gain = trial.proposal, trial.fits, trial.gain
     # each fold's own value is kept: folds that disagree mark a refit to distrust
     by_fold = {n: [float(np.mean(f.values[n])) for f in fits] for n in proposal.free}
     parameters: dict[str, Any] = {
@@ -248,33 +315,28 @@ def _refit_candidate(
     confirmed = gain.decisive and explained
     ends: dict[str, str] = {}
     if confirmed:
-        final = refit_extension(
-            setup,
-            dataclasses.replace(
-                proposal,
-                start={**proposal.start, **{n: v["mean"] for n, v in parameters.items()}},
-            ),
-            np.arange(len(setup.operating)),
-            seed=seed + 997,
-            max_evals=settings.refit_evals,
-            uncertainty=True,
-            bases=bases,
-            workers=settings.workers,
+        parameters, ends = _final_refit(
+            setup, recipe, extended_system, trial, by_fold, settings, seed
         )
-        parameters = {
-            n: {"mean": final.values[n], "sd": final.sd[n], "folds": by_fold[n]}
-            for n in proposal.free
-        }
-        derived = recipe.derived(proposal, extended_system, {**setup.point, **final.values})
-        derived_sd = recipe.derived_sd(proposal, final.values, final.sd)
-        parameters.update({n: {"mean": v, "sd": derived_sd.get(n)} for n, v in derived.items()})
-        # a value at an end of its search box is not an estimate: the all-runs fit's
-        ends = final.at_bound()
     else:
         # ... else any fold's
         for f in fits:
             ends = {**f.at_bound(), **ends}
     _mark_boxes(parameters, proposal, fits[0].box, ends)
+    return _refitted_cause(score, recipe, trial, parameters, (explained, symptom)), notes
+
+
+def _refitted_cause(
+    score: CauseScore,
+    recipe: Any,
+    trial: _Trial,
+    parameters: Mapping[str, Any],
+    explains: tuple[bool, str],
+) -> Cause:
+    """The candidate's :class:`Cause` after its refit: the refit's evidence in words after the
+    signature's, the refitted parameters over the signature's estimate."""
+    explained, symptom = explains
+    proposal, gain = trial.proposal, trial.gain
     words = (
         f"refit of {score.name} ({proposal.label}) on half of the runs, tested on the other "
         f"half both ways: {gain.describe()}"
@@ -283,17 +345,16 @@ def _refit_candidate(
         verb = "explains" if explained else "does not explain"
         words += f"; the refit {verb} its own feature: {symptom}"
     merged = {**dict(score.parameters), **parameters}
-    cause = dataclasses.replace(
+    return dataclasses.replace(
         _signature_cause(score),
         evidence=f"{score.evidence}. {words}",
         parameters=merged,
         gain=gain,
-        confirmed=confirmed,
+        confirmed=gain.decisive and explained,
         label=proposal.label,
         proposal=proposal,
         alternatives=recipe.alternatives(merged),
     )
-    return cause, notes
 
 
 def _mark_boxes(

@@ -30,6 +30,7 @@ from ._rank import Catalogue
 from ._refit import (
     SMOOTH_BINS,
     ExtensionProposal,
+    RefitOptions,
     RefitResult,
     RefitSetup,
     Spectra,
@@ -140,7 +141,6 @@ def _cross_validate(
     *,
     seed: int,
     max_evals: int,
-    bases: dict[tuple[float, ...], np.ndarray],
     tracking: bool,
     workers: int = 1,
     pool: Pool | None = None,
@@ -148,11 +148,12 @@ def _cross_validate(
     """Refit on each fold's training runs, judge its held-out runs, both models alike
     (:func:`_fold_tasks`, then :func:`_judge_refits`).
 
-    The folds are refitted on ``pool`` (``None``: ``workers`` threads of this process);
-    every fold has its own seed, so the fits do not depend on where they ran.
+    The folds are refitted on ``pool`` (``None``: ``workers`` threads of this process),
+    sharing one cache of base solves; every fold has its own seed, so the fits do not depend
+    on where they ran.
     """
     pool = in_process(workers) if pool is None else pool
-    results = pool.map(refit_fold, _fold_tasks(setup, proposal, folds, seed, max_evals, bases))
+    results = pool.map(refit_fold, _fold_tasks(setup, proposal, folds, seed, max_evals, {}))
     fits = [f for f in results if isinstance(f, RefitResult)]
     for failed in results:
         if not isinstance(failed, RefitResult):
@@ -187,7 +188,13 @@ def refit_fold(
     stop the others refitted beside it."""
     try:
         return refit_extension(
-            setup, proposal, train, seed=seed, max_evals=max_evals, bases=bases, exact=False
+            setup,
+            proposal,
+            train,
+            seed=seed,
+            max_evals=max_evals,
+            bases=bases,
+            options=RefitOptions(exact=False),
         )
     except (ValueError, RuntimeError) as err:
         return err
@@ -390,7 +397,6 @@ def extension_gain(
         folds,
         seed=seed,
         max_evals=settings.refit_evals,
-        bases={},
         tracking=tracking,
         workers=settings.workers,
     )

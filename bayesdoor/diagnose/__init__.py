@@ -46,6 +46,8 @@ from ._extend import VerdictExtension as VerdictExtension
 from ._extend import extend_system as extend_system
 from ._extend import verdict_extension as verdict_extension
 from ._features import Features as Features
+from ._features import FeatureSettings as FeatureSettings
+from ._features import RunMotion as RunMotion
 from ._features import find_features as find_features
 from ._gain import LOCAL_BINS as LOCAL_BINS
 from ._gain import RULE as RULE
@@ -73,6 +75,7 @@ from ._refit import ExtensionProposal as ExtensionProposal
 from ._refit import SizeProbe as SizeProbe
 from ._residual import Region as Region
 from ._residual import ResidualMap as ResidualMap
+from ._residual import ResidualSettings as ResidualSettings
 from ._residual import RunPeaks as RunPeaks
 from ._residual import SpeedFit as SpeedFit
 from ._residual import residual_map as residual_map

@@ -23,7 +23,7 @@ from ..features import welch_psd
 from ..inference import FitResult, fit_campaign
 from ._candidates import judge, propose, refit_candidates
 from ._diagnosis import Diagnosis, DiagnosisSettings
-from ._features import Features, find_features
+from ._features import Features, FeatureSettings, RunMotion, find_features
 from ._gain import RULE
 from ._limits import LIMIT_POWER, CauseLimit, cause_sizes, detection_limits
 from ._measured import Measured, _band, _simulate_rows, measure
@@ -190,15 +190,14 @@ def residual_map(
         predictive,
         measured.fs,
         channels=measured.channels,
-        t_start=measured.t_start,
-        t_stop=measured.t_stop,
-        speeds=speeds,
-        speed_profiles=profiles,
-        within_run=False,
-        order_segment_m=catalogue.order_segment_m,
-        pairs=_pairs(catalogue),
-        band=band,
-        smooth_discrepancy_bins=SMOOTH_BINS,
+        motion=RunMotion(measured.t_start, measured.t_stop, speeds, profiles),
+        settings=FeatureSettings(
+            pairs=_pairs(catalogue),
+            band=band,
+            smooth_discrepancy_bins=SMOOTH_BINS,
+            within_run=False,
+            order_segment_m=catalogue.order_segment_m,
+        ),
     )
     setup = measured.setup(system, fit.point, base_signals, sample_times, band, features, speeds)
     return Residuals(features, band, setup, tuple(notes))

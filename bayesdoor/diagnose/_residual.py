@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import scipy.ndimage
@@ -528,7 +529,8 @@ def _region(
 ) -> Region:
     """The region of channel ``c``'s bins ``span`` (first and last) of one sign in one
     domain's map."""
-    f, y, v = bins.f, bins.y, bins.v
+    f, y = bins.f, bins.y
+    v: Any = bins.v  # None only without a wavenumber map, where no region reads it
     df = float(f[1] - f[0])
     a, b = span
     grid, stat = maps[domain][0], maps[domain][1][c]
@@ -638,7 +640,8 @@ def _resonance(f, y, mu, c, low, high, domain) -> tuple[float, float]:
 
 def _run_peaks(bins: _Bins, c: int, domain: str, low, high, sign: int) -> RunPeaks:
     """Each run's peak of ``sign z`` within the region (mapped to its frequencies), padded."""
-    f, y, mu, z, excess_db, v = bins.f, bins.y, bins.mu, bins.z, bins.excess_db, bins.v
+    f, y, mu, z, excess_db = bins.f, bins.y, bins.mu, bins.z, bins.excess_db
+    v: Any = bins.v  # read in the wavenumber domain only, which has speeds
     n_runs = y.shape[0]
     df = f[1] - f[0]
     keys = ("frequency_hz", "z", "prominence", "excess_db", "power")

@@ -36,7 +36,7 @@ from bayesdoor.bearing import (
     read_cwru,
 )
 from bayesdoor.diagnose import ExtensionProposal, diagnose_campaign
-from bayesdoor.diagnose._job import extension_gain
+from bayesdoor.diagnose._held_out import extension_gain
 from bayesdoor.inference import fit_campaign
 
 #: the tonal cluster of the healthy record (docs/bearing.md), Hz: searched for a mode

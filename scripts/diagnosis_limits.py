@@ -91,7 +91,7 @@ def base(work: Path, key: int) -> tuple[Any, Any, dict[str, Any], float]:
     import xarray as xr
 
     from bayesdoor.diagnose import detection_limits
-    from bayesdoor.diagnose._job import Measured, _band, _simulate_rows
+    from bayesdoor.diagnose._measured import Measured, _band, _simulate_rows
     from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
     from bayesdoor.inference import FitResult, FitSettings, calibration_runs, fit_campaign
 
@@ -129,13 +129,8 @@ _BASE: dict[tuple[int, tuple[float, ...]], Any] = {}
 def _judge(campaign: Any, proposal: Any, fit: Any, seed: int, tracking: bool) -> Any:
     """``extension_gain`` with the base model's simulation shared between loops."""
     from bayesdoor.diagnose import DiagnosisSettings
-    from bayesdoor.diagnose._job import (
-        Measured,
-        _band,
-        _cross_validate,
-        _simulate_rows,
-        held_out_folds,
-    )
+    from bayesdoor.diagnose._held_out import _cross_validate, held_out_folds
+    from bayesdoor.diagnose._measured import Measured, _band, _simulate_rows
     from bayesdoor.door import ElevatorDoor
     from bayesdoor.inference import calibration_runs
 
@@ -156,7 +151,6 @@ def _judge(campaign: Any, proposal: Any, fit: Any, seed: int, tracking: bool) ->
         folds,
         seed=seed,
         max_evals=settings.refit_evals,
-        bases={},
         tracking=tracking,
         workers=settings.workers,
     )
@@ -177,7 +171,7 @@ def loop(
     probe = candidate.refit.size(band=band).probes[0]
     start = {n: float(v[0]) for n, v in probe.values(probe.reference, 1).items()}
     proposal = dataclasses.replace(probe.proposal, start={**probe.proposal.start, **start})
-    from bayesdoor.diagnose._job import tracks_speed
+    from bayesdoor.diagnose._held_out import tracks_speed
 
     refits, gain = _judge(campaign, proposal, fit, seed, tracks_speed(candidate.signature))
     row: dict[str, Any] = {

@@ -48,7 +48,7 @@ def ceiling_gain(
     recorded without it), judged as the diagnosis judges a refit
     (:func:`~bayesdoor.diagnose.judge_folds`); and the held-out runs in the gain's order."""
     from bayesdoor.diagnose import windowed_log_psd
-    from bayesdoor.diagnose._job import judge_folds
+    from bayesdoor.diagnose._held_out import judge_folds
 
     spectra = setup.spectra
     _, clean, _ = windowed_log_psd(
@@ -64,7 +64,8 @@ def _ceiling(
 ) -> dict[str, Any]:
     """The case's ceiling on the first setup and folds a refit was judged on; ``recording``
     is the case's own, with the effect."""
-    import bayesdoor.diagnose._job as job
+    from bayesdoor.diagnose._held_out import tracks_speed
+    from bayesdoor.diagnose._measured import Measured
     from bayesdoor.inference import calibration_runs
 
     if name == cases.NONE:
@@ -79,9 +80,9 @@ def _ceiling(
         )
     setup, folds = seen["setup"]
     signature = {c.name: c.signature for c in cases.DOOR_CATALOGUE.candidates}[name]
-    tracking = job.tracks_speed(signature)
+    tracking = tracks_speed(signature)
     runs = calibration_runs(clean.campaign)
-    clean_signals = job.Measured.of(cases.DOOR, clean.campaign, runs).signals
+    clean_signals = Measured.of(cases.DOOR, clean.campaign, runs).signals
     gain, held = ceiling_gain(setup, folds, tracking, clean_signals)
     return {
         "ceiling_gain": {**gain.to_json(), "delta_elpd_runs": held},
@@ -95,12 +96,12 @@ def run_case(name: str, seed: int, *, ceiling: bool = False) -> dict[str, Any]:
     sys.path.insert(0, str(ROOT / "tests"))
     import test_diagnose_job as cases  # the test's own campaign, door and checks
 
-    import bayesdoor.diagnose._job as job
+    import bayesdoor.diagnose._candidates as candidates
 
     started = time.perf_counter()
     result: dict[str, Any] = {"name": name, "seed": seed}
     seen: dict[str, Any] = {}
-    original = job._judge_refits
+    original = candidates._judge_refits
 
     def recorded(setup, proposal, folds, fits, **kwargs):  # type: ignore[no-untyped-def]
         seen.setdefault("setup", (setup, folds))
@@ -108,7 +109,7 @@ def run_case(name: str, seed: int, *, ceiling: bool = False) -> dict[str, Any]:
 
     try:
         recording, rig = cases.record(name, seed, cases.SPEEDS_SLOW)
-        job._judge_refits = recorded
+        candidates._judge_refits = recorded
         try:
             diagnosis = cases.diagnose_campaign(
                 cases.DOOR,
@@ -118,7 +119,7 @@ def run_case(name: str, seed: int, *, ceiling: bool = False) -> dict[str, Any]:
                 catalogue=cases.DOOR_CATALOGUE,
             )
         finally:
-            job._judge_refits = original
+            candidates._judge_refits = original
         result["verdict"] = diagnosis.verdict
         if diagnosis.fit is not None:
             result["fit_point"] = {k: float(v) for k, v in diagnosis.fit.point.items()}

@@ -27,7 +27,7 @@ from _cases import NONE, RIG_EFFECTS, ROOT, command_line, hidden_effect, write_r
 
 from bayesdoor.diagnose import capped_t, rule_passes, rule_thresholds
 from bayesdoor.diagnose._gain import DECISIVE_SE, t_statistic
-from bayesdoor.diagnose._job import verdict_order
+from bayesdoor.diagnose._held_out import verdict_order
 
 
 def fmt(value: Any, spec: str) -> str:

@@ -45,7 +45,7 @@ LINE_HZ = 50.0
 
 def spectra(campaign):
     """The measured log10 spectra of a campaign and their bins, as the diagnosis reads them."""
-    from bayesdoor.diagnose._job import Measured
+    from bayesdoor.diagnose._measured import Measured
     from bayesdoor.diagnose._refit import Spectra
     from bayesdoor.door import ElevatorDoor
     from bayesdoor.inference import calibration_runs
@@ -68,7 +68,7 @@ def model_effects(
     catalogue extension's (its line in quadrature with each channel's signal)."""
     import xarray as xr
 
-    from bayesdoor.diagnose._job import Measured, _band, _simulate_rows
+    from bayesdoor.diagnose._measured import Measured, _band, _simulate_rows
     from bayesdoor.door import ElevatorDoor
     from bayesdoor.inference import FitResult, calibration_runs
 

@@ -106,7 +106,7 @@ def _tone(v: np.ndarray, peaks: np.ndarray, z: np.ndarray, kappa: float, snr_db:
 
 def simulate(campaigns: int, comb_campaigns: int, seed: int):
     """Run the Monte Carlo; return the rail cells, detection counts and comb tallies."""
-    from bayesdoor.diagnose import find_features
+    from bayesdoor.diagnose import FeatureSettings, RunMotion, find_features
     from bayesdoor.diagnose._comb import harmonic_comb
     from bayesdoor.diagnose._order import order_log_psd, travelled_distance
     from bayesdoor.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE
@@ -148,12 +148,8 @@ def simulate(campaigns: int, comb_campaigns: int, seed: int):
                 noise[1:],
                 fs,
                 channels=CHANNELS,
-                t_start=t0,
-                t_stop=t1,
-                speeds=peaks,
-                speed_profiles=v,
-                within_run=False,
-                band=BAND,
+                motion=RunMotion(t0, t1, peaks, v),
+                settings=FeatureSettings(within_run=False, band=BAND),
             )
             match = rail.match(features)
             seen = match is not None and bool(match.checks[0].passed)

@@ -23,7 +23,7 @@ from bayesdoor.bearing import (
     StructuralMode,
 )
 from bayesdoor.diagnose import DiagnosisSettings, ListedFrequency, diagnose_campaign
-from bayesdoor.diagnose._job import held_out_folds
+from bayesdoor.diagnose._held_out import held_out_folds
 from bayesdoor.diagnose._refit import tile_runs
 from bayesdoor.io import make_campaign
 

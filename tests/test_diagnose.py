@@ -18,6 +18,8 @@ from bayesdoor.diagnose import (
     NONE,
     Candidate,
     Catalogue,
+    FeatureSettings,
+    RunMotion,
     coherence_map,
     find_features,
     log10_psd_variance,
@@ -199,12 +201,10 @@ def diagnose_case(case, band=(2.0, 400.0), *, within=False, catalogue=DOOR_CATAL
         case["predictive"],
         FS,
         channels=CHANNELS,
-        t_start=case["t_start"],
-        t_stop=case["t_stop"],
-        speeds=case["speeds"],
-        speed_profiles=case["profiles"] if within else None,
-        pairs=PAIRS,
-        band=band,
+        motion=RunMotion(
+            case["t_start"], case["t_stop"], case["speeds"], case["profiles"] if within else None
+        ),
+        settings=FeatureSettings(pairs=PAIRS, band=band),
     )
     return rank_causes(features, catalogue)
 
@@ -314,7 +314,7 @@ def test_bad_inputs_are_refused_with_the_argument_named():
     with pytest.raises(ValueError, match="no measured segment holds nperseg"):
         rest_lines([np.zeros((4, 100))], FS, channels=CHANNELS, nperseg=512)
     with pytest.raises(ValueError, match="holds no complete Welch segment"):
-        find_features(x, x[None], FS, channels=CHANNELS, t_start=[0.25, 0.25], t_stop=[0.5, 0.5])
+        find_features(x, x[None], FS, channels=CHANNELS, motion=RunMotion([0.25, 0.25], [0.5, 0.5]))
 
 
 def test_coherence_is_scipys():
@@ -324,9 +324,8 @@ def test_coherence_is_scipys():
         case["predictive"],
         FS,
         channels=CHANNELS,
-        t_start=case["t_start"],
-        t_stop=case["t_stop"],
-        pairs=PAIRS,
+        motion=RunMotion(case["t_start"], case["t_stop"]),
+        settings=FeatureSettings(pairs=PAIRS),
     )
     a, b = int(np.ceil(case["t_start"][1] * FS)), int(np.floor(case["t_stop"][1] * FS)) + 1
     f, c = scipy.signal.coherence(
@@ -470,14 +469,10 @@ def _with_orders(case):
         case["predictive"],
         FS,
         channels=CHANNELS,
-        t_start=case["t_start"],
-        t_stop=case["t_stop"],
-        speeds=case["speeds"],
-        speed_profiles=case["profiles"],
-        within_run=False,
-        order_segment_m=0.5,
-        pairs=PAIRS,
-        band=(2.0, 400.0),
+        motion=RunMotion(case["t_start"], case["t_stop"], case["speeds"], case["profiles"]),
+        settings=FeatureSettings(
+            pairs=PAIRS, band=(2.0, 400.0), within_run=False, order_segment_m=0.5
+        ),
     )
     return rank_causes(features, DOOR_CATALOGUE)
 

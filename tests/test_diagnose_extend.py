@@ -9,7 +9,7 @@ import pytest
 from test_diagnosis_gain import stand_in
 
 from bayesdoor.diagnose import ExtensionProposal, verdict_extension
-from bayesdoor.diagnose._job import held_out_folds
+from bayesdoor.diagnose._held_out import held_out_folds
 from bayesdoor.diagnose._refit import RefitSetup, Spectra, box_ends, exact_spectra, refit_extension
 from bayesdoor.door import DoorParameters, ElevatorDoor, SensorCrossAxis
 
@@ -112,7 +112,8 @@ def test_exact_spectra_give_each_run_its_own_values():
 def test_folds_refitted_at_once_give_the_fits_of_one_at_a_time():
     # four runs whose A2Z carries 8 % of A2X; the leak refitted on two folds in two threads
     # and in one: every fold has its own seed, so the fits and the judgement are the same
-    from bayesdoor.diagnose._job import DiagnosisSettings, _cross_validate
+    from bayesdoor.diagnose import DiagnosisSettings
+    from bayesdoor.diagnose._held_out import _cross_validate
 
     speeds = np.array([0.3, 0.35, 0.45, 0.5])
     setup = _door_setup(speeds, leak=0.08)
@@ -124,9 +125,7 @@ def test_folds_refitted_at_once_give_the_fits_of_one_at_a_time():
     )
     folds = held_out_folds(speeds, 2)
     runs = [
-        _cross_validate(
-            setup, proposal, folds, seed=3, max_evals=24, bases={}, tracking=False, workers=w
-        )
+        _cross_validate(setup, proposal, folds, seed=3, max_evals=24, tracking=False, workers=w)
         for w in (1, 2)
     ]
     (fits_1, gain_1), (fits_2, gain_2) = runs

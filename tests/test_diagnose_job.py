@@ -38,12 +38,8 @@ from bayesdoor.diagnose._gain import (
     feature_bins,
     log_predictive,
 )
-from bayesdoor.diagnose._job import (
-    base_fit_notes,
-    extension_gain,
-    held_out_evidence,
-    verdict_order,
-)
+from bayesdoor.diagnose._held_out import extension_gain, held_out_evidence, verdict_order
+from bayesdoor.diagnose._job import base_fit_notes
 from bayesdoor.diagnose._residual import smooth_discrepancy
 from bayesdoor.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE, CoupledFrameMode, ElevatorDoor
 from bayesdoor.door import FrameMode as FrameModeExtension

@@ -308,7 +308,7 @@ def test_the_refits_estimation_costs_kappa_p_over_2_per_fold():
 
 
 def test_the_folds_are_the_judgements():
-    from bayesdoor.diagnose._job import held_out_folds
+    from bayesdoor.diagnose._held_out import held_out_folds
 
     order = np.array([0.4, 0.25, 0.3, 0.3, 0.5, 0.45, 0.35])
     labels = fold_labels(order)

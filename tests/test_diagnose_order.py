@@ -159,7 +159,7 @@ def test_the_catalogue_segment_locates_a_rail_tone_within_a_quarter_cycle(seed, 
     results/order_segment.md), drifts by less than a quarter cycle from the true one over the
     0.8 m stroke (the rail refit holds it there): 0.28 % at 9 mm, 2.2 % at 70 mm. Segments of
     0.2 m miss it in about one campaign in 30 at this SNR, one in 9 at 11 dB."""
-    from bayesdoor.diagnose import find_features
+    from bayesdoor.diagnose import FeatureSettings, RunMotion, find_features
     from bayesdoor.door import _geometry as g
 
     t = np.arange(int(4.4 * FS)) / FS
@@ -178,13 +178,12 @@ def test_the_catalogue_segment_locates_a_rail_tone_within_a_quarter_cycle(seed, 
         noise[1:],
         FS,
         channels=("X", "Z"),
-        t_start=np.full(RAIL_SPEEDS.size, 0.25),
-        t_stop=t_stop,
-        speeds=RAIL_SPEEDS,
-        speed_profiles=v,
-        within_run=False,
-        order_segment_m=DOOR_CATALOGUE.order_segment_m,
-        band=(2.0, 200.0),
+        motion=RunMotion(np.full(RAIL_SPEEDS.size, 0.25), t_stop, RAIL_SPEEDS, v),
+        settings=FeatureSettings(
+            band=(2.0, 200.0),
+            within_run=False,
+            order_segment_m=DOOR_CATALOGUE.order_segment_m,
+        ),
     )
     rail = {c.name: c for c in DOOR_CATALOGUE.candidates}["rail_waviness"].signature
     match = rail.match(features)

@@ -20,7 +20,7 @@ from bayesdoor.diagnose._gain import (
     estimate_tracking_change_discrepancy,
     log_predictive,
 )
-from bayesdoor.diagnose._job import tracks_speed
+from bayesdoor.diagnose._held_out import tracks_speed
 from bayesdoor.diagnose._residual import smooth_discrepancy
 from bayesdoor.door import DOOR_CATALOGUE
 

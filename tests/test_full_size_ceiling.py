@@ -13,7 +13,7 @@ from test_diagnose_extend import _door_setup
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))
 from full_size_case import ceiling_gain
 
-from bayesdoor.diagnose._job import held_out_folds
+from bayesdoor.diagnose._held_out import held_out_folds
 
 
 @pytest.mark.long

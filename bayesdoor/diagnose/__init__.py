@@ -38,11 +38,16 @@ from ._coherence import CoherenceMap as CoherenceMap
 from ._coherence import PairCoherence as PairCoherence
 from ._coherence import coherence_map as coherence_map
 from ._design import CampaignPlan as CampaignPlan
+from ._diagnosis import Cause as Cause
+from ._diagnosis import Diagnosis as Diagnosis
+from ._diagnosis import DiagnosisSettings as DiagnosisSettings
 from ._extend import HeldExtension as HeldExtension
 from ._extend import VerdictExtension as VerdictExtension
 from ._extend import extend_system as extend_system
 from ._extend import verdict_extension as verdict_extension
 from ._features import Features as Features
+from ._features import FeatureSettings as FeatureSettings
+from ._features import RunMotion as RunMotion
 from ._features import find_features as find_features
 from ._gain import LOCAL_BINS as LOCAL_BINS
 from ._gain import RULE as RULE
@@ -51,9 +56,6 @@ from ._gain import Gain as Gain
 from ._gain import capped_t as capped_t
 from ._gain import rule_passes as rule_passes
 from ._gain import rule_thresholds as rule_thresholds
-from ._job import Cause as Cause
-from ._job import Diagnosis as Diagnosis
-from ._job import DiagnosisSettings as DiagnosisSettings
 from ._job import diagnose_campaign as diagnose_campaign
 from ._limits import LIMIT_POWER as LIMIT_POWER
 from ._limits import CauseLimit as CauseLimit
@@ -73,6 +75,7 @@ from ._refit import ExtensionProposal as ExtensionProposal
 from ._refit import SizeProbe as SizeProbe
 from ._residual import Region as Region
 from ._residual import ResidualMap as ResidualMap
+from ._residual import ResidualSettings as ResidualSettings
 from ._residual import RunPeaks as RunPeaks
 from ._residual import SpeedFit as SpeedFit
 from ._residual import residual_map as residual_map

@@ -44,7 +44,7 @@ def fold_labels(
 ) -> np.ndarray:
     """Each run's fold of the held-out judgement: the runs sorted by ``order`` (the first
     column first, ties by the next) dealt to the ``k`` folds in turn (the dealing of
-    :func:`~bayesdoor.diagnose._job.held_out_folds`)."""
+    :func:`~bayesdoor.diagnose._held_out.held_out_folds`)."""
     key = np.asarray(order, dtype=float)
     ranked = np.argsort(key, kind="stable") if key.ndim == 1 else np.lexsort(key.T[::-1])
     labels = np.empty(len(key), dtype=int)

@@ -11,7 +11,7 @@ from .._types import Float
 from ..features import windowed_log_psd
 from ._coherence import CoherenceMap, coherence_map
 from ._order import OrderSpectra, order_log_psd
-from ._residual import Region, ResidualMap, residual_map
+from ._residual import Region, ResidualMap, ResidualSettings, residual_map
 from ._rest import RestLines, rest_lines, rest_segments
 from ._within import WithinRunFit, within_run_speed
 
@@ -84,25 +84,75 @@ class Features:
         return out
 
 
+@dataclasses.dataclass(frozen=True)
+class RunMotion:
+    """Each run's motion, as :func:`find_features` reads it.
+
+    Attributes
+    ----------
+    t_start, t_stop
+        Each run's motion window, s.
+    speeds
+        Each run's speed, for the wavenumber map and the speed fits (``None``: none).
+    speed_profiles
+        Each run's speed at every sample, for the within-run speed test of every region
+        (:func:`within_run_speed`) and the order spectra (``None``: none).
+    """
+
+    t_start: Float[np.ndarray, " run"]
+    t_stop: Float[np.ndarray, " run"]
+    speeds: Float[np.ndarray, " run"] | None = None
+    speed_profiles: Float[np.ndarray, "run time"] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class FeatureSettings:
+    """What :func:`find_features` examines, and how finely.
+
+    Attributes
+    ----------
+    pairs
+        Channel pairs whose coherence is examined (none: no coherence map).
+    band
+        Analysed frequency range, Hz (all three analyses).
+    q
+        False discovery rate of each analysis.
+    smooth_discrepancy_bins
+        Half-width (bins) of the smooth discrepancy taken out of the residual map
+        (:func:`residual_map`); ``None``: none.
+    within_run
+        With speed profiles, run the within-run speed test.
+    order_segment_m
+        With speed profiles, compute order spectra (:func:`order_log_psd`) with segments of
+        this many metres; ``None``: none.
+    nperseg
+        Segment of the residual map; default ``fs`` samples (1 Hz bins).
+    coherence_nperseg
+        Segment of the coherence; default ``fs / 4`` samples.
+    rest_nperseg
+        Segment of the rest spectra; default the largest power of two that fits the shortest
+        rest before the motion, at most ``fs / 4``.
+    """
+
+    pairs: Sequence[tuple[str, str]] = ()
+    band: tuple[float, float] | None = None
+    q: float = 0.01
+    smooth_discrepancy_bins: int | None = None
+    within_run: bool = True
+    order_segment_m: float | None = None
+    nperseg: int | None = None
+    coherence_nperseg: int | None = None
+    rest_nperseg: int | None = None
+
+
 def find_features(
     measured: Float[np.ndarray, "run channel time"],
     predictive: Float[np.ndarray, "draw run channel time"],
     fs: float,
     *,
     channels: Sequence[str],
-    t_start: Float[np.ndarray, " run"],
-    t_stop: Float[np.ndarray, " run"],
-    speeds: Float[np.ndarray, " run"] | None = None,
-    speed_profiles: Float[np.ndarray, "run time"] | None = None,
-    within_run: bool = True,
-    order_segment_m: float | None = None,
-    pairs: Sequence[tuple[str, str]] = (),
-    nperseg: int | None = None,
-    coherence_nperseg: int | None = None,
-    rest_nperseg: int | None = None,
-    band: tuple[float, float] | None = None,
-    q: float = 0.01,
-    smooth_discrepancy_bins: int | None = None,
+    motion: RunMotion,
+    settings: FeatureSettings = FeatureSettings(),
 ) -> Features:
     """Residual map, coherence and rest lines of measured runs against predictive simulations.
 
@@ -122,34 +172,11 @@ def find_features(
         Sampling rate, Hz.
     channels
         Channel names.
-    t_start, t_stop
-        Each run's motion window, s.
-    speeds
-        Each run's speed, for the wavenumber map and the speed fits.
-    speed_profiles
-        Each run's speed at every sample, for the within-run speed test of every region
-        (:func:`within_run_speed`) and the order spectra.
-    within_run
-        With speed profiles, run the within-run speed test.
-    order_segment_m
-        With speed profiles, compute order spectra (:func:`order_log_psd`) with segments of
-        this many metres; ``None``: none.
-    pairs
-        Channel pairs whose coherence is examined (none: no coherence map).
-    nperseg
-        Segment of the residual map; default ``fs`` samples (1 Hz bins).
-    coherence_nperseg
-        Segment of the coherence; default ``fs / 4`` samples.
-    rest_nperseg
-        Segment of the rest spectra; default the largest power of two that fits the shortest
-        rest before the motion, at most ``fs / 4``.
-    band
-        Analysed frequency range, Hz (all three analyses).
-    q
-        False discovery rate of each analysis.
-    smooth_discrepancy_bins
-        Half-width (bins) of the smooth discrepancy taken out of the residual map
-        (:func:`residual_map`); ``None``: none.
+    motion
+        Each run's motion window, speed and speed profile (:class:`RunMotion`).
+    settings
+        The pairs, band, false discovery rate, segments and optional analyses
+        (:class:`FeatureSettings`).
 
     Returns
     -------
@@ -168,40 +195,98 @@ def find_features(
             f"with the same runs; got {x.shape} and {sims.shape}"
         )
     n_runs = x.shape[0]
-    t0 = np.broadcast_to(np.asarray(t_start, dtype=float), (n_runs,))
-    t1 = np.broadcast_to(np.asarray(t_stop, dtype=float), (n_runs,))
-    nperseg = int(fs) if nperseg is None else nperseg
-    freqs, y, log_var = windowed_log_psd(x, fs, t0, t1, nperseg=nperseg)
-    draws = np.stack([windowed_log_psd(s, fs, t0, t1, nperseg=nperseg)[1] for s in sims])
-    residuals = residual_map(
+    t0 = np.broadcast_to(np.asarray(motion.t_start, dtype=float), (n_runs,))
+    t1 = np.broadcast_to(np.asarray(motion.t_stop, dtype=float), (n_runs,))
+    runs = _Runs(x, sims, fs, tuple(channels), t0, t1)
+    residuals = _residuals(runs, motion.speeds, settings)
+    coherence = _coherence(runs, settings) if settings.pairs else None
+    rest_before, rest_after = _rests(runs, settings)
+    profiles = motion.speed_profiles
+    within = None
+    if profiles is not None and settings.within_run:
+        within = within_run_speed(x, sims, fs, profiles, residuals.regions, channels)
+    orders, orders_predictive = None, None
+    if profiles is not None and settings.order_segment_m is not None:
+        orders, *rest = (
+            order_log_psd(
+                s, fs, profiles, t_start=t0, t_stop=t1, segment_m=settings.order_segment_m
+            )
+            for s in (x, *sims)
+        )
+        orders_predictive = tuple(rest)
+    return Features(
+        residuals=residuals,
+        coherence=coherence,
+        rest_before=rest_before,
+        rest_after=rest_after,
+        within_run=within,
+        orders=orders,
+        orders_predictive=orders_predictive,
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Runs:
+    """The measured runs and their predictive draws, with the motion windows of the runs."""
+
+    x: np.ndarray
+    sims: np.ndarray
+    fs: float
+    channels: tuple[str, ...]
+    t0: np.ndarray
+    t1: np.ndarray
+
+
+def _residuals(runs: _Runs, speeds: np.ndarray | None, settings: FeatureSettings) -> ResidualMap:
+    """The residual map of the motion spectra (:func:`residual_map`)."""
+    fs, t0, t1 = runs.fs, runs.t0, runs.t1
+    nperseg = int(fs) if settings.nperseg is None else settings.nperseg
+    freqs, y, log_var = windowed_log_psd(runs.x, fs, t0, t1, nperseg=nperseg)
+    draws = np.stack([windowed_log_psd(s, fs, t0, t1, nperseg=nperseg)[1] for s in runs.sims])
+    return residual_map(
         freqs,
         y,
         draws,
         log_var,
-        channels=channels,
+        channels=runs.channels,
         speeds=speeds,
-        band=band,
-        q=q,
-        smooth_discrepancy_bins=smooth_discrepancy_bins,
+        settings=ResidualSettings(
+            band=settings.band,
+            q=settings.q,
+            smooth_discrepancy_bins=settings.smooth_discrepancy_bins,
+        ),
     )
-    coherence = None
-    if pairs:
-        windows = [
-            (int(np.ceil(a * fs)), int(np.floor(b * fs)) + 1) for a, b in zip(t0, t1, strict=True)
-        ]
-        coherence = coherence_map(
-            [x[r, :, a:b] for r, (a, b) in enumerate(windows)],
-            [sims[0, r, :, a:b] for r, (a, b) in enumerate(windows)],
-            fs,
-            channels=channels,
-            pairs=pairs,
-            nperseg=int(fs) // 4 if coherence_nperseg is None else coherence_nperseg,
-            band=band,
-            q=q,
-        )
-    before, after = rest_segments(x, fs, t0, t1)
-    split_draws = [rest_segments(s, fs, t0, t1) for s in sims]
+
+
+def _coherence(runs: _Runs, settings: FeatureSettings) -> CoherenceMap:
+    """The coherence of the pairs over the motion windows, measured against the first
+    predictive draw (:func:`coherence_map`)."""
+    fs = runs.fs
+    windows = [
+        (int(np.ceil(a * fs)), int(np.floor(b * fs)) + 1)
+        for a, b in zip(runs.t0, runs.t1, strict=True)
+    ]
+    nperseg = settings.coherence_nperseg
+    return coherence_map(
+        [runs.x[r, :, a:b] for r, (a, b) in enumerate(windows)],
+        [runs.sims[0, r, :, a:b] for r, (a, b) in enumerate(windows)],
+        fs,
+        channels=runs.channels,
+        pairs=settings.pairs,
+        nperseg=int(fs) // 4 if nperseg is None else nperseg,
+        band=settings.band,
+        q=settings.q,
+    )
+
+
+def _rests(runs: _Runs, settings: FeatureSettings) -> tuple[RestLines | None, RestLines | None]:
+    """The lines at rest before and after the motion (:func:`rest_lines`; ``None`` where no
+    run's rest holds one segment)."""
+    fs, t0, t1 = runs.fs, runs.t0, runs.t1
+    before, after = rest_segments(runs.x, fs, t0, t1)
+    split_draws = [rest_segments(s, fs, t0, t1) for s in runs.sims]
     sim_before, sim_after = [s[0] for s in split_draws], [s[1] for s in split_draws]
+    rest_nperseg = settings.rest_nperseg
     if rest_nperseg is None:
         shortest = min(b.shape[-1] for b in before)
         rest_nperseg = min(int(fs) // 4, 2 ** int(np.floor(np.log2(max(shortest, 2)))))
@@ -214,29 +299,11 @@ def find_features(
             rest_lines(
                 meas_rest,
                 fs,
-                channels=channels,
+                channels=runs.channels,
                 nperseg=rest_nperseg,
                 simulated=sim_rest,
-                band=band,
-                q=q,
+                band=settings.band,
+                q=settings.q,
             )
         )
-    within = None
-    if speed_profiles is not None and within_run:
-        within = within_run_speed(x, sims, fs, speed_profiles, residuals.regions, channels)
-    orders, orders_predictive = None, None
-    if speed_profiles is not None and order_segment_m is not None:
-        orders, *rest = (
-            order_log_psd(s, fs, speed_profiles, t_start=t0, t_stop=t1, segment_m=order_segment_m)
-            for s in (x, *sims)
-        )
-        orders_predictive = tuple(rest)
-    return Features(
-        residuals=residuals,
-        coherence=coherence,
-        rest_before=rests[0],
-        rest_after=rests[1],
-        within_run=within,
-        orders=orders,
-        orders_predictive=orders_predictive,
-    )
+    return rests[0], rests[1]

@@ -22,8 +22,8 @@ import xarray as xr
 from ..inference import FitResult
 from ._design import MAX_RUNS_PER_CONDITION as MAX_RUNS_PER_CONDITION
 from ._design import CampaignPlan, design_campaign
-from ._job import Measured, _band, _simulate_rows
 from ._limits import LIMIT_POWER, fold_order, run_gains
+from ._measured import Measured, _band, _simulate_rows
 from ._rank import Catalogue
 
 if TYPE_CHECKING:

@@ -732,31 +732,80 @@ def _laplace_evaluations(d: int) -> int:
     return 3 * (1 + d + d * (d + 1) // 2)
 
 
+@dataclasses.dataclass(frozen=True)
+class RefitOptions:
+    """How :func:`refit_extension` fits, beside its seed and budget.
+
+    Attributes
+    ----------
+    uncertainty
+        Also estimate each free parameter's Laplace standard deviation (gridded ones: from
+        the profile's curvature).
+    progress
+        Show CMA-ES's progress bar.
+    exact
+        Solve the extended model exactly at the optimum for the spectra returned; ``False``:
+        the spectra of the linear signal changes (no solve; the same for extensions that act
+        on the outputs only), for a caller that judges held-out runs with
+        :func:`exact_spectra`.
+    workers
+        Threads that solve at once, each a block of the population's rows (extensions that
+        need a solve; 2 uses both cores of a 2-core machine). The block size moves the
+        adaptive solver's round-off, so the fit may change at the solver's tolerance.
+        Leave 1 where refits already run in threads.
+    """
+
+    uncertainty: bool = False
+    progress: bool = False
+    exact: bool = True
+    workers: int = 1
+
+
+@dataclasses.dataclass(frozen=True)
+class _Problem:
+    """One refit in hand: the campaign's setup, the proposal, its model, the search box of
+    the free parameters (in ``model.free`` order) and the training runs."""
+
+    setup: RefitSetup
+    proposal: ExtensionProposal
+    model: _Model
+    lower: np.ndarray
+    upper: np.ndarray
+    train: np.ndarray
+
+    def start(self) -> np.ndarray:
+        """The proposal's start (the extension's nominal values where it names none), in
+        the box."""
+        free, fixed = self.model.free, self.model.fixed
+        return np.clip(
+            [float(self.proposal.start.get(n, fixed[n])) for n in free], self.lower, self.upper
+        )
+
+
 def _result(
-    setup: RefitSetup,
-    proposal: ExtensionProposal,
-    model: _Model,
+    problem: _Problem,
     optimum: np.ndarray,
     sd: np.ndarray,
-    train: np.ndarray,
     spectra: np.ndarray,
     evaluations: int,
-    lower: np.ndarray,
-    upper: np.ndarray,
 ) -> RefitResult:
-    """The refit's result at ``optimum`` (free parameters in ``model.free`` order, searched
-    within ``lower`` and ``upper``), with the training density of ``spectra`` (every run's)."""
+    """The refit's result at ``optimum`` (free parameters in ``model.free`` order), with the
+    training density of ``spectra`` (every run's)."""
+    model, train = problem.model, problem.train
     free = model.free
     return RefitResult(
-        proposal=proposal,
+        proposal=problem.proposal,
         values={**model.fixed, **dict(zip(free, map(float, optimum), strict=True))},
         sd=dict(zip(free, map(float, sd), strict=True)),
         train=train,
         spectra=spectra,
-        train_lpd=float(_profile_lpd(setup.spectra, spectra[None, train], train)[0]),
+        train_lpd=float(_profile_lpd(problem.setup.spectra, spectra[None, train], train)[0]),
         evaluations=evaluations,
         solves=model.solves,
-        box={n: (float(lo), float(hi)) for n, lo, hi in zip(free, lower, upper, strict=True)},
+        box={
+            n: (float(lo), float(hi))
+            for n, lo, hi in zip(free, problem.lower, problem.upper, strict=True)
+        },
     )
 
 
@@ -902,32 +951,14 @@ def _profile_gain(
     return float(grid[i]), float(values[i])
 
 
-def _refit_with_gains(
-    setup: RefitSetup,
-    proposal: ExtensionProposal,
-    model: _Model,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    train: np.ndarray,
-    *,
-    seed: int,
-    max_evals: int,
-    uncertainty: bool,
-    progress: bool,
-) -> RefitResult:
-    """:func:`refit_extension` for a solved extension whose proposal names ``gains``."""
-
+def _gains_objective(
+    problem: _Problem, search: list[int], profiles: dict[tuple[float, ...], dict[str, float]]
+) -> Callable[[np.ndarray], np.ndarray]:
+    """The negative training density of the searched parameters (rows of ``x``), each
+    channel's gain profiled (:func:`_profile_gain`); each row's gains go to ``profiles``."""
+    setup, proposal, model, train = problem.setup, problem.proposal, problem.model, problem.train
     free = model.free
     channels = list(setup.system.channels)
-    unknown = {n: c for n, c in proposal.gains.items() if n not in free or c not in channels}
-    if unknown:
-        raise ValueError(
-            f"the proposal's gains {unknown} must map free parameters to the system's "
-            f"channels {channels}"
-        )
-    gained = [free.index(n) for n in proposal.gains]
-    search = [i for i in range(len(free)) if i not in gained]
-    profiles: dict[tuple[float, ...], dict[str, float]] = {}
 
     def objective(x: np.ndarray) -> np.ndarray:
         x = np.atleast_2d(x)
@@ -947,31 +978,59 @@ def _refit_with_gains(
         for r, (at, row) in enumerate(zip(admitted, x[admitted], strict=True)):
             if not np.all(np.isfinite(power[r])):
                 continue
-            total, gains = 0.0, {}
-            for k, channel in enumerate(channels):
-                names = [n for n, c in proposal.gains.items() if c == channel]
-                if names:
-                    i = free.index(names[0])
-                    s, value = _profile_gain(
-                        setup.spectra,
-                        power[r][:, :, k],
-                        train,
-                        k,
-                        (float(lower[i]), float(upper[i])),
-                    )
-                    gains[names[0]] = s
-                else:
-                    value = _channel_lpd(setup.spectra, np.log10(power[r][0][:, k]), train, k)
-                total += value
+            total, gains = _profiled_channels(problem, power[r], channels)
             profiles[tuple(map(float, row))] = gains
             out[at] = -total
         return out
 
-    start = np.clip([float(proposal.start.get(n, model.fixed[n])) for n in free], lower, upper)[
-        search
-    ]
+    return objective
+
+
+def _profiled_channels(
+    problem: _Problem, power: Float[np.ndarray, "3 run channel freq"], channels: list[str]
+) -> tuple[float, dict[str, float]]:
+    """The training density of one candidate, summed over channels, each gained channel's
+    gain profiled (:func:`_profile_gain`); and those gains."""
+    spectra, free, train = problem.setup.spectra, problem.model.free, problem.train
+    total, gains = 0.0, {}
+    for k, channel in enumerate(channels):
+        names = [n for n, c in problem.proposal.gains.items() if c == channel]
+        if names:
+            i = free.index(names[0])
+            s, value = _profile_gain(
+                spectra,
+                power[:, :, k],
+                train,
+                k,
+                (float(problem.lower[i]), float(problem.upper[i])),
+            )
+            gains[names[0]] = s
+        else:
+            value = _channel_lpd(spectra, np.log10(power[0][:, k]), train, k)
+        total += value
+    return total, gains
+
+
+def _refit_with_gains(
+    problem: _Problem, *, seed: int, max_evals: int, options: RefitOptions
+) -> RefitResult:
+    """:func:`refit_extension` for a solved extension whose proposal names ``gains``."""
+    setup, proposal, model = problem.setup, problem.proposal, problem.model
+    free = model.free
+    channels = list(setup.system.channels)
+    unknown = {n: c for n, c in proposal.gains.items() if n not in free or c not in channels}
+    if unknown:
+        raise ValueError(
+            f"the proposal's gains {unknown} must map free parameters to the system's "
+            f"channels {channels}"
+        )
+    gained = [free.index(n) for n in proposal.gains]
+    search = [i for i in range(len(free)) if i not in gained]
+    profiles: dict[tuple[float, ...], dict[str, float]] = {}
+    objective = _gains_objective(problem, search, profiles)
+    lower, upper = problem.lower[search], problem.upper[search]
     _, x_best, evaluations = _search(
-        objective, start, lower[search], upper[search], seed + 1, max_evals, progress
+        objective, problem.start()[search], lower, upper, seed + 1, max_evals, options.progress
     )
     key = tuple(map(float, x_best))
     if key not in profiles:
@@ -986,16 +1045,14 @@ def _refit_with_gains(
     for n, s in profiles[key].items():
         optimum[free.index(n)] = s
     sd = np.full(len(free), np.nan)
-    if uncertainty:
-        sd[search] = _laplace_sd(
-            objective, x_best, lower[search], upper[search], np.random.default_rng(seed)
-        )
+    if options.uncertainty:
+        sd[search] = _laplace_sd(objective, x_best, lower, upper, np.random.default_rng(seed))
         evaluations += _laplace_evaluations(len(search))
     every = np.arange(len(setup.operating))
     spectra = setup.spectra.model(
         model.solve(model.values(optimum[None], len(every)), every)[0], every
     )
-    return _result(setup, proposal, model, optimum, sd, train, spectra, evaluations, lower, upper)
+    return _result(problem, optimum, sd, spectra, evaluations)
 
 
 def refit_extension(
@@ -1005,11 +1062,8 @@ def refit_extension(
     *,
     seed: int,
     max_evals: int,
-    uncertainty: bool = False,
-    progress: bool = False,
     bases: dict[tuple[float, ...], np.ndarray] | None = None,
-    exact: bool = True,
-    workers: int = 1,
+    options: RefitOptions = RefitOptions(),
 ) -> RefitResult:
     """Fit one extension's free parameters on the training runs (base parameters held).
 
@@ -1035,78 +1089,73 @@ def refit_extension(
         Seeds CMA-ES and the design of the uncertainty.
     max_evals
         CMA-ES budget (per grid point).
-    uncertainty
-        Also estimate each free parameter's Laplace standard deviation (gridded ones: from
-        the profile's curvature).
-    progress
-        Show CMA-ES's progress bar.
     bases
         A cache of the linear signal changes, shared by refits of one proposal on one setup.
-    exact
-        Solve the extended model exactly at the optimum for the spectra returned; ``False``:
-        the spectra of the linear signal changes (no solve; the same for extensions that act
-        on the outputs only), for a caller that judges held-out runs with
-        :func:`exact_spectra`.
-    workers
-        Threads that solve at once, each a block of the population's rows (extensions that
-        need a solve; 2 uses both cores of a 2-core machine). The block size moves the
-        adaptive solver's round-off, so the fit may change at the solver's tolerance.
-        Leave 1 where refits already run in threads.
+    options
+        The uncertainty, the progress bar, the exact solve at the optimum and the threads
+        (:class:`RefitOptions`).
 
     Returns
     -------
     RefitResult
     """
-
-    extended, free, lower, upper, fixed = _boxes(setup.system, proposal)
-    model = _Model(setup, proposal, extended, fixed, {} if bases is None else bases, workers)
-    train = np.asarray(train, dtype=int)
+    extended, _, lower, upper, fixed = _boxes(setup.system, proposal)
+    model = _Model(
+        setup, proposal, extended, fixed, {} if bases is None else bases, options.workers
+    )
+    problem = _Problem(setup, proposal, model, lower, upper, np.asarray(train, dtype=int))
     if proposal.gains and not model.output_only:
-        return _refit_with_gains(
-            setup,
-            proposal,
-            model,
-            lower,
-            upper,
-            train,
-            seed=seed,
-            max_evals=max_evals,
-            uncertainty=uncertainty,
-            progress=progress,
-        )
+        return _refit_with_gains(problem, seed=seed, max_evals=max_evals, options=options)
+    return _refit_on_grid(problem, seed=seed, max_evals=max_evals, options=options)
+
+
+def _grid_objective(
+    problem: _Problem, search: list[int], point: Mapping[str, float]
+) -> Callable[[np.ndarray], np.ndarray]:
+    """The negative training density of the searched parameters (rows of ``x``), the gridded
+    ones at ``point``, the discrepancy profiled (:func:`_profile_lpd`)."""
+    setup, proposal, model, train = problem.setup, problem.proposal, problem.model, problem.train
+    free = model.free
+
+    def objective(x: np.ndarray) -> np.ndarray:
+        x = np.atleast_2d(x)
+        full = np.empty((len(x), len(free)))
+        full[:, search] = x
+        for n, v in point.items():
+            full[:, free.index(n)] = v
+        out = np.full(len(x), np.inf)
+        admitted = _admissible_rows(setup, proposal, model, full)
+        if admitted.any():
+            spectra = _batched(model, setup.spectra, full[admitted], train)
+            out[admitted] = -_profile_lpd(setup.spectra, spectra, train)
+        return out
+
+    return objective
+
+
+def _refit_on_grid(
+    problem: _Problem, *, seed: int, max_evals: int, options: RefitOptions
+) -> RefitResult:
+    """:func:`refit_extension` searching the other parameters at every grid point of the
+    gridded ones (a surrogate's nonlinear parameters; none: one search)."""
+    setup, model = problem.setup, problem.model
+    free = model.free
     gridded = model.nonlinear if model.surrogate else []
     search = [i for i, n in enumerate(free) if n not in gridded]
-
-    def objective_at(point: Mapping[str, float]) -> Callable[[np.ndarray], np.ndarray]:
-        def objective(x: np.ndarray) -> np.ndarray:
-            x = np.atleast_2d(x)
-            full = np.empty((len(x), len(free)))
-            full[:, search] = x
-            for n, v in point.items():
-                full[:, free.index(n)] = v
-            out = np.full(len(x), np.inf)
-            admitted = _admissible_rows(setup, proposal, model, full)
-            if admitted.any():
-                spectra = _batched(model, setup.spectra, full[admitted], train)
-                out[admitted] = -_profile_lpd(setup.spectra, spectra, train)
-            return out
-
-        return objective
-
-    start = np.clip([float(proposal.start.get(n, fixed[n])) for n in free], lower, upper)
-    grid = list(itertools.product(*(proposal.grid[n] for n in gridded))) or [()]
+    lower, upper = problem.lower[search], problem.upper[search]
+    grid = list(itertools.product(*(problem.proposal.grid[n] for n in gridded))) or [()]
     outcomes = []
     evaluations = 0
     for g_index, point in enumerate(grid):
-        objective = objective_at(dict(zip(gridded, point, strict=True)))
+        objective = _grid_objective(problem, search, dict(zip(gridded, point, strict=True)))
         f_best, x_best, spent = _search(
             objective,
-            start[search],
-            lower[search],
-            upper[search],
+            problem.start()[search],
+            lower,
+            upper,
             seed + 1 + g_index,
             max_evals,
-            progress,
+            options.progress,
         )
         evaluations += spent
         outcomes.append((f_best, x_best, point))
@@ -1123,15 +1172,13 @@ def refit_extension(
         refined, sd_grid = _parabola(axis, values_f, best)
         optimum[free.index(gridded[0])] = refined
         sd[free.index(gridded[0])] = sd_grid
-    if uncertainty and search:
-        objective = objective_at(dict(zip(gridded, point, strict=True)))
-        sd[search] = _laplace_sd(
-            objective, x_search, lower[search], upper[search], np.random.default_rng(seed)
-        )
+    if options.uncertainty and search:
+        objective = _grid_objective(problem, search, dict(zip(gridded, point, strict=True)))
+        sd[search] = _laplace_sd(objective, x_search, lower, upper, np.random.default_rng(seed))
         evaluations += _laplace_evaluations(len(search))
     every = np.arange(len(setup.operating))
-    spectra = _batched(model, setup.spectra, optimum[None], every, exact=exact)[0]
-    return _result(setup, proposal, model, optimum, sd, train, spectra, evaluations, lower, upper)
+    spectra = _batched(model, setup.spectra, optimum[None], every, exact=options.exact)[0]
+    return _result(problem, optimum, sd, spectra, evaluations)
 
 
 def exact_signals(

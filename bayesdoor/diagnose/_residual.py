@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import scipy.ndimage
@@ -338,6 +339,31 @@ def _check_inputs(freqs, measured, predictive, log_variance, channels, speeds):
     return f, y, draws, var, v
 
 
+@dataclasses.dataclass(frozen=True)
+class ResidualSettings:
+    """What :func:`residual_map` tests, and at what rate.
+
+    Attributes
+    ----------
+    band
+        Only bins with ``band[0] <= f <= band[1]`` are analysed; ``None`` drops only 0 Hz and
+        the Nyquist bin.
+    q
+        False discovery rate of the pooled family.
+    smooth_discrepancy_bins
+        When given, the half-width ``h`` (bins) of the model's smooth discrepancy: the running
+        median over ``2 h + 1`` bins of each run's residual ``y - mean_d y_d`` is added to
+        the prediction (and every draw) before anything is tested, so only features narrower
+        than the window remain (a missing resonance, a tone, a line), not a smooth misfit of
+        the spectrum's shape that the base model cannot follow but no catalogue cause
+        explains. ``None``: no correction (the prediction as given).
+    """
+
+    band: tuple[float, float] | None = None
+    q: float = 0.01
+    smooth_discrepancy_bins: int | None = None
+
+
 def residual_map(
     freqs: Float[np.ndarray, " freq"],
     measured: Float[np.ndarray, "run channel freq"],
@@ -346,9 +372,7 @@ def residual_map(
     *,
     channels: Sequence[str],
     speeds: Float[np.ndarray, " run"] | None = None,
-    band: tuple[float, float] | None = None,
-    q: float = 0.01,
-    smooth_discrepancy_bins: int | None = None,
+    settings: ResidualSettings = ResidualSettings(),
 ) -> ResidualMap:
     """Posterior-predictive residual map of measured log PSDs, with significant regions.
 
@@ -385,18 +409,9 @@ def residual_map(
     speeds
         Each run's speed (for the door its peak speed ``v_max``, m/s); enables the
         wavenumber map and the speed fits.
-    band
-        Only bins with ``band[0] <= f <= band[1]`` are analysed; ``None`` drops only 0 Hz and
-        the Nyquist bin.
-    q
-        False discovery rate of the pooled family.
-    smooth_discrepancy_bins
-        When given, the half-width ``h`` (bins) of the model's smooth discrepancy: the running
-        median over ``2 h + 1`` bins of each run's residual ``y - mean_d y_d`` is added to
-        the prediction (and every draw) before anything is tested, so only features narrower
-        than the window remain (a missing resonance, a tone, a line), not a smooth misfit of
-        the spectrum's shape that the base model cannot follow but no catalogue cause
-        explains. ``None``: no correction (the prediction as given).
+    settings
+        The band, the false discovery rate and the smooth discrepancy
+        (:class:`ResidualSettings`).
 
     Returns
     -------
@@ -414,6 +429,7 @@ def residual_map(
     6(4); Y. Benjamini and Y. Hochberg (1995), J. R. Stat. Soc. B 57(1).
     """
     f, y, draws, var, v = _check_inputs(freqs, measured, predictive, log_variance, channels, speeds)
+    band = settings.band
     lo, hi = (f[1], f[-2]) if band is None else band
     keep = (f >= lo) & (f <= hi)
     if keep.sum() < 3:
@@ -421,8 +437,8 @@ def residual_map(
     f, y, draws, var = f[keep], y[..., keep], draws[..., keep], var[..., keep]
     df = float(f[1] - f[0])
     mu = draws.mean(axis=0)
-    if smooth_discrepancy_bins is not None:
-        smooth = smooth_discrepancy(y - mu, smooth_discrepancy_bins)
+    if settings.smooth_discrepancy_bins is not None:
+        smooth = smooth_discrepancy(y - mu, settings.smooth_discrepancy_bins)
         mu, draws = mu + smooth, draws + smooth
     draw_var = draws.var(axis=0, ddof=1) if draws.shape[0] > 1 else np.zeros_like(mu)
     sigma = np.sqrt(draw_var + var)
@@ -430,57 +446,16 @@ def residual_map(
     dev = (draws - mu) / sigma
     share = var / sigma**2
     combined = _combine(z, dev, share)
-
     spread = v is not None and v.max() / v.min() >= MIN_SPEED_SPREAD
-    if spread:
-        kappa = np.arange(f[0] / v.min(), f[-1] / v.max(), df / v.max())
-        index = (kappa[None, :] * v[:, None] - f[0]) / df
-        z_k = np.stack([_resample(z[r], index[r]) for r in range(len(v))])
-        dev_k = np.stack([_resample(dev[:, r], index[r]) for r in range(len(v))], axis=1)
-        share_k = np.stack([_resample(share[r], index[r]) for r in range(len(v))])
-        combined_k = _combine(z_k, dev_k, share_k)
-    else:
-        kappa = np.zeros(0)
-        combined_k = np.zeros((y.shape[1], 0))
+    kappa, combined_k = _wavenumber_map(f, z, dev, share, v if spread else None)
 
     p = 2.0 * scipy.stats.norm.sf(np.abs(np.concatenate([combined, combined_k], axis=1)))
-    rejected, threshold = benjamini_hochberg(p, q)
+    rejected, threshold = benjamini_hochberg(p, settings.q)
     sig_f, sig_k = rejected[:, : f.size], rejected[:, f.size :]
 
     excess_db = 10.0 * (y - mu)
+    bins = _Bins(f, y, mu, z, excess_db, v, bool(spread), tuple(channels))
     maps = {FREQUENCY: (f, combined), WAVENUMBER: (kappa, combined_k)}
-    regions = []
-    for c, name in enumerate(channels):
-        for domain, sig in ((FREQUENCY, sig_f[c]), (WAVENUMBER, sig_k[c])):
-            grid, stat = maps[domain][0], maps[domain][1][c]
-            for sign in (1, -1):
-                for a, b in _split(sign * stat, contiguous_runs(sig & (np.sign(stat) == sign))):
-                    i = a + int(np.argmax(sign * stat[a : b + 1]))
-                    other = WAVENUMBER if domain == FREQUENCY else FREQUENCY
-                    scale = (1.0 / v if domain == FREQUENCY else v) if spread else None
-                    contrast = _contrast(
-                        sign * stat[i], grid[a], grid[b], scale, *maps[other], c, sign
-                    )
-                    peaks = _run_peaks(f, y, mu, z, excess_db, c, domain, grid[a], grid[b], sign, v)
-                    at = grid[i] * (v if domain == WAVENUMBER else np.ones(y.shape[0]))
-                    index = np.clip(np.rint((at - f[0]) / df).astype(int), 0, f.size - 1)
-                    centroid, width = _resonance(f, y, mu, c, grid[a], grid[b], domain)
-                    regions.append(
-                        Region(
-                            domain=domain,
-                            channel=name,
-                            low=float(grid[a]),
-                            high=float(grid[b]),
-                            peak=float(grid[i]),
-                            z=float(stat[i]),
-                            excess_db=float(np.mean(excess_db[np.arange(y.shape[0]), c, index])),
-                            runs=peaks,
-                            speed=_speed_fit(peaks, v, f, sign * z[:, c], domain, contrast),
-                            runs_present=_present(f, sign * z[:, c], at),
-                            centroid_hz=centroid,
-                            half_power_width_hz=width,
-                        )
-                    )
     return ResidualMap(
         freqs=f,
         channels=tuple(channels),
@@ -492,10 +467,94 @@ def residual_map(
         combined_wavenumber=combined_k,
         significant=sig_f,
         significant_wavenumber=sig_k,
-        q=float(q),
+        q=float(settings.q),
         p_threshold=threshold,
         n_tests=int(np.isfinite(p).sum()),
-        regions=_distinct(regions, df),
+        regions=_distinct(_regions(bins, maps, sig_f, sig_k), df),
+    )
+
+
+def _wavenumber_map(
+    f: np.ndarray, z: np.ndarray, dev: np.ndarray, share: np.ndarray, v: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The wavenumbers and the runs' combined residuals at fixed wavenumber ``f / v`` (each
+    run's residuals interpolated to ``f = kappa v_r``); none without ``v`` (speeds that do
+    not spread enough)."""
+    if v is None:
+        return np.zeros(0), np.zeros((z.shape[1], 0))
+    df = float(f[1] - f[0])
+    kappa = np.arange(f[0] / v.min(), f[-1] / v.max(), df / v.max())
+    index = (kappa[None, :] * v[:, None] - f[0]) / df
+    z_k = np.stack([_resample(z[r], index[r]) for r in range(len(v))])
+    dev_k = np.stack([_resample(dev[:, r], index[r]) for r in range(len(v))], axis=1)
+    share_k = np.stack([_resample(share[r], index[r]) for r in range(len(v))])
+    return kappa, _combine(z_k, dev_k, share_k)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Bins:
+    """The band's bins of a residual map, which every region reads: measured and predicted
+    log10 PSDs, the residuals, their excess in dB, each run's speed (``spread``: speeds that
+    tell tracking from fixed) and the channel names."""
+
+    f: np.ndarray
+    y: np.ndarray
+    mu: np.ndarray
+    z: np.ndarray
+    excess_db: np.ndarray
+    v: np.ndarray | None
+    spread: bool
+    channels: tuple[str, ...]
+
+
+#: per domain, the grid and the combined statistic (channel, bin) on it
+_Maps = dict[str, tuple[np.ndarray, np.ndarray]]
+
+
+def _regions(bins: _Bins, maps: _Maps, sig_f: np.ndarray, sig_k: np.ndarray) -> list[Region]:
+    """Every region: per channel, domain and sign, the contiguous significant bins, split at
+    deep dips (:func:`_split`)."""
+    regions = []
+    for c in range(len(bins.channels)):
+        for domain, sig in ((FREQUENCY, sig_f[c]), (WAVENUMBER, sig_k[c])):
+            stat = maps[domain][1][c]
+            for sign in (1, -1):
+                for span in _split(sign * stat, contiguous_runs(sig & (np.sign(stat) == sign))):
+                    regions.append(_region(bins, maps, c, domain, sign, span))
+    return regions
+
+
+def _region(
+    bins: _Bins, maps: _Maps, c: int, domain: str, sign: int, span: tuple[int, int]
+) -> Region:
+    """The region of channel ``c``'s bins ``span`` (first and last) of one sign in one
+    domain's map."""
+    f, y = bins.f, bins.y
+    v: Any = bins.v  # None only without a wavenumber map, where no region reads it
+    df = float(f[1] - f[0])
+    a, b = span
+    grid, stat = maps[domain][0], maps[domain][1][c]
+    i = a + int(np.argmax(sign * stat[a : b + 1]))
+    other = WAVENUMBER if domain == FREQUENCY else FREQUENCY
+    scale = (1.0 / v if domain == FREQUENCY else v) if bins.spread else None
+    contrast = _contrast(sign * stat[i], grid[a], grid[b], scale, *maps[other], c, sign)
+    peaks = _run_peaks(bins, c, domain, grid[a], grid[b], sign)
+    at = grid[i] * (v if domain == WAVENUMBER else np.ones(y.shape[0]))
+    index = np.clip(np.rint((at - f[0]) / df).astype(int), 0, f.size - 1)
+    centroid, width = _resonance(f, y, bins.mu, c, grid[a], grid[b], domain)
+    return Region(
+        domain=domain,
+        channel=bins.channels[c],
+        low=float(grid[a]),
+        high=float(grid[b]),
+        peak=float(grid[i]),
+        z=float(stat[i]),
+        excess_db=float(np.mean(bins.excess_db[np.arange(y.shape[0]), c, index])),
+        runs=peaks,
+        speed=_speed_fit(peaks, v, f, sign * bins.z[:, c], domain, contrast),
+        runs_present=_present(f, sign * bins.z[:, c], at),
+        centroid_hz=centroid,
+        half_power_width_hz=width,
     )
 
 
@@ -579,8 +638,10 @@ def _resonance(f, y, mu, c, low, high, domain) -> tuple[float, float]:
     return centroid, float((hi - lo + 1) * df)
 
 
-def _run_peaks(f, y, mu, z, excess_db, c, domain, low, high, sign, v) -> RunPeaks:
+def _run_peaks(bins: _Bins, c: int, domain: str, low, high, sign: int) -> RunPeaks:
     """Each run's peak of ``sign z`` within the region (mapped to its frequencies), padded."""
+    f, y, mu, z, excess_db = bins.f, bins.y, bins.mu, bins.z, bins.excess_db
+    v: Any = bins.v  # read in the wavenumber domain only, which has speeds
     n_runs = y.shape[0]
     df = f[1] - f[0]
     keys = ("frequency_hz", "z", "prominence", "excess_db", "power")

@@ -523,22 +523,20 @@ def classify(
     runs = _campaign_runs(campaign, system, run_index)
     training = path.parent / "training.json"
     record = json.loads(training.read_text()) if training.is_file() else None
-    # the features of the training data (the default spec for a bare ensemble file)
     spec = CNNInputSpec() if record is None else CNNInputSpec(**record["spec"])
     healthy = healthy_state(record, system)
     features = _run_features(campaign, runs.problems, spec, ensemble.network.input_shape)
     ok = np.array([p is None for p in runs.problems])
     calls = _calls(ensemble, features, ok, path.parent, campaign, system)
     calls = _weighed(calls, classes, healthy, ok, selective_risk)
-    entries = [
-        _run_entry(i, runs, calls, classes, max_error, ok[i]) for i in range(len(runs.index))
-    ]
+    n_run = len(runs.numbers)
+    entries = [_run_entry(i, runs, calls, classes, max_error, ok[i]) for i in range(n_run)]
     payload = {
         "classes": classes,
         "healthy_state": healthy,
         "temperature": float(ensemble.temperature),
         "ood_threshold": None if ensemble.ood is None else float(ensemble.ood.threshold),
-        "n_runs": len(runs.index),
+        "n_runs": n_run,
         "n_failed": int((~ok).sum()),
         "n_ood": int(calls.flags.sum()),
         "max_error": max_error,
@@ -554,11 +552,11 @@ def classify(
         records = record_votes(entries, np.asarray(campaign["record"].values).astype(str), classes)
         payload["records"] = records
         payload["record_metrics"] = record_metrics(records, classes)
-    n_freq = ensemble.network.input_shape[-1]
+    step = float(campaign.attrs["sampling_rate_hz"]) / spec.nperseg
     return Classification(
         as_saved(payload),
         features,
-        np.arange(n_freq) * (float(campaign.attrs["sampling_rate_hz"]) / spec.nperseg),
+        np.arange(ensemble.network.input_shape[-1]) * step,
         tuple(str(c) for c in campaign["channel"].values),
     )
 
@@ -566,7 +564,7 @@ def classify(
 class _Runs(NamedTuple):
     """What a classification reports of each run before it is classified."""
 
-    index: list[int]
+    numbers: list[int]
     states: np.ndarray
     conditions: tuple[str, ...]
     speeds: np.ndarray
@@ -604,7 +602,8 @@ def _campaign_runs(
 def _run_features(
     campaign: xr.Dataset, problems: list[str | None], spec: CNNInputSpec, shape: tuple[int, ...]
 ) -> np.ndarray:
-    """The classifier input of every run (NaN where it cannot be made; ``problems`` says why)."""
+    """The classifier input of every run, as ``spec`` (the training data's; the default for a
+    bare ensemble file) makes it: NaN where it cannot be made, ``problems`` says why."""
     n_run = len(problems)
     features = np.full((n_run, *shape), np.nan)
     good = [i for i in range(n_run) if problems[i] is None]
@@ -690,7 +689,7 @@ def _run_entry(
 ) -> dict[str, Any]:
     """Run ``i``'s entry of ``classification.json``."""
     entry: dict[str, Any] = {
-        "run": runs.index[i],
+        "run": runs.numbers[i],
         "state": str(runs.states[i]),
         "operating": _operating(runs.speeds[i]),
         **_named(runs.conditions, runs.speeds[i]),

@@ -24,9 +24,8 @@ import time
 import uuid
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
-from .._cluster import Pool
 from ..io import atomic_write
 
 RECORD = "stage.json"
@@ -140,50 +139,6 @@ class Finished:
                 "folder or key; load it from a finished stage's folder"
             )
         return self.stage
-
-
-P = TypeVar("P", bound=Finished)
-
-
-@dataclasses.dataclass(frozen=True)
-class StageRunner:
-    """Where and how the stages of one job run (none of it enters a stage's configuration
-    except ``versions``).
-
-    Attributes
-    ----------
-    out
-        The job's folder (a stage ``NAME`` owns ``out/NAME``).
-    pool
-        Where the simulation-heavy steps run.
-    progress
-        Show the stages' progress bars.
-    report
-        Receives one line per stage event.
-    versions
-        The versions of the library and its numerical stack (in the configurations of the
-        stages whose results they may change).
-    """
-
-    out: Path
-    pool: Pool
-    progress: bool
-    report: Callable[[str], None]
-    versions: Mapping[str, str]
-
-    def run(
-        self,
-        name: str,
-        inputs: Mapping[str, Any],
-        compute: Callable[[Path], None],
-        product: Callable[[Path], P],
-        *,
-        resumable: bool = False,
-    ) -> P:
-        """Run the stage ``name`` (:func:`run_stage`, keyed by the hash of ``inputs``) and
-        return its ``product`` loaded from its folder, with the stage's record."""
-        record = run_stage(self.out, name, inputs, compute, resumable=resumable, report=self.report)
-        return dataclasses.replace(product(record.path), stage=record)  # type: ignore[type-var]
 
 
 def _write_record(path: Path, payload: dict[str, Any]) -> None:

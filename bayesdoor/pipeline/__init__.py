@@ -3,12 +3,16 @@
 from ..inference import calibration_runs as calibration_runs
 from ._bands import PredictiveBands as PredictiveBands
 from ._classify import MAX_ERROR as MAX_ERROR
+from ._classify import Classification as Classification
+from ._classify import Trained as Trained
+from ._classify import classify as classify
 from ._classify import classify_stage as classify_stage
 from ._classify import model_file as model_file
 from ._classify import ood_model_error as ood_model_error
 from ._classify import report_stage as report_stage
 from ._classify import train_stage as train_stage
 from ._diagnose import DIAGNOSIS_FILES as DIAGNOSIS_FILES
+from ._diagnose import Diagnosis as Diagnosis
 from ._diagnose import catalogue_of as catalogue_of
 from ._diagnose import default_diagnose as default_diagnose
 from ._diagnose import diagnosis_stage as diagnosis_stage
@@ -16,6 +20,7 @@ from ._diagnose import features_of as features_of
 from ._diagnose import json_safe as json_safe
 from ._diagnose import save_diagnosis as save_diagnosis
 from ._fit import FitSummary as FitSummary
+from ._fit import Fitted as Fitted
 from ._job import DEFAULT_SOURCE as DEFAULT_SOURCE
 from ._job import SOURCES as SOURCES
 from ._job import STAGES as STAGES
@@ -34,3 +39,5 @@ from ._stages import StageRecord as StageRecord
 from ._stages import configuration_hash as configuration_hash
 from ._stages import peak_memory_mb as peak_memory_mb
 from ._stages import run_stage as run_stage
+from ._trust import Adequacy as Adequacy
+from ._trust import Trust as Trust

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
@@ -43,6 +44,7 @@ from ..report import ReportContext, diagnosis_section, extension_section, write_
 from ..systems import HEALTHY, AbstractSystem
 from ._bands import PredictiveBands
 from ._fit import FitSummary
+from ._stages import Finished, StageRecord, stage_in
 
 ENSEMBLE = "ensemble.eqx"
 BANDS = "bands.npz"
@@ -59,6 +61,13 @@ MAX_ERROR = 0.1
 def _write_json(path: Path, payload: Any) -> None:
     text = json.dumps(payload, indent=1, default=float, allow_nan=False) + "\n"
     atomic_write(path, lambda tmp: tmp.write_text(text), overwrite=True)
+
+
+def as_saved(payload: Any) -> Any:
+    """``payload`` as :func:`_write_json` saves it and ``json.load`` reads it back (numpy
+    scalars as Python numbers, tuples as lists), so that a product computed now and one read
+    from its folder are the same."""
+    return json.loads(json.dumps(payload, default=float, allow_nan=False))
 
 
 def _clean(value: float) -> float | None:
@@ -84,6 +93,31 @@ def _metrics(probabilities: np.ndarray, labels: np.ndarray) -> dict[str, Any]:
     return {k: (v if isinstance(v, list) else _clean(v)) for k, v in metrics.items()} | {
         "runs": int(labels.size)
     }
+
+
+@dataclasses.dataclass(frozen=True)
+class Trained(Finished):
+    """The product of the ``train`` stage: the folder of the calibrated ensemble
+    (:data:`ENSEMBLE`), its ``training.json``, the predictive bands (:data:`BANDS`) and the
+    system's signature reference (:data:`SIGNATURES`), written by :func:`train_stage` and
+    :func:`signature_stage`.
+
+    Attributes
+    ----------
+    training
+        ``training.json`` (states, healthy state, temperature, OOD threshold, simulated
+        validation).
+    stage
+        The record of the stage that made it.
+    """
+
+    training: dict[str, Any]
+    stage: StageRecord | None = None
+
+    @classmethod
+    def load(cls, folder: Path) -> Trained:
+        """Read ``training.json`` of the ensemble in ``folder``."""
+        return cls(json.loads((folder / "training.json").read_text()), stage_in(folder))
 
 
 def train_stage(
@@ -377,6 +411,55 @@ def model_file(model: Path) -> Path:
     )
 
 
+@dataclasses.dataclass(frozen=True)
+class Classification(Finished):
+    """The product of the ``classify`` stage: ``classification.json`` and ``features.npz``.
+
+    Attributes
+    ----------
+    payload
+        The JSON of docs/data.md (``classes``, ``runs``, ``metrics``, ...).
+    features
+        The classifier input of each run ``(run, channel, frequency)`` (NaN for a run without).
+    frequencies
+        The frequency of each feature bin, Hz.
+    channels
+        The campaign's channel names.
+    stage
+        The record of the stage that made it (``None`` before it is saved by one).
+    """
+
+    payload: dict[str, Any]
+    features: np.ndarray
+    frequencies: np.ndarray
+    channels: tuple[str, ...]
+    stage: StageRecord | None = None
+
+    def save(self, folder: Path) -> None:
+        """Write ``classification.json`` and ``features.npz`` into ``folder``."""
+        _write_json(folder / "classification.json", self.payload)
+
+        def write(tmp: Path) -> None:
+            with open(tmp, "wb") as f:
+                np.savez(
+                    f,
+                    features=self.features,
+                    frequencies=self.frequencies,
+                    channels=np.asarray(self.channels),
+                )
+
+        atomic_write(folder / "features.npz", write, overwrite=True)
+
+    @classmethod
+    def load(cls, folder: Path) -> Classification:
+        """Read what :meth:`save` wrote."""
+        payload = json.loads((folder / "classification.json").read_text())
+        with np.load(folder / "features.npz", allow_pickle=False) as f:
+            features, frequencies = f["features"], f["frequencies"]
+            channels = tuple(str(c) for c in f["channels"])
+        return cls(payload, features, frequencies, channels, stage_in(folder))
+
+
 def classify_stage(
     model: Path,
     campaign: xr.Dataset,
@@ -387,20 +470,40 @@ def classify_stage(
     max_error: float = MAX_ERROR,
     selective_risk: float | None = SELECTIVE_RISK,
 ) -> None:
+    """Write :func:`classify` of ``campaign`` with the ensemble in ``model`` into ``folder``
+    (:meth:`Classification.save`)."""
+    classify(
+        model,
+        campaign,
+        run_index=run_index,
+        system=system,
+        max_error=max_error,
+        selective_risk=selective_risk,
+    ).save(folder)
+
+
+def classify(
+    model: Path,
+    campaign: xr.Dataset,
+    *,
+    run_index: list[int] | None = None,
+    system: AbstractSystem | None = None,
+    max_error: float = MAX_ERROR,
+    selective_risk: float | None = SELECTIVE_RISK,
+) -> Classification:
     """Classify every run of ``campaign`` with the ensemble in ``model``.
 
-    Writes ``classification.json`` (docs/cli.md, the job's JSON: the ensemble's ``classes``
-    and ``healthy_state``, the system's healthy state; per run ``predicted``,
+    The product holds ``classification.json`` (docs/cli.md, the job's JSON: the ensemble's
+    ``classes`` and ``healthy_state``, the system's healthy state; per run ``predicted``,
     ``most_probable``, ``abstained``, ``probabilities``, ``entropy``, ``mutual_information``,
-    ``ood``, ``uncertain``, ``signatures``, ``corroborated``;
-    ``metrics`` over the runs whose true state is one of the classes) and ``features.npz``.
-    A run is ``uncertain`` when its call would be wrong with a probability above
-    ``max_error``: the calibrated probability of the predicted state is below
-    ``1 - max_error`` (:data:`MAX_ERROR`; docs/classification.md). With a signature
-    reference beside the ensemble (:func:`signature_stage`), each run also carries the
-    system's ``signatures`` check and ``corroborated``: whether its signal agrees with the
-    call (``False`` flags the run, :func:`run_flagged`). A run whose record is not finite,
-    or whose features cannot be computed, is reported with its ``problem`` and no
+    ``ood``, ``uncertain``, ``signatures``, ``corroborated``; ``metrics`` over the runs whose
+    true state is one of the classes) and the features. A run is ``uncertain`` when its call
+    would be wrong with a probability above ``max_error``: the calibrated probability of the
+    predicted state is below ``1 - max_error`` (:data:`MAX_ERROR`; docs/classification.md).
+    With a signature reference beside the ensemble (:func:`signature_stage`), each run also
+    carries the system's ``signatures`` check and ``corroborated``: whether its signal agrees
+    with the call (``False`` flags the run, :func:`run_flagged`). A run whose record is not
+    finite, or whose features cannot be computed, is reported with its ``problem`` and no
     prediction; it does not stop the others. Each run's operating conditions are reported
     under their names (``system``: the campaign's; ``None``: the registered one it names).
 
@@ -419,14 +522,68 @@ def classify_stage(
     path = model_file(model)
     ensemble = load_ensemble(path)
     classes = list(ensemble.class_names)
+    system = system_of(campaign) if system is None else system
+    runs = _campaign_runs(campaign, system, run_index)
+    training = path.parent / "training.json"
+    record = json.loads(training.read_text()) if training.is_file() else None
+    spec = CNNInputSpec() if record is None else CNNInputSpec(**record["spec"])
+    healthy = healthy_state(record, system)
+    features = _run_features(campaign, runs.problems, spec, ensemble.network.input_shape)
+    ok = np.array([p is None for p in runs.problems])
+    calls = _calls(ensemble, features, ok, path.parent, campaign, system)
+    calls = _weighed(calls, classes, healthy, ok, selective_risk)
+    n_run = len(runs.numbers)
+    entries = [_run_entry(i, runs, calls, classes, max_error, ok[i]) for i in range(n_run)]
+    payload = {
+        "classes": classes,
+        "healthy_state": healthy,
+        "temperature": float(ensemble.temperature),
+        "ood_threshold": None if ensemble.ood is None else float(ensemble.ood.threshold),
+        "n_runs": n_run,
+        "n_failed": int((~ok).sum()),
+        "n_ood": int(calls.flags.sum()),
+        "max_error": max_error,
+        "n_uncertain": sum(bool(r["uncertain"]) for r in entries),
+        "n_not_corroborated": sum(r["corroborated"] is False for r in entries),
+        "n_abstained": sum(r["abstained"] is not None for r in entries),
+        "selective": calls.selective,
+        "evidence": calls.evidence,
+        "runs": entries,
+        "metrics": _campaign_metrics(runs.states, calls, classes, ok),
+    }
+    if "record" in campaign.variables and campaign["record"].dims == ("run",):
+        records = record_votes(entries, np.asarray(campaign["record"].values).astype(str), classes)
+        payload["records"] = records
+        payload["record_metrics"] = record_metrics(records, classes)
+    step = float(campaign.attrs["sampling_rate_hz"]) / spec.nperseg
+    return Classification(
+        as_saved(payload),
+        features,
+        np.arange(ensemble.network.input_shape[-1]) * step,
+        tuple(str(c) for c in campaign["channel"].values),
+    )
+
+
+class _Runs(NamedTuple):
+    """What a classification reports of each run before it is classified."""
+
+    numbers: list[int]
+    states: np.ndarray
+    conditions: tuple[str, ...]
+    speeds: np.ndarray
+    #: why a run cannot be classified (``None``: it can), filled in as the features are made
+    problems: list[str | None]
+
+
+def _campaign_runs(
+    campaign: xr.Dataset, system: AbstractSystem | None, run_index: list[int] | None
+) -> _Runs:
     n_run = campaign.sizes["run"]
-    index = list(range(n_run)) if run_index is None else list(run_index)
     states = (
         np.asarray(campaign["state"].values).astype(str)
         if "state" in campaign.coords
         else np.full(n_run, "unknown")
     )
-    system = system_of(campaign) if system is None else system
     conditions = () if system is None else system.condition_names()
     speeds = (
         campaign_operating(campaign, system)
@@ -434,20 +591,24 @@ def classify_stage(
         else np.full(n_run, np.nan)
     )
     # per run, whether every sample is finite (a boolean reduction: the records are not
-    # copied, the signature check below reads the system's channels itself)
+    # copied, the signature check reads the system's channels itself)
     acceleration = campaign["acceleration"]
     others = tuple(i for i, d in enumerate(acceleration.dims) if d != "run")
     finite = np.isfinite(acceleration.values).all(axis=others)
     problems: list[str | None] = [
         None if bool(f) else "the record holds non-finite samples" for f in finite
     ]
-    n_freq = ensemble.network.input_shape[-1]
-    training = path.parent / "training.json"
-    record = json.loads(training.read_text()) if training.is_file() else None
-    # the features of the training data (the default spec for a bare ensemble file)
-    spec = CNNInputSpec() if record is None else CNNInputSpec(**record["spec"])
-    healthy = healthy_state(record, system)
-    features = np.full((n_run, *ensemble.network.input_shape), np.nan)
+    index = list(range(n_run)) if run_index is None else list(run_index)
+    return _Runs(index, states, conditions, speeds, problems)
+
+
+def _run_features(
+    campaign: xr.Dataset, problems: list[str | None], spec: CNNInputSpec, shape: tuple[int, ...]
+) -> np.ndarray:
+    """The classifier input of every run, as ``spec`` (the training data's; the default for a
+    bare ensemble file) makes it: NaN where it cannot be made, ``problems`` says why."""
+    n_run = len(problems)
+    features = np.full((n_run, *shape), np.nan)
     good = [i for i in range(n_run) if problems[i] is None]
     if good:
         try:
@@ -461,8 +622,37 @@ def classify_stage(
     for i in range(n_run):
         if problems[i] is None and not np.all(np.isfinite(features[i])):
             problems[i] = "non-finite features (a silent channel or a too short motion window)"
-    ok = np.array([p is None for p in problems])
-    probabilities = np.full((n_run, len(classes)), np.nan)
+    return features
+
+
+class _Calls(NamedTuple):
+    """The ensemble's view of each run, weighed against the system's signature check."""
+
+    probabilities: np.ndarray
+    info: dict[str, np.ndarray]
+    flags: np.ndarray
+    detector: bool
+    agreement: list[dict[str, bool | None] | None]
+    alpha: float | None
+    ensemble_probabilities: np.ndarray | None = None
+    applies: np.ndarray | None = None
+    evidence: dict[str, Any] | None = None
+    called: np.ndarray | None = None
+    selective: dict[str, Any] | None = None
+
+
+def _calls(
+    ensemble: Ensemble,
+    features: np.ndarray,
+    ok: np.ndarray,
+    model_dir: Path,
+    campaign: xr.Dataset,
+    system: AbstractSystem | None,
+) -> _Calls:
+    """The ensemble's probabilities, uncertainties and OOD flags of the classifiable runs, and
+    the system's signature check of them."""
+    n_run = len(ok)
+    probabilities = np.full((n_run, len(ensemble.class_names)), np.nan)
     info = {k: np.full(n_run, np.nan) for k in ("entropy", "mi", "expected", "score")}
     flags = np.zeros(n_run, dtype=bool)
     if ok.any():
@@ -474,110 +664,103 @@ def classify_stage(
         if pred.ood is not None and pred.ood_score is not None:
             info["score"][ok] = np.asarray(pred.ood_score)
             flags[ok] = np.asarray(pred.ood)
-    agreement, alpha = _signature_agreement(path.parent, campaign, system, ok)
-    ensemble_probabilities = probabilities
+    agreement, alpha = _signature_agreement(model_dir, campaign, system, ok)
+    return _Calls(probabilities, info, flags, ensemble.ood is not None, agreement, alpha)
+
+
+def _weighed(
+    calls: _Calls, classes: list[str], healthy: str, ok: np.ndarray, risk: float | None
+) -> _Calls:
+    """``calls`` with the probabilities weighed against the signature check and the runs
+    called at the selective ``risk``."""
     probabilities, applies, evidence = _with_evidence(
-        probabilities, agreement, alpha, classes, healthy, ok
+        calls.probabilities, calls.agreement, calls.alpha, classes, healthy, ok
     )
-    called, selective = _selective(probabilities, ok, selective_risk)
-    runs = []
-    for i in range(n_run):
-        entry: dict[str, Any] = {
-            "run": index[i],
-            "state": str(states[i]),
-            "operating": _operating(speeds[i]),
-            **_named(conditions, speeds[i]),
-            "predicted": None,
-            "most_probable": None,
-            "abstained": None,
-            "probabilities": None,
-            "ensemble_probabilities": None,
-            "applies": None,
-            "entropy": None,
-            "expected_entropy": None,
-            "mutual_information": None,
-            "ood": None,
-            "ood_score": None,
-            "uncertain": None,
-            "signatures": None,
-            "corroborated": None,
-            "problem": problems[i],
-        }
-        if ok[i]:
-            top = float(np.max(probabilities[i]))
-            most = classes[int(np.argmax(probabilities[i]))]
-            entry.update(
-                predicted=most,
-                most_probable=most,
-                probabilities={c: float(p) for c, p in zip(classes, probabilities[i], strict=True)},
-                entropy=_clean(info["entropy"][i]),
-                expected_entropy=_clean(info["expected"][i]),
-                mutual_information=_clean(info["mi"][i]),
-                ood=bool(flags[i]) if ensemble.ood is not None else None,
-                ood_score=_clean(info["score"][i]),
-                uncertain=bool(top < 1.0 - max_error),
-            )
-            if evidence is not None:
-                entry.update(
-                    ensemble_probabilities={
-                        c: float(p) for c, p in zip(classes, ensemble_probabilities[i], strict=True)
-                    },
-                    applies=_clean(applies[i]),
-                )
-            if not called[i]:
-                entry.update(predicted=None, abstained=_abstention(top, most, selective))
-            check = agreement[i]
-            if check is not None:
-                entry.update(signatures=check, corroborated=check.get(most))
-        runs.append(entry)
-    known = ok & np.isin(states, classes)
-    metrics = None
-    if known.any():
-        labels = np.array([classes.index(s) for s in states[known]])
-        metrics = _metrics(probabilities[known], labels)
-        metrics["ood_runs"] = int(flags[known].sum())
-        metrics["classes"] = classes
-        metrics["selective"] = _selective_metrics(probabilities[known], labels, called[known])
-        if evidence is not None:
-            metrics["ensemble"] = _metrics(ensemble_probabilities[known], labels)
-    records = (
-        record_votes(runs, np.asarray(campaign["record"].values).astype(str), classes)
-        if "record" in campaign.variables and campaign["record"].dims == ("run",)
-        else None
+    called, selective = _selective(probabilities, ok, risk)
+    return calls._replace(
+        probabilities=probabilities,
+        ensemble_probabilities=calls.probabilities,
+        applies=applies,
+        evidence=evidence,
+        called=called,
+        selective=selective,
     )
-    payload = {
-        "classes": classes,
-        "healthy_state": healthy,
-        "temperature": float(ensemble.temperature),
-        "ood_threshold": None if ensemble.ood is None else float(ensemble.ood.threshold),
-        "n_runs": n_run,
-        "n_failed": int((~ok).sum()),
-        "n_ood": int(flags.sum()),
-        "max_error": max_error,
-        "n_uncertain": sum(bool(r["uncertain"]) for r in runs),
-        "n_not_corroborated": sum(r["corroborated"] is False for r in runs),
-        "n_abstained": sum(r["abstained"] is not None for r in runs),
-        "selective": selective,
-        "evidence": evidence,
-        "runs": runs,
-        "metrics": metrics,
+
+
+def _run_entry(
+    i: int, runs: _Runs, calls: _Calls, classes: list[str], max_error: float, ok: bool
+) -> dict[str, Any]:
+    """Run ``i``'s entry of ``classification.json``."""
+    entry: dict[str, Any] = {
+        "run": runs.numbers[i],
+        "state": str(runs.states[i]),
+        "operating": _operating(runs.speeds[i]),
+        **_named(runs.conditions, runs.speeds[i]),
+        "predicted": None,
+        "most_probable": None,
+        "abstained": None,
+        "probabilities": None,
+        "ensemble_probabilities": None,
+        "applies": None,
+        "entropy": None,
+        "expected_entropy": None,
+        "mutual_information": None,
+        "ood": None,
+        "ood_score": None,
+        "uncertain": None,
+        "signatures": None,
+        "corroborated": None,
+        "problem": runs.problems[i],
     }
-    if records is not None:
-        payload["records"] = records
-        payload["record_metrics"] = record_metrics(records, classes)
-    _write_json(folder / "classification.json", payload)
+    if not ok:
+        return entry
+    assert calls.called is not None and calls.ensemble_probabilities is not None
+    probabilities = calls.probabilities[i]
+    top = float(np.max(probabilities))
+    most = classes[int(np.argmax(probabilities))]
+    entry.update(
+        predicted=most,
+        most_probable=most,
+        probabilities={c: float(p) for c, p in zip(classes, probabilities, strict=True)},
+        entropy=_clean(calls.info["entropy"][i]),
+        expected_entropy=_clean(calls.info["expected"][i]),
+        mutual_information=_clean(calls.info["mi"][i]),
+        ood=bool(calls.flags[i]) if calls.detector else None,
+        ood_score=_clean(calls.info["score"][i]),
+        uncertain=bool(top < 1.0 - max_error),
+    )
+    if calls.evidence is not None and calls.applies is not None:
+        ensemble = calls.ensemble_probabilities[i]
+        entry.update(
+            ensemble_probabilities={c: float(p) for c, p in zip(classes, ensemble, strict=True)},
+            applies=_clean(calls.applies[i]),
+        )
+    if not calls.called[i]:
+        entry.update(predicted=None, abstained=_abstention(top, most, calls.selective))
+    check = calls.agreement[i]
+    if check is not None:
+        entry.update(signatures=check, corroborated=check.get(most))
+    return entry
 
-    def write(tmp: Path) -> None:
-        with open(tmp, "wb") as f:
-            np.savez(
-                f,
-                features=features,
-                frequencies=np.arange(n_freq)
-                * (float(campaign.attrs["sampling_rate_hz"]) / spec.nperseg),
-                channels=np.asarray([str(c) for c in campaign["channel"].values]),
-            )
 
-    atomic_write(folder / "features.npz", write, overwrite=True)
+def _campaign_metrics(
+    states: np.ndarray, calls: _Calls, classes: list[str], ok: np.ndarray
+) -> dict[str, Any] | None:
+    """The metrics of the classified runs whose true state is one of ``classes``."""
+    known = ok & np.isin(states, classes)
+    if not known.any():
+        return None
+    assert calls.called is not None and calls.ensemble_probabilities is not None
+    labels = np.array([classes.index(s) for s in states[known]])
+    metrics = _metrics(calls.probabilities[known], labels)
+    metrics["ood_runs"] = int(calls.flags[known].sum())
+    metrics["classes"] = classes
+    metrics["selective"] = _selective_metrics(
+        calls.probabilities[known], labels, calls.called[known]
+    )
+    if calls.evidence is not None:
+        metrics["ensemble"] = _metrics(calls.ensemble_probabilities[known], labels)
+    return metrics
 
 
 def _abstention(top: float, most: str, selective: dict[str, Any] | None) -> str:

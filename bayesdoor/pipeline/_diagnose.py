@@ -35,6 +35,8 @@ from ..inference import FitResult
 from ..io import atomic_write
 from ..report import write_diagnosis_report
 from ..systems import AbstractSystem
+from ._fit import Fitted
+from ._stages import Finished, StageRecord, configuration_hash, stage_in
 
 DIAGNOSIS_JSON = "diagnosis.json"
 DIAGNOSIS_HTML = "diagnosis.html"
@@ -179,31 +181,71 @@ def default_diagnose(
     )
 
 
+@dataclasses.dataclass(frozen=True)
+class Diagnosis(Finished):
+    """The product of the ``diagnose`` stage: ``diagnosis.json`` (beside it the HTML report
+    and the diagnosis object, :data:`DIAGNOSIS_OBJECT`), or why it could not be made.
+
+    Attributes
+    ----------
+    payload
+        The diagnosis JSON (``verdict``, ``causes``) with ``report`` the path of its HTML; of
+        a diagnosis not made, ``error`` (the reason), no verdict and no report.
+    stage
+        The record of the stage that made it (``None`` when it was not made).
+    """
+
+    payload: dict[str, Any]
+    stage: StageRecord | None = None
+
+    @classmethod
+    def load(cls, folder: Path) -> Diagnosis:
+        """Read the JSON that :func:`diagnosis_stage` wrote into ``folder``."""
+        payload = json.loads((folder / DIAGNOSIS_JSON).read_text())
+        payload["report"] = str(folder / DIAGNOSIS_HTML)
+        return cls(payload, stage_in(folder))
+
+    @classmethod
+    def not_made(cls, reason: str) -> Diagnosis:
+        """The product of a diagnosis that could not be made, and why."""
+        return cls({"verdict": None, "causes": [], "error": reason, "report": None})
+
+    @property
+    def key(self) -> str:
+        """The stage's configuration hash; of a diagnosis not made, the hash of the reason
+        (so that what reads it is made again when the reason changes)."""
+        if self.stage is None:
+            return configuration_hash({"error": self.payload["error"]})
+        return self.stage.config_hash
+
+
 def diagnosis_stage(
     system: AbstractSystem,
     campaign: xr.Dataset,
-    fit_folder: Path,
+    fit: Fitted,
     folder: Path,
     *,
     diagnose: Callable[..., DiagnosisLike],
     seed: int,
     quick: bool,
     progress: bool,
-    fit: Mapping[str, Any] | None = None,
 ) -> None:
     """The job's ``diagnose`` stage: diagnose the campaign under the job's fit, write both files
     and keep the diagnosis object (:data:`DIAGNOSIS_OBJECT`).
 
     ``diagnose`` is called as ``diagnose(system, campaign, fit_folder, seed=, quick=,
-    progress=)`` (:func:`default_diagnose` in a job). A diagnosis that cannot be pickled (a
-    stand-in of local classes) leaves no object: the job then cannot extend the system by it.
+    progress=)`` with the folder of the full fit (:func:`default_diagnose` in a job). A
+    diagnosis that cannot be pickled (a stand-in of local classes) leaves no object: the job
+    then cannot extend the system by it.
     """
-    diagnosis = diagnose(system, campaign, fit_folder, seed=seed, quick=quick, progress=progress)
+    diagnosis = diagnose(
+        system, campaign, fit.result_folder, seed=seed, quick=quick, progress=progress
+    )
     save_diagnosis(
         diagnosis,
         folder,
         catalogue=catalogue_of(system, diagnosis),
-        fit=fit,
+        fit=fit.summary.to_json(),
         title=f"{system.name}: discrepancy diagnosis",
         overwrite=True,
     )

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..io import atomic_write
+from ._stages import Finished, StageRecord, stage_in
 
 
 def _finite_or_none(value: Any) -> float | None:
@@ -162,3 +163,40 @@ class FitSummary:
             "parameters": parameters,
             "diagnostics": self.diagnostics,
         }
+
+
+@dataclasses.dataclass(frozen=True)
+class Fitted(Finished):
+    """The product of the ``fit`` stage: the summary the later stages read and, beside it,
+    the full result (``result/``, read by the diagnosis).
+
+    Attributes
+    ----------
+    summary
+        The fit's point, draws and model error.
+    result
+        The full fit (a :class:`bayesdoor.inference.FitResult`); ``None`` when loaded (it
+        stays on disk, in :attr:`result_folder`).
+    stage
+        The record of the stage that made it (``None`` before it is saved by one).
+    """
+
+    summary: FitSummary
+    result: Any = None
+    stage: StageRecord | None = None
+
+    def save(self, folder: Path) -> None:
+        """Write the result into ``folder/result`` and the summary into ``folder``."""
+        if self.result is not None:
+            self.result.save(folder / "result")
+        self.summary.save(folder)
+
+    @classmethod
+    def load(cls, folder: Path) -> Fitted:
+        """The summary :meth:`save` wrote (the result stays on disk)."""
+        return cls(FitSummary.load(folder), stage=stage_in(folder))
+
+    @property
+    def result_folder(self) -> Path:
+        """Where the full result is saved."""
+        return self.folder / "result"

@@ -56,6 +56,7 @@ from ._classify import (
     BANDS,
     ENSEMBLE,
     SIGNATURES,
+    Classification,
     classify_stage,
     ood_model_error,
     report_stage,
@@ -70,16 +71,17 @@ from ._diagnose import (
     diagnosis_stage,
     kept_diagnosis,
 )
-from ._fit import FitSummary
+from ._fit import FitSummary, Fitted
 from ._stages import StageRecord, configuration_hash, run_stage
 from ._trust import (
     ADEQUACY_CHECK,
     ADEQUACY_JSON,
     TRUST_CHECKS,
     TRUST_JSON,
-    adequacy_stage,
+    Adequacy,
+    check_adequacy,
+    judge_classification,
     training_data,
-    trust_stage,
 )
 
 Source = Literal["posterior", "posterior+model_error", "gaussian"]
@@ -945,14 +947,13 @@ def _adequacy_config(job: _Job) -> dict[str, Any]:
 
 
 def _adequacy(job: _Job, folder: Path) -> None:
-    adequacy_stage(
+    check_adequacy(
         job.path("generate") / "data",
         job.calibration,
-        folder,
         seed=job.config.seed,
         discrepancy=job.discrepancy,
         system=job.system,
-    )
+    ).save(folder)
 
 
 def _load_adequacy(job: _Job, folder: Path) -> dict[str, Any]:
@@ -1022,17 +1023,15 @@ def _trust_config(job: _Job) -> dict[str, Any]:
 
 
 def _trust(job: _Job, folder: Path) -> None:
-    trust_stage(
+    judge_classification(
         job.path("train"),
-        job.path("classify"),
-        job.path("generate") / "data",
-        job.path("adequacy"),
+        Classification.load(job.path("classify")),
+        Adequacy.load(job.path("adequacy")),
+        job.training_data(),
         job.calibration,
-        folder,
         seed=job.config.seed,
-        discrepancy=job.discrepancy,
         system=job.system,
-    )
+    ).save(folder)
 
 
 def _load_trust(job: _Job, folder: Path) -> dict[str, Any]:
@@ -1059,13 +1058,12 @@ def _diagnose(job: _Job, folder: Path) -> None:
     diagnosis_stage(
         job.system,
         job.campaign,
-        job.path("fit") / "result",
+        Fitted.load(job.path("fit")),
         folder,
         diagnose=_with_pool(job.diagnose, job.pool),
         seed=job.config.seed,
         quick=job.config.quick,
         progress=job.progress,
-        fit=job.products["fit"].to_json(),
     )
 
 

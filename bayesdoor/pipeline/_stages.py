@@ -70,6 +70,20 @@ class StageRecord:
     cpu_seconds: float | None = None
     peak_memory_mb: float | None = None
 
+    @classmethod
+    def of(cls, path: Path, record: Mapping[str, Any]) -> StageRecord:
+        """The record of the finished stage in ``path`` (``record``: its ``stage.json``), as
+        reused."""
+        return cls(
+            path.name,
+            path,
+            str(record["config_hash"]),
+            True,
+            float(record.get("seconds", 0.0)),
+            _optional_float(record.get("cpu_seconds")),
+            _optional_float(record.get("peak_memory_mb")),
+        )
+
 
 def peak_memory_mb() -> float:
     """The process's peak resident memory so far, MB (``getrusage``: kB on Linux, bytes on
@@ -91,6 +105,40 @@ def finished_record(path: Path) -> dict[str, Any] | None:
         return json.loads(record.read_text())
     except (OSError, json.JSONDecodeError):
         return None
+
+
+def stage_in(folder: Path) -> StageRecord | None:
+    """The record of the finished stage in ``folder`` (``None`` when it is not one)."""
+    record = finished_record(folder)
+    return None if record is None else StageRecord.of(folder, record)
+
+
+class Finished:
+    """What a stage's product tells of the stage that made it (its ``stage`` record).
+
+    A product is a frozen dataclass with a ``stage`` field (``None`` until a stage saved it),
+    ``save(folder)`` and a class method ``load(folder)``.
+    """
+
+    stage: StageRecord | None
+
+    @property
+    def folder(self) -> Path:
+        """The folder of the stage that made it."""
+        return self._record().path
+
+    @property
+    def key(self) -> str:
+        """The configuration hash of the stage that made it (its inputs' hash)."""
+        return self._record().config_hash
+
+    def _record(self) -> StageRecord:
+        if self.stage is None:
+            raise ValueError(
+                f"this {type(self).__name__} was not made by a stage of a job: it has no "
+                "folder or key; load it from a finished stage's folder"
+            )
+        return self.stage
 
 
 def _write_record(path: Path, payload: dict[str, Any]) -> None:
@@ -135,39 +183,14 @@ def run_stage(
     old = finished_record(path)
     if old is not None and old.get("config_hash") == digest:
         report(f"{name}: reused (configuration {digest[:10]}, finished {old.get('finished')})")
-        return StageRecord(
-            name,
-            path,
-            digest,
-            True,
-            float(old.get("seconds", 0.0)),
-            _optional_float(old.get("cpu_seconds")),
-            _optional_float(old.get("peak_memory_mb")),
-        )
-    why = "configuration changed" if old is not None else "computing"
-    report(f"{name}: {why} ...")
+        return StageRecord.of(path, old)
+    report(f"{name}: {'configuration changed' if old is not None else 'computing'} ...")
     start, cpu_start = time.perf_counter(), time.process_time()
     if resumable:
-        marker = path / _STARTED
-        if path.exists() and (
-            old is not None or not marker.is_file() or marker.read_text() != digest
-        ):
-            shutil.rmtree(path)
-        path.mkdir(parents=True, exist_ok=True)
-        marker.write_text(digest)
-        compute(path)
-        work = path
+        work = _resume(path, digest, fresh=old is not None)
+        compute(work)
     else:
-        # the temporary folder of a run killed half way (SIGKILL, power loss) is garbage
-        for stale in out.glob(f".{name}.*.tmp"):
-            shutil.rmtree(stale, ignore_errors=True)
-        work = out / f".{name}.{uuid.uuid4().hex}.tmp"
-        work.mkdir(parents=True)
-        try:
-            compute(work)
-        except BaseException:
-            shutil.rmtree(work, ignore_errors=True)
-            raise
+        work = _computed(out, name, compute)
     seconds = time.perf_counter() - start
     cpu_seconds, peak = time.process_time() - cpu_start, peak_memory_mb()
     finished = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
@@ -191,3 +214,29 @@ def run_stage(
         (path / _STARTED).unlink(missing_ok=True)
     report(f"{name}: done in {seconds:.1f} s")
     return StageRecord(name, path, digest, False, seconds, cpu_seconds, peak)
+
+
+def _resume(path: Path, digest: str, *, fresh: bool) -> Path:
+    """The folder of a resumable stage: kept when a start marker holds ``digest`` (an
+    interrupted run of the same configuration), emptied otherwise or when ``fresh``."""
+    marker = path / _STARTED
+    if path.exists() and (fresh or not marker.is_file() or marker.read_text() != digest):
+        shutil.rmtree(path)
+    path.mkdir(parents=True, exist_ok=True)
+    marker.write_text(digest)
+    return path
+
+
+def _computed(out: Path, name: str, compute: Callable[[Path], None]) -> Path:
+    """``compute`` run in a temporary sibling of the stage's folder (removed if it fails)."""
+    # the temporary folder of a run killed half way (SIGKILL, power loss) is garbage
+    for stale in out.glob(f".{name}.*.tmp"):
+        shutil.rmtree(stale, ignore_errors=True)
+    work = out / f".{name}.{uuid.uuid4().hex}.tmp"
+    work.mkdir(parents=True)
+    try:
+        compute(work)
+    except BaseException:
+        shutil.rmtree(work, ignore_errors=True)
+        raise
+    return work

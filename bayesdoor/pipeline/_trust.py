@@ -43,6 +43,7 @@ its reasons; the report then leads with them instead of a confident table.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -66,12 +67,15 @@ from ..io import operating as campaign_operating
 from ..systems import AbstractSystem
 from ._classify import (
     SIGNATURES,
+    Classification,
     _write_json,
-    classify_stage,
+    as_saved,
+    classify,
     data_spec,
     healthy_state,
     runs_in_state,
 )
+from ._stages import Finished, StageRecord, stage_in
 
 ADEQUACY_JSON = "adequacy.json"
 TRUST_JSON = "trust.json"
@@ -115,35 +119,59 @@ def training_data(
     )
 
 
-def adequacy_stage(
+@dataclasses.dataclass(frozen=True)
+class Adequacy(Finished):
+    """The product of the ``adequacy`` stage: ``adequacy.json``.
+
+    Attributes
+    ----------
+    payload
+        :func:`bayesdoor.datagen.fit_adequacy` of the calibration runs as JSON (``verdict``,
+        ``summary``, ...), or ``verdict: null`` with the ``reason``.
+    stage
+        The record of the stage that made it (``None`` before it is saved by one).
+    """
+
+    payload: dict[str, Any]
+    stage: StageRecord | None = None
+
+    def save(self, folder: Path) -> None:
+        """Write ``adequacy.json`` into ``folder``."""
+        _write_json(folder / ADEQUACY_JSON, self.payload)
+
+    @classmethod
+    def load(cls, folder: Path) -> Adequacy:
+        """Read what :meth:`save` wrote."""
+        return cls(json.loads((folder / ADEQUACY_JSON).read_text()), stage_in(folder))
+
+
+def check_adequacy(
     data_folder: Path,
     calibration: xr.Dataset,
-    folder: Path,
     *,
     seed: int,
     discrepancy: bool = False,
     system: AbstractSystem | None = None,
-) -> None:
-    """Write ``adequacy.json``: :func:`bayesdoor.datagen.fit_adequacy` of the calibration runs.
+) -> Adequacy:
+    """:func:`bayesdoor.datagen.fit_adequacy` of the calibration runs against the training
+    data in ``data_folder``.
 
     With ``discrepancy`` (the source adds the calibration runs' measured discrepancy to the
     simulations) the check leaves each run's own discrepancy out. Without healthy
-    calibration runs, or training data without a healthy state, the file holds
+    calibration runs, or training data without a healthy state, the product holds
     ``verdict: null`` and the reason.
     """
     data = load_training_data(data_folder)
     known = runs_in_state(calibration, data.healthy)
     if data.healthy not in data.states or known.sizes["run"] == 0:
-        _write_json(
-            folder / ADEQUACY_JSON,
-            {"verdict": None, "reason": f"no measured {data.healthy} runs to check the fit on"},
+        return Adequacy(
+            {"verdict": None, "reason": f"no measured {data.healthy} runs to check the fit on"}
         )
-        return
     try:
         payload = _adequacy(data, known, campaign_operating(known, system), seed, discrepancy)
     except ValueError as err:  # too few simulated runs at a speed, for example
         payload = {"verdict": None, "reason": " ".join(str(err).split())}
-    _write_json(folder / ADEQUACY_JSON, payload)
+    return Adequacy(as_saved(payload))
 
 
 def _adequacy(
@@ -224,83 +252,16 @@ def judge_trust(
     if adequacy.get("verdict") == "does not reproduce":
         reasons.append(f"fit inadequate: {adequacy['summary']}")
     checks["adequacy"] = adequacy.get("verdict")
-
     if known is not None and known["runs"]:
-        classes = list(training["states"])
-        validation = training["validation"]
-        labels = np.asarray(validation["labels"])
-        probs = np.asarray(validation["probabilities"])
-        h = classes.index(healthy)
-        own = labels == h
-        hits = int(np.sum(np.argmax(probs[own], axis=1) == h))
-        # the simulated recall, shrunk away from 1: a perfect validation of a few dozen runs
-        # does not make one miss impossible
-        recall = _jeffreys_centre(hits, int(own.sum()))
-        called = [c for c in map(_call, known["runs"]) if c is not None]
-        k = sum(p == healthy for p in called)
-        p_value = _binomial_low(k, len(called), recall)
-        checks["known_runs"] = {
-            "state": healthy,
-            "runs": len(called),
-            "called_right": k,
-            "simulated_recall": recall,
-            "p_value": p_value,
-        }
-        if called and p_value < alpha:
-            others = sorted({p for p in called if p != healthy})
-            reasons.append(
-                f"{k} of {len(called)} measured {healthy} calibration runs were called "
-                f"{healthy} (the others: {', '.join(others)}); the simulated validation's "
-                f"recall {recall:.3f} makes that improbable (p = {p_value:.1e})"
-            )
-
+        _known_runs(known, training, healthy, checks, reasons, alpha)
     runs = [r for r in classification["runs"] if _call(r) is not None]
-    ood = {r["run"] for r in runs if r.get("ood")}
-    # a confident call that the system's own signature check contradicts is as unlike the
-    # simulations as an OOD run (only a system with a check has ``corroborated``)
-    contradicted = {r["run"] for r in runs if r.get("corroborated") is False}
-    flagged = ood | set(unlike_healthy) | contradicted
-    nominal = 1.0 - float(training.get("ood_quantile", 0.99))
-    n = len(runs)
-    p_ood = _binomial_high(len(ood), n, nominal) if n else 1.0
-    checks["ood"] = {
-        "runs": n,
-        "flagged_ood": len(ood),
-        "unlike_healthy": len(unlike_healthy),
-        "not_corroborated": len(contradicted),
-        "nominal_rate": nominal,
-        "p_value": p_ood,
-    }
     warnings: list[str] = []
-    if n and len(ood) and p_ood < alpha:
-        warnings.append(
-            f"{len(ood)} of {n} runs lie outside every simulated state (OOD), against "
-            f"{100 * nominal:.0f} % expected (p = {p_ood:.1e}): their probabilities extrapolate"
-        )
-    called_healthy = sum(_call(r) == healthy for r in runs)
-    p_h = _binomial_high(len(unlike_healthy), called_healthy, alpha) if called_healthy else 1.0
-    checks["unlike_healthy"] = {"called_healthy": called_healthy, "p_value": p_h}
-    if unlike_healthy and p_h < alpha:
-        warnings.append(
-            f"{len(unlike_healthy)} of {called_healthy} runs called {healthy} are unlike "
-            f"the simulated {healthy} runs at their speed (p = {p_h:.1e})"
-        )
+    flagged = _flagged(runs, training, unlike_healthy, checks, warnings, alpha)
     _uncertain_rate(classification, training, runs, checks, warnings, alpha)
-    if signature_rate is not None and n:
-        p_sig = _binomial_high(len(contradicted), n, signature_rate)
-        checks["not_corroborated"] = {
-            "runs": n,
-            "not_corroborated": len(contradicted),
-            "false_alarm_rate": signature_rate,
-            "p_value": p_sig,
-        }
-        if contradicted and p_sig < alpha:
-            warnings.append(
-                f"{len(contradicted)} of {n} calls are not backed by the system's signature "
-                f"check, which contradicts {100 * signature_rate:g} % of right calls "
-                f"(p = {p_sig:.1e}): the signals do not show the called states' signatures, "
-                "so the probabilities rest on the learned features alone"
-            )
+    contradicted = {r["run"] for r in runs if r.get("corroborated") is False}
+    if signature_rate is not None and runs:
+        _not_corroborated(len(runs), len(contradicted), signature_rate, checks, warnings, alpha)
+    n = len(runs)
     if n and len(flagged) > n / 2:
         reasons.append(f"most runs are flagged ({len(flagged)} of {n})")
     expected = (training.get("validation", {}).get("calibrated") or {}).get("accuracy")
@@ -322,6 +283,114 @@ def judge_trust(
         "flagged_runs": sorted(flagged),
         "unlike_healthy_runs": sorted(unlike_healthy),
     }
+
+
+def _known_runs(
+    known: dict[str, Any],
+    training: dict[str, Any],
+    healthy: str,
+    checks: dict[str, Any],
+    reasons: list[str],
+    alpha: float,
+) -> None:
+    """Check 2: fewer measured healthy runs called healthy than the simulated validation's
+    recall makes plausible (binomial, one-sided) means the classifier does not recognise the
+    measured healthy state."""
+    classes = list(training["states"])
+    validation = training["validation"]
+    labels = np.asarray(validation["labels"])
+    probs = np.asarray(validation["probabilities"])
+    h = classes.index(healthy)
+    own = labels == h
+    hits = int(np.sum(np.argmax(probs[own], axis=1) == h))
+    # the simulated recall, shrunk away from 1: a perfect validation of a few dozen runs
+    # does not make one miss impossible
+    recall = _jeffreys_centre(hits, int(own.sum()))
+    called = [c for c in map(_call, known["runs"]) if c is not None]
+    k = sum(p == healthy for p in called)
+    p_value = _binomial_low(k, len(called), recall)
+    checks["known_runs"] = {
+        "state": healthy,
+        "runs": len(called),
+        "called_right": k,
+        "simulated_recall": recall,
+        "p_value": p_value,
+    }
+    if called and p_value < alpha:
+        others = sorted({p for p in called if p != healthy})
+        reasons.append(
+            f"{k} of {len(called)} measured {healthy} calibration runs were called "
+            f"{healthy} (the others: {', '.join(others)}); the simulated validation's "
+            f"recall {recall:.3f} makes that improbable (p = {p_value:.1e})"
+        )
+
+
+def _flagged(
+    runs: list[dict[str, Any]],
+    training: dict[str, Any],
+    unlike_healthy: list[int],
+    checks: dict[str, Any],
+    warnings: list[str],
+    alpha: float,
+) -> set[int]:
+    """Check 3: the runs flagged (OOD, unlike the simulated healthy runs, or contradicted by
+    the system's signature check), with a warning for an excess of either of the first two."""
+    ood = {r["run"] for r in runs if r.get("ood")}
+    # a confident call that the system's own signature check contradicts is as unlike the
+    # simulations as an OOD run (only a system with a check has ``corroborated``)
+    contradicted = {r["run"] for r in runs if r.get("corroborated") is False}
+    flagged = ood | set(unlike_healthy) | contradicted
+    nominal = 1.0 - float(training.get("ood_quantile", 0.99))
+    n = len(runs)
+    p_ood = _binomial_high(len(ood), n, nominal) if n else 1.0
+    checks["ood"] = {
+        "runs": n,
+        "flagged_ood": len(ood),
+        "unlike_healthy": len(unlike_healthy),
+        "not_corroborated": len(contradicted),
+        "nominal_rate": nominal,
+        "p_value": p_ood,
+    }
+    if n and len(ood) and p_ood < alpha:
+        warnings.append(
+            f"{len(ood)} of {n} runs lie outside every simulated state (OOD), against "
+            f"{100 * nominal:.0f} % expected (p = {p_ood:.1e}): their probabilities extrapolate"
+        )
+    healthy = healthy_state(training)
+    called_healthy = sum(_call(r) == healthy for r in runs)
+    p_h = _binomial_high(len(unlike_healthy), called_healthy, alpha) if called_healthy else 1.0
+    checks["unlike_healthy"] = {"called_healthy": called_healthy, "p_value": p_h}
+    if unlike_healthy and p_h < alpha:
+        warnings.append(
+            f"{len(unlike_healthy)} of {called_healthy} runs called {healthy} are unlike "
+            f"the simulated {healthy} runs at their speed (p = {p_h:.1e})"
+        )
+    return flagged
+
+
+def _not_corroborated(
+    n: int,
+    contradicted: int,
+    rate: float,
+    checks: dict[str, Any],
+    warnings: list[str],
+    alpha: float,
+) -> None:
+    """Check 6: many more calls the signature check contradicts than its false-alarm rate."""
+    p_sig = _binomial_high(contradicted, n, rate)
+    checks["not_corroborated"] = {
+        "runs": n,
+        "not_corroborated": contradicted,
+        "false_alarm_rate": rate,
+        "p_value": p_sig,
+    }
+    if contradicted and p_sig < alpha:
+        warnings.append(
+            f"{contradicted} of {n} calls are not backed by the system's signature "
+            f"check, which contradicts {100 * rate:g} % of right calls "
+            f"(p = {p_sig:.1e}): the signals do not show the called states' signatures, "
+            "so the probabilities rest on the learned features alone"
+        )
 
 
 def _uncertain_rate(
@@ -360,77 +429,111 @@ def _uncertain_rate(
         )
 
 
-def trust_stage(
+@dataclasses.dataclass(frozen=True)
+class Trust(Finished):
+    """The product of the ``trust`` stage: ``trust.json`` and, in ``known/``, the
+    classification of the healthy calibration runs.
+
+    Attributes
+    ----------
+    payload
+        :func:`judge_trust`'s verdict (``verdict``, ``reasons``, ``warnings``, ``checks``,
+        ``flagged_runs``, ...).
+    known
+        The classification of the healthy calibration runs (``None``: there are none).
+    stage
+        The record of the stage that made it (``None`` before it is saved by one).
+    """
+
+    payload: dict[str, Any]
+    known: Classification | None = None
+    stage: StageRecord | None = None
+
+    def save(self, folder: Path) -> None:
+        """Write ``known/`` (:meth:`Classification.save`) and ``trust.json`` into ``folder``."""
+        if self.known is not None:
+            (folder / "known").mkdir(parents=True, exist_ok=True)
+            self.known.save(folder / "known")
+        _write_json(folder / TRUST_JSON, self.payload)
+
+    @classmethod
+    def load(cls, folder: Path) -> Trust:
+        """Read what :meth:`save` wrote."""
+        known = None
+        if (folder / "known" / "classification.json").is_file():
+            known = Classification.load(folder / "known")
+        return cls(json.loads((folder / TRUST_JSON).read_text()), known, stage_in(folder))
+
+
+def judge_classification(
     model: Path,
-    classified: Path,
-    data_folder: Path,
-    adequacy_folder: Path,
+    classification: Classification,
+    adequacy: Adequacy,
+    data: TrainingData,
     calibration: xr.Dataset,
-    folder: Path,
     *,
     seed: int,
-    discrepancy: bool = False,
     system: AbstractSystem | None = None,
-) -> None:
-    """Write ``trust.json`` and ``known/classification.json`` (the calibration runs' classes).
+) -> Trust:
+    """Whether ``classification`` (of the test runs, by the ensemble in ``model``) can be
+    trusted: :func:`judge_trust` of the checks' evidence.
 
-    ``discrepancy``: the training data carry the calibration runs' measured discrepancy
-    (:func:`training_data`); the runs called healthy are then held against those.
+    ``data``: the job's training data (:func:`training_data`: with the calibration runs'
+    measured discrepancy when the source carries it); the runs called healthy are held
+    against its healthy runs.
     """
     training = json.loads((model / "training.json").read_text())
     healthy = healthy_state(training, system)
     known_runs = runs_in_state(calibration, healthy)
     known = None
     if known_runs.sizes["run"]:
-        (folder / "known").mkdir(parents=True, exist_ok=True)
-        classify_stage(model, known_runs, folder / "known", system=system)
-        known = json.loads((folder / "known" / "classification.json").read_text())
-        known["runs"] = [r for r in known["runs"] if _call(r) is not None]
-    classification = json.loads((classified / "classification.json").read_text())
-    adequacy = json.loads((adequacy_folder / ADEQUACY_JSON).read_text())
-    data = training_data(
-        data_folder, calibration, discrepancy=discrepancy, seed=seed, system=system
-    )
-    unlike: list[int] = []
-    picks = [
-        (i, r)
-        for i, r in enumerate(classification["runs"])
-        if _call(r) == healthy and _known(r["operating"])
-    ]
-    if picks and healthy in data.states:
-        with np.load(classified / "features.npz", allow_pickle=False) as f:
-            features = f["features"][[i for i, _ in picks]]
-        simulated = {point_key(s) for s in np.asarray(data.speeds)}
-        at = [j for j, (_, r) in enumerate(picks) if point_key(r["operating"]) in simulated]
-        try:
-            scores, bounds = healthy_outliers(
-                data,
-                features[at],
-                np.asarray([picks[j][1]["operating"] for j in at], dtype=float),
-                measurement_variance(data),
-                seed=seed,
-                check=AdequacyCheck(alpha=TRUST_ALPHA),
-            )
-        except ValueError:  # too few simulated healthy runs at a speed: no per-run check
-            at, scores, bounds = [], np.zeros(0), np.zeros(0)
-        unlike = [
-            int(picks[j][1]["run"]) for j, s, b in zip(at, scores, bounds, strict=True) if s > b
-        ]
+        known = classify(model, known_runs, system=system)
+    judged = None
+    if known is not None:
+        runs = [r for r in known.payload["runs"] if _call(r) is not None]
+        judged = {**known.payload, "runs": runs}
     signatures = model / SIGNATURES
     rate = None
     if signatures.is_file():
         rate = json.loads(signatures.read_text())["reference"].get("false_alarm_rate")
-    _write_json(
-        folder / TRUST_JSON,
-        judge_trust(
-            adequacy,
-            known,
-            classification,
-            training,
-            unlike,
-            signature_rate=None if rate is None else float(rate),
-        ),
+    verdict = judge_trust(
+        adequacy.payload,
+        judged,
+        classification.payload,
+        training,
+        _unlike_healthy(classification, data, healthy, seed),
+        signature_rate=None if rate is None else float(rate),
     )
+    return Trust(as_saved(verdict), known)
+
+
+def _unlike_healthy(
+    classification: Classification, data: TrainingData, healthy: str, seed: int
+) -> list[int]:
+    """The runs called healthy whose features are unlike the simulated healthy runs at their
+    operating point (:func:`bayesdoor.datagen.healthy_outliers`)."""
+    picks = [
+        (i, r)
+        for i, r in enumerate(classification.payload["runs"])
+        if _call(r) == healthy and _known(r["operating"])
+    ]
+    if not picks or healthy not in data.states:
+        return []
+    features = classification.features[[i for i, _ in picks]]
+    simulated = {point_key(s) for s in np.asarray(data.speeds)}
+    at = [j for j, (_, r) in enumerate(picks) if point_key(r["operating"]) in simulated]
+    try:
+        scores, bounds = healthy_outliers(
+            data,
+            features[at],
+            np.asarray([picks[j][1]["operating"] for j in at], dtype=float),
+            measurement_variance(data),
+            seed=seed,
+            check=AdequacyCheck(alpha=TRUST_ALPHA),
+        )
+    except ValueError:  # too few simulated healthy runs at a speed: no per-run check
+        at, scores, bounds = [], np.zeros(0), np.zeros(0)
+    return [int(picks[j][1]["run"]) for j, s, b in zip(at, scores, bounds, strict=True) if s > b]
 
 
 def _call(run: dict[str, Any]) -> str | None:

@@ -59,6 +59,8 @@ def _own_fields(class_: griffe.Class) -> list[griffe.Parameter]:
     for member in class_.members.values():
         if not isinstance(member, griffe.Attribute) or member.annotation is None:
             continue
+        if not member.runtime:  # declared under `if TYPE_CHECKING:`: a subclass's field
+            continue
         if "property" in member.labels or (
             "class-attribute" in member.labels and "instance-attribute" not in member.labels
         ):

@@ -4,6 +4,7 @@ from ..inference import calibration_runs as calibration_runs
 from ._bands import PredictiveBands as PredictiveBands
 from ._classify import MAX_ERROR as MAX_ERROR
 from ._classify import Classification as Classification
+from ._classify import JobFindings as JobFindings
 from ._classify import Trained as Trained
 from ._classify import classify as classify
 from ._classify import classify_stage as classify_stage

@@ -913,26 +913,43 @@ def record_metrics(records: list[dict[str, Any]], classes: list[str]) -> dict[st
     }
 
 
+@dataclasses.dataclass(frozen=True)
+class JobFindings:
+    """What a job found besides the classification, for its damage report; each optional.
+
+    Parameters
+    ----------
+    fit
+        The model updating's summary: the page shows its method, J and parameter table.
+    diagnosis
+        The diagnosis JSON (its ``report`` the HTML's path): the page shows its verdict and
+        links it.
+    adequacy, trust
+        The job's fit-adequacy and trust JSON: the page opens with them (and says so plainly
+        when the classification cannot be trusted).
+    extension
+        :func:`bayesdoor.report.extension_section`'s input: the job on the system extended by
+        the diagnosis's verdict, or why nothing was extended.
+    """
+
+    fit: FitSummary | None = None
+    diagnosis: dict[str, Any] | None = None
+    adequacy: dict[str, Any] | None = None
+    trust: dict[str, Any] | None = None
+    extension: dict[str, Any] | None = None
+
+
 def report_stage(
     classified: Path,
     model: Path,
     folder: Path,
     *,
-    fit: FitSummary | None = None,
     title: str = "Damage report",
-    diagnosis: dict[str, Any] | None = None,
-    adequacy: dict[str, Any] | None = None,
-    trust: dict[str, Any] | None = None,
-    extension: dict[str, Any] | None = None,
+    findings: JobFindings = JobFindings(),
 ) -> None:
-    """Write the HTML damage reports from a classification and its model folder.
-
-    With the ``diagnosis`` JSON of the job (its ``report`` the HTML's path), the campaign page
-    shows its verdict and links it. With the job's ``adequacy`` and ``trust`` JSON, the page
-    opens with them (and says so plainly when the classification cannot be trusted). With
-    ``extension`` (:func:`bayesdoor.report.extension_section`), it compares the job on the
-    system extended by the diagnosis's verdict, or says why nothing was extended.
-    """
+    """Write the HTML damage reports from a classification and its model folder, with what
+    the job found besides (:class:`JobFindings`)."""
+    fit, diagnosis, extension = findings.fit, findings.diagnosis, findings.extension
     classification = json.loads((classified / "classification.json").read_text())
     with np.load(classified / "features.npz", allow_pickle=False) as f:
         features, frequencies = f["features"], f["frequencies"]
@@ -958,8 +975,8 @@ def report_stage(
             },
             training=training,
             fit=None if fit is None else {"method": fit.method, "j": fit.j, "table": fit.table()},
-            adequacy=adequacy,
-            trust=trust,
+            adequacy=findings.adequacy,
+            trust=findings.trust,
             sections=(
                 *(
                     ()

@@ -57,6 +57,7 @@ from ._classify import (
     ENSEMBLE,
     SIGNATURES,
     Classification,
+    JobFindings,
     classify_stage,
     ood_model_error,
     report_stage,
@@ -1095,12 +1096,14 @@ def _report(job: _Job, folder: Path) -> None:
         job.path("classify"),
         job.path("train"),
         folder,
-        fit=job.products["fit"],
         title=f"{job.system.name}: damage report",
-        diagnosis=job.products.get("diagnose"),
-        adequacy=job.products["adequacy"],
-        trust=job.products["trust"],
-        extension=None if job.extension is None else _extension_report(job),
+        findings=JobFindings(
+            fit=job.products["fit"],
+            diagnosis=job.products.get("diagnose"),
+            adequacy=job.products["adequacy"],
+            trust=job.products["trust"],
+            extension=None if job.extension is None else _extension_report(job),
+        ),
     )
 
 

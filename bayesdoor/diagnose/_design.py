@@ -206,18 +206,29 @@ class CampaignPlan:
         }
 
 
+@dataclasses.dataclass(frozen=True)
+class PlanTarget:
+    """What a campaign is planned to name: a cause at a size, in its configuration.
+
+    ``display`` is a unit to show the size in and its factor from ``unit`` (``("um",
+    1e6)``; ``""``: ``unit`` itself).
+    """
+
+    cause: str
+    size: float
+    unit: str
+    configuration: str
+    display: tuple[str, float] = ("", 1.0)
+
+
 def design_campaign(
     gains: RunGains,
     operating: Float[np.ndarray, " run"],
     order: Float[np.ndarray, " run"] | None = None,
     *,
-    cause: str,
-    size: float,
-    unit: str,
-    configuration: str,
+    target: PlanTarget,
     power: float,
     record_s: float,
-    display: tuple[str, float] = ("", 1.0),
     draws: int = 2000,
     seed: int = 0,
 ) -> CampaignPlan:
@@ -274,15 +285,15 @@ def design_campaign(
     else:
         per, _, prob, chosen_conditions = best
     return CampaignPlan(
-        cause=cause,
-        size=float(size),
-        unit=unit,
-        configuration=configuration,
+        cause=target.cause,
+        size=float(target.size),
+        unit=target.unit,
+        configuration=target.configuration,
         power=power,
         conditions=tuple(float(c) for c in np.sort(chosen_conditions)),
         runs_per_condition=per,
         probability=prob,
         record_s=float(record_s),
         current=current,
-        display=display,
+        display=target.display,
     )

@@ -43,6 +43,7 @@ from ..features import LOG_FLOOR
 from ._design import (
     FOLDS,
     CampaignPlan,
+    PlanTarget,
     RunGains,
     design_campaign,
     estimation_cost,
@@ -488,13 +489,11 @@ def detection_limits(
                 run_gains(setup, size.probes[0], target, noise=noise, spectra=typical),
                 np.asarray(setup.operating, dtype=float),
                 fold_order(setup),
-                cause=name,
-                size=target,
-                unit=size.unit,
-                configuration=size.probes[0].label,
+                target=PlanTarget(
+                    name, target, size.unit, size.probes[0].label, display=size.display
+                ),
                 power=power,
                 record_s=setup.duration,
-                display=size.display,
                 draws=draws,
                 seed=seed,
             )

@@ -21,7 +21,7 @@ import xarray as xr
 
 from ..inference import FitResult
 from ._design import MAX_RUNS_PER_CONDITION as MAX_RUNS_PER_CONDITION
-from ._design import CampaignPlan, design_campaign
+from ._design import CampaignPlan, PlanTarget, design_campaign
 from ._limits import LIMIT_POWER, fold_order, run_gains
 from ._measured import Measured, _band, _simulate_rows
 from ._rank import Catalogue
@@ -117,13 +117,9 @@ def plan_campaign(
         run_gains(setup, probe, float(size)),
         np.asarray(measured.operating, dtype=float),
         fold_order(setup),
-        cause=cause,
-        size=float(size),
-        unit=declared.unit,
-        configuration=probe.label,
+        target=PlanTarget(cause, float(size), declared.unit, probe.label, display=declared.display),
         power=power,
         record_s=float(measured.duration),
-        display=declared.display,
         draws=draws,
         seed=seed,
     )

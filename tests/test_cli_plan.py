@@ -30,8 +30,12 @@ PLAN = CampaignPlan(
 def calls(monkeypatch):
     seen = []
 
-    def plan_campaign(system, campaign, cause, size, *, fit, configuration, seed):
-        seen.append(SimpleNamespace(cause=cause, size=size, fit=fit, configuration=configuration))
+    def plan_campaign(system, campaign, cause, size, *, fit, configuration, settings):
+        seen.append(
+            SimpleNamespace(
+                cause=cause, size=size, fit=fit, configuration=configuration, seed=settings.seed
+            )
+        )
         if cause == "nothing":
             raise ValueError("no cause 'nothing';\nthe catalogue holds [...]")
         return PLAN

@@ -24,7 +24,7 @@ def plan(
     quick: bool = False,
 ) -> None:
     """The ``plan`` command: load the campaign and its fit (or fit here), plan, print."""
-    from ..diagnose import plan_campaign
+    from ..diagnose import PlanSettings, plan_campaign
     from ..inference import fit_campaign
     from ._diagnose import load_fit
     from ._run import load
@@ -40,7 +40,13 @@ def plan(
         fit = load_fit(posterior, system)
     try:
         result = plan_campaign(
-            system, campaign, cause, size, fit=fit, configuration=configuration, seed=seed
+            system,
+            campaign,
+            cause,
+            size,
+            fit=fit,
+            configuration=configuration,
+            settings=PlanSettings(seed=seed),
         )
     except ValueError as err:
         raise fail(str(err).replace("\n", " ")) from None

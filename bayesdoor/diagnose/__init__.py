@@ -62,6 +62,7 @@ from ._limits import CauseLimit as CauseLimit
 from ._limits import PowerCurve as PowerCurve
 from ._limits import detection_limits as detection_limits
 from ._order import OrderSpectra as OrderSpectra
+from ._plan import PlanSettings as PlanSettings
 from ._plan import plan_campaign as plan_campaign
 from ._rank import NONE as NONE
 from ._rank import Candidate as Candidate

@@ -14,6 +14,7 @@ that condition, not chosen.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -46,6 +47,16 @@ def _probe(catalogue: Catalogue, cause: str, band: tuple[float, float], configur
     return declared, declared.probes[configuration]
 
 
+@dataclasses.dataclass(frozen=True)
+class PlanSettings:
+    """How a campaign is planned: the probability of naming asked for (``power``), the Monte
+    Carlo draws of the per-run differences per campaign tried, and their seed."""
+
+    power: float = LIMIT_POWER
+    draws: int = 2000
+    seed: int = 0
+
+
 def plan_campaign(
     system: AbstractSystem,
     campaign: xr.Dataset,
@@ -54,10 +65,8 @@ def plan_campaign(
     *,
     fit: FitResult,
     catalogue: Catalogue | None = None,
-    power: float = LIMIT_POWER,
     configuration: int = 0,
-    draws: int = 2000,
-    seed: int = 0,
+    settings: PlanSettings = PlanSettings(),
 ) -> CampaignPlan:
     """The cheapest campaign at this campaign's operating conditions that names ``cause`` at
     ``size`` with probability ``power`` (the module's computation).
@@ -76,14 +85,10 @@ def plan_campaign(
         The base model's fit on the campaign.
     catalogue
         The system's catalogue (``None``: ``system.catalogue``).
-    power
-        The probability of naming asked for.
     configuration
         Which of the cause's configurations (0: the typical one).
-    draws
-        Monte Carlo draws of the per-run differences per campaign tried.
-    seed
-        Seeds the draws.
+    settings
+        The power asked for, the draws and their seed (:class:`PlanSettings`).
 
     Returns
     -------
@@ -96,6 +101,8 @@ def plan_campaign(
         outside (0, 1), or fewer than 4 calibration runs.
     """
     from ..inference import calibration_runs
+
+    power = settings.power
 
     if not np.isfinite(size) or size <= 0:
         raise ValueError(f"size={size!r} must be a positive number")
@@ -120,6 +127,6 @@ def plan_campaign(
         target=PlanTarget(cause, float(size), declared.unit, probe.label, display=declared.display),
         power=power,
         record_s=float(measured.duration),
-        draws=draws,
-        seed=seed,
+        draws=settings.draws,
+        seed=settings.seed,
     )

@@ -60,6 +60,8 @@ class CompileClock:
         self.spans: list[tuple[float, float]] = []
         #: per program (its function's name): [times traced, seconds in the three events]
         self.programs: dict[str, list[float]] = {}
+        #: seconds in each of the three events (tracing, lowering, compiling or reading back)
+        self.events: dict[str, float] = dict.fromkeys(COMPILE_EVENTS, 0.0)
         self._lock = threading.Lock()
         jax.monitoring.register_event_time_span_listener(self._listen)
 
@@ -71,6 +73,7 @@ class CompileClock:
                 tally = self.programs.setdefault(name, [0, 0.0])
                 tally[0] += event == COMPILE_EVENTS[0]
                 tally[1] += end - start
+                self.events[event] += end - start
 
     def heaviest(self, n: int = 6) -> list[dict[str, Any]]:
         """The ``n`` programs that took longest to trace, lower and compile (or read back)."""
@@ -207,6 +210,7 @@ def run(
         "compile_s": compile_s,
         "heaviest_programs": clock.heaviest(),
         "programs_compiled": len(clock.programs),
+        "compile_events": {k.rsplit("/", 1)[-1]: v for k, v in clock.events.items()},
         "peak_memory_mb": peak_memory_mb(),
         "stages": payload["stages"],
         "fit_steps": {

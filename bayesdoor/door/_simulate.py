@@ -10,6 +10,7 @@ import numpy as np
 import optimistix as optx
 
 from .._cacheable import errors_as_nan
+from .._exported import persistent_jit
 from .._types import Array, Float, Int
 from . import _geometry as g
 from ._model import (
@@ -316,7 +317,7 @@ def solve(
     return signals, status
 
 
-@eqx.filter_jit
+@persistent_jit
 def solve_batch(
     args: DoorArgs, ts: Float[Array, " time"], config: SolverConfig, gains: tuple[str, ...] = ()
 ) -> tuple[Float[Array, "batch channel time"], Int[Array, " batch"]]:

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._cacheable import errors_as_nan
+from .._exported import persistent_jit
 from .._types import Array, Bool, Float, Int
 from ..features import objective_j, segment_weights
 from ..systems import AbstractSystem
@@ -140,7 +141,7 @@ class _Population(eqx.Module):
         return features, ok & jnp.all(jnp.isfinite(features), axis=(1, 2, 3))
 
 
-@eqx.filter_jit
+@persistent_jit
 def _simulate_chunk(
     population: _Population, x: Float[Array, "pop param"]
 ) -> tuple[Float[Array, "pop op channel band"], Bool[Array, " pop"]]:

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.stats import qmc
 
 from .._cacheable import errors_as_nan
+from .._exported import persistent_jit
 from .._types import Array, Float
 from ._likelihood import AbstractForward, ForwardOutput
 
@@ -122,7 +123,7 @@ def box_around(
     return np.maximum(lo, c - half), np.minimum(hi, c + half)
 
 
-@eqx.filter_jit
+@persistent_jit
 def _batched(forward: AbstractForward, thetas: Float[Array, "design param"]) -> ForwardOutput:
     # without host callbacks, so that the program enters the persistent cache (a failed check
     # gives NaN outputs, which the design treats as a failed simulation)

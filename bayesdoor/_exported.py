@@ -65,7 +65,7 @@ FOLDER = "bayesdoor-exported"
 _LOCK = threading.Lock()
 _KEY_LOCKS: dict[str, threading.Lock] = {}
 #: programs already read or exported in this process: key -> (jitted call, output rebuild)
-_LOADED: dict[str, tuple[Callable[..., Any], Callable[[Any], Any]]] = {}
+_LOADED: dict[str, tuple[Callable[..., Any], Callable[[Any], Any]] | None] = {}
 #: calls traced as usual in this process, by function and reason (what the key could not
 #: describe): what a test or a user asks when a program is not kept
 FALLBACKS: collections.Counter[tuple[str, str]] = collections.Counter()
@@ -243,7 +243,10 @@ def _rebuild(template: Any) -> Callable[[Any], Any]:
 
 def _program(
     key: str, folder: Path, fun: Callable[..., Any], treedef: Any, static: Any, leaves: list
-) -> tuple[Callable[..., Any], Callable[[Any], Any]]:
+) -> tuple[Callable[..., Any], Callable[[Any], Any]] | None:
+    """The kept program of ``key`` (read back, or exported now and kept); ``None`` for a
+    program that cannot be exported (one with a host callback): it is traced as usual, and a
+    marker beside the programs tells later processes so."""
     with _LOCK:
         if key in _LOADED:
             return _LOADED[key]
@@ -251,30 +254,42 @@ def _program(
     with lock:
         if key in _LOADED:
             return _LOADED[key]
-        path = folder / f"{key}.bin"
-        program = None
+        path, skip = folder / f"{key}.bin", folder / f"{key}.skip"
+        entry = None
+        if skip.is_file():
+            _LOADED[key] = None
+            return None
         if path.is_file():
             try:
                 blob, out = pickle.loads(path.read_bytes())
-                program = export.deserialize(bytearray(blob))
+                entry = (jax.jit(export.deserialize(bytearray(blob)).call), _rebuild(out))
             except Exception:
-                program = None
-        if program is None:
-            blob, out = _export(fun, treedef, static, leaves)
-            program = export.deserialize(bytearray(blob))
+                entry = None
+        if entry is None:
+            try:
+                blob, out = _export(fun, treedef, static, leaves)
+            except NotImplementedError as error:  # jax.export refuses the program
+                _write(folder, skip, str(error).encode())
+                _LOADED[key] = None
+                return None
+            entry = (jax.jit(export.deserialize(bytearray(blob)).call), _rebuild(out))
             try:
                 payload = pickle.dumps((blob, out))
             except Exception:
                 payload = None
             if payload is not None:
-                folder.mkdir(parents=True, exist_ok=True)
-                partial = folder / f".{key}.{os.getpid()}.{threading.get_ident()}.tmp"
-                partial.write_bytes(payload)
-                partial.replace(path)
-        entry = (jax.jit(program.call), _rebuild(out))
+                _write(folder, path, payload)
         with _LOCK:
             _LOADED[key] = entry
         return entry
+
+
+def _write(folder: Path, path: Path, payload: bytes) -> None:
+    """``payload`` into ``path`` at once (written beside it, then renamed)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    partial = folder / f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp"
+    partial.write_bytes(payload)
+    partial.replace(path)
 
 
 def persistent_jit(fun: F) -> F:
@@ -298,7 +313,11 @@ def persistent_jit(fun: F) -> F:
             return jitted(*args, **kwargs)
         dynamic, static = eqx.partition((args, kwargs), eqx.is_array)
         leaves, treedef = jax.tree_util.tree_flatten(dynamic)
-        program, rebuild = _program(key, folder, fun, treedef, static, leaves)
+        kept = _program(key, folder, fun, treedef, static, leaves)
+        if kept is None:
+            FALLBACKS[(fun.__qualname__, "not exportable")] += 1
+            return jitted(*args, **kwargs)
+        program, rebuild = kept
         return rebuild(program(leaves))
 
     call.lower = jitted.lower  # type: ignore[attr-defined]

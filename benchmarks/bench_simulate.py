@@ -79,43 +79,61 @@ def time_batch(batch: int, duration: float, dtype: str, repeats: int = 2) -> dic
 TSIT5_EVALS_PER_STEP = 6
 
 
-def where_steps_go(batch: int, duration: float, evaluations: int = 2000) -> dict:
-    """Where a batched float64 solve spends its time: steps per run (accepted, rejected; the
-    batch steps as long as its slowest member), and one right-hand side's cost per run.
-
-    The steps are counted by the same adaptive solve saving only its end; the right-hand
-    side is timed alone, ``evaluations`` vmapped evaluations of the batch in one compiled
-    loop. Its share is steps x evaluations per step x cost, against the batch's time per run.
-    """
+def _counted_solve(ts, config: SolverConfig, pcoeff: float = 0.0, icoeff: float = 1.0):
+    """The door's solve saving the states at ``ts``, with diffrax's step counts; the
+    controller's proportional and integral coefficients as given (diffrax's default, an
+    integral controller: 0 and 1)."""
     import diffrax
 
+    def one(b):
+        sol = diffrax.diffeqsolve(
+            diffrax.ODETerm(lambda t, y, c: rhs(t, y, c, jnp)),
+            diffrax.Tsit5(),
+            ts[0],
+            ts[-1],
+            None,
+            initial_state(b),
+            b,
+            saveat=diffrax.SaveAt(ts=ts),
+            stepsize_controller=diffrax.PIDController(
+                rtol=config.rtol, atol=config.absolute_tolerance, pcoeff=pcoeff, icoeff=icoeff
+            ),
+            max_steps=config.max_steps,
+            throw=False,
+        )
+        return sol.ys, sol.stats["num_steps"], sol.stats["num_rejected_steps"]
+
+    return jax.jit(jax.vmap(one))
+
+
+def _best_ms(f, *args, repeats: int = 2) -> float:
+    jax.block_until_ready(f(*args))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(f(*args))
+        times.append(time.perf_counter() - t0)
+    return 1e3 * min(times)
+
+
+def where_steps_go(batch: int, duration: float, evaluations: int = 2000) -> dict:
+    """Where a batched float64 solve spends its time, per run of the batch.
+
+    - steps (accepted and rejected; the vmapped batch steps as long as its slowest member);
+    - one right-hand side's cost, timed alone (``evaluations`` vmapped evaluations of the
+      batch in one compiled loop), and its share: slowest member's steps x evaluations per
+      step x cost, against the solve's time;
+    - the sensors' share: the project's solve against the same solve returning the states
+      (the sensors evaluate the accelerations again at every sample);
+    - a proportional-integral step controller (diffrax's coefficients 0.4 and 0.3) against
+      the default integral one: steps, time, and each one's largest state error against a
+      solve at rtol 1e-8, atol 1e-11.
+    """
     config = SolverConfig()
     args = _batch_args(batch, 0.3, jnp.float64)
     ts = sample_times(duration)
-
-    @jax.jit
-    def steps(a):
-        def one(b):
-            sol = diffrax.diffeqsolve(
-                diffrax.ODETerm(lambda t, y, c: rhs(t, y, c, jnp)),
-                diffrax.Tsit5(),
-                ts[0],
-                ts[-1],
-                None,
-                initial_state(b),
-                b,
-                saveat=diffrax.SaveAt(t1=True),
-                stepsize_controller=diffrax.PIDController(
-                    rtol=config.rtol, atol=config.absolute_tolerance
-                ),
-                max_steps=config.max_steps,
-                throw=False,
-            )
-            return sol.stats["num_steps"], sol.stats["num_rejected_steps"]
-
-        return jax.vmap(one)(a)
-
-    total, rejected = (np.asarray(x) for x in steps(args))
+    default = _counted_solve(ts, config)
+    states, total, rejected = (np.asarray(x) for x in default(args))
     y0 = jax.vmap(initial_state)(args)
 
     @jax.jit
@@ -126,12 +144,17 @@ def where_steps_go(batch: int, duration: float, evaluations: int = 2000) -> dict
 
         return jax.lax.fori_loop(0, evaluations, body, y)
 
-    loop(y0, args).block_until_ready()
-    t0 = time.perf_counter()
-    loop(y0, args).block_until_ready()
-    rhs_us = 1e6 * (time.perf_counter() - t0) / (evaluations * batch)
-    solve_ms = time_batch(batch, duration, "float64")["ms_per_run"]
+    rhs_us = 1e3 * _best_ms(loop, y0, args) / (evaluations * batch)
+    sensors = jax.jit(jax.vmap(lambda a: solve(a, ts, config)))
+    only_states = jax.jit(jax.vmap(lambda a: solve(a, ts, config, output="states")))
+    sensors_ms = _best_ms(sensors, args) / batch
+    states_ms = _best_ms(only_states, args) / batch
     rhs_ms = float(total.max()) * TSIT5_EVALS_PER_STEP * rhs_us / 1e3
+    reference = np.asarray(
+        _counted_solve(ts, SolverConfig(rtol=1e-8, atol=1e-11, max_steps=400_000))(args)[0]
+    )
+    pi = _counted_solve(ts, config, pcoeff=0.4, icoeff=0.3)
+    pi_states, pi_total, pi_rejected = (np.asarray(x) for x in pi(args))
     return {
         "batch": batch,
         "steps_per_run": {
@@ -143,8 +166,24 @@ def where_steps_go(batch: int, duration: float, evaluations: int = 2000) -> dict
         "rejected_share": float(rejected.sum() / total.sum()),
         "lock_step_waste": float(total.max() / total.mean() - 1.0),
         "rhs_us_per_evaluation": rhs_us,
-        "solve_ms_per_run": solve_ms,
-        "rhs_share_of_solve": rhs_ms / solve_ms,
+        "solve_ms_per_run": sensors_ms,
+        "rhs_share_of_solve": rhs_ms / sensors_ms,
+        "states_only_ms_per_run": states_ms,
+        "sensors_share_of_solve": 1.0 - states_ms / sensors_ms,
+        "controller": {
+            "integral (default)": {
+                "steps_per_run": float(total.mean()),
+                "rejected_per_run": float(rejected.mean()),
+                "states_ms_per_run": _best_ms(default, args) / batch,
+                "max_state_error": float(np.max(np.abs(states - reference))),
+            },
+            "proportional-integral 0.4/0.3": {
+                "steps_per_run": float(pi_total.mean()),
+                "rejected_per_run": float(pi_rejected.mean()),
+                "states_ms_per_run": _best_ms(pi, args) / batch,
+                "max_state_error": float(np.max(np.abs(pi_states - reference))),
+            },
+        },
     }
 
 

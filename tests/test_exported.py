@@ -42,6 +42,12 @@ def as_module(x):
     return Output(values=x + 1.0, label="shifted", scale=2.0)
 
 
+@persistent_jit
+def checked(x):
+    TRACES.append("checked")
+    return eqx.error_if(x, x < 0, "negative")  # a host callback: jax.export refuses it
+
+
 @dataclasses.dataclass(frozen=True)
 class Foreign:
     """A type of a user's other module (its source may change between processes, and the
@@ -127,6 +133,20 @@ def test_foreign_types_and_tracers_are_traced_as_usual(kept):
     grad = jax.grad(lambda v: toy(v, 2.0, settings)["y"].sum())(x)
     np.testing.assert_allclose(np.asarray(grad), 2.0)
     assert any(reason == "tracer" for _, reason in FALLBACKS)
+
+
+def test_a_program_with_a_host_callback_is_traced_as_usual(kept, monkeypatch):
+    np.testing.assert_array_equal(np.asarray(checked(jnp.arange(3.0))), [0.0, 1.0, 2.0])
+    assert TRACES == ["checked", "checked"]  # the refused export, then eqx.filter_jit's
+    assert [p.suffix for p in kept.iterdir()] == [".skip"]
+    with pytest.raises(Exception, match="negative"):
+        checked(-jnp.arange(1.0, 3.0))
+    _new_process(monkeypatch)
+    exports = []
+    export = _exported._export
+    monkeypatch.setattr(_exported, "_export", lambda *a: exports.append(1) or export(*a))
+    np.testing.assert_array_equal(np.asarray(checked(jnp.arange(3.0))), [0.0, 1.0, 2.0])
+    assert exports == []  # the marker spares a later process the refused export
 
 
 def test_switched_off_by_the_environment(kept, monkeypatch):

@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._exported import persistent_jit
 from ..systems import (
     ConditionSpec,
     DamageSpec,
@@ -463,7 +464,7 @@ def _float_bits(x: jax.Array) -> jax.Array:
     return jax.lax.bitcast_convert_type(x.astype(jnp.float32), jnp.uint32)
 
 
-@eqx.filter_jit
+@persistent_jit
 def _simulate(system: BearingSystem, p, op, size, state: str, n_time: int):
     geometry = system.geometry
     fs = system.sampling_rate_hz

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._exported import persistent_jit
 from .._types import Array, Bool, Float, Int
 from ._calibration import tempered_log_probabilities
 from ._config import TrainConfig
@@ -138,7 +139,7 @@ class Prediction(eqx.Module):
         return jnp.argmax(self.probabilities, axis=-1)
 
 
-@eqx.filter_jit
+@persistent_jit
 def predict(ensemble: Ensemble, x: Float[Array, "batch channel freq"]) -> Prediction:
     """Calibrated probabilities, uncertainty decomposition and OOD flag for a batch of inputs.
 

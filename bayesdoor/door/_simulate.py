@@ -255,7 +255,7 @@ def _with_gains(gains: tuple[str, ...]):
     return fn
 
 
-@eqx.filter_jit
+@persistent_jit
 def solve(
     args: DoorArgs,
     ts: Float[Array, " time"],

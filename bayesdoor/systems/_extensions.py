@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._exported import persistent_jit
 from .._types import Array, Float
 from ._base import ParameterSpec
 
@@ -115,7 +116,7 @@ def build_extension(
     return catalogue[name_or_module](**config)
 
 
-@eqx.filter_jit
+@persistent_jit
 def _apply_in_stage_order(extensions, signals, time, values):
     def one(run, vals):
         for e in sorted(extensions, key=lambda e: e.stage):

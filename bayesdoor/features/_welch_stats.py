@@ -9,6 +9,7 @@ from __future__ import annotations
 from types import ModuleType
 from typing import overload
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.scipy.special as jsp
@@ -18,7 +19,6 @@ import scipy.signal
 import scipy.special
 import scipy.stats
 
-from .._exported import persistent_jit
 from .._types import Array, Float
 from ._spectra import LOG_FLOOR
 from ._welch import segment_weights, welch_psd
@@ -182,7 +182,7 @@ def _trigamma_residual(log_nu, target):
     return jsp.polygamma(1, 0.5 * jnp.exp(log_nu)) / target - 1.0
 
 
-@persistent_jit
+@eqx.filter_jit
 def _solve_dof(scaled: Float[Array, " n"]) -> Float[Array, " n"]:
     """Degrees of freedom with ``trigamma(nu / 2) = scaled``, elementwise."""
 

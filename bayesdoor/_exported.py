@@ -269,7 +269,7 @@ def _program(
             try:
                 blob, out = _export(fun, treedef, static, leaves)
             except NotImplementedError as error:  # jax.export refuses the program
-                _write(folder, skip, str(error).encode())
+                _write(folder, skip, f"{fun.__module__}.{fun.__qualname__}: {error}".encode())
                 _LOADED[key] = None
                 return None
             entry = (jax.jit(export.deserialize(bytearray(blob)).call), _rebuild(out))

@@ -9,15 +9,15 @@ the signal envelope (:func:`bayesdoor.features.motion_window`).
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._exported import persistent_jit
 from .._types import Array, Float
 from ..features import CNNInputSpec, cnn_input, motion_window, segment_weights
 
 
-@persistent_jit
+@eqx.filter_jit
 def _windowed_input(signals, t_start, t_stop, fs: float, spec: CNNInputSpec, t0: float):
     weights = segment_weights(signals.shape[-1], fs, t_start, t_stop, nperseg=spec.nperseg, t0=t0)
     return cnn_input(signals, fs, spec, segment_weights=weights[..., None, :])

@@ -196,7 +196,7 @@ def rest_modes(args: DoorArgs) -> tuple[Float[np.ndarray, " mode"], Float[np.nda
     return oscillatory_modes(rest_jacobian(args))
 
 
-@eqx.filter_jit
+@persistent_jit
 def rest_jacobian(args: DoorArgs) -> Float[Array, "n n"]:
     """The Jacobian of the door's flow at rest that :func:`rest_modes` reads its modes from."""
     state0 = initial_state(args)

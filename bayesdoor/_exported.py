@@ -98,87 +98,86 @@ def _folder() -> Path | None:
     return Path(cache) / FOLDER if cache else None
 
 
-#: the module of the function being keyed, whose source the key holds (set per key)
-_OWN = threading.local()
+def _trusted(module: str, own: str) -> bool:
+    """Whether the key holds the source of ``module``: bayesdoor's, a tracing library's, or
+    ``own``, the module of the function being keyed."""
+    return module.split(".")[0] in _TRUSTED_MODULES or module == own
 
 
-def _trusted(module: str) -> bool:
-    return module.split(".")[0] in _TRUSTED_MODULES or module == getattr(_OWN, "module", None)
-
-
-def _type_name(kind: type) -> str:
+def _type_name(kind: type, own: str) -> str:
     module = kind.__module__ or ""
-    if not _trusted(module) or "<locals>" in kind.__qualname__:
+    if not _trusted(module, own) or "<locals>" in kind.__qualname__:
         raise _Unkeyable(f"{module}.{kind.__qualname__}")
     return f"{module}.{kind.__qualname__}"
 
 
-def _describe(obj: Any, static: bool, out: list[str]) -> None:
+def _describe(obj: Any, static: bool, out: list[str], own: str) -> None:
     """Append a description of ``obj`` to ``out`` that fixes what tracing it would give:
-    types by name, static values in full, traced arrays by shape and dtype."""
+    types by name, static values in full, traced arrays by shape and dtype (read from the
+    array, not copied to the host: this runs on every call). ``own`` is the module of the
+    function being keyed (:func:`_trusted`)."""
     if isinstance(obj, jax.core.Tracer):
         raise _Unkeyable("tracer")
     if isinstance(obj, jax.Array | np.ndarray | np.generic):
-        array = np.asarray(obj)
+        dtype, shape = np.dtype(obj.dtype).str, tuple(obj.shape)
         if static:
-            out.append(
-                f"S{array.dtype.str}{array.shape}{hashlib.sha256(array.tobytes()).hexdigest()}"
-            )
+            digest = hashlib.sha256(np.asarray(obj).tobytes()).hexdigest()
+            out.append(f"S{dtype}{shape}{digest}")
         else:
             weak = bool(getattr(obj, "weak_type", False))
-            out.append(f"A{array.dtype.str}{array.shape}{weak}")
+            out.append(f"A{dtype}{shape}{weak}")
         return
     if obj is None or isinstance(obj, bool | int | float | complex | str | bytes):
         out.append(f"{type(obj).__name__}:{obj!r}")
         return
     if isinstance(obj, enum.Enum):
-        out.append(f"E{_type_name(type(obj))}.{obj.name}")
+        out.append(f"E{_type_name(type(obj), own)}.{obj.name}")
         return
     if isinstance(obj, tuple | list):
-        out.append(f"{_type_name(type(obj))}[{len(obj)}")
+        out.append(f"{_type_name(type(obj), own)}[{len(obj)}")
         for item in obj:
-            _describe(item, static, out)
+            _describe(item, static, out, own)
         out.append("]")
         return
     if isinstance(obj, dict):
         out.append(f"{{{len(obj)}")
         for k, v in obj.items():
-            _describe(k, True, out)
-            _describe(v, static, out)
+            _describe(k, True, out, own)
+            _describe(v, static, out, own)
         out.append("}")
         return
     if isinstance(obj, type):
-        out.append(f"T{_type_name(obj)}")
+        out.append(f"T{_type_name(obj, own)}")
         return
     if isinstance(obj, functools.partial):
         out.append("P(")
-        _describe(obj.func, True, out)
-        _describe(obj.args, True, out)
-        _describe(obj.keywords, True, out)
+        _describe(obj.func, True, out, own)
+        _describe(obj.args, True, out, own)
+        _describe(obj.keywords, True, out, own)
         out.append(")")
         return
     if callable(obj) and hasattr(obj, "__qualname__") and not dataclasses.is_dataclass(obj):
         bound = getattr(obj, "__self__", None)
         if bound is not None and not isinstance(bound, types.ModuleType):
             out.append("M(")
-            _describe(bound, True, out)
+            _describe(bound, True, out, own)
             out.append(")")
         if getattr(obj, "__closure__", None) or "<lambda>" in obj.__qualname__:
             raise _Unkeyable(obj.__qualname__)
         module = getattr(obj, "__module__", "") or ""
-        if not _trusted(module) or "<locals>" in obj.__qualname__:
+        if not _trusted(module, own) or "<locals>" in obj.__qualname__:
             raise _Unkeyable(f"{module}.{obj.__qualname__}")
         out.append(f"F{module}.{obj.__qualname__}")
         return
     if dataclasses.is_dataclass(obj):
-        out.append(f"D{_type_name(type(obj))}(")
+        out.append(f"D{_type_name(type(obj), own)}(")
         module = isinstance(obj, eqx.Module)
         for field in dataclasses.fields(obj):
             if not hasattr(obj, field.name):
                 continue
             out.append(field.name + "=")
             field_static = static or (module and bool(field.metadata.get("static", False)))
-            _describe(getattr(obj, field.name), field_static, out)
+            _describe(getattr(obj, field.name), field_static, out, own)
         out.append(")")
         return
     raise _Unkeyable(type(obj).__qualname__)
@@ -199,11 +198,7 @@ def _key(fun: Callable[..., Any], args: tuple, kwargs: dict) -> str:
         parts.append(_source(fun.__module__))
     parts.append(f"backend={jax.default_backend()}")
     parts.extend(f"{flag}={getattr(jax.config, flag, None)}" for flag in _TRACING_FLAGS)
-    _OWN.module = fun.__module__
-    try:
-        _describe((args, kwargs), False, parts)
-    finally:
-        _OWN.module = None
+    _describe((args, kwargs), False, parts, fun.__module__)
     return hashlib.sha256("\x1f".join(parts).encode()).hexdigest()
 
 
@@ -241,46 +236,46 @@ def _rebuild(template: Any) -> Callable[[Any], Any]:
     return rebuild
 
 
+def _entry(blob: bytes, template: Any) -> tuple[Callable[..., Any], Callable[[Any], Any]]:
+    """The jitted call of a serialized program and its outputs' rebuild. The exporting
+    process calls the deserialized program too, so that every process lowers the same one."""
+    return jax.jit(export.deserialize(bytearray(blob)).call), _rebuild(template)
+
+
 def _program(
     key: str, folder: Path, fun: Callable[..., Any], treedef: Any, static: Any, leaves: list
 ) -> tuple[Callable[..., Any], Callable[[Any], Any]] | None:
     """The kept program of ``key`` (read back, or exported now and kept); ``None`` for a
     program that cannot be exported (one with a host callback): it is traced as usual, and a
     marker beside the programs tells later processes so."""
+    if key in _LOADED:
+        return _LOADED[key]
     with _LOCK:
-        if key in _LOADED:
-            return _LOADED[key]
         lock = _KEY_LOCKS.setdefault(key, threading.Lock())
     with lock:
         if key in _LOADED:
             return _LOADED[key]
         path, skip = folder / f"{key}.bin", folder / f"{key}.skip"
         entry = None
-        if skip.is_file():
-            _LOADED[key] = None
-            return None
         if path.is_file():
             try:
-                blob, out = pickle.loads(path.read_bytes())
-                entry = (jax.jit(export.deserialize(bytearray(blob)).call), _rebuild(out))
-            except Exception:
+                entry = _entry(*pickle.loads(path.read_bytes()))
+            except Exception:  # a damaged or foreign file: exported anew
                 entry = None
-        if entry is None:
+        if entry is None and not skip.is_file():
             try:
-                blob, out = _export(fun, treedef, static, leaves)
+                blob, template = _export(fun, treedef, static, leaves)
             except NotImplementedError as error:  # jax.export refuses the program
                 _write(folder, skip, f"{fun.__module__}.{fun.__qualname__}: {error}".encode())
-                _LOADED[key] = None
-                return None
-            entry = (jax.jit(export.deserialize(bytearray(blob)).call), _rebuild(out))
-            try:
-                payload = pickle.dumps((blob, out))
-            except Exception:
-                payload = None
-            if payload is not None:
-                _write(folder, path, payload)
-        with _LOCK:
-            _LOADED[key] = entry
+            else:
+                entry = _entry(blob, template)
+                try:
+                    payload = pickle.dumps((blob, template))
+                except Exception:  # an output that cannot be pickled: kept in this process only
+                    payload = None
+                if payload is not None:
+                    _write(folder, path, payload)
+        _LOADED[key] = entry
         return entry
 
 

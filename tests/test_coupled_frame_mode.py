@@ -388,9 +388,11 @@ def test_a_refitted_mode_must_take_away_some_of_its_features_excess():
     base = np.zeros_like(measured)
     args = (parameters, freqs, measured, base)
     recipe = FrameModeRefit()
-    ok, words = recipe.explains(*args, measured * 0.5, tuple(CHANNELS))
+    ok, words, share = recipe.explains(*args, measured * 0.5, tuple(CHANNELS))
     assert ok and "went from 0.333 to 0.0833" in words
-    assert not recipe.explains(*args, measured * 2.0, tuple(CHANNELS))[0]
+    assert share == pytest.approx(0.75)  # the residual halved: its mean square quartered
+    worse = recipe.explains(*args, measured * 2.0, tuple(CHANNELS))
+    assert not worse.explained and worse.share == pytest.approx(0.0)  # 2x off: as far as base
 
 
 def test_the_frequency_box_reaches_the_whole_residual_feature():

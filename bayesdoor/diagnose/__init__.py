@@ -74,6 +74,7 @@ from ._refit import AbstractRefit as AbstractRefit
 from ._refit import CauseSize as CauseSize
 from ._refit import ExtensionProposal as ExtensionProposal
 from ._refit import SizeProbe as SizeProbe
+from ._refit import Symptom as Symptom
 from ._residual import Region as Region
 from ._residual import ResidualMap as ResidualMap
 from ._residual import ResidualSettings as ResidualSettings

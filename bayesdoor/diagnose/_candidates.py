@@ -29,6 +29,7 @@ from ._refit import (
     RefitOptions,
     RefitResult,
     RefitSetup,
+    Symptom,
     held_out_spectra,
     refit_extension,
 )
@@ -303,16 +304,18 @@ def _refit_candidate(
         {**f.values, **recipe.derived(proposal, extended_system, {**setup.point, **f.values})}
         for f in fits
     ]
-    explained, symptom = recipe.explains(
-        score.parameters,
-        setup.spectra.freqs,
-        setup.spectra.measured,
-        setup.base_spectra,
-        held_out_spectra(fits, folds),
-        tuple(setup.system.channels),
-        refitted=fold_values,
+    symptom = Symptom(
+        *recipe.explains(
+            score.parameters,
+            setup.spectra.freqs,
+            setup.spectra.measured,
+            setup.base_spectra,
+            held_out_spectra(fits, folds),
+            tuple(setup.system.channels),
+            refitted=fold_values,
+        )
     )
-    confirmed = gain.decisive and explained
+    confirmed = gain.decisive and symptom.explained
     ends: dict[str, str] = {}
     if confirmed:
         parameters, ends = _final_refit(
@@ -323,7 +326,7 @@ def _refit_candidate(
         for f in fits:
             ends = {**f.at_bound(), **ends}
     _mark_boxes(parameters, proposal, fits[0].box, ends)
-    return _refitted_cause(score, recipe, trial, parameters, (explained, symptom)), notes
+    return _refitted_cause(score, recipe, trial, parameters, symptom), notes
 
 
 def _refitted_cause(
@@ -331,26 +334,28 @@ def _refitted_cause(
     recipe: Any,
     trial: _Trial,
     parameters: Mapping[str, Any],
-    explains: tuple[bool, str],
+    symptom: Symptom,
 ) -> Cause:
     """The candidate's :class:`Cause` after its refit: the refit's evidence in words after the
     signature's, the refitted parameters over the signature's estimate."""
-    explained, symptom = explains
     proposal, gain = trial.proposal, trial.gain
     words = (
         f"refit of {score.name} ({proposal.label}) on half of the runs, tested on the other "
         f"half both ways: {gain.describe()}"
     )
-    if symptom:
-        verb = "explains" if explained else "does not explain"
-        words += f"; the refit {verb} its own feature: {symptom}"
+    if symptom.words:
+        verb = "explains" if symptom.explained else "does not explain"
+        words += f"; the refit {verb} its own feature: {symptom.words}"
+        if symptom.share is not None:
+            words += f" ({100.0 * symptom.share:.0f} % of its excess taken away)"
     merged = {**dict(score.parameters), **parameters}
     return dataclasses.replace(
         _signature_cause(score),
         evidence=f"{score.evidence}. {words}",
         parameters=merged,
         gain=gain,
-        confirmed=gain.decisive and explained,
+        feature_share=symptom.share,
+        confirmed=gain.decisive and symptom.explained,
         label=proposal.label,
         proposal=proposal,
         alternatives=recipe.alternatives(merged),
@@ -401,6 +406,12 @@ def judge(ranking: Ranking, refits: Refits) -> Judgement:
             f"the verdict {verdict} could also be {alternative}"
             for alternative in first.alternatives
         ]
+        if first.feature_share is not None and first.feature_share < 1.0:
+            notes.append(
+                f"{verdict} explains its residual feature in part: its refit took away "
+                f"{100.0 * first.feature_share:.0f} % of the feature's excess over the base "
+                "model on held-out runs; the rest is still unexplained"
+            )
     if len(confirmed) > 1:
         notes.append(
             f"{len(confirmed)} causes confirmed, strongest held-out evidence first: "

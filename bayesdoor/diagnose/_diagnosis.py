@@ -104,6 +104,10 @@ class Cause:
         recipe's :meth:`~bayesdoor.diagnose.AbstractRefit.alternatives`; refitted causes
         only): a confirmed cause with alternatives is the best extension of those the
         catalogue can fit, not a proof against them.
+    feature_share
+        The share of its own residual feature's excess the refit took away on held-out runs
+        (:class:`~bayesdoor.diagnose.Symptom`; 1 all of it, below 0 it grew); ``None`` where
+        the recipe measures none or the cause was not refitted.
     """
 
     name: str
@@ -117,6 +121,7 @@ class Cause:
     label: str = ""
     proposal: ExtensionProposal | None = None
     alternatives: tuple[str, ...] = ()
+    feature_share: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -130,6 +135,7 @@ class Cause:
             "feature": self.feature,
             "configuration": self.label,
             "alternatives": list(self.alternatives),
+            "feature_share": self.feature_share,
         }
 
 

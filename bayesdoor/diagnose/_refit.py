@@ -19,7 +19,7 @@ import abc
 import dataclasses
 import itertools
 from collections.abc import Callable, Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -183,6 +183,26 @@ class CauseSize:
             )
 
 
+class Symptom(NamedTuple):
+    """Whether a refitted extension explains the residual feature it was proposed for.
+
+    Attributes
+    ----------
+    explained
+        The recipe's answer.
+    words
+        Its reason in words.
+    share
+        The share of the feature's excess over the base model that the refit took away on
+        held-out runs (1: all of it, 0: none, negative: the refit made it larger); ``None``
+        where the recipe does not measure one.
+    """
+
+    explained: bool
+    words: str
+    share: float | None = None
+
+
 class AbstractRefit(eqx.Module):
     """A catalogue candidate's recipe: extensions to refit from its signature's estimate."""
 
@@ -202,7 +222,7 @@ class AbstractRefit(eqx.Module):
         extended: Float[np.ndarray, "run channel freq"],
         channels: tuple[str, ...],
         refitted: Sequence[Mapping[str, float]] = (),
-    ) -> tuple[bool, str]:
+    ) -> Symptom | tuple[bool, str]:
         """Whether the refitted extension explains the residual feature it was proposed for.
 
         A cause is named for its symptom: an extension that gains on held-out runs but leaves
@@ -210,10 +230,12 @@ class AbstractRefit(eqx.Module):
         with nothing hidden, a rail-carrying mode at 90 Hz gained by softening the wheels'
         support, which moved the door's modes near 65 Hz). ``extended`` holds each run's
         spectra from the fold that held it out; ``refitted`` each fold's refitted values with
-        the recipe's :meth:`derived` quantities (empty when not known). Returns the answer and
-        its reason in words; the default recipe has no symptom test (``True``).
+        the recipe's :meth:`derived` quantities (empty when not known). Returns a
+        :class:`Symptom` (the answer, its reason in words, the share of the feature taken
+        away; a plain ``(answer, words)`` pair is read as one without a share); the default
+        recipe has no symptom test (``True``).
         """
-        return True, ""
+        return Symptom(True, "")
 
     def derived(
         self,

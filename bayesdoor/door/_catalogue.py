@@ -30,6 +30,7 @@ from ..diagnose import (
     RestLine,
     SizeProbe,
     SpeedTracking,
+    Symptom,
 )
 from . import _geometry as g
 from ._extensions import (
@@ -224,7 +225,7 @@ class FrameModeRefit(AbstractRefit):
         if peaks:
             where = ", ".join(f"{p:.2f}" for p in peaks)
             words = f"the refitted mode peaks at {where} Hz (each fold); {words}"
-        return bool(ratio < _SYMPTOM_SHARE), words
+        return Symptom(bool(ratio < _SYMPTOM_SHARE), words, 1.0 - ratio)
 
     def size(self, *, band: tuple[float, float]) -> CauseSize:
         """The mode's participation on every channel (the share of its relative acceleration

@@ -152,6 +152,11 @@ def loop(seed: int, fit: Any, door_seed: int, cause: str, size: float | None) ->
                 "confirmed": c.confirmed,
                 "label": c.label,
                 "frequency_hz": None if frequency is None else frequency.get("mean"),
+                "parameters": {
+                    k: v["mean"]
+                    for k, v in c.parameters.items()
+                    if isinstance(v, dict) and isinstance(v.get("mean"), float)
+                },
             }
         )
     return {

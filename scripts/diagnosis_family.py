@@ -187,6 +187,48 @@ def false_alarms(row: dict[str, Any], rule: str = "veto") -> list[str]:
     return [c for c in confirmed_by(row, rule) if c not in hidden]
 
 
+def transmission(row: dict[str, Any], door: dict[str, Any]) -> tuple[float, float] | None:
+    """The hidden cause's size as its refit reads it against the size hidden, ``(refit,
+    hidden)`` in the limit's unit; ``None`` when it was not refitted in the configuration it
+    was hidden in (another rail wavelength, another leak direction).
+
+    Mains hum: the median over channels of the fundamental's refitted amplitude, against the
+    hidden amplitude times each channel's gain error. Rail: the mean over wheels of the
+    refitted amplitude (sine and cosine parts), at a wavelength within 10 % of the hidden
+    25 mm. Wheel: the first harmonic's refitted amplitude against the hidden ``s``. Leak into
+    A1X: the refitted fraction against the hidden one plus the mounting rotation's
+    ``sin(angle)``, both in A1X's gain over A1Z's.
+    """
+    cause, size = row["cause"], row["size"]
+    refit = next((r for r in row["refits"] if r["name"] == cause), None)
+    if refit is None or size is None:
+        return None
+    p = refit["parameters"]
+    gains = [10.0 ** (g / 20.0) for g in door["gains_db"]]
+    if cause == "mains_hum":
+        amps = [p.get(f"mains_hum.amplitude_{c}") for c in ("A1X", "A1Z", "A2X", "A2Z")]
+        if any(a is None for a in amps):
+            return None
+        return float(np.median(amps)), float(np.median(np.asarray(gains) * size))
+    if cause == "rail_waviness":
+        if abs(p.get("rail_waviness.wavelength_m", 0.0) - 25e-3) > 2.5e-3:
+            return None
+        wheels = [
+            np.hypot(p[f"rail_waviness.sin_{w}_m"], p[f"rail_waviness.cos_{w}_m"])
+            for w in ("left", "right")
+        ]
+        return float(np.mean(wheels)), float(size)
+    if cause == "wheel_eccentricity":
+        first = p.get("wheel_eccentricity.amplitude_1")
+        return None if first is None else (float(first), float(size))
+    if cause == "sensor_cross_axis":
+        if refit["label"] != "A1X reads A1Z" or "sensor_cross_axis.fraction" not in p:
+            return None
+        mount = np.sin(np.radians(door["mounting_deg"][0]))
+        return float(p["sensor_cross_axis.fraction"]), float((size + mount) * gains[0] / gains[1])
+    return None
+
+
 def _rate(k: int, n: int) -> str:
     if n == 0:
         return "-"
@@ -285,6 +327,32 @@ def markdown(args: Any, rows: list[dict[str, Any]], bases: dict[int, Any], wall:
                 f"| {rule} | {_rate(fa, len(mine))} | {_rate(named, len(hidden))} | "
                 f"{_rate(mode, len(mine))} |"
             )
+    lines += [
+        "",
+        "## How each door transmits a hidden cause",
+        "",
+        "The hidden cause's size as its refit on the campaign reads it, over the size hidden "
+        "(1: the model transmits the cause as the door does; below 1 the model makes more of "
+        "the same cause than the door, so the door needs a larger cause to be named). "
+        "`-`: not refitted in the configuration hidden.",
+        "",
+        "| cause | factor | "
+        + " | ".join(f"door {d}" for d in args.doors if d in bases)
+        + " | development doors: range |",
+        "|---|---|" + "---|" * len([d for d in args.doors if d in bases]) + "---|",
+    ]
+    for cause in VALIDATED:
+        for factor in args.factors:
+            cells, dev = [], []
+            for d in [d for d in args.doors if d in bases]:
+                at = [r for r in rows if r["door"] == d and r["cause"] == cause]
+                at = [r for r in at if r.get("factor") == factor]
+                ratios = [t[0] / t[1] for r in at if (t := transmission(r, bases[d]["door"]))]
+                cells.append(", ".join(f"{x:.2f}" for x in ratios) or "-")
+                if d < args.held_out_from:
+                    dev += ratios
+            span = f"{min(dev):.2f}-{max(dev):.2f} ({len(dev)})" if dev else "-"
+            lines.append(f"| {cause} | {factor:g} | " + " | ".join(cells) + f" | {span} |")
     lines += [
         "",
         "## Per campaign",

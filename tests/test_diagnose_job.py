@@ -382,6 +382,26 @@ def test_the_verdict_takes_the_strongest_held_out_evidence():
     ]
 
 
+def test_a_verdict_that_explains_its_feature_in_part_says_how_much():
+    from bayesdoor.diagnose import Cause, Gain
+    from bayesdoor.diagnose._candidates import Refits, judge
+
+    gain = Gain(0.4, 0.3, -120.0, -80.0, 40.0, 5.0, 6, True)
+    mode = Cause("frame_mode", "", 1.0, "", {}, gain, True, feature_share=0.3)
+    hum = Cause("mains_hum", "", 1.0, "", {}, dataclasses.replace(gain, elpd_difference=20.0))
+    ranking = types.SimpleNamespace(causes=())
+    judged = judge(ranking, Refits({"frame_mode": mode, "mains_hum": hum}))
+    assert judged.verdict == "frame_mode"
+    partly = [n for n in judged.notes if "in part" in n]
+    assert len(partly) == 1 and "took away 30 % of the feature's excess" in partly[0]
+    # all of it taken away, or a recipe that measures no share: no such note
+    for share in (1.0, None):
+        whole = dataclasses.replace(mode, feature_share=share)
+        notes = judge(ranking, Refits({"frame_mode": whole})).notes
+        assert not [n for n in notes if "in part" in n]
+    assert Cause("x", "", 1.0, "", {}, feature_share=0.25).to_json()["feature_share"] == 0.25
+
+
 def test_held_out_evidence_is_the_gain_in_standard_errors():
     base = np.full(6, -300.0)
     gain = compare_held_out(base, base + np.arange(1.0, 7.0), np.ones(6), np.full(6, 0.9))

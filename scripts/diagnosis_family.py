@@ -420,6 +420,12 @@ def main(argv: list[str] | None = None) -> None:
                     continue
                 else:
                     size = None if factor is None else factor * bases[d]["limits"][cause]["size"]
+                    try:
+                        if size is not None:
+                            with_hidden(other_door(d), cause, size, seed)
+                    except ValueError as err:  # beyond what the rig can hide
+                        print("door", d, cause, factor, "skipped:", err, flush=True)
+                        continue
                     row = loop(seed, fits[d], d, cause, size)
                     row["factor"] = factor
                     path.write_text(json.dumps(row, indent=1))

@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 from _cases import ROOT, code_version, command_line, setup_jax, write_results
-from diagnosis_limits import VALIDATED, rig_effect, wilson
+from diagnosis_limits import VALIDATED, diagnose_quick, limits_of, quick_fit, rig_effect, wilson
 
 SPEEDS = tuple(float(v) for v in np.round(np.linspace(0.30, 0.50, 12), 3))
 #: key of a door's nothing-hidden base campaign: BASE_KEY + door seed
@@ -75,33 +75,24 @@ def record(door: Any, key: int):
 
 def base(work: Path, seed: int) -> tuple[Any, dict[str, Any]]:
     """A door's base fit on its nothing-hidden campaign and its model limits (JSON-ready)."""
-    from bayesdoor.inference import FitResult, FitSettings, fit_campaign
+    from bayesdoor.inference import FitResult
 
     folder = work / f"door-{seed}"
     limits_file = folder / "limits.json"
     if limits_file.is_file():
         return FitResult.load(folder / "fit"), json.loads(limits_file.read_text())
-    from bayesdoor.diagnose import detection_limits
-    from bayesdoor.diagnose._measured import Measured, _band, _simulate_rows
-    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
-    from bayesdoor.inference import calibration_runs
-
     folder.mkdir(parents=True, exist_ok=True)
-    door = ElevatorDoor()
+    door = other_door(seed)
     t0 = time.perf_counter()
-    campaign = record(other_door(seed), BASE_KEY + seed)
-    settings = FitSettings(max_motion_s=1.0, cmaes_max_evals=80, cmaes_restarts=0)
-    fit = fit_campaign(door, campaign, settings=settings, seed=0, progress=False)
+    campaign = record(door, BASE_KEY + seed)
+    fit = quick_fit(campaign)
     fit.save(folder / "fit", force=True)
     fit_s = time.perf_counter() - t0
-    measured = Measured.of(door, campaign, calibration_runs(campaign))
-    sims, _, times = _simulate_rows(door, measured, [dict(fit.point)])
-    setup = measured.setup(door, fit.point, sims[0], times, _band(fit), None)
-    limits = detection_limits(setup, DOOR_CATALOGUE)
+    limits = limits_of(campaign, fit)
     out = {
         "fit_s": fit_s,
         "limits_s": time.perf_counter() - t0 - fit_s,
-        "door": other_door(seed).describe(),
+        "door": door.describe(),
         "limits": {
             name: {
                 "size": limit.size,
@@ -116,27 +107,14 @@ def base(work: Path, seed: int) -> tuple[Any, dict[str, Any]]:
     return fit, out
 
 
-def loop(seed: int, fit: Any, door_seed: int, cause: str, size: float | None) -> dict[str, Any]:
-    """One campaign recorded on the door (``cause`` hidden at ``size`` unless nothing) and
-    diagnosed under the door's base fit."""
-    from bayesdoor.diagnose import diagnose_campaign
+def loop(seed: int, fit: Any, door: Any, cause: str, size: float | None) -> dict[str, Any]:
+    """One campaign recorded on ``door`` (with ``cause`` hidden at ``size`` unless nothing:
+    :func:`with_hidden`) and diagnosed under the door's base fit."""
     from bayesdoor.diagnose._held_out import held_out_evidence
-    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
 
     t0 = time.perf_counter()
-    door = other_door(door_seed)
-    if cause != NOTHING:
-        door = with_hidden(door, cause, float(size), seed)
-    campaign = record(door, seed * 100 + door_seed)
-    diagnosis = diagnose_campaign(
-        ElevatorDoor(),
-        campaign,
-        fit=fit,
-        seed=seed,
-        quick=True,
-        progress=False,
-        catalogue=DOOR_CATALOGUE,
-    )
+    campaign = record(door, seed * 100 + door.seed)
+    diagnosis = diagnose_quick(campaign, fit, seed)
     refits = []
     for c in diagnosis.causes:
         if c.gain is None:
@@ -160,7 +138,7 @@ def loop(seed: int, fit: Any, door_seed: int, cause: str, size: float | None) ->
             }
         )
     return {
-        "door": door_seed,
+        "door": door.seed,
         "cause": cause,
         "size": size,
         "seed": seed,
@@ -420,13 +398,14 @@ def main(argv: list[str] | None = None) -> None:
                     continue
                 else:
                     size = None if factor is None else factor * bases[d]["limits"][cause]["size"]
+                    door = other_door(d)
                     try:
                         if size is not None:
-                            with_hidden(other_door(d), cause, size, seed)
+                            door = with_hidden(door, cause, size, seed)
                     except ValueError as err:  # beyond what the rig can hide
                         print("door", d, cause, factor, "skipped:", err, flush=True)
                         continue
-                    row = loop(seed, fits[d], d, cause, size)
+                    row = loop(seed, fits[d], door, cause, size)
                     row["factor"] = factor
                     path.write_text(json.dumps(row, indent=1))
                 rows.append(row)

@@ -86,16 +86,52 @@ def record(effects: Any, key: int, speeds: tuple[float, ...] = SPEEDS):
     return rig.run(["healthy"] * len(speeds), list(speeds), key=jax.random.key(key)).campaign
 
 
+def quick_fit(campaign: Any) -> Any:
+    """The base door fitted on a campaign's calibration runs (CMA-ES, the diagnosis tests'
+    quick settings)."""
+    from bayesdoor.door import ElevatorDoor
+    from bayesdoor.inference import FitSettings, fit_campaign
+
+    settings = FitSettings(max_motion_s=1.0, cmaes_max_evals=80, cmaes_restarts=0)
+    return fit_campaign(ElevatorDoor(), campaign, settings=settings, seed=0, progress=False)
+
+
+def limits_of(campaign: Any, fit: Any) -> dict[str, Any]:
+    """Every catalogue cause's detection limit on a campaign under its base fit."""
+    from bayesdoor.diagnose import detection_limits
+    from bayesdoor.diagnose._measured import Measured, _band, _simulate_rows
+    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
+    from bayesdoor.inference import calibration_runs
+
+    door = ElevatorDoor()
+    measured = Measured.of(door, campaign, calibration_runs(campaign))
+    sims, _, times = _simulate_rows(door, measured, [dict(fit.point)])
+    setup = measured.setup(door, fit.point, sims[0], times, _band(fit), None)
+    return dict(detection_limits(setup, DOOR_CATALOGUE))
+
+
+def diagnose_quick(campaign: Any, fit: Any, seed: int) -> Any:
+    """The whole diagnosis of a campaign under a given base fit (quick settings)."""
+    from bayesdoor.diagnose import diagnose_campaign
+    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
+
+    return diagnose_campaign(
+        ElevatorDoor(),
+        campaign,
+        fit=fit,
+        seed=seed,
+        quick=True,
+        progress=False,
+        catalogue=DOOR_CATALOGUE,
+    )
+
+
 def base(work: Path, key: int) -> tuple[Any, Any, dict[str, Any], float]:
     """The nothing-hidden campaign, its base fit and the limits computed on it (seconds)."""
     import xarray as xr
 
-    from bayesdoor.diagnose import detection_limits
-    from bayesdoor.diagnose._measured import Measured, _band, _simulate_rows
-    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
-    from bayesdoor.inference import FitResult, FitSettings, calibration_runs, fit_campaign
+    from bayesdoor.inference import FitResult
 
-    door = ElevatorDoor()
     folder = work / f"base-{key}"
     if (folder / "fit" / "fit.json").is_file():
         campaign = xr.load_dataset(folder / "campaign.nc")
@@ -103,16 +139,12 @@ def base(work: Path, key: int) -> tuple[Any, Any, dict[str, Any], float]:
     else:
         folder.mkdir(parents=True, exist_ok=True)
         campaign = record(_no_effects(), key)
-        settings = FitSettings(max_motion_s=1.0, cmaes_max_evals=80, cmaes_restarts=0)
-        fit = fit_campaign(door, campaign, settings=settings, seed=0, progress=False)
+        fit = quick_fit(campaign)
         fit.save(folder / "fit", force=True)
         campaign.to_netcdf(folder / "campaign.nc")
     t0 = time.perf_counter()
-    measured = Measured.of(door, campaign, calibration_runs(campaign))
-    sims, _, times = _simulate_rows(door, measured, [dict(fit.point)])
-    setup = measured.setup(door, fit.point, sims[0], times, _band(fit), None)
-    limits = detection_limits(setup, DOOR_CATALOGUE)
-    return campaign, fit, dict(limits), time.perf_counter() - t0
+    limits = limits_of(campaign, fit)
+    return campaign, fit, limits, time.perf_counter() - t0
 
 
 def _no_effects():
@@ -161,8 +193,7 @@ def loop(
     cause: str, size: float, seed: int, fit: Any, full: bool, speeds: tuple[float, ...] = SPEEDS
 ) -> dict[str, Any]:
     """One simulate-refit-judge loop: record, refit the typical extension, judge."""
-    from bayesdoor.diagnose import diagnose_campaign
-    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
+    from bayesdoor.door import DOOR_CATALOGUE
 
     t0 = time.perf_counter()
     campaign = record(rig_effect(cause, size, seed), seed, speeds)
@@ -187,15 +218,7 @@ def loop(
         "refits": [{k: float(r.values[k]) for k in proposal.free if k in r.values} for r in refits],
     }
     if full:
-        diagnosis = diagnose_campaign(
-            ElevatorDoor(),
-            campaign,
-            fit=fit,
-            seed=seed,
-            quick=True,
-            progress=False,
-            catalogue=DOOR_CATALOGUE,
-        )
+        diagnosis = diagnose_quick(campaign, fit, seed)
         row["verdict"] = diagnosis.verdict
         row["confirmed"] = [c.name for c in diagnosis.confirmed]
     row["wall_s"] = time.perf_counter() - t0

@@ -22,6 +22,7 @@ from bayesdoor.features import (
     welch_csd,
     welch_psd,
     welch_segment_count,
+    windowed_log_psd,
 )
 
 FS = 2048.0
@@ -194,6 +195,34 @@ def test_weighted_welch_on_a_window_is_scipy_on_the_cropped_record(nperseg, nove
         cropped = x[run, :, k0 * step : k1 * step + nperseg]
         _, p_ref = scipy.signal.welch(cropped, FS, nperseg=nperseg, noverlap=noverlap)
         _assert_matches_scipy(psd[run], p_ref)
+
+
+def test_numpy_welch_leaves_out_the_segments_no_weight_keeps():
+    # numpy computes only the segments some weight keeps, JAX every one: the same average
+    n = 7168
+    x = _signals("random", (2, 3, n))
+    w = np.asarray(segment_weights(n, FS, jnp.asarray([0.5, 0.9]), jnp.asarray([2.0, 2.6])))
+    assert w[:, 0].sum() == 0 and w[:, -1].sum() == 0  # some segments in no window
+    _, by_numpy = welch_psd(x, FS, segment_weights=w[:, None])
+    _, by_jax = welch_psd(jnp.asarray(x), FS, segment_weights=jnp.asarray(w[:, None]))
+    np.testing.assert_allclose(by_numpy, by_jax, rtol=1e-12, atol=0)
+    # what lies outside every window does not reach the average, even when not finite
+    spoiled = x.copy()
+    spoiled[..., :100] = np.nan
+    np.testing.assert_array_equal(welch_psd(spoiled, FS, segment_weights=w[:, None])[1], by_numpy)
+    _, cross = welch_csd(x, x, FS, segment_weights=w[:, None])
+    np.testing.assert_allclose(cross.real, by_numpy, rtol=1e-14, atol=0)
+
+
+def test_windowed_log_psd_of_draws_is_each_draw_alone():
+    x = _signals("random", (3, 2, 4, 7168))
+    t0, t1 = np.asarray([0.25, 0.5]), np.asarray([3.0, 2.2])
+    freqs, draws, log_var = windowed_log_psd(x, FS, t0, t1, nperseg=2048)
+    assert draws.shape == (3, 2, 4, 1025) and log_var.shape == (2,)
+    for draw, alone in zip(draws, x, strict=True):
+        np.testing.assert_array_equal(draw, windowed_log_psd(alone, FS, t0, t1, nperseg=2048)[1])
+    with pytest.raises(ValueError, match=r"dims \(\.\.\., run, channel, time\)"):
+        windowed_log_psd(x[0, 0], FS, t0, t1, nperseg=2048)
 
 
 def test_segment_weights_select_segments_inside_the_window():

@@ -242,7 +242,7 @@ def _residuals(runs: _Runs, speeds: np.ndarray | None, settings: FeatureSettings
     fs, t0, t1 = runs.fs, runs.t0, runs.t1
     nperseg = int(fs) if settings.nperseg is None else settings.nperseg
     freqs, y, log_var = windowed_log_psd(runs.x, fs, t0, t1, nperseg=nperseg)
-    draws = np.stack([windowed_log_psd(s, fs, t0, t1, nperseg=nperseg)[1] for s in runs.sims])
+    draws = windowed_log_psd(runs.sims, fs, t0, t1, nperseg=nperseg)[1]
     return residual_map(
         freqs,
         y,

@@ -351,14 +351,9 @@ class Spectra:
         self, signals: Float[np.ndarray, "*pop run channel time"], runs: Int[np.ndarray, " r"]
     ) -> Float[np.ndarray, "*pop run channel freq"]:
         """log10 PSDs of simulated ``runs`` (windows as the measured ones)."""
-        x = np.asarray(signals, dtype=float)
-        lead = x.shape[:-3]
-        flat = x.reshape(-1, *x.shape[-3:])
         t0, t1 = self.t_start[runs], self.t_stop[runs]
-        out = np.stack(
-            [windowed_log_psd(f, self.fs, t0, t1, nperseg=self.nperseg)[1] for f in flat]
-        )
-        return out[..., self.keep].reshape(*lead, len(runs), *out.shape[-2:-1], -1)
+        out = windowed_log_psd(signals, self.fs, t0, t1, nperseg=self.nperseg)[1]
+        return out[..., self.keep]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -125,22 +125,41 @@ def _time_last(x, axis, xp):
     return x
 
 
-def _segment_spectra(x, nperseg, noverlap, options: WelchOptions, xp):
-    """The FFT of every detrended, windowed segment of ``x`` (time last): (..., segment, freq);
-    the window, the number of segments and the FFT length."""
+def _used_segments(n_time, nperseg, noverlap, segment_weights) -> np.ndarray | None:
+    """The segments that some numpy weight keeps (``None``: every segment, for JAX weights,
+    no weights, or weights that :func:`_average` rejects). A finite segment of weight 0
+    everywhere adds exact zeros to the average, so leaving it out changes no bit; in numpy it
+    is not computed (and a non-finite sample outside every window no longer reaches the
+    average)."""
+    if segment_weights is None or isinstance(segment_weights, jax.Array):
+        return None
+    w = np.asarray(segment_weights)
+    _, n_segments = _segment_layout(n_time, nperseg, noverlap)
+    if w.ndim == 0 or w.shape[-1] != n_segments:
+        return None
+    used = np.flatnonzero(np.any(w.reshape(-1, n_segments) != 0, axis=0))
+    return used if 0 < used.size < n_segments else None
+
+
+def _segment_spectra(x, nperseg, noverlap, options: WelchOptions, xp, used=None):
+    """The FFT of every detrended, windowed segment of ``x`` (time last), or of the ``used``
+    ones: (..., segment, freq); the window, the number of segments and the FFT length."""
     noverlap, n_segments = _segment_layout(x.shape[-1], nperseg, noverlap)
     nfft = nperseg if options.nfft is None else options.nfft
     if isinstance(nfft, bool) or not isinstance(nfft, int | np.integer) or nfft < nperseg:
         raise ValueError(f"nfft must be an integer of at least nperseg={nperseg}, got {nfft!r}")
     win = _window(options.window, nperseg)
     starts = np.arange(n_segments) * (nperseg - noverlap)
+    if used is not None:
+        starts = starts[used]
     segments = x[..., starts[:, None] + np.arange(nperseg)]
     segments = _detrend(segments, options.detrend, xp) * xp.asarray(win, dtype=x.dtype)
     return xp.fft.rfft(segments, n=int(nfft), axis=-1), win, n_segments, int(nfft)
 
 
-def _average(power, segment_weights, layout: tuple[int, int, int | None, int], xp):
-    """Mean over the segment axis (-2), or the ``segment_weights`` average."""
+def _average(power, segment_weights, layout: tuple[int, int, int | None, int], xp, used=None):
+    """Mean over the segment axis (-2), or the ``segment_weights`` average (``power`` of the
+    ``used`` segments only, when given)."""
     if segment_weights is None:
         return xp.mean(power, axis=-2)
     n_time, nperseg, noverlap, n_segments = layout
@@ -159,6 +178,8 @@ def _average(power, segment_weights, layout: tuple[int, int, int | None, int], x
         total = error_if(total, total <= 0, message)
     elif np.any(total <= 0):
         raise ValueError(message)
+    if used is not None:
+        w = w[..., used]
     return xp.sum(w[..., None] * power, axis=-2) / total
 
 
@@ -247,10 +268,11 @@ def welch_psd(
     """
     xp = _namespace(x, segment_weights)
     x = _time_last(x, axis, xp)
-    spectrum, win, n_segments, nfft = _segment_spectra(x, nperseg, noverlap, options, xp)
+    used = _used_segments(x.shape[-1], nperseg, noverlap, segment_weights)
+    spectrum, win, n_segments, nfft = _segment_spectra(x, nperseg, noverlap, options, xp, used)
     power = xp.real(spectrum) ** 2 + xp.imag(spectrum) ** 2
     layout = (x.shape[-1], nperseg, noverlap, n_segments)
-    psd = _average(power, segment_weights, layout, xp)
+    psd = _average(power, segment_weights, layout, xp, used)
     return _density(psd, win, nfft, fs, x.dtype, axis, xp)
 
 
@@ -294,10 +316,11 @@ def welch_csd(
     """
     xp = _namespace(x, y, segment_weights)
     x, y = xp.broadcast_arrays(_time_last(x, axis, xp), _time_last(y, axis, xp))
-    sx, win, n_segments, nfft = _segment_spectra(x, nperseg, noverlap, options, xp)
-    sy, _, _, _ = _segment_spectra(y, nperseg, noverlap, options, xp)
+    used = _used_segments(x.shape[-1], nperseg, noverlap, segment_weights)
+    sx, win, n_segments, nfft = _segment_spectra(x, nperseg, noverlap, options, xp, used)
+    sy, _, _, _ = _segment_spectra(y, nperseg, noverlap, options, xp, used)
     layout = (x.shape[-1], nperseg, noverlap, n_segments)
-    cross = _average(xp.conj(sx) * sy, segment_weights, layout, xp)
+    cross = _average(xp.conj(sx) * sy, segment_weights, layout, xp, used)
     return _density(cross, win, nfft, fs, x.dtype, axis, xp)
 
 

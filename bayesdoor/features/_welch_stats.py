@@ -227,7 +227,7 @@ def dof_from_log10_variance(
 
 
 def windowed_log_psd(
-    signals: Float[np.ndarray, "run channel time"],
+    signals: Float[np.ndarray, "*draw run channel time"],
     fs: float,
     t_start: Float[np.ndarray, " run"],
     t_stop: Float[np.ndarray, " run"],
@@ -235,7 +235,9 @@ def windowed_log_psd(
     nperseg: int,
     noverlap: int | None = None,
 ) -> tuple[
-    Float[np.ndarray, " freq"], Float[np.ndarray, "run channel freq"], Float[np.ndarray, " run"]
+    Float[np.ndarray, " freq"],
+    Float[np.ndarray, "*draw run channel freq"],
+    Float[np.ndarray, " run"],
 ]:
     """log10 Welch PSD of each run over its own window, with the Welch log variance.
 
@@ -246,7 +248,9 @@ def windowed_log_psd(
     Parameters
     ----------
     signals
-        Sensor signals sampled at ``fs`` from time 0.
+        Sensor signals sampled at ``fs`` from time 0; leading axes before (run, channel,
+        time) (draws of a population, say) share the runs' windows, and each record's PSD is
+        the one it gets alone.
     fs
         Sampling rate, Hz.
     t_start, t_stop
@@ -259,7 +263,7 @@ def windowed_log_psd(
     freqs
         Bin frequencies, Hz.
     log_psd
-        ``log10`` PSD per run and channel.
+        ``log10`` PSD per run and channel (and draw).
     log_variance
         Variance of each run's ``log10`` PSD estimate (:func:`log10_psd_variance` of
         :func:`welch_dof`).
@@ -270,10 +274,12 @@ def windowed_log_psd(
         When a run's window holds no complete segment (name the run; shorten ``nperseg``).
     """
     x = np.asarray(signals, dtype=float)
-    if x.ndim != 3:
-        raise ValueError(f"signals must have dims (run, channel, time), got shape {x.shape}")
-    t0 = np.broadcast_to(np.asarray(t_start, dtype=float), x.shape[:1])
-    t1 = np.broadcast_to(np.asarray(t_stop, dtype=float), x.shape[:1])
+    if x.ndim < 3:
+        raise ValueError(
+            f"signals must have dims (..., run, channel, time), got shape {x.shape}"
+        )
+    t0 = np.broadcast_to(np.asarray(t_start, dtype=float), x.shape[-3:-2])
+    t1 = np.broadcast_to(np.asarray(t_stop, dtype=float), x.shape[-3:-2])
     weights = np.asarray(
         segment_weights(x.shape[-1], fs, jnp.asarray(t0), jnp.asarray(t1), nperseg, noverlap)
     )
@@ -285,12 +291,16 @@ def windowed_log_psd(
             f"segment of nperseg={nperseg} samples at fs={fs} Hz: pass a smaller nperseg"
         )
     # the Welch average in numpy (numpy in, numpy out): no eager JAX dispatch of the large
-    # arrays in each of the thousands of calls a diagnosis makes
-    freqs, psd = welch_psd(
-        x, fs, nperseg=nperseg, noverlap=noverlap, segment_weights=weights[:, None]
-    )
+    # arrays in each of the thousands of calls a diagnosis makes; one draw at a time, whose
+    # segments stay in the cache (a population at once runs slower)
+    spectra = [
+        welch_psd(record, fs, nperseg=nperseg, noverlap=noverlap, segment_weights=weights[:, None])
+        for record in x.reshape(-1, *x.shape[-3:])
+    ]
+    psd = np.stack([p for _, p in spectra]).reshape(*x.shape[:-1], -1)
     dof = welch_dof(counts, nperseg, noverlap)
-    return np.asarray(freqs), np.log10(np.maximum(psd, LOG_FLOOR)), log10_psd_variance(dof)
+    log_psd = np.log10(np.maximum(psd, LOG_FLOOR))
+    return np.asarray(spectra[0][0]), log_psd, log10_psd_variance(dof)
 
 
 #: Gauss-Hermite nodes for the expectation over the predictive draws' normal spread

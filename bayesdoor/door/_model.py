@@ -139,12 +139,41 @@ def _raised_cosine(u, width, xp):
 
 
 def _waviness(z, scale, xp, dtype):
-    """Rail waviness r(z) and its slope dr/dz."""
-    k = xp.asarray(2.0 * np.pi / g.WAVINESS_WAVELENGTH, dtype=dtype)
-    a = scale * xp.asarray(g.WAVINESS_AMPLITUDE, dtype=dtype)
-    p = xp.asarray(g.WAVINESS_PHASE, dtype=dtype)
-    arg = k * z[..., None] + p
-    return xp.sum(a * xp.sin(arg), axis=-1), xp.sum(a * k * xp.cos(arg), axis=-1)
+    """Rail waviness r(z) and its slope dr/dz under both wheels (z: the left wheel's
+    coordinate; the right wheel's lies ``WHEEL_Z[1] - WHEEL_Z[0]`` further along).
+
+    The components are summed one by one (elementwise operations that XLA fuses into one
+    loop under ``vmap``, where a sum over the small component axis does not fuse), and the
+    right wheel's sines and cosines follow from the left's by the angle-addition formulas:
+    16 sines and cosines per evaluation instead of 32, the largest single cost of the
+    right-hand side (``docs/model.md``, "Initial state and solver"). In numpy (the scipy
+    reference solves, where every operation is a Python call) each wheel's components are
+    one array each.
+    """
+    shift = g.WHEEL_Z[1] - g.WHEEL_Z[0]
+    if xp is np:
+        k = 2.0 * np.pi / g.WAVINESS_WAVELENGTH
+        a = scale * g.WAVINESS_AMPLITUDE
+        args = [k * (z + d)[..., None] + g.WAVINESS_PHASE for d in (0.0, shift)]
+        return (
+            [np.sum(a * np.sin(arg), axis=-1) for arg in args],
+            [np.sum(a * k * np.cos(arg), axis=-1) for arg in args],
+        )
+    zero = 0.0 * z
+    r, dr = [zero, zero], [zero, zero]
+    for wavelength, amplitude, phase in zip(
+        g.WAVINESS_WAVELENGTH, g.WAVINESS_AMPLITUDE, g.WAVINESS_PHASE, strict=True
+    ):
+        k = 2.0 * np.pi / float(wavelength)
+        a = scale * xp.asarray(float(amplitude), dtype=dtype)
+        sin_l, cos_l = xp.sin(k * z + float(phase)), xp.cos(k * z + float(phase))
+        c, s = float(np.cos(k * shift)), float(np.sin(k * shift))
+        for side, (sine, cosine) in enumerate(
+            ((sin_l, cos_l), (sin_l * c + cos_l * s, cos_l * c - sin_l * s))
+        ):
+            r[side] = r[side] + a * sine
+            dr[side] = dr[side] + a * k * cosine
+    return r, dr
 
 
 def _flat(zeta, args, xp):
@@ -185,9 +214,11 @@ def contact_kinematics(q, args: DoorArgs, xp: ModuleType = jnp, lift=0.0):
     e = [_unit(i, xp, dtype) for i in range(N_DOF)]
 
     gaps, jacs, roll_jacs = [], [], []
+    along = s - g.RAIL_HEIGHT * th - q2
+    rail, rail_slope = _waviness(along + g.WHEEL_Z[0], c.waviness_scale, xp, dtype)
     for side, zl in enumerate(g.WHEEL_Z):
-        zeta = s - g.RAIL_HEIGHT * th + zl - q2  # wheel centre along the (racking) rail
-        r, dr = _waviness(zeta, c.waviness_scale, xp, dtype)
+        zeta = along + zl  # wheel centre along the (racking) rail
+        r, dr = rail[side], rail_slope[side]
         for extension in args.extensions:
             extra = extension.surface(zeta, side, args.extension_values, xp)
             if extra is not None:

@@ -176,9 +176,11 @@ def make_solver():
     import jax.numpy as jnp
 
     from bayesdoor._cacheable import errors_as_nan
-    from bayesdoor.door import initial_state
+    from bayesdoor.door import SolverConfig, initial_state
     from bayesdoor.door._model import rhs, sensor_signals
     from bayesdoor.door._simulate import STATUS_FAILED, STATUS_OK, _status
+
+    default = SolverConfig()  # its step controller, for every tolerance
 
     @eqx.filter_jit
     def solve_with_stats(args, ts, rtol, atol, max_steps: int):
@@ -194,7 +196,9 @@ def make_solver():
                     y0=initial_state(a),
                     args=a,
                     saveat=diffrax.SaveAt(ts=ts, fn=lambda t, y, aa: sensor_signals(t, y, aa, jnp)),
-                    stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol),
+                    stepsize_controller=diffrax.PIDController(
+                        rtol=rtol, atol=atol, pcoeff=default.pcoeff, icoeff=default.icoeff
+                    ),
                     max_steps=max_steps,
                     throw=False,
                 )

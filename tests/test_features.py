@@ -217,7 +217,7 @@ def test_numpy_welch_leaves_out_the_segments_no_weight_keeps():
 def test_windowed_log_psd_of_draws_is_each_draw_alone():
     x = _signals("random", (3, 2, 4, 7168))
     t0, t1 = np.asarray([0.25, 0.5]), np.asarray([3.0, 2.2])
-    freqs, draws, log_var = windowed_log_psd(x, FS, t0, t1, nperseg=2048)
+    _, draws, log_var = windowed_log_psd(x, FS, t0, t1, nperseg=2048)
     assert draws.shape == (3, 2, 4, 1025) and log_var.shape == (2,)
     for draw, alone in zip(draws, x, strict=True):
         np.testing.assert_array_equal(draw, windowed_log_psd(alone, FS, t0, t1, nperseg=2048)[1])

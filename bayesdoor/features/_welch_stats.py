@@ -275,9 +275,7 @@ def windowed_log_psd(
     """
     x = np.asarray(signals, dtype=float)
     if x.ndim < 3:
-        raise ValueError(
-            f"signals must have dims (..., run, channel, time), got shape {x.shape}"
-        )
+        raise ValueError(f"signals must have dims (..., run, channel, time), got shape {x.shape}")
     t0 = np.broadcast_to(np.asarray(t_start, dtype=float), x.shape[-3:-2])
     t1 = np.broadcast_to(np.asarray(t_stop, dtype=float), x.shape[-3:-2])
     weights = np.asarray(

@@ -281,7 +281,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--causes", nargs="+", default=list(VALIDATED))
     parser.add_argument("--factors", nargs="+", type=float, default=[0.5, 1.5])
     parser.add_argument("--full", action="store_true")
-    parser.add_argument("--work", type=Path, default=ROOT / "out" / "diagnosis-limits")
+    parser.add_argument(
+        "--work",
+        type=Path,
+        default=ROOT / "out" / "diagnosis-limits",
+        help="where the base fit and each loop's outcome are kept, a subfolder per code version",
+    )
     parser.add_argument("--results", type=Path, default=ROOT / "results" / "diagnosis_limits.md")
     parser.add_argument(
         "--follow-plan",
@@ -294,6 +299,11 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     setup_jax()
     started = time.time()
+    from bayesdoor._exported import code_version
+
+    # what the folder keeps (the base fit, each loop's outcome) was made by this code only: a
+    # change of bayesdoor's source or of the tracing libraries starts a folder of its own
+    args.work = args.work / f"code-{code_version()[:12]}"
     args.work.mkdir(parents=True, exist_ok=True)
     if args.follow_plan:
         follow_plan(args, args.follow_plan[0], float(args.follow_plan[1]), started)

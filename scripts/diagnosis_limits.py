@@ -299,11 +299,12 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     setup_jax()
     started = time.time()
-    from bayesdoor._exported import code_version
+    # (the digest of the source, not this script's commit stamp, _cases.code_version)
+    from bayesdoor._exported import code_version as source_digest
 
     # what the folder keeps (the base fit, each loop's outcome) was made by this code only: a
     # change of bayesdoor's source or of the tracing libraries starts a folder of its own
-    args.work = args.work / f"code-{code_version()[:12]}"
+    args.work = args.work / f"code-{source_digest()[:12]}"
     args.work.mkdir(parents=True, exist_ok=True)
     if args.follow_plan:
         follow_plan(args, args.follow_plan[0], float(args.follow_plan[1]), started)

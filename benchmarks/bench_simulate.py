@@ -79,12 +79,11 @@ def time_batch(batch: int, duration: float, dtype: str, repeats: int = 2) -> dic
 TSIT5_EVALS_PER_STEP = 6
 
 
-def _counted_solve(ts, config: SolverConfig, pcoeff: float | None = None, icoeff: float = 1.0):
+def _counted_solve(ts, config: SolverConfig, coeffs: tuple[float, float] | None = None):
     """The door's solve saving the states at ``ts``, with diffrax's step counts; the
-    controller's proportional and integral coefficients as given (``None``: the config's;
-    0 and 1: an integral controller)."""
-    if pcoeff is None:
-        pcoeff, icoeff = config.pcoeff, config.icoeff
+    controller's proportional and integral coefficients ``coeffs`` (``None``: the config's;
+    (0, 1): an integral controller)."""
+    pcoeff, icoeff = (config.pcoeff, config.icoeff) if coeffs is None else coeffs
     import diffrax
 
     def one(b):
@@ -157,7 +156,7 @@ def where_steps_go(batch: int, duration: float, evaluations: int = 2000) -> dict
         _counted_solve(ts, SolverConfig(rtol=1e-8, atol=1e-11, max_steps=400_000))(args)[0]
     )
     other_coeffs = (0.4, 0.3) if (config.pcoeff, config.icoeff) == (0.0, 1.0) else (0.0, 1.0)
-    other = _counted_solve(ts, config, *other_coeffs)
+    other = _counted_solve(ts, config, other_coeffs)
     o_states, o_total, o_rejected = (np.asarray(x) for x in other(args))
     return {
         "batch": batch,

@@ -279,6 +279,23 @@ def test_second_run_recomputes_nothing(finished, tmp_path):
     assert again.diagnosis["causes"] == result.diagnosis["causes"]
 
 
+def test_an_edit_of_the_package_recomputes_every_stage(finished, tmp_path, monkeypatch):
+    """Same settings, other bayesdoor source (as after an upgrade from a working tree): the
+    stages' keys hold the source's digest, so nothing made by the old code is reused."""
+    import bayesdoor.pipeline._job as job_module
+
+    _, out = finished
+    copy = tmp_path / "job"
+    shutil.copytree(out, copy)
+    monkeypatch.setattr(job_module, "code_version", lambda: "0" * 64)
+    # the counters are the module's: counted from zero here, put back after the test
+    monkeypatch.setattr(StandInFit, "calls", 0)
+    monkeypatch.setattr(StandInDiagnosis, "calls", 0)
+    again = job(copy)
+    assert [s.reused for s in again.stages] == [False] * 8
+    assert StandInFit.calls == 1 and StandInDiagnosis.calls == 1
+
+
 def test_changed_test_runs_recompute_only_the_stages_they_reach(finished, tmp_path):
     _, out = finished
     copy = tmp_path / "job"

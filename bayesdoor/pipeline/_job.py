@@ -34,6 +34,7 @@ import numpy as np
 import xarray as xr
 
 from .._cluster import Cluster, Pool
+from .._exported import code_version
 from ..classify import TrainConfig
 from ..datagen import (
     DISCREPANCY_FORM,
@@ -382,12 +383,16 @@ def runs_to_classify(campaign: xr.Dataset) -> xr.Dataset:
 
 
 def _versions() -> dict[str, str]:
+    """What the stages' products depend on besides their settings: the libraries' versions
+    and a digest of bayesdoor's own source (a changed module makes every stage recompute,
+    as an installed package of the same version number with other code would not)."""
     out = {}
     for name in ("bayesdoor", "jax", "equinox", "diffrax", "numpyro"):
         try:
             out[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
             out[name] = "not installed"
+    out["bayesdoor source"] = code_version()
     return out
 
 

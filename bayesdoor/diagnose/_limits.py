@@ -407,6 +407,81 @@ def cause_sizes(catalogue: Catalogue, band: tuple[float, float]) -> dict[str, Ca
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class _Scan:
+    """What every cause's scan shares: the power that defines a limit, the Monte Carlo draws
+    and their seed, the standard normals drawn per run, and the noise."""
+
+    power: float
+    draws: int
+    seed: int
+    normals: np.ndarray
+    noise: _Noise
+
+
+def _declared_sizes(
+    setup: RefitSetup,
+    catalogue: Catalogue,
+    causes: tuple[str, ...] | None,
+    band: tuple[float, float] | None,
+) -> dict[str, CauseSize]:
+    """The declared sizes of the causes asked for (``band`` ``None``: the spectra's own)."""
+    freqs = setup.spectra.freqs
+    band = (float(freqs[0]), float(freqs[-1])) if band is None else band
+    declared = cause_sizes(catalogue, band)
+    if causes is not None:
+        declared = {k: v for k, v in declared.items() if k in causes}
+    return declared
+
+
+def _cause_curves(
+    setup: RefitSetup, size: CauseSize, scan: _Scan
+) -> tuple[tuple[PowerCurve, ...], Callable[[float], np.ndarray] | None]:
+    """A cause's power curve in each configuration, and its typical configuration's spectra
+    as a function of size."""
+    sizes = np.geomspace(size.low, size.high, _GRID)
+    curves, typical = [], None
+    for probe in size.probes:
+        spectra = size_spectra(setup, probe)
+        typical = spectra if typical is None else typical
+        p = len(probe.proposal.free)
+        curves.append(
+            power_curve(
+                setup,
+                probe,
+                sizes,
+                power=scan.power,
+                normals=scan.normals,
+                chi2=_chi2(p, scan.draws, scan.seed),
+                noise=scan.noise,
+                spectra=spectra,
+            )
+        )
+    return tuple(curves), typical
+
+
+def _plan(
+    setup: RefitSetup,
+    name: str,
+    size: CauseSize,
+    target: float,
+    typical: Callable[[float], np.ndarray] | None,
+    scan: _Scan,
+) -> CampaignPlan:
+    """The campaign that would name the cause at size ``target`` in its typical
+    configuration."""
+    return design_campaign(
+        run_gains(setup, size.probes[0], target, noise=scan.noise, spectra=typical),
+        np.asarray(setup.operating, dtype=float),
+        fold_order(setup),
+        target=PlanTarget(name, target, size.unit, size.probes[0].label, display=size.display),
+        power=scan.power,
+        record_s=setup.duration,
+        draws=scan.draws,
+        seed=scan.seed,
+    )
+
+
 def detection_limits(
     setup: RefitSetup,
     catalogue: Catalogue,
@@ -451,52 +526,18 @@ def detection_limits(
     if not 0.0 < power < 1.0:
         raise ValueError(f"power={power!r} must lie in (0, 1)")
     n = len(setup.operating)
-    freqs = setup.spectra.freqs
-    band = (float(freqs[0]), float(freqs[-1])) if band is None else band
-    declared = cause_sizes(catalogue, band)
-    if causes is not None:
-        declared = {k: v for k, v in declared.items() if k in causes}
+    declared = _declared_sizes(setup, catalogue, causes, band)
     if n < 4 or not declared:
         return {}
     rng = np.random.default_rng(seed)
-    normals = rng.standard_normal((draws, n))
-    noise = _noise(setup)
+    scan = _Scan(power, draws, seed, rng.standard_normal((draws, n)), _noise(setup))
     out = {}
     for name, size in declared.items():
-        sizes = np.geomspace(size.low, size.high, _GRID)
-        curves, typical = [], None
-        for probe in size.probes:
-            spectra = size_spectra(setup, probe)
-            typical = spectra if typical is None else typical
-            p = len(probe.proposal.free)
-            curves.append(
-                power_curve(
-                    setup,
-                    probe,
-                    sizes,
-                    power=power,
-                    normals=normals,
-                    chi2=_chi2(p, draws, seed),
-                    noise=noise,
-                    spectra=spectra,
-                )
-            )
+        curves, typical = _cause_curves(setup, size, scan)
         plan = None
         limit = curves[0].limit
         if plan_factor is not None and limit is not None and np.ndim(setup.operating) == 1:
-            target = plan_factor * limit
-            plan = design_campaign(
-                run_gains(setup, size.probes[0], target, noise=noise, spectra=typical),
-                np.asarray(setup.operating, dtype=float),
-                fold_order(setup),
-                target=PlanTarget(
-                    name, target, size.unit, size.probes[0].label, display=size.display
-                ),
-                power=power,
-                record_s=setup.duration,
-                draws=draws,
-                seed=seed,
-            )
+            plan = _plan(setup, name, size, plan_factor * limit, typical, scan)
         out[name] = CauseLimit(
             cause=name,
             quantity=size.quantity,
@@ -504,7 +545,7 @@ def detection_limits(
             display=size.display,
             power=power,
             runs=n,
-            curves=tuple(curves),
+            curves=curves,
             plan=plan,
         )
     return out

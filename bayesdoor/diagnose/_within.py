@@ -50,6 +50,70 @@ def _excess_spectrogram(measured, draws, fs, nperseg, hop, nfft):
     return freqs, times, excess
 
 
+@dataclasses.dataclass(frozen=True)
+class _Frames:
+    """The short-time frames: sampling rate (Hz), frame length and hop (samples)."""
+
+    fs: float
+    nperseg: int
+    hop: int
+
+    @property
+    def resolution(self) -> float:
+        """A frame's frequency resolution, Hz."""
+        return self.fs / self.nperseg
+
+
+def _frames(x: np.ndarray, v: np.ndarray, fs: float, frame_s: float, hop_s: float) -> _Frames:
+    """The frames of ``frame_s`` every ``hop_s``, once the speed profiles' shape and the frame
+    length are checked against the records."""
+    if v.shape != (x.shape[0], x.shape[-1]):
+        raise ValueError(
+            f"speed_profiles must have dims (run, time) = {(x.shape[0], x.shape[-1])}, got "
+            f"{v.shape}"
+        )
+    nperseg = round(frame_s * fs)
+    hop = max(1, round(hop_s * fs))
+    if not 8 <= nperseg <= x.shape[-1]:
+        raise ValueError(f"frame_s={frame_s} s gives {nperseg} samples; use 8 to {x.shape[-1]}")
+    return _Frames(fs, nperseg, hop)
+
+
+def _telling_gaps(
+    region: Region,
+    f_c: float,
+    v_peak: float,
+    speed_profile: np.ndarray,
+    spectrogram: tuple,
+    frames: _Frames,
+) -> list[float]:
+    """One run's ``e(f_tracking) - e(f_fixed)`` over its telling frames, signed by the region."""
+    freqs, times, excess = spectrogram
+    starts = np.rint(times * frames.fs).astype(int) - frames.nperseg // 2
+    speed = np.array([speed_profile[s : s + frames.nperseg].mean() for s in starts])
+    f_track = f_c * speed / v_peak
+    telling = (speed >= MOVING_FRACTION * v_peak) & (
+        np.abs(f_c - f_track) >= TELLING_BINS * frames.resolution
+    )
+    gaps = []
+    for k in np.flatnonzero(telling):
+        e = excess[:, k]
+        gap = np.interp(f_track[k], freqs, e) - np.interp(f_c, freqs, e)
+        gaps.append(region.sign * gap)
+    return gaps
+
+
+def _within_fit(diffs: list[float], frames: _Frames) -> WithinRunFit:
+    """The verdict from the telling frames' gaps, standardised over the independent frames."""
+    if not diffs:
+        return WithinRunFit(UNDETERMINED, float("nan"), 0)
+    n_independent = max(1.0, len(diffs) * frames.hop / frames.nperseg)
+    sd = np.sqrt(2.0 * float(log10_psd_variance(2.0)) / n_independent)
+    z = float(np.mean(diffs) / sd)
+    preferred = TRACKING if z >= WITHIN_Z else FIXED if z <= -WITHIN_Z else UNDETERMINED
+    return WithinRunFit(preferred, z, len(diffs))
+
+
 def within_run_speed(
     measured: Float[np.ndarray, "run channel time"],
     predictive: Float[np.ndarray, "draw run channel time"],
@@ -103,16 +167,7 @@ def within_run_speed(
     x = np.asarray(measured, dtype=float)
     sims = np.asarray(predictive, dtype=float)
     v = np.asarray(speed_profiles, dtype=float)
-    if v.shape != (x.shape[0], x.shape[-1]):
-        raise ValueError(
-            f"speed_profiles must have dims (run, time) = {(x.shape[0], x.shape[-1])}, got "
-            f"{v.shape}"
-        )
-    nperseg = round(frame_s * fs)
-    hop = max(1, round(hop_s * fs))
-    if not 8 <= nperseg <= x.shape[-1]:
-        raise ValueError(f"frame_s={frame_s} s gives {nperseg} samples; use 8 to {x.shape[-1]}")
-    resolution = fs / nperseg
+    frames = _frames(x, v, fs, frame_s, hop_s)
     names = list(channels)
     spectra: dict[tuple[int, int], tuple] = {}
     fits = []
@@ -126,25 +181,8 @@ def within_run_speed(
             f_c = region.peak if region.domain == FREQUENCY else region.peak * v_peak
             if (r, c) not in spectra:
                 spectra[r, c] = _excess_spectrogram(
-                    x[r, c], sims[:, r, c], fs, nperseg, hop, 4 * nperseg
+                    x[r, c], sims[:, r, c], fs, frames.nperseg, frames.hop, 4 * frames.nperseg
                 )
-            freqs, times, excess = spectra[r, c]
-            starts = np.rint(times * fs).astype(int) - nperseg // 2
-            speed = np.array([v[r, s : s + nperseg].mean() for s in starts])
-            f_track = f_c * speed / v_peak
-            telling = (speed >= MOVING_FRACTION * v_peak) & (
-                np.abs(f_c - f_track) >= TELLING_BINS * resolution
-            )
-            for k in np.flatnonzero(telling):
-                e = excess[:, k]
-                gap = np.interp(f_track[k], freqs, e) - np.interp(f_c, freqs, e)
-                diffs.append(region.sign * gap)
-        if not diffs:
-            fits.append(WithinRunFit(UNDETERMINED, float("nan"), 0))
-            continue
-        n_independent = max(1.0, len(diffs) * hop / nperseg)
-        sd = np.sqrt(2.0 * float(log10_psd_variance(2.0)) / n_independent)
-        z = float(np.mean(diffs) / sd)
-        preferred = TRACKING if z >= WITHIN_Z else FIXED if z <= -WITHIN_Z else UNDETERMINED
-        fits.append(WithinRunFit(preferred, z, len(diffs)))
+            diffs += _telling_gaps(region, f_c, v_peak, v[r], spectra[r, c], frames)
+        fits.append(_within_fit(diffs, frames))
     return tuple(fits)

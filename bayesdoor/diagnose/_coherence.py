@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 import scipy.stats
@@ -186,6 +187,27 @@ def coherence_map(
     variance of the transformed coherence estimate).
     """
     names = list(channels)
+    meas, sim = _check_inputs(measured, simulated, names, pairs, nperseg)
+    freqs, stats = _pair_changes(meas, sim, names, pairs, fs, nperseg)
+    lo, hi = (freqs[1], freqs[-2]) if band is None else band
+    keep = (freqs >= lo) & (freqs <= hi)
+    z_all = _excess_z(stats, keep, nperseg)
+    rejected, threshold = benjamini_hochberg(scipy.stats.norm.sf(z_all), q)
+    out = [
+        _pair_coherence(pair, stat, z, sig, keep)
+        for pair, stat, z, sig in zip(pairs, stats, z_all, rejected, strict=True)
+    ]
+    return CoherenceMap(freqs=freqs[keep], pairs=tuple(out), q=float(q), p_threshold=threshold)
+
+
+def _check_inputs(
+    measured: Sequence[np.ndarray],
+    simulated: Sequence[np.ndarray],
+    names: list[str],
+    pairs: Sequence[tuple[str, str]],
+    nperseg: int,
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The measured and simulated runs as arrays, once the pairs' names and the shapes check."""
     for pair in pairs:
         for name in pair:
             if name not in names:
@@ -197,15 +219,40 @@ def coherence_map(
             "simulated must hold one run of the same shape per measured run; got "
             f"{[m.shape for m in meas]} measured and {[s.shape for s in sim]} simulated"
         )
+    return meas, sim
+
+
+class _PairChange(NamedTuple):
+    """One pair's coherence per run and bin, measured and simulated, the change (measured
+    minus simulated) of its transfer functions b/a and a/b, and each run's segment count."""
+
+    measured: np.ndarray
+    simulated: np.ndarray
+    change_ba: np.ndarray
+    change_ab: np.ndarray
+    counts: np.ndarray
+
+
+def _pair_changes(
+    meas: list[np.ndarray],
+    sim: list[np.ndarray],
+    names: list[str],
+    pairs: Sequence[tuple[str, str]],
+    fs: float,
+    nperseg: int,
+) -> tuple[np.ndarray, list[_PairChange]]:
+    """The bins and, per pair, its coherences and transfer changes over all bins."""
     stats = []
     for a_name, b_name in pairs:
         a, b = names.index(a_name), names.index(b_name)
         freqs, c_m, hba_m, hab_m, counts = _pair_statistics(meas, a, b, fs, nperseg)
         _, c_s, hba_s, hab_s, _ = _pair_statistics(sim, a, b, fs, nperseg)
-        stats.append((c_m, c_s, hba_m - hba_s, hab_m - hab_s, counts))
-    lo, hi = (freqs[1], freqs[-2]) if band is None else band
-    keep = (freqs >= lo) & (freqs <= hi)
-    freqs = freqs[keep]
+        stats.append(_PairChange(c_m, c_s, hba_m - hba_s, hab_m - hab_s, counts))
+    return freqs, stats
+
+
+def _excess_z(stats: list[_PairChange], keep: np.ndarray, nperseg: int) -> np.ndarray:
+    """Per pair and kept bin, the Fisher-transformed coherence excess combined over runs."""
     z_rows = []
     for c_m, c_s, _, _, counts in stats:
         n_eff = np.array([welch_dof(int(k), nperseg) / 2.0 for k in counts])
@@ -215,34 +262,34 @@ def coherence_map(
         )
         d = fisher[:, keep] / np.sqrt(2.0 * var)[:, None]
         z_rows.append(d.sum(axis=0) / np.sqrt(d.shape[0]))
-    z_all = np.array(z_rows)
-    rejected, threshold = benjamini_hochberg(scipy.stats.norm.sf(z_all), q)
-    out = []
-    for (a_name, b_name), (c_m, c_s, dba, dab, _), z, sig in zip(
-        pairs, stats, z_all, rejected, strict=True
-    ):
-        t_ba = np.median(dba[:, keep].real, axis=0) + 1j * np.median(dba[:, keep].imag, axis=0)
-        t_ab = np.median(dab[:, keep].real, axis=0) + 1j * np.median(dab[:, keep].imag, axis=0)
-        leak_ba, spread_ba, sd_ba = _leak(t_ba, sig)
-        leak_ab, spread_ab, sd_ab = _leak(t_ab, sig)
-        forward = not spread_ab < spread_ba
-        out.append(
-            PairCoherence(
-                pair=(a_name, b_name),
-                measured=c_m[:, keep],
-                simulated=c_s[:, keep],
-                z=z,
-                significant=sig,
-                fraction_significant=float(sig.mean()),
-                source=a_name if forward else b_name,
-                receiver=b_name if forward else a_name,
-                transfer=t_ba if forward else t_ab,
-                leak=leak_ba if forward else leak_ab,
-                leak_spread=spread_ba if forward else spread_ab,
-                leak_sd=sd_ba if forward else sd_ab,
-            )
-        )
-    return CoherenceMap(freqs=freqs, pairs=tuple(out), q=float(q), p_threshold=threshold)
+    return np.array(z_rows)
+
+
+def _pair_coherence(
+    pair: tuple[str, str], stat: _PairChange, z: np.ndarray, sig: np.ndarray, keep: np.ndarray
+) -> PairCoherence:
+    """The pair's record over the kept bins, its leak in the direction of the flatter change."""
+    a_name, b_name = pair
+    c_m, c_s, dba, dab, _ = stat
+    t_ba = np.median(dba[:, keep].real, axis=0) + 1j * np.median(dba[:, keep].imag, axis=0)
+    t_ab = np.median(dab[:, keep].real, axis=0) + 1j * np.median(dab[:, keep].imag, axis=0)
+    leak_ba, spread_ba, sd_ba = _leak(t_ba, sig)
+    leak_ab, spread_ab, sd_ab = _leak(t_ab, sig)
+    forward = not spread_ab < spread_ba
+    return PairCoherence(
+        pair=(a_name, b_name),
+        measured=c_m[:, keep],
+        simulated=c_s[:, keep],
+        z=z,
+        significant=sig,
+        fraction_significant=float(sig.mean()),
+        source=a_name if forward else b_name,
+        receiver=b_name if forward else a_name,
+        transfer=t_ba if forward else t_ab,
+        leak=leak_ba if forward else leak_ab,
+        leak_spread=spread_ba if forward else spread_ab,
+        leak_sd=sd_ba if forward else sd_ab,
+    )
 
 
 def _leak(transfer: np.ndarray, significant: np.ndarray) -> tuple[float, float, float]:

@@ -429,48 +429,67 @@ def residual_map(
     6(4); Y. Benjamini and Y. Hochberg (1995), J. R. Stat. Soc. B 57(1).
     """
     f, y, draws, var, v = _check_inputs(freqs, measured, predictive, log_variance, channels, speeds)
-    band = settings.band
+    f, y, draws, var = _in_band(f, y, draws, var, settings.band)
+    mu, z, dev, share = _standardise(y, draws, var, settings.smooth_discrepancy_bins)
+    spread = v is not None and v.max() / v.min() >= MIN_SPEED_SPREAD
+    bins = _Bins(f, y, mu, z, 10.0 * (y - mu), v, bool(spread), tuple(channels))
+    return _tested_map(bins, dev, share, settings.q)
+
+
+def _in_band(
+    f: np.ndarray,
+    y: np.ndarray,
+    draws: np.ndarray,
+    var: np.ndarray,
+    band: tuple[float, float] | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The grid, measured spectra, draws and variances at the band's bins (at least three)."""
     lo, hi = (f[1], f[-2]) if band is None else band
     keep = (f >= lo) & (f <= hi)
     if keep.sum() < 3:
         raise ValueError(f"band={band!r} holds {int(keep.sum())} bins of the grid; widen it")
-    f, y, draws, var = f[keep], y[..., keep], draws[..., keep], var[..., keep]
-    df = float(f[1] - f[0])
+    return f[keep], y[..., keep], draws[..., keep], var[..., keep]
+
+
+def _standardise(
+    y: np.ndarray, draws: np.ndarray, var: np.ndarray, smooth_bins: int | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The prediction, the standardised residuals, the draws' standardised deviations and the
+    Welch share of each bin's variance (after the smooth discrepancy, when asked for)."""
     mu = draws.mean(axis=0)
-    if settings.smooth_discrepancy_bins is not None:
-        smooth = smooth_discrepancy(y - mu, settings.smooth_discrepancy_bins)
+    if smooth_bins is not None:
+        smooth = smooth_discrepancy(y - mu, smooth_bins)
         mu, draws = mu + smooth, draws + smooth
     draw_var = draws.var(axis=0, ddof=1) if draws.shape[0] > 1 else np.zeros_like(mu)
     sigma = np.sqrt(draw_var + var)
     z = log_chi2_normal_scores(y - mu, draw_var, dof_from_log10_variance(var))
-    dev = (draws - mu) / sigma
-    share = var / sigma**2
+    return mu, z, (draws - mu) / sigma, var / sigma**2
+
+
+def _tested_map(bins: _Bins, dev: np.ndarray, share: np.ndarray, q: float) -> ResidualMap:
+    """Both domains' combined maps, tested in one family at rate ``q``, and their regions."""
+    f, z = bins.f, bins.z
     combined = _combine(z, dev, share)
-    spread = v is not None and v.max() / v.min() >= MIN_SPEED_SPREAD
-    kappa, combined_k = _wavenumber_map(f, z, dev, share, v if spread else None)
-
+    kappa, combined_k = _wavenumber_map(f, z, dev, share, bins.v if bins.spread else None)
     p = 2.0 * scipy.stats.norm.sf(np.abs(np.concatenate([combined, combined_k], axis=1)))
-    rejected, threshold = benjamini_hochberg(p, settings.q)
+    rejected, threshold = benjamini_hochberg(p, q)
     sig_f, sig_k = rejected[:, : f.size], rejected[:, f.size :]
-
-    excess_db = 10.0 * (y - mu)
-    bins = _Bins(f, y, mu, z, excess_db, v, bool(spread), tuple(channels))
     maps = {FREQUENCY: (f, combined), WAVENUMBER: (kappa, combined_k)}
     return ResidualMap(
         freqs=f,
-        channels=tuple(channels),
-        speeds=v,
+        channels=bins.channels,
+        speeds=bins.v,
         z=z,
-        excess_db=excess_db,
+        excess_db=bins.excess_db,
         combined=combined,
         wavenumbers=kappa,
         combined_wavenumber=combined_k,
         significant=sig_f,
         significant_wavenumber=sig_k,
-        q=float(settings.q),
+        q=float(q),
         p_threshold=threshold,
         n_tests=int(np.isfinite(p).sum()),
-        regions=_distinct(_regions(bins, maps, sig_f, sig_k), df),
+        regions=_distinct(_regions(bins, maps, sig_f, sig_k), float(f[1] - f[0])),
     )
 
 

@@ -25,6 +25,8 @@ from ._fit import Fitted as Fitted
 from ._job import DEFAULT_SOURCE as DEFAULT_SOURCE
 from ._job import SOURCES as SOURCES
 from ._job import STAGES as STAGES
+from ._job import DiagnoseFunction as DiagnoseFunction
+from ._job import FitFunction as FitFunction
 from ._job import Generation as Generation
 from ._job import JobConfig as JobConfig
 from ._job import JobResult as JobResult

@@ -27,7 +27,7 @@ import json
 from collections.abc import Callable, Iterator, Mapping
 from importlib import metadata
 from pathlib import Path
-from typing import Any, Literal, NamedTuple
+from typing import Any, Literal, NamedTuple, Protocol
 
 import jax
 import numpy as np
@@ -396,8 +396,8 @@ def _versions() -> dict[str, str]:
     return out
 
 
-def _default_fit(system, campaign, **options):
-    return fit_campaign(system, campaign, **options)
+def _default_fit(system: AbstractSystem, calibration: xr.Dataset, **options: Any) -> Any:
+    return fit_campaign(system, calibration, **options)
 
 
 def _check_folder(out: Path, settings: dict[str, Any], job_hash: str, overwrite: bool) -> None:
@@ -520,14 +520,62 @@ def generation_settings(
     return Generation(stage, params, config)
 
 
+class FitFunction(Protocol):
+    """The model-updating function of a job (:func:`run_job`'s ``fit``).
+
+    Called as ``fit(system, calibration, method=, seed=, quick=, progress=,
+    **config.fit_options)`` on the healthy calibration runs; returns a ``FitResult``-like
+    object (``point``, ``j``, ``posterior_draws()``, ``model_error_draws()``,
+    ``save(folder)``). The default, :func:`bayesdoor.inference.fit_campaign`, lets CMA-ES
+    search the integer parameters (the door's contact-law index) unless the fit options
+    hold them (``fixed={"I": 3}``).
+    """
+
+    def __call__(
+        self,
+        system: AbstractSystem,
+        calibration: xr.Dataset,
+        *,
+        method: str,
+        seed: int,
+        quick: bool,
+        progress: bool,
+        **options: Any,
+    ) -> Any: ...
+
+
+class DiagnoseFunction(Protocol):
+    """The diagnosis of a job (:func:`run_job`'s ``diagnose``).
+
+    Called as ``diagnose(system, campaign, fit_folder, seed=, quick=, progress=)`` with the
+    folder of the saved fit; returns an object with ``to_json()``
+    (:class:`bayesdoor.diagnose.Diagnosis`). A function that takes a ``pool`` keyword gets
+    the job's (where its refits and limits run). The default is
+    :func:`bayesdoor.pipeline.default_diagnose`
+    (:func:`bayesdoor.diagnose.diagnose_campaign`); a ``ValueError`` it raises (a campaign
+    it cannot diagnose, for example too few runs) leaves the job without a verdict.
+    """
+
+    def __call__(
+        self,
+        system: AbstractSystem,
+        campaign: xr.Dataset,
+        fit_folder: Path,
+        *,
+        seed: int,
+        quick: bool,
+        progress: bool,
+    ) -> Any: ...
+
+
 def run_job(
     system: AbstractSystem,
     campaign: xr.Dataset,
     out: str | Path,
     config: JobConfig | None = None,
     *,
-    fit: Callable[..., Any] | None = None,
-    diagnose: Callable[..., Any] | None = None,
+    fit: FitFunction | None = None,
+    diagnose: DiagnoseFunction | None = None,
     cluster: Cluster | Pool | None = None,
     progress: bool = True,
     report: Callable[[str], None] = print,
@@ -535,48 +583,35 @@ def run_job(
 ) -> JobResult:
     """Fit on the calibration runs, simulate training data, train, classify the test runs, report.
 
-    Every stage writes under ``out/<stage>/`` (see the module docstring) and is reused when it
-    is finished with the same configuration, so a second call recomputes nothing and a changed
-    setting recomputes only the stages it reaches. The test runs are never used for fitting,
-    training, calibration or thresholds.
+    Every stage writes under ``out/<stage>/`` (the module docstring) and is reused when it is
+    finished with the same configuration: a second call recomputes nothing, a changed setting
+    only the stages it reaches. Fitting, training, calibration and thresholds never see the
+    test runs.
 
     Parameters
     ----------
     system
         The simulated system (its parameters, states and simulator).
     campaign
-        A measurement campaign (docs/data.md). Fit on the runs of
-        :func:`bayesdoor.inference.calibration_runs` (the healthy ones among
-        ``split == "calibration"``, else among all runs); classify ``split == "test"`` (else
-        all runs).
+        A measurement campaign (docs/data.md): fit on its healthy calibration runs
+        (:func:`bayesdoor.inference.calibration_runs`), classify its test runs
+        (:func:`runs_to_classify`).
     out
         The job's folder.
     config
         What the job computes (:class:`JobConfig`; ``None``: its defaults, the paper's sizes).
     fit
-        The model-updating function, called as ``fit(system, calibration, method=, seed=,
-        quick=, progress=, **config.fit_options)`` and returning a ``FitResult``-like object
-        (``point``, ``j``, ``posterior_draws()``, ``model_error_draws()``, ``save(folder)``);
-        ``None`` means :func:`bayesdoor.inference.fit_campaign`, whose integer parameters (the
-        door's contact-law index) CMA-ES searches unless the fit options hold them
-        (``fixed={"I": 3}``).
+        The model-updating function (:class:`FitFunction`); ``None``:
+        :func:`bayesdoor.inference.fit_campaign`.
     diagnose
-        The diagnosis, called as ``diagnose(system, campaign, fit_folder, seed=, quick=,
-        progress=)`` with the folder of the saved fit and returning an object with
-        ``to_json()`` (:class:`bayesdoor.diagnose.Diagnosis`); a function that takes a
-        ``pool`` keyword gets the job's (see ``cluster``); ``None`` means
-        :func:`bayesdoor.pipeline.default_diagnose`
-        (:func:`bayesdoor.diagnose.diagnose_campaign`). When it raises ``ValueError`` (a
-        campaign it cannot diagnose, for example too few runs), the job goes on: the
-        diagnosis JSON holds ``error`` and no verdict, the report says why, and the next run
-        tries again.
+        The diagnosis (:class:`DiagnoseFunction`); ``None``: :func:`default_diagnose`. When
+        it raises ``ValueError`` the job goes on: the diagnosis JSON holds ``error`` and no
+        verdict, the report says why, and the next run tries again.
     cluster
-        Where the simulation-heavy steps run (:class:`bayesdoor.Cluster`: this process, a
-        local Dask cluster of worker processes, or a scheduler's address): the
-        training-data generation and the diagnosis's refits and limits. ``None``: this
-        process. An open :class:`~bayesdoor.Pool` is used as it is (the extended job shares
-        its job's). The results do not depend on it: every task has its own seed, and the
-        stages' configurations (their cache keys) leave it out.
+        Where the training-data generation and the diagnosis's refits and limits run
+        (:class:`bayesdoor.Cluster`; ``None``: this process; an open
+        :class:`~bayesdoor.Pool`, such as the extended job's, is used as it is). Neither the
+        results nor the stages' cache keys depend on it: every task has its own seed.
     progress
         Show the progress bars of the stages.
     report
@@ -597,57 +632,50 @@ def run_job(
         When ``out`` holds a finished job of other settings (and ``overwrite`` is false), or
         files that are not a job's; nothing is written then.
     """
-    config = JobConfig() if config is None else config
-    out = Path(out)
-    system_description = describe_system(system)
-    settings = config.settings(system_description, digest_runs(campaign))
-    job_hash = configuration_hash(settings)
-    calibration = campaign.isel(run=calibration_runs(campaign, system.healthy))
-    test = runs_to_classify(campaign)
-    _check_folder(out, settings, job_hash, overwrite)
-    out.mkdir(parents=True, exist_ok=True)
+    job = _Job(
+        system,
+        campaign,
+        Path(out),
+        JobConfig() if config is None else config,
+        fit=_default_fit if fit is None else fit,
+        diagnose=default_diagnose if diagnose is None else diagnose,
+        progress=progress,
+        report=report,
+    )
+    _check_folder(job.out, job.settings, job.job_hash, overwrite)
+    job.out.mkdir(parents=True, exist_ok=True)
     with _opened(cluster) as pool:
-        job = _Job(
-            system=system,
-            system_description=system_description,
-            campaign=campaign,
-            calibration=calibration,
-            test=test,
-            out=out,
-            config=config,
-            fit=_default_fit if fit is None else fit,
-            progress=progress,
-            report=report,
-            diagnose=default_diagnose if diagnose is None else diagnose,
-            versions=_versions(),
-            key=jax.random.key(config.seed),
-            pool=pool,
-        )
-        if pool.address is not None:
-            report(f"cluster: {pool.address}")
-        for stage in JOB_STAGES:
-            if stage.name == "report" and config.extend:
-                job.extension = _extension(job)
-            job.run(stage)
+        job.run_all(pool)
+    result = _result(job)
+    _write_job_record(job.out, _job_record(job, result))
+    return result
+
+
+def _result(job: _Job) -> JobResult:
+    """The finished job's products, as :func:`run_job` returns them."""
     products = job.products
-    adequacy, trust = products["adequacy"], products["trust"]
-    diagnosis_json = products.get("diagnose")
-    result = JobResult(
-        out=out,
+    return JobResult(
+        out=job.out,
         stages=tuple(job.records.values()),
         fit=products["fit"],
         classification=products["classify"],
         report=products.get("report"),
-        diagnosis=diagnosis_json,
-        adequacy=adequacy,
-        trust=trust,
+        diagnosis=products.get("diagnose"),
+        adequacy=products["adequacy"],
+        trust=products["trust"],
         extended=None if job.extension is None else job.extension.result,
         extension=None if job.extension is None else job.extension.summary,
     )
-    record = {
-        "job_hash": job_hash,
-        "system": system.name,
-        **{k: v for k, v in settings.items() if k != "system"},
+
+
+def _job_record(job: _Job, result: JobResult) -> dict[str, Any]:
+    """``job.json``: the settings, the stages' hashes and the verdicts of the finished job."""
+    diagnosis_json = result.diagnosis
+    adequacy, trust = job.products["adequacy"], job.products["trust"]
+    return {
+        "job_hash": job.job_hash,
+        "system": job.system.name,
+        **{k: v for k, v in job.settings.items() if k != "system"},
         "stages": {name: r.config_hash for name, r in job.records.items()},
         "metrics": result.classification.get("metrics"),
         "adequacy": adequacy.get("verdict"),
@@ -664,9 +692,11 @@ def run_job(
             "trust": (result.extended.trust or {}).get("verdict"),
         },
     }
+
+
+def _write_job_record(out: Path, record: dict[str, Any]) -> None:
     text = json.dumps(record, indent=1, default=float) + "\n"
     atomic_write(out / "job.json", lambda tmp: tmp.write_text(text), overwrite=True)
-    return result
 
 
 @dataclasses.dataclass
@@ -676,19 +706,25 @@ class _Job:
     the later stages in memory)."""
 
     system: AbstractSystem
-    system_description: dict[str, Any]
     campaign: xr.Dataset
-    calibration: xr.Dataset
-    test: xr.Dataset
     out: Path
     config: JobConfig
-    fit: Callable[..., Any]
+    fit: FitFunction
+    diagnose: DiagnoseFunction
     progress: bool
     report: Callable[[str], None]
-    diagnose: Callable[..., Any]
-    versions: dict[str, str]
-    key: jax.Array
-    pool: Pool
+    #: where the generation and the diagnosis run (set by :meth:`run_all`)
+    pool: Pool = dataclasses.field(init=False)
+    system_description: dict[str, Any] = dataclasses.field(init=False)
+    #: what the job's hash and ``job.json`` hold of its settings
+    settings: dict[str, Any] = dataclasses.field(init=False)
+    job_hash: str = dataclasses.field(init=False)
+    #: the healthy calibration runs the fit, the discrepancy and the diagnosis read
+    calibration: xr.Dataset = dataclasses.field(init=False)
+    #: the runs to classify
+    test: xr.Dataset = dataclasses.field(init=False)
+    versions: dict[str, str] = dataclasses.field(init=False)
+    key: jax.Array = dataclasses.field(init=False)
     records: dict[str, StageRecord] = dataclasses.field(default_factory=dict)
     products: dict[str, Any] = dataclasses.field(default_factory=dict)
     #: the configuration hash a stage that could not be made stands in with (its reason's)
@@ -696,6 +732,27 @@ class _Job:
     _generation: Generation | None = None
     #: with ``extend``: the job on the extended system, or why there is none
     extension: _Extension | None = None
+
+    def __post_init__(self) -> None:
+        self.system_description = describe_system(self.system)
+        self.settings = self.config.settings(self.system_description, digest_runs(self.campaign))
+        self.job_hash = configuration_hash(self.settings)
+        self.calibration = self.campaign.isel(
+            run=calibration_runs(self.campaign, self.system.healthy)
+        )
+        self.test = runs_to_classify(self.campaign)
+        self.versions = _versions()
+        self.key = jax.random.key(self.config.seed)
+
+    def run_all(self, pool: Pool) -> None:
+        """Run (or reuse) every stage in order, the simulation-heavy steps on ``pool``."""
+        self.pool = pool
+        if pool.address is not None:
+            self.report(f"cluster: {pool.address}")
+        for stage in JOB_STAGES:
+            if stage.name == "report" and self.config.extend:
+                self.extension = _extension(self)
+            self.run(stage)
 
     def run(self, stage: JobStage) -> None:
         """Run ``stage`` (or reuse it), keep its record and product."""

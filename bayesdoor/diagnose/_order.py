@@ -62,6 +62,50 @@ def travelled_distance(speed: Float[np.ndarray, "... time"], fs: float) -> np.nd
     return np.concatenate([np.zeros((*v.shape[:-1], 1)), steps], axis=-1)
 
 
+@dataclasses.dataclass(frozen=True)
+class _Resampling:
+    """How a run is resampled and analysed: its sampling rate (Hz), the step of travelled
+    distance (m) and the Welch segment (resampled points)."""
+
+    fs: float
+    step: float
+    nperseg: int
+
+
+def _run_order_psd(
+    low: Float[np.ndarray, "channel time"],
+    speed: Float[np.ndarray, " time"],
+    moving: np.ndarray,
+    resampling: _Resampling,
+    segment_m: float,
+    run: int,
+) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """One run's wavenumbers, log10 order PSD and its Welch variance, and the distance it
+    travels while ``moving`` (m)."""
+    step, nperseg = resampling.step, resampling.nperseg
+    distance = travelled_distance(speed, resampling.fs)
+    idx = np.flatnonzero(moving)
+    z0, z1 = distance[idx[0]], distance[idx[-1]]
+    grid = np.arange(z0, z1, step)
+    if grid.size < nperseg:
+        raise ValueError(
+            f"run {run} travels {z1 - z0:.3f} m while moving, shorter than segment_m="
+            f"{segment_m}; use a shorter segment"
+        )
+    span = slice(idx[0], idx[-1] + 1)
+    resampled = np.stack([np.interp(grid, distance[span], c[span]) for c in low])
+    wavenumbers, psd = welch_psd(
+        resampled, 1.0 / step, nperseg=nperseg, options=WelchOptions(nfft=PADDING * nperseg)
+    )
+    n_segments = welch_segment_count(grid.size, nperseg)
+    return (
+        wavenumbers,
+        np.log10(np.maximum(psd, 1e-300)),
+        float(log10_psd_variance(welch_dof(n_segments, nperseg))),
+        float(z1 - z0),
+    )
+
+
 def order_log_psd(
     signals: Float[np.ndarray, "run channel time"],
     fs: float,
@@ -121,37 +165,25 @@ def order_log_psd(
     if np.any(peak <= 0):
         raise ValueError(f"every run needs a positive speed; peak speeds {peak.tolist()}")
     step = float(peak.max() / fs) if step_m is None else float(step_m)
-    nperseg = round(segment_m / step)
+    resampling = _Resampling(fs, step, round(segment_m / step))
     sos = scipy.signal.butter(8, MOVING_FRACTION * 0.8, output="sos")
     low = scipy.signal.sosfiltfilt(sos, x, axis=-1)
     t = np.arange(x.shape[-1]) / fs
     psds, log_var, travel = [], [], []
     wavenumbers = np.zeros(0)
     for r in range(n_runs):
-        distance = travelled_distance(v[r], fs)
         moving = (t >= t0[r]) & (t <= t1[r]) & (v[r] >= MOVING_FRACTION * peak[r])
-        idx = np.flatnonzero(moving)
-        z0, z1 = distance[idx[0]], distance[idx[-1]]
-        grid = np.arange(z0, z1, step)
-        if grid.size < nperseg:
-            raise ValueError(
-                f"run {r} travels {z1 - z0:.3f} m while moving, shorter than segment_m="
-                f"{segment_m}; use a shorter segment"
-            )
-        span = slice(idx[0], idx[-1] + 1)
-        resampled = np.stack([np.interp(grid, distance[span], c[span]) for c in low[r]])
-        wavenumbers, psd = welch_psd(
-            resampled, 1.0 / step, nperseg=nperseg, options=WelchOptions(nfft=PADDING * nperseg)
+        wavenumbers, psd, variance, distance = _run_order_psd(
+            low[r], v[r], moving, resampling, segment_m, r
         )
-        n_segments = welch_segment_count(grid.size, nperseg)
-        psds.append(np.log10(np.maximum(psd, 1e-300)))
-        log_var.append(float(log10_psd_variance(welch_dof(n_segments, nperseg))))
-        travel.append(float(z1 - z0))
+        psds.append(psd)
+        log_var.append(variance)
+        travel.append(distance)
     return OrderSpectra(
         wavenumbers=wavenumbers,
         log_psd=np.stack(psds),
         log_variance=np.array(log_var),
-        segment_m=float(nperseg * step),
+        segment_m=float(resampling.nperseg * step),
         travel_m=np.array(travel),
     )
 

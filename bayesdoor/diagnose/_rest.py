@@ -224,14 +224,44 @@ def rest_lines(
         sim = np.max(draws, axis=0)
     lo, hi = (freqs[1], freqs[-2]) if band is None else band
     keep = (freqs >= lo) & (freqs <= hi)
+    floor_full, ratio, p = _floor_test(psd, dof)
+    p[:, ~keep] = np.nan
+    rejected, _ = benjamini_hochberg(p, q)
+    lines = _lines(channels, freqs, psd, floor_full, sim, ratio, p, rejected)
+    return RestLines(
+        channels=tuple(channels),
+        freqs=freqs[keep],
+        psd=psd[:, keep],
+        floor=floor_full[:, keep],
+        simulated=sim[:, keep],
+        dof=float(dof),
+        significant=rejected[:, keep],
+        lines=tuple(lines),
+        q=float(q),
+    )
+
+
+def _floor_test(psd: np.ndarray, dof: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The local floor scaled to a mean, each bin's ratio to it and its one-sided p-value."""
     median_factor = scipy.stats.chi2.median(dof) / dof
     floor_full = _local_floor(psd) / median_factor
     neighbours = 2 * (FLOOR_HALF_WIDTH - LOBE_HALF_WIDTH)
     dof_floor = MEDIAN_EFFICIENCY * dof * neighbours
     ratio = psd / floor_full
-    p = scipy.stats.f.sf(ratio, dof, dof_floor)
-    p[:, ~keep] = np.nan
-    rejected, _ = benjamini_hochberg(p, q)
+    return floor_full, ratio, scipy.stats.f.sf(ratio, dof, dof_floor)
+
+
+def _lines(
+    channels: Sequence[str],
+    freqs: np.ndarray,
+    psd: np.ndarray,
+    floor: np.ndarray,
+    sim: np.ndarray,
+    ratio: np.ndarray,
+    p: np.ndarray,
+    rejected: np.ndarray,
+) -> list[LineAtRest]:
+    """Per channel, one line at the peak of each run of rejected bins; strongest first."""
     df = float(freqs[1] - freqs[0])
     lines = []
     for c, name in enumerate(channels):
@@ -248,20 +278,10 @@ def rest_lines(
                     channel=name,
                     frequency_hz=float(freqs[i] + shift * df),
                     level_db=float(10.0 * np.log10(ratio[c, i])),
-                    power=float(np.sum(psd[c, lobe] - floor_full[c, lobe]) * df),
+                    power=float(np.sum(psd[c, lobe] - floor[c, lobe]) * df),
                     z=float(scipy.stats.norm.isf(max(p[c, i], 1e-300))),
                     in_simulated=in_sim,
                 )
             )
     lines.sort(key=lambda line: -line.z)
-    return RestLines(
-        channels=tuple(channels),
-        freqs=freqs[keep],
-        psd=psd[:, keep],
-        floor=floor_full[:, keep],
-        simulated=sim[:, keep],
-        dof=float(dof),
-        significant=rejected[:, keep],
-        lines=tuple(lines),
-        q=float(q),
-    )
+    return lines

@@ -159,35 +159,13 @@ def harmonic_comb(
         For no draws, a non-positive period or harmonic, grids that differ, or ``alpha``
         outside (0, 1).
     """
-    if not predictive:
-        raise ValueError("predictive must hold the order spectra of at least one draw")
-    harmonics = tuple(int(k) for k in harmonics)
-    if not period_m > 0 or not harmonics or min(harmonics) < 1:
-        raise ValueError(
-            f"period_m={period_m!r} must be positive and harmonics={tuple(harmonics)!r} "
-            "non-empty integers >= 1"
-        )
-    if not 0 < alpha < 1:
-        raise ValueError(f"alpha={alpha!r} must lie in (0, 1)")
+    harmonics = _checked_harmonics(predictive, period_m, harmonics, alpha)
     kappa = np.asarray(measured.wavenumbers, dtype=float)
-    if any(p.log_psd.shape != measured.log_psd.shape for p in predictive):
-        raise ValueError("the predictive order spectra must share the measured runs' grid")
-    draws = np.stack([p.log_psd for p in predictive])
-    excess = (measured.log_psd - draws.mean(axis=0)).mean(axis=(0, 1))
-    step = float(kappa[1] - kappa[0])
-    excess = excess - smooth_discrepancy(excess[None, :], round(BASELINE_HALF_WIDTH / step))[0]
-
+    excess = _excess(measured, predictive, kappa)
     resolution = 1.0 / measured.segment_m
     comb = np.array([k / period_m for k in harmonics], dtype=float)
     at = np.interp(comb, kappa, excess)
-    v = np.asarray(measured.log_variance, dtype=float)
-    n_runs = v.size
-    welch_sd = float(np.sqrt(np.sum(v * (1.0 + 1.0 / len(predictive)))) / n_runs)
-    usable = (kappa >= resolution) & (kappa <= 2.0 * comb.max() + resolution)
-    off = usable & np.all(np.abs(kappa[:, None] - comb[None, :]) > resolution, axis=1)
-    values = excess[off]
-    empirical = float(1.4826 * np.median(np.abs(values - np.median(values)))) if values.size else 0
-    sd = np.full(comb.shape, empirical if empirical > 0 else welch_sd)
+    sd = _null_sd(excess, kappa, comb, resolution, measured.log_variance, len(predictive))
     z = at / sd
     peak = np.array([_local_peak(excess, kappa, c, resolution) for c in comb])
     on = np.abs(peak - comb) <= PEAK_TOLERANCE_BINS * resolution
@@ -204,3 +182,53 @@ def harmonic_comb(
         present=(z > threshold) & on,
         min_harmonics=int(min_harmonics),
     )
+
+
+def _checked_harmonics(
+    predictive: Sequence[OrderSpectra], period_m: float, harmonics: Sequence[int], alpha: float
+) -> tuple[int, ...]:
+    """The harmonics as integers, after checking the draws, period, harmonics and alpha."""
+    if not predictive:
+        raise ValueError("predictive must hold the order spectra of at least one draw")
+    harmonics = tuple(int(k) for k in harmonics)
+    if not period_m > 0 or not harmonics or min(harmonics) < 1:
+        raise ValueError(
+            f"period_m={period_m!r} must be positive and harmonics={tuple(harmonics)!r} "
+            "non-empty integers >= 1"
+        )
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha={alpha!r} must lie in (0, 1)")
+    return harmonics
+
+
+def _excess(
+    measured: OrderSpectra, predictive: Sequence[OrderSpectra], kappa: np.ndarray
+) -> np.ndarray:
+    """Measured less the draws' mean log10 order PSD, averaged over runs and channels, less
+    its running-median baseline."""
+    if any(p.log_psd.shape != measured.log_psd.shape for p in predictive):
+        raise ValueError("the predictive order spectra must share the measured runs' grid")
+    draws = np.stack([p.log_psd for p in predictive])
+    excess = (measured.log_psd - draws.mean(axis=0)).mean(axis=(0, 1))
+    step = float(kappa[1] - kappa[0])
+    return excess - smooth_discrepancy(excess[None, :], round(BASELINE_HALF_WIDTH / step))[0]
+
+
+def _null_sd(
+    excess: np.ndarray,
+    kappa: np.ndarray,
+    comb: np.ndarray,
+    resolution: float,
+    log_variance: np.ndarray,
+    n_draws: int,
+) -> np.ndarray:
+    """The excess's standard deviation under the model at each harmonic: its spread off the
+    comb, the Welch value where that spread is zero."""
+    v = np.asarray(log_variance, dtype=float)
+    n_runs = v.size
+    welch_sd = float(np.sqrt(np.sum(v * (1.0 + 1.0 / n_draws))) / n_runs)
+    usable = (kappa >= resolution) & (kappa <= 2.0 * comb.max() + resolution)
+    off = usable & np.all(np.abs(kappa[:, None] - comb[None, :]) > resolution, axis=1)
+    values = excess[off]
+    empirical = float(1.4826 * np.median(np.abs(values - np.median(values)))) if values.size else 0
+    return np.full(comb.shape, empirical if empirical > 0 else welch_sd)

@@ -321,6 +321,36 @@ def diagnose_campaign(
         For a system without a catalogue, a campaign without healthy calibration runs, or a
         sampling rate that is not the system's.
     """
+    catalogue = _checked_catalogue(system, catalogue, seed)
+    if settings is None:
+        settings = DiagnosisSettings.quick() if quick else DiagnosisSettings()
+    pool = in_process(settings.workers) if pool is None else pool
+    timings: dict[str, float] = {}
+    if fit is None:
+        fit = _fitted(system, campaign, int(seed), quick, progress, timings)
+    return _diagnosed(system, campaign, fit, catalogue, settings, int(seed), pool, timings)
+
+
+def _fitted(
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    seed: int,
+    quick: bool,
+    progress: bool,
+    timings: dict[str, float],
+) -> FitResult:
+    """Step 1 of :func:`diagnose_campaign`: the base model's CMA-ES fit, timed."""
+    with _timed(timings, "fit"):
+        return fit_campaign(
+            system, campaign, method="cmaes", seed=seed, quick=quick, progress=progress
+        )
+
+
+def _checked_catalogue(
+    system: AbstractSystem, catalogue: Catalogue | None, seed: object
+) -> Catalogue:
+    """The catalogue to diagnose with (``system.catalogue`` by default), after checking it
+    and the seed."""
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed={seed!r} must be an integer >= 0")
     catalogue = system.catalogue if catalogue is None else catalogue
@@ -329,29 +359,32 @@ def diagnose_campaign(
             f"{system.name} has no catalogue of discrepancy causes (system.catalogue is "
             f"{catalogue!r}): pass catalogue= (a bayesdoor.diagnose.Catalogue)"
         )
-    if settings is None:
-        settings = DiagnosisSettings.quick() if quick else DiagnosisSettings()
-    pool = in_process(settings.workers) if pool is None else pool
-    timings: dict[str, float] = {}
-    if fit is None:
-        with _timed(timings, "fit"):
-            fit = fit_campaign(
-                system, campaign, method="cmaes", seed=int(seed), quick=quick, progress=progress
-            )
+    return catalogue
+
+
+def _diagnosed(
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    fit: FitResult,
+    catalogue: Catalogue,
+    settings: DiagnosisSettings,
+    seed: int,
+    pool: Pool,
+    timings: dict[str, float],
+) -> Diagnosis:
+    """Steps 2-6 of :func:`diagnose_campaign` under the fit, each step's time in ``timings``."""
     with _timed(timings, "features"):
         measured = measure(system, campaign)
-        residuals = residual_map(system, fit, measured, catalogue, settings, int(seed))
+        residuals = residual_map(system, fit, measured, catalogue, settings, seed)
         ranking = rank_causes(residuals.features, catalogue)
     with _timed(timings, "refits"):
-        proposals = propose(ranking, measured, catalogue, residuals.band, settings, int(seed))
-        refits = refit_candidates(proposals, residuals.setup, catalogue, settings, int(seed), pool)
+        proposals = propose(ranking, measured, catalogue, residuals.band, settings, seed)
+        refits = refit_candidates(proposals, residuals.setup, catalogue, settings, seed, pool)
         judgement = judge(ranking, refits)
     limits = Limits()
     if settings.limits:
         with _timed(timings, "limits"):
-            limits = cause_limits(
-                residuals.setup, catalogue, residuals.band, settings, int(seed), pool
-            )
+            limits = cause_limits(residuals.setup, catalogue, residuals.band, settings, seed, pool)
     return Diagnosis(
         verdict=judgement.verdict,
         causes=judgement.causes,

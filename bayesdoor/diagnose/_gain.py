@@ -553,6 +553,25 @@ class TrackingChangeDiscrepancy:
         )
 
 
+def _tracking_axes(
+    freqs: Float[np.ndarray, " freq"], speeds: Float[np.ndarray, " run"], shape: tuple[int, ...]
+) -> tuple[Float[np.ndarray, " freq"], Float[np.ndarray, " run"]]:
+    """``freqs`` and ``speeds`` as float arrays, checked against training spectra of ``shape``
+    (run, channel, freq): the bins equally spaced, one positive speed per run."""
+    f = np.asarray(freqs, dtype=float)
+    if f.shape != shape[-1:] or f.size < 2 or not np.allclose(np.diff(f), f[1] - f[0]):
+        raise ValueError(
+            f"freqs has shape {f.shape}; it must hold the {shape[-1]} equally spaced "
+            "bins of the spectra, in Hz"
+        )
+    v = np.asarray(speeds, dtype=float)
+    if v.shape != shape[:1] or np.any(~np.isfinite(v) | (v <= 0)):
+        raise ValueError(
+            f"speeds={v.tolist()} must be positive m/s, one per training run ({shape[0]})"
+        )
+    return f, v
+
+
 def estimate_tracking_change_discrepancy(
     model: Float[np.ndarray, "run channel freq"],
     measured: Float[np.ndarray, "run channel freq"],
@@ -616,17 +635,7 @@ def estimate_tracking_change_discrepancy(
         training run.
     """
     smooth, square, m, inside, outside = _change_parts(model, measured, half_width, changed)
-    f = np.asarray(freqs, dtype=float)
-    if f.shape != square.shape[-1:] or f.size < 2 or not np.allclose(np.diff(f), f[1] - f[0]):
-        raise ValueError(
-            f"freqs has shape {f.shape}; it must hold the {square.shape[-1]} equally spaced "
-            "bins of the spectra, in Hz"
-        )
-    v = np.asarray(speeds, dtype=float)
-    if v.shape != square.shape[:1] or np.any(~np.isfinite(v) | (v <= 0)):
-        raise ValueError(
-            f"speeds={v.tolist()} must be positive m/s, one per training run ({square.shape[0]})"
-        )
+    f, v = _tracking_axes(freqs, speeds, square.shape)
     welch = float(np.mean(log_variance))
     return TrackingChangeDiscrepancy(
         smooth=smooth,

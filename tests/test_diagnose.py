@@ -311,6 +311,8 @@ def test_bad_inputs_are_refused_with_the_argument_named():
         within_run_speed(x, x[None], FS, np.zeros((2, 10)), (), CHANNELS)
     with pytest.raises(ValueError, match="names channel 'A3X'"):
         coherence_map(list(x), list(x), FS, channels=CHANNELS, pairs=[("A1X", "A3X")], nperseg=256)
+    with pytest.raises(ValueError, match="pairs is empty"):
+        coherence_map(list(x), list(x), FS, channels=CHANNELS, pairs=[], nperseg=256)
     with pytest.raises(ValueError, match="no measured segment holds nperseg"):
         rest_lines([np.zeros((4, 100))], FS, channels=CHANNELS, nperseg=512)
     with pytest.raises(ValueError, match="holds no complete Welch segment"):

@@ -208,6 +208,8 @@ def _check_inputs(
     nperseg: int,
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """The measured and simulated runs as arrays, once the pairs' names and the shapes check."""
+    if not pairs:
+        raise ValueError("pairs is empty: name at least one pair of channels to examine")
     for pair in pairs:
         for name in pair:
             if name not in names:

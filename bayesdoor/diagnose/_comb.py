@@ -42,8 +42,8 @@ class CombTest:
         Mean over runs and channels of the measured minus the simulated log10 order PSD at
         each harmonic, less its local baseline (decades).
     sd
-        Its standard deviation under the model (the larger of the Welch-chi-square value and
-        the spread of the same statistic off the comb).
+        Its standard deviation under the model (the spread of the same statistic off the
+        comb; the Welch-chi-square value where that spread is zero or has no bins).
     z
         ``excess / sd``.
     peak
@@ -120,7 +120,8 @@ def harmonic_comb(
     mean) is averaged over runs and channels; a running median over ``BASELINE_HALF_WIDTH``
     cycles per metre either side is taken out (the model's smooth misfit, as in the residual
     map). Its value at each harmonic is tested one-sided against its standard deviation under
-    the model, the larger of
+    the model: the empirical one below, or the Welch value where the empirical one is zero or
+    has no bins to be measured on
 
     - the Welch value: each run's ``e`` has variance ``v_r (1 + 1 / D)`` (``v_r`` the
       log10 variance of the run's Welch estimate, a scaled chi-square, ``D`` draws); the

@@ -584,9 +584,8 @@ def run_job(
     """Fit on the calibration runs, simulate training data, train, classify the test runs, report.
 
     Every stage writes under ``out/<stage>/`` (the module docstring) and is reused when it is
-    finished with the same configuration: a second call recomputes nothing, a changed setting
-    only the stages it reaches. Fitting, training, calibration and thresholds never see the
-    test runs.
+    finished with the same configuration (a changed setting recomputes the stages it reaches).
+    Fitting, training, calibration and thresholds never see the test runs.
 
     Parameters
     ----------

@@ -631,56 +631,35 @@ def run_job(
         When ``out`` holds a finished job of other settings (and ``overwrite`` is false), or
         files that are not a job's; nothing is written then.
     """
-    job = _Job(
-        system,
-        campaign,
-        Path(out),
-        JobConfig() if config is None else config,
-        fit=_default_fit if fit is None else fit,
-        diagnose=default_diagnose if diagnose is None else diagnose,
-        progress=progress,
-        report=report,
-    )
-    _check_folder(job.out, job.settings, job.job_hash, overwrite)
-    job.out.mkdir(parents=True, exist_ok=True)
+    config = JobConfig() if config is None else config
+    out = Path(out)
+    settings = config.settings(describe_system(system), digest_runs(campaign))
+    job_hash = configuration_hash(settings)
+    calibration = campaign.isel(run=calibration_runs(campaign, system.healthy))
+    _check_folder(out, settings, job_hash, overwrite)
+    out.mkdir(parents=True, exist_ok=True)
+    stages = _Stages(out, report, progress, _versions())
     with _opened(cluster) as pool:
-        job.run_all(pool)
-    result = _result(job)
-    _write_job_record(job.out, _job_record(job, result))
+        result = _composed(stages, system, campaign, calibration, config, fit, diagnose, pool)
+    _write_job_record(out, _job_record(job_hash, system.name, settings, result))
     return result
 
 
-def _result(job: _Job) -> JobResult:
-    """The finished job's products, as :func:`run_job` returns them."""
-    products = job.products
-    return JobResult(
-        out=job.out,
-        stages=tuple(job.records.values()),
-        fit=products["fit"],
-        classification=products["classify"],
-        report=products.get("report"),
-        diagnosis=products.get("diagnose"),
-        adequacy=products["adequacy"],
-        trust=products["trust"],
-        extended=None if job.extension is None else job.extension.result,
-        extension=None if job.extension is None else job.extension.summary,
-    )
-
-
-def _job_record(job: _Job, result: JobResult) -> dict[str, Any]:
+def _job_record(
+    job_hash: str, system_name: str, settings: dict[str, Any], result: JobResult
+) -> dict[str, Any]:
     """``job.json``: the settings, the stages' hashes and the verdicts of the finished job."""
-    diagnosis_json = result.diagnosis
-    adequacy, trust = job.products["adequacy"], job.products["trust"]
+    adequacy, trust, diagnosis = result.adequacy or {}, result.trust or {}, result.diagnosis
     return {
-        "job_hash": job.job_hash,
-        "system": job.system.name,
-        **{k: v for k, v in job.settings.items() if k != "system"},
-        "stages": {name: r.config_hash for name, r in job.records.items()},
+        "job_hash": job_hash,
+        "system": system_name,
+        **{k: v for k, v in settings.items() if k != "system"},
+        "stages": {r.name: r.config_hash for r in result.stages},
         "metrics": result.classification.get("metrics"),
         "adequacy": adequacy.get("verdict"),
         "trust": trust["verdict"],
         "trust_reasons": trust["reasons"],
-        "verdict": None if diagnosis_json is None else diagnosis_json.get("verdict"),
+        "verdict": None if diagnosis is None else diagnosis.get("verdict"),
         "report": None if result.report is None else str(result.report),
         "extended": None
         if result.extended is None
@@ -698,133 +677,400 @@ def _write_job_record(out: Path, record: dict[str, Any]) -> None:
     atomic_write(out / "job.json", lambda tmp: tmp.write_text(text), overwrite=True)
 
 
-@dataclasses.dataclass
-class _Job:
-    """What the stages of one job share: its inputs, and each finished stage's record and
-    product (read from the stage's folder once, whether computed now or reused, and handed to
-    the later stages in memory)."""
+@dataclasses.dataclass(frozen=True)
+class _Stages:
+    """How one job runs its stages: in its folder, with its progress lines and bars, keyed
+    with the libraries' versions; the record of every stage made or reused, in order."""
 
-    system: AbstractSystem
-    campaign: xr.Dataset
     out: Path
-    config: JobConfig
-    fit: FitFunction
-    diagnose: DiagnoseFunction
-    progress: bool
     report: Callable[[str], None]
-    #: where the generation and the diagnosis run (set by :meth:`run_all`)
-    pool: Pool = dataclasses.field(init=False)
-    system_description: dict[str, Any] = dataclasses.field(init=False)
-    #: what the job's hash and ``job.json`` hold of its settings
-    settings: dict[str, Any] = dataclasses.field(init=False)
-    job_hash: str = dataclasses.field(init=False)
-    #: the healthy calibration runs the fit, the discrepancy and the diagnosis read
-    calibration: xr.Dataset = dataclasses.field(init=False)
-    #: the runs to classify
-    test: xr.Dataset = dataclasses.field(init=False)
-    versions: dict[str, str] = dataclasses.field(init=False)
-    key: jax.Array = dataclasses.field(init=False)
-    records: dict[str, StageRecord] = dataclasses.field(default_factory=dict)
-    products: dict[str, Any] = dataclasses.field(default_factory=dict)
-    #: the configuration hash a stage that could not be made stands in with (its reason's)
-    failed: dict[str, str] = dataclasses.field(default_factory=dict)
-    _generation: Generation | None = None
-    #: with ``extend``: the job on the extended system, or why there is none
-    extension: _Extension | None = None
+    progress: bool
+    versions: dict[str, str]
+    records: list[StageRecord] = dataclasses.field(default_factory=list)
 
-    def __post_init__(self) -> None:
-        self.system_description = describe_system(self.system)
-        self.settings = self.config.settings(self.system_description, digest_runs(self.campaign))
-        self.job_hash = configuration_hash(self.settings)
-        self.calibration = self.campaign.isel(
-            run=calibration_runs(self.campaign, self.system.healthy)
+    def run(
+        self,
+        name: str,
+        config: dict[str, Any],
+        compute: Callable[[Path], None],
+        *,
+        resumable: bool = False,
+    ) -> StageRecord:
+        """Make the stage ``name`` (or reuse it when finished with ``config``)."""
+        record = run_stage(self.out, name, config, compute, resumable=resumable, report=self.report)
+        self.records.append(record)
+        return record
+
+
+class _Made(NamedTuple):
+    """A stage's product, the key that later stages' keys hold, and its folder (``None``
+    for an optional stage that could not be made: its key is then its reason's)."""
+
+    product: Any
+    key: str
+    path: Path | None = None
+
+    @classmethod
+    def of(cls, record: StageRecord, product: Any) -> _Made:
+        return cls(product, record.config_hash, record.path)
+
+    def folder(self) -> Path:
+        """The stage's folder (a required stage always has one)."""
+        assert self.path is not None, "a stage that was not made has no folder"
+        return self.path
+
+
+def _composed(
+    stages: _Stages,
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    calibration: xr.Dataset,
+    config: JobConfig,
+    fit: FitFunction | None,
+    diagnose: DiagnoseFunction | None,
+    pool: Pool,
+) -> JobResult:
+    """The job's stages in order, each given the products of the stages it reads (``fit``
+    and ``diagnose``: ``None`` for the defaults)."""
+    if pool.address is not None:
+        stages.report(f"cluster: {pool.address}")
+    fit = _default_fit if fit is None else fit
+    diagnose = _with_pool(default_diagnose if diagnose is None else diagnose, pool)
+    key = jax.random.key(config.seed)
+    fitted = _fit(stages, system, calibration, config, fit)
+    generated = _generated(stages, system, campaign, fitted, config, key, pool)
+    adequacy = _adequacy(stages, system, calibration, generated, config)
+    trained = _trained(stages, system, calibration, fitted, generated, config, key)
+    classified = _classified(stages, system, campaign, trained)
+    trust = _trusted(stages, system, calibration, generated, trained, classified, adequacy, config)
+    diagnosis = None
+    if config.effective_diagnosis:
+        diagnosis = _diagnosed(stages, system, campaign, calibration, fitted, config, diagnose)
+    extension = None
+    if config.extend:
+        extension = _extension(stages, system, campaign, config, fit, pool, diagnosis)
+    findings = JobFindings(
+        fit=fitted.product,
+        diagnosis=None if diagnosis is None else diagnosis.product,
+        adequacy=adequacy.product,
+        trust=trust.product,
+        extension=None if extension is None else _extension_report(extension, classified, trust),
+    )
+    report = None
+    if config.html:
+        made = (fitted, classified, trained, trust, diagnosis)
+        report = _reported(stages, system, made, findings, extension)
+    return JobResult(
+        out=stages.out,
+        stages=tuple(stages.records),
+        fit=fitted.product,
+        classification=classified.product,
+        report=report,
+        diagnosis=findings.diagnosis,
+        adequacy=adequacy.product,
+        trust=trust.product,
+        extended=None if extension is None else extension.result,
+        extension=None if extension is None else extension.summary,
+    )
+
+
+def _discrepancy(config: JobConfig) -> bool:
+    """The default source carries the model error as measured: the calibration runs'
+    discrepancy from the simulated healthy runs, added to every training run."""
+    return config.effective_source == "posterior+model_error"
+
+
+def _discrepancy_form(config: JobConfig) -> str | None:
+    return DISCREPANCY_FORM if _discrepancy(config) else None
+
+
+def _fit(
+    stages: _Stages,
+    system: AbstractSystem,
+    calibration: xr.Dataset,
+    config: JobConfig,
+    fit: FitFunction,
+) -> _Made:
+    """The fit on the healthy calibration runs (:class:`FitSummary`)."""
+
+    def compute(folder: Path) -> None:
+        result = fit(
+            system,
+            calibration,
+            method=config.method,
+            seed=config.effective_fit_seed,
+            quick=config.quick,
+            progress=stages.progress,
+            **config.fit_options,
         )
-        self.test = runs_to_classify(self.campaign)
-        self.versions = _versions()
-        self.key = jax.random.key(self.config.seed)
+        result.save(folder / "result")
+        FitSummary.from_result(result, config.method).save(folder)
 
-    def run_all(self, pool: Pool) -> None:
-        """Run (or reuse) every stage in order, the simulation-heavy steps on ``pool``."""
-        self.pool = pool
-        if pool.address is not None:
-            self.report(f"cluster: {pool.address}")
-        for stage in JOB_STAGES:
-            if stage.name == "report" and self.config.extend:
-                self.extension = _extension(self)
-            self.run(stage)
+    key = {
+        "system": describe_system(system),
+        "calibration_runs": digest_runs(calibration),
+        "method": config.method,
+        "seed": config.effective_fit_seed,
+        "quick": config.quick,
+        "options": {k: repr(v) for k, v in config.fit_options.items()},
+        "versions": stages.versions,
+    }
+    record = stages.run("fit", key, compute)
+    return _Made.of(record, FitSummary.load(record.path))
 
-    def run(self, stage: JobStage) -> None:
-        """Run ``stage`` (or reuse it), keep its record and product."""
-        if not stage.wanted(self):
-            return
-        try:
-            record = run_stage(
-                self.out,
-                stage.name,
-                stage.config(self),
-                lambda folder: stage.compute(self, folder),
-                resumable=stage.resumable,
-                report=self.report,
-            )
-        except ValueError as err:
-            if not stage.optional:
-                raise
-            # the job stands without it: it reports why and tries again next time
-            reason = " ".join(str(err).split())
-            self.report(f"{stage.name}: not made: {reason}")
-            self.products[stage.name] = stage.failure(reason)
-            self.failed[stage.name] = configuration_hash({"error": reason})
-            return
-        self.records[stage.name] = record
-        self.products[stage.name] = stage.load(self, record.path)
 
-    def path(self, stage: str) -> Path:
-        return self.records[stage].path
+def _generated(
+    stages: _Stages,
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    fitted: _Made,
+    config: JobConfig,
+    key: jax.Array,
+    pool: Pool,
+) -> _Made:
+    """The simulated training data (its folder; the product is the :class:`Generation`)."""
+    generation = generation_settings(
+        system,
+        campaign,
+        fitted.product,
+        fitted.key,
+        config.effective_source,
+        config.effective_sizes,
+        config.seed,
+    )
 
-    def hash(self, stage: str) -> str | None:
-        """The configuration hash of a finished stage (or of why it was not made)."""
-        record = self.records.get(stage)
-        return record.config_hash if record is not None else self.failed.get(stage)
-
-    @property
-    def discrepancy(self) -> bool:
-        """The default source carries the model error as measured: the calibration runs'
-        discrepancy from the simulated healthy runs, added to every training run."""
-        return self.config.effective_source == "posterior+model_error"
-
-    @property
-    def discrepancy_form(self) -> str | None:
-        return DISCREPANCY_FORM if self.discrepancy else None
-
-    @property
-    def generation(self) -> Generation:
-        """What the generation stage simulates (from the fit)."""
-        if self._generation is None:
-            self._generation = generation_settings(
-                self.system,
-                self.campaign,
-                self.products["fit"],
-                self.records["fit"].config_hash,
-                self.config.effective_source,
-                self.config.effective_sizes,
-                self.config.seed,
-            )
-        return self._generation
-
-    def training_data(self) -> TrainingData:
-        return training_data(
-            self.path("generate") / "data",
-            self.calibration,
-            discrepancy=self.discrepancy,
-            seed=self.config.seed,
-            system=self.system,
+    def compute(folder: Path) -> None:
+        generate(
+            system,
+            generation.source,
+            generation.generation,
+            folder / "data",
+            key=jax.random.fold_in(key, 1),
+            progress=stages.progress,
+            execution=Execution(scheduler=pool.address),
         )
 
-    @property
-    def test_indices(self) -> list[int]:
-        """The positions of the test runs in the campaign."""
-        found = np.isin(self.campaign["run"].values, self.test["run"].values)
-        return [int(i) for i in np.flatnonzero(found)]
+    record = stages.run("generate", generation.config, compute, resumable=True)
+    return _Made.of(record, generation)
+
+
+def _training_data(
+    system: AbstractSystem, calibration: xr.Dataset, generated: _Made, config: JobConfig
+) -> TrainingData:
+    return training_data(
+        generated.folder() / "data",
+        calibration,
+        discrepancy=_discrepancy(config),
+        seed=config.seed,
+        system=system,
+    )
+
+
+def _adequacy(
+    stages: _Stages,
+    system: AbstractSystem,
+    calibration: xr.Dataset,
+    generated: _Made,
+    config: JobConfig,
+) -> _Made:
+    """Whether the simulations reproduce the measured healthy runs (the adequacy JSON)."""
+
+    def compute(folder: Path) -> None:
+        check_adequacy(
+            generated.folder() / "data",
+            calibration,
+            seed=config.seed,
+            discrepancy=_discrepancy(config),
+            system=system,
+        ).save(folder)
+
+    key = {
+        "data": generated.key,
+        "runs": digest_runs(calibration),
+        "seed": config.seed,
+        "discrepancy": _discrepancy_form(config),
+        "check": ADEQUACY_CHECK,
+    }
+    record = stages.run("adequacy", key, compute)
+    adequacy = json.loads((record.path / ADEQUACY_JSON).read_text())
+    if adequacy.get("summary"):
+        stages.report(f"adequacy: {adequacy['summary']}")
+    return _Made.of(record, adequacy)
+
+
+def _trained(
+    stages: _Stages,
+    system: AbstractSystem,
+    calibration: xr.Dataset,
+    fitted: _Made,
+    generated: _Made,
+    config: JobConfig,
+    key: jax.Array,
+) -> _Made:
+    """The calibrated ensemble, its bands and the system's signature reference (a folder)."""
+
+    def compute(folder: Path) -> None:
+        data = _training_data(system, calibration, generated, config)
+        train_stage(
+            data,
+            folder,
+            key=jax.random.fold_in(key, 2),
+            config=config.effective_sizes.train,
+            ood_quantile=config.effective_sizes.ood_quantile,
+            progress=stages.progress,
+            ood_model_error=ood_model_error(
+                data, calibration, fitted.product, key=jax.random.fold_in(key, 3), system=system
+            ),
+        )
+        signature_stage(folder, calibration, system)
+
+    stage_key = {
+        "data": generated.key,
+        "sizes": config.effective_sizes.to_json(),
+        "seed": config.seed,
+        "ood": "model-error draws",
+        "discrepancy": _discrepancy_form(config),
+        # the stage also writes the system's signature reference (from the calibration runs,
+        # which the fit's hash, through the generation's, already follows)
+        "writes": [ENSEMBLE, BANDS, SIGNATURES],
+    }
+    record = stages.run("train", stage_key, compute)
+    return _Made.of(record, record.path)
+
+
+def _classified(
+    stages: _Stages, system: AbstractSystem, campaign: xr.Dataset, trained: _Made
+) -> _Made:
+    """The test runs classified (the classification JSON of docs/data.md)."""
+    test = runs_to_classify(campaign)
+    found = np.isin(campaign["run"].values, test["run"].values)
+    indices = [int(i) for i in np.flatnonzero(found)]
+
+    def compute(folder: Path) -> None:
+        classify_stage(trained.folder(), test, folder, run_index=indices, system=system)
+
+    key = {"model": trained.key, "runs": digest_runs(test), "indices": indices}
+    record = stages.run("classify", key, compute)
+    return _Made.of(record, json.loads((record.path / "classification.json").read_text()))
+
+
+def _trusted(
+    stages: _Stages,
+    system: AbstractSystem,
+    calibration: xr.Dataset,
+    generated: _Made,
+    trained: _Made,
+    classified: _Made,
+    adequacy: _Made,
+    config: JobConfig,
+) -> _Made:
+    """Whether the classification can be trusted (the trust JSON)."""
+
+    def compute(folder: Path) -> None:
+        judge_classification(
+            trained.folder(),
+            Classification.load(classified.folder()),
+            Adequacy.load(adequacy.folder()),
+            _training_data(system, calibration, generated, config),
+            calibration,
+            seed=config.seed,
+            system=system,
+        ).save(folder)
+
+    key = {
+        "model": trained.key,
+        "classification": classified.key,
+        "adequacy": adequacy.key,
+        "checks": TRUST_CHECKS,
+        "runs": digest_runs(calibration),
+        "seed": config.seed,
+        "discrepancy": _discrepancy_form(config),
+    }
+    record = stages.run("trust", key, compute)
+    trust = json.loads((record.path / TRUST_JSON).read_text())
+    said = trust["reasons"] + trust.get("warnings", [])
+    stages.report(f"trust: {trust['verdict']}" + (": " + "; ".join(said) if said else ""))
+    return _Made.of(record, trust)
+
+
+def _diagnosed(
+    stages: _Stages,
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    calibration: xr.Dataset,
+    fitted: _Made,
+    config: JobConfig,
+    diagnose: DiagnoseFunction,
+) -> _Made:
+    """The diagnosis JSON (with ``report`` its HTML); a campaign the diagnosis cannot handle
+    leaves the job going, with ``error`` in place of a verdict and its reason's key."""
+
+    def compute(folder: Path) -> None:
+        diagnosis_stage(
+            system,
+            campaign,
+            Fitted.load(fitted.folder()),
+            folder,
+            diagnose=diagnose,
+            seed=config.seed,
+            quick=config.quick,
+            progress=stages.progress,
+        )
+
+    key = {
+        "fit": fitted.key,
+        "runs": digest_runs(calibration),
+        "seed": config.seed,
+        "quick": config.quick,
+        "versions": stages.versions,
+        # the object beside the JSON (what extending the system reads): a diagnosis made
+        # without it is made again
+        "keeps": DIAGNOSIS_OBJECT,
+    }
+    try:
+        record = stages.run("diagnose", key, compute)
+    except ValueError as err:
+        # the job stands without it: it reports why and tries again next time
+        reason = " ".join(str(err).split())
+        stages.report(f"diagnose: not made: {reason}")
+        failed: dict[str, Any] = {"verdict": None, "causes": [], "error": reason, "report": None}
+        return _Made(failed, configuration_hash({"error": reason}))
+    diagnosis = json.loads((record.path / DIAGNOSIS_JSON).read_text())
+    diagnosis["report"] = str(record.path / DIAGNOSIS_HTML)
+    return _Made.of(record, diagnosis)
+
+
+def _reported(
+    stages: _Stages,
+    system: AbstractSystem,
+    made: tuple[_Made, _Made, _Made, _Made, _Made | None],
+    findings: JobFindings,
+    extension: _Extension | None,
+) -> Path:
+    """The campaign's HTML report (its ``index.html``), from the fit, the classification,
+    the ensemble, the trust and the diagnosis (``made``, in that order) and what they found."""
+    fitted, classified, trained, trust, diagnosis = made
+
+    def compute(folder: Path) -> None:
+        report_stage(
+            classified.folder(),
+            trained.folder(),
+            folder,
+            title=f"{system.name}: damage report",
+            findings=findings,
+        )
+
+    key: dict[str, Any] = {
+        "classification": classified.key,
+        "fit": fitted.key,
+        "diagnosis": None if diagnosis is None else diagnosis.key,
+        "trust": trust.key,
+        "versions": stages.versions,
+    }
+    if extension is not None:
+        key["extended"] = extension.config()
+    record = stages.run("report", key, compute)
+    return record.path / "index.html"
 
 
 class _Extension(NamedTuple):
@@ -855,22 +1101,31 @@ def _not_extended(diagnosis: Mapping[str, Any] | None) -> str | None:
     return None
 
 
-def _extension(job: _Job) -> _Extension:
+def _extension(
+    stages: _Stages,
+    system: AbstractSystem,
+    campaign: xr.Dataset,
+    config: JobConfig,
+    fit: FitFunction,
+    pool: Pool,
+    diagnosis: _Made | None,
+) -> _Extension:
     """Run the job on the system extended by the diagnosis's verdict (``out/extended``)."""
-    reason = _not_extended(job.products.get("diagnose"))
+    reason = _not_extended(None if diagnosis is None else diagnosis.product)
     if reason is not None:
-        job.report(f"extend: nothing extended: {reason}")
+        stages.report(f"extend: nothing extended: {reason}")
         return _Extension(None, {"reason": reason})
-    folder = job.path("diagnose")
+    assert diagnosis is not None
+    folder = diagnosis.folder()
     if not (folder / DIAGNOSIS_OBJECT).is_file():
         reason = (
             f"{folder} keeps no diagnosis object ({DIAGNOSIS_OBJECT}) to extend the system by "
             "(the diagnosis function returned one that cannot be pickled)"
         )
-        job.report(f"extend: nothing extended: {reason}")
+        stages.report(f"extend: nothing extended: {reason}")
         return _Extension(None, {"reason": reason})
-    diagnosis = kept_diagnosis(folder)
-    found = verdict_extension(job.system, diagnosis)
+    kept = kept_diagnosis(folder)
+    found = verdict_extension(system, kept)
     if found is None:  # the JSON's verdict is the object's: a hand-edited folder
         raise ValueError(f"{folder}: {DIAGNOSIS_OBJECT} and {DIAGNOSIS_JSON} disagree")
     extends = {
@@ -879,20 +1134,47 @@ def _extension(job: _Job) -> _Extension:
         "held": dict(found.values),
     }
     held = ", ".join(f"{k} = {v:.4g}" for k, v in found.values.items())
-    job.report(f"extend: {found.name} ({found.proposal.label}), held at {held}")
+    stages.report(f"extend: {found.name} ({found.proposal.label}), held at {held}")
     result = run_job(
-        extend_system(job.system, diagnosis),
-        job.campaign,
-        job.out / EXTENDED,
-        dataclasses.replace(job.config, diagnosis=False, extend=False),
-        fit=job.fit,
-        cluster=job.pool,
-        progress=job.progress,
-        report=lambda line: job.report(f"{EXTENDED}/{line}"),
+        extend_system(system, kept),
+        campaign,
+        stages.out / EXTENDED,
+        dataclasses.replace(config, diagnosis=False, extend=False),
+        fit=fit,
+        cluster=pool,
+        progress=stages.progress,
+        report=lambda line: stages.report(f"{EXTENDED}/{line}"),
         # the folder is this job's: it follows the diagnosis, whatever it held before
         overwrite=True,
     )
     return _Extension(dataclasses.replace(result, extends=extends), extends)
+
+
+def _extension_report(extension: _Extension, classified: _Made, trust: _Made) -> dict[str, Any]:
+    """What the report's section on the extension shows: before and after, or why not."""
+
+    def scores(classification, trust, report):
+        metrics = classification.get("metrics") or {}
+        return {
+            "accuracy": metrics.get("accuracy"),
+            "ece": metrics.get("ece"),
+            "trust": (trust or {}).get("verdict"),
+            "report": report,
+        }
+
+    extended = extension.result
+    # links are relative: the report is written in a temporary sibling of its folder
+    return {
+        **extension.summary,
+        "before": scores(classified.product, trust.product, None),
+        "after": None
+        if extended is None
+        else scores(
+            extended.classification,
+            extended.trust,
+            None if extended.report is None else f"../{EXTENDED}/report/{extended.report.name}",
+        ),
+    }
 
 
 @contextlib.contextmanager
@@ -912,312 +1194,3 @@ def _with_pool(diagnose: Callable[..., Any], pool: Pool) -> Callable[..., Any]:
     except (TypeError, ValueError):  # a callable without a signature
         takes = False
     return functools.partial(diagnose, pool=pool) if takes else diagnose
-
-
-def _always(job: _Job) -> bool:
-    return True
-
-
-def _nothing(job: _Job, folder: Path) -> None:
-    return None
-
-
-def _not_made(reason: str) -> Any:
-    return None
-
-
-@dataclasses.dataclass(frozen=True)
-class JobStage:
-    """One step of the main job.
-
-    Attributes
-    ----------
-    name
-        Its folder under the job's.
-    config
-        Everything its output depends on (the hashes of the stages it reads included): the
-        stage is reused when a finished one has the same.
-    compute
-        Writes its files into the folder it is given.
-    load
-        Its product, read from its folder, for the later stages and the result.
-    resumable
-        An interrupted run of the same configuration continues (:func:`run_stage`).
-    wanted
-        Whether the job runs it.
-    optional
-        A ``ValueError`` of ``compute`` leaves the job going: ``failure(reason)`` stands in
-        for the product.
-    """
-
-    name: str
-    config: Callable[[_Job], dict[str, Any]]
-    compute: Callable[[_Job, Path], None]
-    load: Callable[[_Job, Path], Any] = _nothing
-    resumable: bool = False
-    wanted: Callable[[_Job], bool] = _always
-    optional: bool = False
-    failure: Callable[[str], Any] = _not_made
-
-
-def _fit_config(job: _Job) -> dict[str, Any]:
-    return {
-        "system": job.system_description,
-        "calibration_runs": digest_runs(job.calibration),
-        "method": job.config.method,
-        "seed": job.config.effective_fit_seed,
-        "quick": job.config.quick,
-        "options": {k: repr(v) for k, v in job.config.fit_options.items()},
-        "versions": job.versions,
-    }
-
-
-def _fit(job: _Job, folder: Path) -> None:
-    result = job.fit(
-        job.system,
-        job.calibration,
-        method=job.config.method,
-        seed=job.config.effective_fit_seed,
-        quick=job.config.quick,
-        progress=job.progress,
-        **job.config.fit_options,
-    )
-    result.save(folder / "result")
-    FitSummary.from_result(result, job.config.method).save(folder)
-
-
-def _generate(job: _Job, folder: Path) -> None:
-    generate(
-        job.system,
-        job.generation.source,
-        job.generation.generation,
-        folder / "data",
-        key=jax.random.fold_in(job.key, 1),
-        progress=job.progress,
-        execution=Execution(scheduler=job.pool.address),
-    )
-
-
-def _adequacy_config(job: _Job) -> dict[str, Any]:
-    return {
-        "data": job.hash("generate"),
-        "runs": digest_runs(job.calibration),
-        "seed": job.config.seed,
-        "discrepancy": job.discrepancy_form,
-        "check": ADEQUACY_CHECK,
-    }
-
-
-def _adequacy(job: _Job, folder: Path) -> None:
-    check_adequacy(
-        job.path("generate") / "data",
-        job.calibration,
-        seed=job.config.seed,
-        discrepancy=job.discrepancy,
-        system=job.system,
-    ).save(folder)
-
-
-def _load_adequacy(job: _Job, folder: Path) -> dict[str, Any]:
-    adequacy = json.loads((folder / ADEQUACY_JSON).read_text())
-    if adequacy.get("summary"):
-        job.report(f"adequacy: {adequacy['summary']}")
-    return adequacy
-
-
-def _train_config(job: _Job) -> dict[str, Any]:
-    return {
-        "data": job.hash("generate"),
-        "sizes": job.config.effective_sizes.to_json(),
-        "seed": job.config.seed,
-        "ood": "model-error draws",
-        "discrepancy": job.discrepancy_form,
-        # the stage also writes the system's signature reference (from the calibration runs,
-        # which the fit's hash, through the generation's, already follows)
-        "writes": [ENSEMBLE, BANDS, SIGNATURES],
-    }
-
-
-def _train(job: _Job, folder: Path) -> None:
-    data = job.training_data()
-    train_stage(
-        data,
-        folder,
-        key=jax.random.fold_in(job.key, 2),
-        config=job.config.effective_sizes.train,
-        ood_quantile=job.config.effective_sizes.ood_quantile,
-        progress=job.progress,
-        ood_model_error=ood_model_error(
-            data,
-            job.calibration,
-            job.products["fit"],
-            key=jax.random.fold_in(job.key, 3),
-            system=job.system,
-        ),
-    )
-    signature_stage(folder, job.calibration, job.system)
-
-
-def _classify_config(job: _Job) -> dict[str, Any]:
-    return {"model": job.hash("train"), "runs": digest_runs(job.test), "indices": job.test_indices}
-
-
-def _classify(job: _Job, folder: Path) -> None:
-    classify_stage(
-        job.path("train"), job.test, folder, run_index=job.test_indices, system=job.system
-    )
-
-
-def _load_classification(job: _Job, folder: Path) -> dict[str, Any]:
-    return json.loads((folder / "classification.json").read_text())
-
-
-def _trust_config(job: _Job) -> dict[str, Any]:
-    return {
-        "model": job.hash("train"),
-        "classification": job.hash("classify"),
-        "adequacy": job.hash("adequacy"),
-        "checks": TRUST_CHECKS,
-        "runs": digest_runs(job.calibration),
-        "seed": job.config.seed,
-        "discrepancy": job.discrepancy_form,
-    }
-
-
-def _trust(job: _Job, folder: Path) -> None:
-    judge_classification(
-        job.path("train"),
-        Classification.load(job.path("classify")),
-        Adequacy.load(job.path("adequacy")),
-        job.training_data(),
-        job.calibration,
-        seed=job.config.seed,
-        system=job.system,
-    ).save(folder)
-
-
-def _load_trust(job: _Job, folder: Path) -> dict[str, Any]:
-    trust = json.loads((folder / TRUST_JSON).read_text())
-    said = trust["reasons"] + trust.get("warnings", [])
-    job.report(f"trust: {trust['verdict']}" + (": " + "; ".join(said) if said else ""))
-    return trust
-
-
-def _diagnose_config(job: _Job) -> dict[str, Any]:
-    return {
-        "fit": job.hash("fit"),
-        "runs": digest_runs(job.calibration),
-        "seed": job.config.seed,
-        "quick": job.config.quick,
-        "versions": job.versions,
-        # the object beside the JSON (what extending the system reads): a diagnosis made
-        # without it is made again
-        "keeps": DIAGNOSIS_OBJECT,
-    }
-
-
-def _diagnose(job: _Job, folder: Path) -> None:
-    diagnosis_stage(
-        job.system,
-        job.campaign,
-        Fitted.load(job.path("fit")),
-        folder,
-        diagnose=_with_pool(job.diagnose, job.pool),
-        seed=job.config.seed,
-        quick=job.config.quick,
-        progress=job.progress,
-    )
-
-
-def _load_diagnosis(job: _Job, folder: Path) -> dict[str, Any]:
-    diagnosis = json.loads((folder / DIAGNOSIS_JSON).read_text())
-    diagnosis["report"] = str(folder / DIAGNOSIS_HTML)
-    return diagnosis
-
-
-def _no_diagnosis(reason: str) -> dict[str, Any]:
-    return {"verdict": None, "causes": [], "error": reason, "report": None}
-
-
-def _report_config(job: _Job) -> dict[str, Any]:
-    config = {
-        "classification": job.hash("classify"),
-        "fit": job.hash("fit"),
-        "diagnosis": job.hash("diagnose"),
-        "trust": job.hash("trust"),
-        "versions": job.versions,
-    }
-    if job.extension is not None:
-        config["extended"] = job.extension.config()
-    return config
-
-
-def _report(job: _Job, folder: Path) -> None:
-    report_stage(
-        job.path("classify"),
-        job.path("train"),
-        folder,
-        title=f"{job.system.name}: damage report",
-        findings=JobFindings(
-            fit=job.products["fit"],
-            diagnosis=job.products.get("diagnose"),
-            adequacy=job.products["adequacy"],
-            trust=job.products["trust"],
-            extension=None if job.extension is None else _extension_report(job),
-        ),
-    )
-
-
-def _extension_report(job: _Job) -> dict[str, Any]:
-    """What the report's section on the extension shows: before and after, or why not."""
-    assert job.extension is not None
-
-    def scores(classification, trust, report):
-        metrics = classification.get("metrics") or {}
-        return {
-            "accuracy": metrics.get("accuracy"),
-            "ece": metrics.get("ece"),
-            "trust": (trust or {}).get("verdict"),
-            "report": report,
-        }
-
-    extended = job.extension.result
-    # links are relative: the report is written in a temporary sibling of its folder
-    return {
-        **job.extension.summary,
-        "before": scores(job.products["classify"], job.products["trust"], None),
-        "after": None
-        if extended is None
-        else scores(
-            extended.classification,
-            extended.trust,
-            None if extended.report is None else f"../{EXTENDED}/report/{extended.report.name}",
-        ),
-    }
-
-
-#: the main job, in order: each stage reads only the products of the stages before it
-JOB_STAGES = (
-    JobStage("fit", _fit_config, _fit, load=lambda job, folder: FitSummary.load(folder)),
-    JobStage("generate", lambda job: job.generation.config, _generate, resumable=True),
-    JobStage("adequacy", _adequacy_config, _adequacy, load=_load_adequacy),
-    JobStage("train", _train_config, _train),
-    JobStage("classify", _classify_config, _classify, load=_load_classification),
-    JobStage("trust", _trust_config, _trust, load=_load_trust),
-    JobStage(
-        "diagnose",
-        _diagnose_config,
-        _diagnose,
-        load=_load_diagnosis,
-        wanted=lambda job: job.config.effective_diagnosis,
-        optional=True,
-        failure=_no_diagnosis,
-    ),
-    JobStage(
-        "report",
-        _report_config,
-        _report,
-        load=lambda job, folder: folder / "index.html",
-        wanted=lambda job: job.config.html,
-    ),
-)

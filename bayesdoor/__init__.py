@@ -11,6 +11,7 @@ import jax as _jax
 from ._cluster import Cluster as Cluster
 from ._cluster import Pool as Pool
 from ._jax_config import configure_jax as configure_jax
+from ._memory import release_between_stages as release_between_stages
 
 _jax.config.update("jax_enable_x64", True)
 

@@ -36,7 +36,7 @@ from typing import Any
 
 import jax
 
-from bayesdoor import configure_jax
+from bayesdoor import configure_jax, release_between_stages
 
 # as the command line sets JAX up: the cache of $BAYESDOOR_JAX_CACHE or ./.jax_cache
 configure_jax()
@@ -183,15 +183,17 @@ def run(
         out = Path(keep) if keep else Path(tmp) / "job"
         events: list[tuple[float, str]] = []
         t0, c0, start = time.perf_counter(), time.process_time(), time.time()
-        result = run_job(
-            system,
-            campaign,
-            out,
-            JobConfig(quick=not full, seed=seed, html=True, diagnosis=diagnosis),
-            progress=False,
-            report=lambda line: events.append((time.time(), line)),
-            overwrite=True,
-        )
+        # as `bayesdoor run` runs it: JAX's caches dropped between the stages
+        with release_between_stages():
+            result = run_job(
+                system,
+                campaign,
+                out,
+                JobConfig(quick=not full, seed=seed, html=True, diagnosis=diagnosis),
+                progress=False,
+                report=lambda line: events.append((time.time(), line)),
+                overwrite=True,
+            )
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         windows = _stage_windows(events)
         compile_s = clock.seconds(start, time.time())

@@ -274,3 +274,23 @@ def test_demo_passes_the_jobs_options_on(tmp_path, monkeypatch):
     assert first is campaign
     assert (default.method, default.source, default.extend) == ("nuts", None, False)
     assert (chosen.method, chosen.source, chosen.extend) == ("cmaes", "gaussian", True)
+
+
+def test_run_drops_jaxs_caches_between_the_stages(tmp_path, monkeypatch):
+    """``bayesdoor run`` owns its process: its job drops JAX's caches between the stages
+    (bayesdoor._memory.release_between_stages), and only while it runs."""
+    import bayesdoor._memory as memory
+    import bayesdoor.pipeline as pipeline
+
+    seen = []
+
+    def stand_in(*args, **kwargs):
+        seen.append(memory._BETWEEN_STAGES["on"])
+        raise ValueError("stopped here")
+
+    monkeypatch.setattr(pipeline, "run_job", stand_in)
+    path = door_file(tmp_path / "c.nc", ["healthy", "healthy", "D1"])
+    result = invoke("run", path, "--out", tmp_path / "job", "--quick")
+    assert "stopped here" in result.output
+    assert seen == [True]
+    assert memory._BETWEEN_STAGES["on"] is False

@@ -15,6 +15,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from .._cluster import Cluster
+from .._memory import release_between_stages
 from ._common import (
     StageLog,
     check_for_job,
@@ -268,7 +269,13 @@ def run(
     if cluster.distributed:
         line(f"simulation-heavy steps on {cluster.describe()} ({pool.address})")
     try:
-        with opened, interruptible(stages.interrupted), writing(out), warnings_as_lines(line):
+        with (
+            opened,
+            interruptible(stages.interrupted),
+            writing(out),
+            warnings_as_lines(line),
+            release_between_stages(),
+        ):
             result = run_job(
                 system,
                 campaign,

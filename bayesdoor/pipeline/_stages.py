@@ -26,6 +26,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from .._memory import stage_ended
 from ..io import atomic_write
 
 RECORD = "stage.json"
@@ -193,6 +194,8 @@ def run_stage(
         work = _computed(out, name, compute)
     seconds = time.perf_counter() - start
     cpu_seconds, peak = time.process_time() - cpu_start, peak_memory_mb()
+    # what the stage freed goes back to the system before the next stage allocates
+    stage_ended()
     finished = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     _write_record(
         work,

@@ -17,12 +17,14 @@ into the file's generated block (the rest of the file is kept) and the JSON besi
 ending ``.json``).
 
 Usage: python benchmarks/bench_job.py [--campaign demo|PATH] [--full] [--no-diagnosis]
-       [--batch 64] [--seed 0] [--keep DIR] [--warm-up] [--results FILE] [--json]
+       [--batch 64] [--seed 0] [--keep DIR] [--warm-up] [--keep-caches] [--results FILE]
+       [--json]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -169,6 +171,7 @@ def run(
     seed: int,
     keep: str | None,
     clock: CompileClock,
+    release: bool = True,
 ) -> dict:
     from bayesdoor.door import ElevatorDoor
     from bayesdoor.pipeline import JobConfig, peak_memory_mb, run_job
@@ -183,8 +186,9 @@ def run(
         out = Path(keep) if keep else Path(tmp) / "job"
         events: list[tuple[float, str]] = []
         t0, c0, start = time.perf_counter(), time.process_time(), time.time()
-        # as `bayesdoor run` runs it: JAX's caches dropped between the stages
-        with release_between_stages():
+        # as `bayesdoor run` runs it: JAX's caches dropped between the stages (unless
+        # --keep-caches, to measure what that costs and saves)
+        with release_between_stages() if release else contextlib.nullcontext():
             result = run_job(
                 system,
                 campaign,
@@ -340,6 +344,11 @@ def main() -> None:
     parser.add_argument(
         "--warm-up", action="store_true", help="run the job once, untimed, before the timed run"
     )
+    parser.add_argument(
+        "--keep-caches",
+        action="store_true",
+        help="keep JAX's caches between the stages (bayesdoor run drops them)",
+    )
     parser.add_argument("--job-only", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--results", type=Path, help="write the table into this file")
     parser.add_argument("--json", action="store_true", help="print the result as JSON only")
@@ -372,7 +381,15 @@ def main() -> None:
     load_start = _load()
     clock = CompileClock()
     stick = yardstick(args.batch)
-    job = run(args.campaign, args.full, not args.no_diagnosis, args.seed, args.keep, clock)
+    job = run(
+        args.campaign,
+        args.full,
+        not args.no_diagnosis,
+        args.seed,
+        args.keep,
+        clock,
+        release=not args.keep_caches,
+    )
     scipy_s = stick["scipy_ms_per_run"] / 1e3
     for stage in job["stages"]:
         stage["scipy_runs"] = stage["seconds"] / scipy_s
@@ -386,6 +403,7 @@ def main() -> None:
                 "--full" if args.full else "",
                 "--no-diagnosis" if args.no_diagnosis else "",
                 "--warm-up" if args.warm_up else "",
+                "--keep-caches" if args.keep_caches else "",
             )
             if a
         ),
@@ -393,6 +411,7 @@ def main() -> None:
         "commit": _commit(),
         "machine": f"{os.cpu_count()} cores, {platform.machine()}",
         "warm_up": args.warm_up,
+        "release_between_stages": not args.keep_caches,
         "load_start": load_start,
         "load_end": _load(),
         "yardstick": stick,

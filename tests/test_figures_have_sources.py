@@ -267,7 +267,8 @@ def _performance() -> dict[str, list[str]]:
         "docs/validation.md": [
             f"| the same on an H100 GPU, batch of 1024 | {h100:.2f} ms a run |",
             f"| {full.group(1)} s (99.0 %, ECE 0.0053) |",
-            f"of it {job['compile_s']:.0f} s compiling, the posterior "
+            f"of it {job['compile_s']:.0f} s compiling, peak memory "
+            f"{job['peak_memory_mb'] / 1024:.1f} GB, the posterior "
             + ("passing" if job["fit_steps"]["gates_passed"] else "failing")
             + f" its sampling gates; {accuracy}, {ece} |",
         ],
@@ -624,13 +625,20 @@ def _performance_setup() -> dict[str, list[str]]:
         f"| {run['simulate_x_scipy']:.0f}x faster ({run['batch_float64_ms_per_run']:.1f} ms a run"
     )
     quick = f"{job['wall_s']:.0f} s ({job['scipy_runs']:.0f} scipy runs"
+    # as the benchmark writes them: the peak in GiB, the target in GB
+    memory = f"peak memory {job['peak_memory_mb'] / 1024:.1f} GB"
     return {
-        "README.md": [door, f"{quick}; target {targets['quick']:.0f} s)"],
+        "README.md": [
+            door,
+            f"{quick}; target {targets['quick']:.0f} s), {memory} "
+            f"(target {targets['quick_memory_mb'] / 1000:.0f} GB)",
+        ],
         "docs/validation.md": [
             f"| a {run['duration_s']:g} s door run, batch of {run['batch']}, float64, against "
             f"scipy's LSODA on the same equations | {run['simulate_x_scipy']:.0f}x faster "
             f"({run['batch_float64_ms_per_run']:.1f} ms a run) |",
             f"| {quick}), of it",
+            f"s compiling, {memory}, the posterior",
         ],
     }
 

@@ -9,9 +9,12 @@ job's peak is the sum of what the stages left, not the largest stage's own.
 :func:`release_memory` collects the garbage and hands the freed pages back (glibc's
 ``malloc_trim``); with ``compiled`` it first drops JAX's caches. Dropping them is the
 process's business, not a library's (a notebook's own programs go with them), so a job
-drops them between its stages only inside :func:`release_between_stages`, which the command
-line opens for ``bayesdoor run`` and ``demo``. Nothing computed depends on it: a program a later
-stage calls again is traced again and read back from the persistent compilation cache
+drops them where a stage ends, and only inside :func:`release_between_stages`, which the
+command line opens for ``bayesdoor run`` and ``demo`` (:func:`stage_ended`). Not inside a
+stage: the diagnosis's refits and limits call again the programs its residual map traced,
+and dropping them between those steps made the quick demo's diagnosis a third to a half
+slower in two runs of three, its peak no lower. Nothing computed depends on it: a program a
+later stage calls again is traced again and read back from the persistent compilation cache
 (results/performance.md gives the job's peak memory and time).
 """
 

@@ -19,7 +19,6 @@ import numpy as np
 import xarray as xr
 
 from .._cluster import Pool, in_process
-from .._memory import release_memory
 from ..features import welch_psd
 from ..inference import FitResult, fit_campaign
 from ._candidates import judge, propose, refit_candidates
@@ -377,12 +376,10 @@ def _diagnosed(
     with _timed(timings, "features"):
         measured = measure(system, campaign)
         residuals = residual_map(system, fit, measured, catalogue, settings, seed)
-        release_memory()
         ranking = rank_causes(residuals.features, catalogue)
     with _timed(timings, "refits"):
         proposals = propose(ranking, measured, catalogue, residuals.band, settings, seed)
         refits = refit_candidates(proposals, residuals.setup, catalogue, settings, seed, pool)
-        release_memory()
         judgement = judge(ranking, refits)
     limits = Limits()
     if settings.limits:

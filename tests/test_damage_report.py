@@ -70,8 +70,9 @@ def _report(tmp_path, runs):
     return parser, index.read_text()
 
 
-def test_an_unlabeled_campaign_opens_with_the_counts_and_the_runs_to_look_at(tmp_path):
-    runs = [
+def unlabeled_runs() -> list[dict]:
+    """Six runs of unknown state: four called healthy (one OOD, one uncertain), one D1, one D2."""
+    return [
         _run(0, [0.96, 0.02, 0.02]),
         _run(1, [0.10, 0.85, 0.05]),
         _run(2, [0.01, 0.01, 0.98]),
@@ -79,7 +80,10 @@ def test_an_unlabeled_campaign_opens_with_the_counts_and_the_runs_to_look_at(tmp
         _run(4, [0.55, 0.40, 0.05], uncertain=True),
         _run(5, [0.97, 0.02, 0.01]),
     ]
-    parser, page = _report(tmp_path, runs)
+
+
+def test_an_unlabeled_campaign_opens_with_the_counts_and_the_runs_to_look_at(tmp_path):
+    parser, page = _report(tmp_path, unlabeled_runs())
     assert parser.headings[0] == "What the runs were called"
     assert parser.headings[1] == "Can these results be trusted?"
     text = " ".join(parser.text)

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_damage_report import _report, _run
+from test_damage_report import _report, unlabeled_runs
 
 BROWSER = Path(__file__).with_name("_browser.py")
 
@@ -21,15 +21,7 @@ def test_a_browser_shows_the_counts_and_the_runs_to_look_at_on_the_first_screen(
     # the engine is imported by the renderer's own process only
     if importlib.util.find_spec("PyQt6.QtWebEngineWidgets") is None:
         pytest.skip("the browser engine (PyQt6-WebEngine) comes with the development install")
-    runs = [
-        _run(0, [0.96, 0.02, 0.02]),
-        _run(1, [0.10, 0.85, 0.05]),
-        _run(2, [0.01, 0.01, 0.98]),
-        _run(3, [0.90, 0.05, 0.05], ood=True),
-        _run(4, [0.55, 0.40, 0.05], uncertain=True),
-        _run(5, [0.97, 0.02, 0.01]),
-    ]
-    _report(tmp_path / "report", runs)
+    _report(tmp_path / "report", unlabeled_runs())
     shot = tmp_path / "shot.png"
     done = subprocess.run(
         [sys.executable, str(BROWSER), str(tmp_path / "report" / "index.html"), str(shot)],

@@ -6,16 +6,16 @@ in-memory caches. The C library keeps what was freed for later allocations and J
 every program it compiled, so a process's resident memory grows from stage to stage: the
 job's peak is the sum of what the stages left, not the largest stage's own.
 
-:func:`release_memory` collects the garbage and hands the freed pages back (glibc's
-``malloc_trim``); with ``compiled`` it first drops JAX's caches. Dropping them is the
-process's business, not a library's (a notebook's own programs go with them), so a job
-drops them where a stage ends, and only inside :func:`release_between_stages`, which the
-command line opens for ``bayesdoor run`` and ``demo`` (:func:`stage_ended`). Not inside a
-stage: the diagnosis's refits and limits call again the programs its residual map traced,
-and dropping them between those steps made the quick demo's diagnosis a third to a half
-slower in two runs of three, its peak no lower. Nothing computed depends on it: a program a
-later stage calls again is traced again and read back from the persistent compilation cache
-(results/performance.md gives the job's peak memory and time).
+:func:`release_memory` drops JAX's caches, collects the garbage and hands the freed pages
+back (glibc's ``malloc_trim``). Dropping the caches is the process's business, not a
+library's (a notebook's own programs go with them), so a job drops them where a stage ends,
+and only inside :func:`release_between_stages`, which the command line opens for
+``bayesdoor run`` and ``demo`` (:func:`stage_ended`). Not inside a stage: the diagnosis's refits and
+limits call again the programs its residual map traced, and dropping them between those
+steps made the quick demo's diagnosis a third to a half slower in two runs of three, its
+peak no lower. Nothing computed depends on it: a program a later stage calls again is traced
+again and read back from the persistent compilation cache (results/performance.md gives the
+job's peak memory and time).
 """
 
 from __future__ import annotations
@@ -44,16 +44,10 @@ def _libc() -> Any | None:
     return libc if hasattr(libc, "malloc_trim") else None
 
 
-def release_memory(*, compiled: bool = False) -> bool:
-    """Collect Python's garbage and return the C heaps' free pages to the system.
-
-    Parameters
-    ----------
-    compiled
-        Also drop JAX's in-memory caches of traced and compiled programs
-        (:func:`jax.clear_caches`; a later call traces again and reads its program back
-        from the persistent compilation cache): where a step ends whose programs the next
-        steps do not call.
+def release_memory() -> bool:
+    """Drop JAX's in-memory caches of traced and compiled programs (:func:`jax.clear_caches`;
+    a later call traces again and reads its program back from the persistent compilation
+    cache), collect Python's garbage and return the C heaps' free pages to the system.
 
     Returns
     -------
@@ -61,8 +55,7 @@ def release_memory(*, compiled: bool = False) -> bool:
         Whether the heaps were trimmed (``False`` where the C library has no
         ``malloc_trim``: macOS, Windows, musl; the garbage is collected everywhere).
     """
-    if compiled:
-        jax.clear_caches()
+    jax.clear_caches()
     gc.collect()
     libc = _libc()
     if libc is None:
@@ -93,7 +86,7 @@ def release_between_stages() -> Iterator[None]:
 
 
 def stage_ended() -> None:
-    """Where a job's stage has ended: :func:`release_memory` of the compiled programs too,
-    inside :func:`release_between_stages`; nothing outside it."""
+    """Where a job's stage has ended: :func:`release_memory` inside
+    :func:`release_between_stages`; nothing outside it."""
     if _BETWEEN_STAGES["on"]:
-        release_memory(compiled=True)
+        release_memory()

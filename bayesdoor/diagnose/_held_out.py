@@ -25,7 +25,7 @@ from ._gain import (
     log_predictive,
 )
 from ._gain import objective_per_run as j_per_run
-from ._measured import Measured, _band, _fold_order, _simulate_rows, measure
+from ._measured import _band, _fold_order, base_setup, measure
 from ._rank import Catalogue
 from ._refit import (
     SMOOTH_BINS,
@@ -310,23 +310,6 @@ def verdict_order(evidence: float, score: float) -> tuple[float, float]:
     return (-float(evidence), -float(score))
 
 
-def _base_setup(
-    system: AbstractSystem,
-    measured: Measured,
-    fit: FitResult,
-    known: Catalogue | None,
-    features: Features | None,
-) -> RefitSetup:
-    """The refit setup of the measured runs, the base model simulated at the fit's point."""
-    sims, ok, sample_times = _simulate_rows(system, measured, [dict(fit.point)])
-    if not ok[0]:
-        raise RuntimeError("the base model failed to simulate the runs at the fit's point")
-    speeds = None if known is None else known.speeds(measured.operating)
-    return measured.setup(
-        system, fit.point, sims[0], sample_times, _band(fit, known), features, speeds
-    )
-
-
 def _tracks_the_speed(known: Catalogue | None, proposal: ExtensionProposal) -> bool:
     """Whether ``known`` holds a cause named as the extension whose signature tracks the speed
     (:func:`tracks_speed`)."""
@@ -402,7 +385,8 @@ def extension_gain(
             f"{len(measured.runs)} healthy calibration runs: need at least 4 to fit on half "
             "and test on the other half"
         )
-    setup = _base_setup(system, measured, fit, known, features)
+    speeds = None if known is None else known.speeds(measured.operating)
+    setup = base_setup(system, measured, fit, _band(fit, known), features, speeds)
     tracking = _tracks_the_speed(known, proposal)
     fits, gain = _cross_validate(
         setup,

@@ -116,6 +116,28 @@ def _simulate_rows(
     )
 
 
+def base_setup(
+    system: AbstractSystem,
+    measured: Measured,
+    fit: FitResult,
+    band: tuple[float, float],
+    features: Features | None = None,
+    speeds: np.ndarray | None = None,
+) -> RefitSetup:
+    """The refit setup of the measured runs, the base model simulated at the fit's point
+    (:meth:`Measured.setup`).
+
+    Raises
+    ------
+    RuntimeError
+        When the base model fails to simulate a run at the fit's point.
+    """
+    sims, ok, sample_times = _simulate_rows(system, measured, [dict(fit.point)])
+    if not ok[0]:
+        raise RuntimeError("the base model failed to simulate the runs at the fit's point")
+    return measured.setup(system, fit.point, sims[0], sample_times, band, features, speeds)
+
+
 def _band(fit: FitResult, catalogue: Catalogue | None = None) -> tuple[float, float]:
     """The analysed band: the catalogue's ``band`` when it names one, else the fit's feature
     band (where the base model was fitted)."""

@@ -24,7 +24,7 @@ from ..inference import FitResult
 from ._design import MAX_RUNS_PER_CONDITION as MAX_RUNS_PER_CONDITION
 from ._design import CampaignPlan, PlanTarget, design_campaign
 from ._limits import LIMIT_POWER, fold_order, run_gains
-from ._measured import Measured, _band, _simulate_rows
+from ._measured import Measured, _band, base_setup
 from ._rank import Catalogue
 
 if TYPE_CHECKING:
@@ -116,10 +116,7 @@ def plan_campaign(
         raise ValueError(f"{len(measured.runs)} calibration runs: need at least 4 to plan from")
     band = _band(fit)
     declared, probe = _probe(catalogue, cause, band, configuration)
-    sims, ok, times = _simulate_rows(system, measured, [dict(fit.point)])
-    if not ok[0]:
-        raise RuntimeError("the base model failed to simulate the runs at the fit's point")
-    setup = measured.setup(system, fit.point, sims[0], times, band, None)
+    setup = base_setup(system, measured, fit, band)
     return design_campaign(
         run_gains(setup, probe, float(size)),
         np.asarray(measured.operating, dtype=float),

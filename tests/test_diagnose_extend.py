@@ -62,16 +62,18 @@ def test_held_out_folds_refuse_too_few_runs():
         held_out_folds(np.array([0.3, 0.4, 0.5, 0.6]), 1)
 
 
-def _door_setup(speeds, leak: float = 0.0) -> RefitSetup:
+def _door_setup(speeds, leak: float = 0.0, source_gain: float = 1.0) -> RefitSetup:
     """The paper's door simulated for 2 s at ``speeds``, its spectra of the motion window
-    (0.25-1.9 s, 4-96 Hz) as the measurement, A2Z reading ``leak`` times A2X in it."""
+    (0.25-1.9 s, 4-96 Hz) as the measurement, A2Z reading ``leak`` times A2X in it; the
+    measured A2X is ``source_gain`` times the model's (the model's error in the source)."""
     door = ElevatorDoor()
     values = DoorParameters.paper_optimum().to_dict()
     result = door.simulate_values(values, np.asarray(speeds), duration=2.0)
     assert np.all(np.asarray(result.status) == 0)
     signals = np.asarray(result.signals)
     measured = signals.copy()
-    measured[:, 3] += leak * signals[:, 2]
+    measured[:, 2] *= source_gain
+    measured[:, 3] += leak * measured[:, 2]
     fs = door.sampling_rate_hz
     window = np.full(len(speeds), 0.25), np.full(len(speeds), 1.9)
     return RefitSetup(
@@ -82,7 +84,59 @@ def _door_setup(speeds, leak: float = 0.0) -> RefitSetup:
         time=np.asarray(result.time),
         base_signals=signals,
         spectra=Spectra.of_measured(measured, fs, *window, (4.0, 96.0), nperseg=int(fs)),
+        measured_signals=measured,
     )
+
+
+def _leak(on_measured: bool, **kwargs) -> ExtensionProposal:
+    """A2Z reads a fraction of A2X, searched within +-0.3."""
+    name = "sensor_cross_axis.fraction"
+    return ExtensionProposal(
+        extension=SensorCrossAxis(sensor="A2", into="Z"),
+        start={name: 0.0},
+        free=(name,),
+        bounds={name: (-0.3, 0.3)},
+        on_measured=on_measured,
+        **kwargs,
+    )
+
+
+def test_a_leak_tested_on_the_measured_signals_is_blind_to_the_models_error_in_its_source():
+    # the door's A2X is 0.4 times the model's and A2Z reads 8 % of it: mixing the model's
+    # A2X reads the leak as 0.4 x 8 %, taking the measured A2X out reads it as it is
+    setup = _door_setup(np.array([0.3, 0.35, 0.45, 0.5]), leak=0.08, source_gain=0.4)
+    runs = np.arange(4)
+    name = "sensor_cross_axis.fraction"
+    on_measured = refit_extension(setup, _leak(True), runs, seed=1, max_evals=24)
+    on_model = refit_extension(setup, _leak(False), runs, seed=1, max_evals=24)
+    assert abs(on_measured.values[name] - 0.08) < 0.004
+    assert abs(on_model.values[name] - 0.4 * 0.08) < 0.008
+    # at the true fraction the receiver's spectra are the measured ones: the leak explains
+    # every bin of it, and the other channels stay the base model's
+    at_truth = exact_spectra(setup, _leak(True), {name: np.full(4, 0.08)}, runs)
+    np.testing.assert_allclose(at_truth[:, 3], setup.spectra.measured[:, 3], atol=1e-9)
+    np.testing.assert_array_equal(
+        np.delete(at_truth, 3, axis=1), np.delete(setup.base_spectra, 3, axis=1)
+    )
+    # and on a measurement without a leak the fraction found is none
+    clean = _door_setup(np.array([0.3, 0.35, 0.45, 0.5]), source_gain=0.4)
+    assert abs(refit_extension(clean, _leak(True), runs, seed=1, max_evals=24).values[name]) < 1e-3
+
+
+def test_a_leak_on_the_measured_signals_needs_them_and_an_output_extension():
+    setup = _door_setup([0.3, 0.5])
+    without = dataclasses.replace(setup, measured_signals=None)
+    with pytest.raises(ValueError, match="no measured signals"):
+        refit_extension(without, _leak(True), np.arange(2), seed=1, max_evals=8)
+    solved = dataclasses.replace(
+        _leak(True),
+        extension="rail_waviness",
+        start={},
+        free=("rail_waviness.amplitude_m",),
+        bounds={},
+    )
+    with pytest.raises(ValueError, match="outputs only"):
+        refit_extension(setup, solved, np.arange(2), seed=1, max_evals=8)
 
 
 def test_exact_spectra_give_each_run_its_own_values():

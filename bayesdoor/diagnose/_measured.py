@@ -84,6 +84,7 @@ class Measured:
             base_signals=base_signals,
             spectra=spectra,
             speeds=speeds,
+            measured_signals=self.signals,
         )
 
 

@@ -96,6 +96,16 @@ class ExtensionProposal:
         every parameter's value, whether a candidate lies in the region searched. The search
         gives the candidates it refuses no density (they are not simulated), so no refit
         leaves the region; ``None``: the boxes alone.
+    on_measured
+        The extension acts on the sensor: it mixes what the sensor measured (a leak between
+        the channels of one sensor), not what the model predicts. It is then tested on the
+        measured signals: the extended model's spectra are the base model's plus the change
+        that undoing the extension makes to the measured run, ``log S(y) - log S(y - d(y))``
+        with ``d(y)`` the extension's addition to the measured signals ``y``. The channels it
+        reads from enter as measured, so the base model's own error in them stays out of the
+        test (a leak's modelled change can be several times the machine's when the model
+        gets the source channel wrong). Only for an extension that acts on the outputs and
+        is affine in them, its free parameters at zero being off.
     """
 
     extension: Any
@@ -110,6 +120,7 @@ class ExtensionProposal:
     measured: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     gains: Mapping[str, str] = dataclasses.field(default_factory=dict)
     admissible: Callable[[AbstractSystem, Mapping[str, float]], bool] | None = None
+    on_measured: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -379,6 +390,10 @@ class RefitSetup:
     speeds
         Each run's speed for an effect that tracks it (the catalogue's
         :meth:`~bayesdoor.diagnose.Catalogue.speeds`); ``None``: ``operating``.
+    measured_signals
+        The measured runs' signals (the spectra's), cut as ``base_signals``: what a
+        proposal that acts on the sensor is tested on (``ExtensionProposal.on_measured``);
+        ``None``: such proposals cannot be refitted.
     """
 
     system: AbstractSystem
@@ -389,6 +404,7 @@ class RefitSetup:
     base_signals: Float[np.ndarray, "run channel time"]
     spectra: Spectra
     speeds: Float[np.ndarray, " run"] | None = None
+    measured_signals: Float[np.ndarray, "run channel time"] | None = None
 
     @property
     def base_spectra(self) -> Float[np.ndarray, "run channel freq"]:
@@ -548,6 +564,16 @@ class _Model:
                 f"the proposal's free parameters {missing} are neither linear nor gridded: a "
                 "refit through linear signal changes needs a grid for every other parameter"
             )
+        if proposal.on_measured and not self.output_only:
+            raise ValueError(
+                "a proposal tested on the measured signals (on_measured) must extend the "
+                f"outputs only; {proposal.label or proposal.extension!r} needs a solve"
+            )
+        if proposal.on_measured and setup.measured_signals is None:
+            raise ValueError(
+                "the refit setup holds no measured signals, which a proposal tested on the "
+                "measured signals (on_measured) needs"
+            )
         self.reference = {n: float(proposal.start.get(n, 0.0)) or 1e-6 for n in proposal.linear}
         self.bases = bases
         self.solves = 0
@@ -639,6 +665,33 @@ class _Model:
         signals, slope = self._by_rows(block, vals)
         return signals, slope
 
+    def measured_spectra(
+        self, vals: Mapping[str, np.ndarray], runs: np.ndarray
+    ) -> Float[np.ndarray, "row run channel freq"]:
+        """Spectra (row, run, channel, freq) of a proposal tested on the measured signals
+        (``ExtensionProposal.on_measured``) at the values ``vals`` (row, run): the base
+        model's plus the change that undoing the extension makes to each measured run."""
+        setup = self.setup
+        assert setup.measured_signals is not None
+        pop = next(iter(vals.values())).shape[0]
+        measured = np.broadcast_to(
+            setup.measured_signals[runs], (pop, *setup.measured_signals[runs].shape)
+        )
+        off = {k: (np.zeros_like(v) if k in self.free else v) for k, v in vals.items()}
+        time = jnp.asarray(setup.time)
+        added = np.asarray(
+            self.extended.apply_output_extensions(
+                jnp.asarray(measured), time, {k: jnp.asarray(v) for k, v in vals.items()}
+            )
+        ) - np.asarray(
+            self.extended.apply_output_extensions(
+                jnp.asarray(measured), time, {k: jnp.asarray(v) for k, v in off.items()}
+            )
+        )
+        undone = setup.spectra.model(measured - added, runs)
+        change = setup.spectra.measured[runs] - undone
+        return setup.base_spectra[runs] + change
+
     def basis(self, point: tuple[float, ...]) -> np.ndarray:
         """Signal change per unit of each linear parameter at a grid point, every run."""
         if point not in self.bases:
@@ -693,8 +746,11 @@ def _batched(
         block = x[start : start + POPULATION]
         if not exact:
             block = np.concatenate([block, np.repeat(block[-1:], POPULATION - len(block), axis=0)])
-        signals = model.signals(block, runs, exact=exact)
-        out.append(spectra.model(signals, runs)[: min(POPULATION, len(x) - start)])
+        if model.proposal.on_measured:
+            block_spectra = model.measured_spectra(model.values(block, len(runs)), runs)
+        else:
+            block_spectra = spectra.model(model.signals(block, runs, exact=exact), runs)
+        out.append(block_spectra[: min(POPULATION, len(x) - start)])
     return np.concatenate(out)
 
 
@@ -1198,14 +1254,14 @@ def _refit_on_grid(
     return _result(problem, optimum, sd, spectra, evaluations)
 
 
-def exact_signals(
+def _exact_values(
     setup: RefitSetup,
     proposal: ExtensionProposal,
     values: Mapping[str, Float[np.ndarray, " r"]],
     runs: Int[np.ndarray, " r"],
-) -> Float[np.ndarray, "r channel time"]:
-    """The extended model's exact signals of ``runs``, each run at its own parameter values
-    (one simulation of all the runs together; the signals of :func:`exact_spectra`)."""
+) -> tuple[_Model, dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    """The model of :func:`exact_signals`, its values (1, run) with ``runs`` in ascending
+    order, those runs, and the order that puts them back."""
     extended, free, _, _, fixed = _boxes(setup.system, proposal)
     model = _Model(setup, proposal, extended, fixed, {})
     runs = np.asarray(runs, dtype=int)
@@ -1221,6 +1277,19 @@ def exact_signals(
     vals.update(
         {n: np.asarray(values[n], dtype=float).reshape(1, len(runs))[:, order] for n in free}
     )
+    return model, vals, runs, back
+
+
+def exact_signals(
+    setup: RefitSetup,
+    proposal: ExtensionProposal,
+    values: Mapping[str, Float[np.ndarray, " r"]],
+    runs: Int[np.ndarray, " r"],
+) -> Float[np.ndarray, "r channel time"]:
+    """The extended model's exact signals of ``runs``, each run at its own parameter values
+    (one simulation of all the runs together; the signals of :func:`exact_spectra`)."""
+    model, vals, runs, back = _exact_values(setup, proposal, values, runs)
+    extended = model.extended
     if model.output_only:
         base = setup.base_signals[runs][None]
         signals = np.asarray(
@@ -1261,7 +1330,11 @@ def exact_spectra(
     Returns
     -------
     spectra
-        log10 PSDs of the runs, as :meth:`Spectra.model` gives them.
+        log10 PSDs of the runs, as :meth:`Spectra.model` gives them (for a proposal tested
+        on the measured signals, as ``ExtensionProposal.on_measured`` makes them).
     """
     runs = np.asarray(runs, dtype=int)
+    if proposal.on_measured:
+        model, vals, ordered, back = _exact_values(setup, proposal, values, runs)
+        return model.measured_spectra(vals, ordered)[0][back]
     return setup.spectra.model(exact_signals(setup, proposal, values, runs), runs)

@@ -488,14 +488,15 @@ def _quadrature(values: Mapping[str, Any], wheel: str) -> tuple[float, float]:
 class CrossAxisRefit(AbstractRefit):
     """A leak between the two channels of one sensor: every direction of every pair.
 
-    One free parameter each (the fraction), refitted on signals already simulated, so all
-    directions are tried (the refit keeps the one that fits the training runs best): the
-    coherence signature names the pair whose excess is the most uniform, which need not be
-    the leaking one when the base model misses some coherence of another pair. For the
-    direction the signature names, the fraction it measured from the data's transfer function
-    is the one reported (``measured``): the refit's mixes the base model's source signal into
-    the receiver and absorbs that signal's level error (on the virtual rig at 8 runs it came
-    out 21 % and 24 % high where the transfer function was within 1 %).
+    One free parameter each (the fraction), refitted without a new solve, so all directions
+    are tried (the refit keeps the one that fits the training runs best): the coherence
+    signature names the pair whose excess is the most uniform, which need not be the leaking
+    one when the base model misses some coherence of another pair. A leak mixes what the
+    sensor measured, so each direction is tested on the measured signals
+    (``ExtensionProposal.on_measured``): the measured source channel, not the base model's,
+    is taken out of the receiver, and the base model's error in the source channel stays out
+    of the test. For the direction the signature names, the fraction measured from the
+    data's transfer function is the one reported (``measured``), the refit's beside it.
     """
 
     pairs: tuple[tuple[str, str], ...] = eqx.field(static=True)
@@ -519,6 +520,7 @@ class CrossAxisRefit(AbstractRefit):
                         key=("sensor_cross_axis.fraction",),
                         label=f"{into} reads {other}",
                         measured={"sensor_cross_axis.fraction": (fraction, sd)} if mine else {},
+                        on_measured=True,
                     )
                 )
         return tuple(out)

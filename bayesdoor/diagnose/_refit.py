@@ -577,6 +577,7 @@ class _Model:
         self.reference = {n: float(proposal.start.get(n, 0.0)) or 1e-6 for n in proposal.linear}
         self.bases = bases
         self.solves = 0
+        self._base_spectra: np.ndarray | None = None
 
     def values(self, x: np.ndarray, n_runs: int) -> dict[str, np.ndarray]:
         pop = x.shape[0]
@@ -690,7 +691,9 @@ class _Model:
         )
         undone = setup.spectra.model(measured - added, runs)
         change = setup.spectra.measured[runs] - undone
-        return setup.base_spectra[runs] + change
+        if self._base_spectra is None:
+            self._base_spectra = setup.base_spectra
+        return self._base_spectra[runs] + change
 
     def basis(self, point: tuple[float, ...]) -> np.ndarray:
         """Signal change per unit of each linear parameter at a grid point, every run."""

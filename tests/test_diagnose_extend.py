@@ -326,3 +326,27 @@ def test_a_gains_profile_grid_scored_at_once_equals_one_point_at_a_time(with_loc
             m = model[:, None, :]
             disc = estimate_discrepancy(m, y, lv, SMOOTH_BINS, local=near)
             assert batched[row] == float(log_predictive(m, y, lv, disc).sum())
+
+
+def test_two_extended_models_are_judged_against_each_other_on_the_held_out_runs():
+    # A2Z reads 8 % of A2X: the model with the whole leak predicts the held-out runs better
+    # than the one with a quarter of it, decisively, and not the other way round
+    from bayesdoor.diagnose._held_out import contest, held_out_folds
+
+    speeds = np.linspace(0.3, 0.5, 8)
+    setup = _door_setup(speeds, leak=0.08)
+    folds = held_out_folds(speeds, 2)
+    name = "sensor_cross_axis.fraction"
+
+    def models(fraction):
+        return [
+            exact_spectra(setup, _leak(False), {name: np.full(8, fraction)}, np.arange(8))
+            for _ in folds
+        ]
+
+    whole, quarter = ("whole", models(0.08), False), ("quarter", models(0.02), False)
+    won, lost = contest(setup, folds, whole, quarter), contest(setup, folds, quarter, whole)
+    assert (won.challenger, won.holder) == ("whole", "quarter")
+    assert won.gain.decisive and won.gain.elpd_difference > 0
+    assert not lost.gain.decisive and lost.gain.elpd_difference < 0
+    assert won.to_json()["evidence_se"] > 0

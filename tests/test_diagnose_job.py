@@ -402,6 +402,48 @@ def test_a_verdict_that_explains_its_feature_in_part_says_how_much():
     assert Cause("x", "", 1.0, "", {}, feature_share=0.25).to_json()["feature_share"] == 0.25
 
 
+def test_the_verdict_is_the_cause_whose_model_wins_its_contests():
+    # a leak confirmed at 18.9 SE over the base model and a frame mode at 14.8 SE: ranked by
+    # their gains over the base model the leak is named; judged against each other on the
+    # held-out runs the mode's model predicts them better, so the mode is named
+    from bayesdoor.diagnose import Cause, Contest
+    from bayesdoor.diagnose._candidates import Refits, judge
+
+    base = np.full(12, -300.0)
+
+    def gain(per_run, j_after):
+        return compare_held_out(base, base + per_run, np.ones(12), np.full(12, j_after))
+
+    leak = Cause("sensor_cross_axis", "", 1.0, "", {}, gain(np.linspace(2.0, 60.0, 12), 0.5), True)
+    mode = Cause("frame_mode", "", 1.0, "", {}, gain(np.linspace(1.0, 50.0, 12), 0.5), True)
+    assert held_out_evidence(leak.gain) > held_out_evidence(mode.gain)
+    mode_wins = gain(np.linspace(4.0, 9.0, 12), 0.9)  # every run better: decisive
+    leak_loses = gain(-np.linspace(4.0, 9.0, 12), 1.1)
+    assert mode_wins.decisive and not leak_loses.decisive
+    contests = (
+        Contest("frame_mode", "sensor_cross_axis", mode_wins),
+        Contest("sensor_cross_axis", "frame_mode", leak_loses),
+    )
+    ranking = types.SimpleNamespace(causes=())
+    causes = {"sensor_cross_axis": leak, "frame_mode": mode}
+    judged = judge(ranking, Refits(causes, contests=contests))
+    assert judged.verdict == "frame_mode"
+    assert [c.name for c in judged.causes] == ["frame_mode", "sensor_cross_axis"]
+    assert any("frame_mode's model predicts them better" in n for n in judged.notes)
+    # without the contests the stronger gain over the base model decides
+    assert judge(ranking, Refits(causes)).verdict == "sensor_cross_axis"
+    # a contest that neither side wins leaves the order by evidence, and says so
+    mixed = gain(np.array([5.0, -4.0] * 6), 1.0)
+    assert not mixed.decisive
+    even = (
+        Contest("frame_mode", "sensor_cross_axis", mixed),
+        Contest("sensor_cross_axis", "frame_mode", mixed),
+    )
+    judged = judge(ranking, Refits(causes, contests=even))
+    assert judged.verdict == "sensor_cross_axis"
+    assert any("cannot tell sensor_cross_axis from frame_mode" in n for n in judged.notes)
+
+
 def test_held_out_evidence_is_the_gain_in_standard_errors():
     base = np.full(6, -300.0)
     gain = compare_held_out(base, base + np.arange(1.0, 7.0), np.ones(6), np.full(6, 0.9))

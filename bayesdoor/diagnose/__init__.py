@@ -8,7 +8,8 @@ The public names are what a user calls:
 
 - running a diagnosis and reading its result: :func:`diagnose_campaign` with
   :class:`DiagnosisSettings` gives a :class:`Diagnosis`: each candidate as a :class:`Cause`
-  with its held-out :class:`Gain`, the signature :class:`Ranking` (:class:`CauseScore` per
+  with its held-out :class:`Gain`, each pair of confirmed causes judged against each other
+  (:class:`Contest`), the signature :class:`Ranking` (:class:`CauseScore` per
   candidate) on the residual :class:`Features`; :func:`verdict_extension` and
   :func:`extend_system` (:class:`HeldExtension`) carry the verdict to the system;
 - the residual features and the pieces the user guide (``docs/diagnosis.md``) documents for
@@ -56,6 +57,7 @@ from ._gain import Gain as Gain
 from ._gain import capped_t as capped_t
 from ._gain import rule_passes as rule_passes
 from ._gain import rule_thresholds as rule_thresholds
+from ._held_out import Contest as Contest
 from ._job import diagnose_campaign as diagnose_campaign
 from ._limits import LIMIT_POWER as LIMIT_POWER
 from ._limits import CauseLimit as CauseLimit

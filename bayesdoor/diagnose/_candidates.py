@@ -13,11 +13,14 @@ from .._cluster import Pool
 from ._diagnosis import Cause, DiagnosisSettings
 from ._gain import Gain
 from ._held_out import (
+    Contest,
     _Bases,
     _fold_tasks,
-    _judge_refits,
+    contest,
     held_out_evidence,
     held_out_folds,
+    held_out_models,
+    judge_folds,
     refit_fold,
     tracks_speed,
     verdict_order,
@@ -72,21 +75,25 @@ class Proposals:
 
 @dataclasses.dataclass(frozen=True)
 class Refits:
-    """The refitted causes by name, in rank order (:func:`refit_candidates`); ``notes``:
-    the proposals whose refit failed."""
+    """The refitted causes by name, in rank order (:func:`refit_candidates`); every ordered
+    pair of confirmed causes judged against each other (``contests``, :func:`contest`);
+    ``notes``: the proposals whose refit failed."""
 
     causes: Mapping[str, Cause]
     notes: tuple[str, ...] = ()
+    contests: tuple[Contest, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
 class Judgement:
     """The verdict (:func:`judge`): a catalogue name or ``"none"``; every candidate, the
-    confirmed ones first; ``notes``: what to read the verdict with."""
+    confirmed ones first; ``notes``: what to read the verdict with; ``contests``: the
+    confirmed causes judged against each other."""
 
     verdict: str
     causes: tuple[Cause, ...]
     notes: tuple[str, ...] = ()
+    contests: tuple[Contest, ...] = ()
 
 
 def _signature_cause(score: CauseScore) -> Cause:
@@ -173,9 +180,10 @@ def refit_candidates(
     done = iter(pool.map(refit_fold, tasks))
     causes: dict[str, Cause] = {}
     notes: list[str] = []
+    held: dict[str, tuple[str, list[np.ndarray], bool]] = {}
     for candidate, shared in zip(proposals.candidates, bases, strict=True):
         fitted = [[next(done) for _ in folds] for _ in candidate.proposals]
-        cause, failed = _refit_candidate(
+        cause, trial, failed = _refit_candidate(
             setup,
             _candidate(catalogue, candidate.score.name),
             candidate,
@@ -188,7 +196,10 @@ def refit_candidates(
         notes += failed
         if cause is not None:
             causes[candidate.score.name] = cause
-    return Refits(causes, tuple(notes))
+            if cause.confirmed and trial is not None:
+                held[cause.name] = (cause.name, trial.models, trial.tracking)
+    contests = tuple(contest(setup, folds, held[a], held[b]) for a in held for b in held if a != b)
+    return Refits(causes, tuple(notes), contests)
 
 
 def _candidate(catalogue: Catalogue, name: str) -> Any:
@@ -203,6 +214,8 @@ class _Trial:
     fits: list[RefitResult]
     gain: Gain
     bases: _Bases
+    models: list[np.ndarray]
+    tracking: bool
 
     @property
     def train_lpd(self) -> float:
@@ -225,16 +238,16 @@ def _judged_trials(
     for proposal, results, shared in zip(candidate.proposals, fitted, shared_bases, strict=True):
         fits = [f for f in results if isinstance(f, RefitResult)]
         failed = [f for f in results if not isinstance(f, RefitResult)]
+        tracking = tracks_speed(entry.signature)
         try:
             if failed:
                 raise failed[0]
-            gain = _judge_refits(
-                setup, proposal, folds, fits, tracking=tracks_speed(entry.signature)
-            )
+            models = held_out_models(setup, proposal, folds, fits)
+            gain = judge_folds(setup, models, folds, tracking=tracking)
         except (ValueError, RuntimeError) as err:
             notes.append(f"{candidate.score.name} ({proposal.label}): refit failed: {err}")
             continue
-        trials.append(_Trial(proposal, fits, gain, shared))
+        trials.append(_Trial(proposal, fits, gain, shared, models, tracking))
     return trials, notes
 
 
@@ -282,15 +295,15 @@ def _refit_candidate(
     shared_bases: Sequence[_Bases],
     settings: DiagnosisSettings,
     seed: int,
-) -> tuple[Cause | None, list[str]]:
+) -> tuple[Cause | None, _Trial | None, list[str]]:
     """One candidate (``entry``: its catalogue entry): its proposals' fold refits judged on
-    held-out runs, the best on the training runs kept, its symptom checked, and, when
-    confirmed, its final refit on every run; and a note for each proposal whose refit
-    failed."""
+    held-out runs, the best on the training runs kept (returned with the cause), its
+    symptom checked, and, when confirmed, its final refit on every run; and a note for each
+    proposal whose refit failed."""
     score, recipe = candidate.score, entry.refit
     trials, notes = _judged_trials(setup, entry, candidate, folds, fitted, shared_bases)
     if not trials:
-        return None, notes
+        return None, None, notes
     trial = max(trials, key=lambda t: t.train_lpd)
     proposal, fits, gain = trial.proposal, trial.fits, trial.gain
     # each fold's own value is kept: folds that disagree mark a refit to distrust
@@ -326,7 +339,7 @@ def _refit_candidate(
         for f in fits:
             ends = {**f.at_bound(), **ends}
     _mark_boxes(parameters, proposal, fits[0].box, ends)
-    return _refitted_cause(score, recipe, trial, parameters, symptom), notes
+    return _refitted_cause(score, recipe, trial, parameters, symptom), trial, notes
 
 
 def _refitted_cause(
@@ -385,41 +398,87 @@ def _mark_boxes(
 
 
 def judge(ranking: Ranking, refits: Refits) -> Judgement:
-    """The verdict: every confirmed cause, strongest held-out evidence first
-    (:func:`verdict_order`); then the others by signature score."""
+    """The verdict: the confirmed cause that wins most of its contests against the others
+    (:class:`Contest`: the two extended models judged against each other on the held-out
+    runs by the decision rule), the stronger held-out evidence over the base model breaking
+    ties (:func:`verdict_order`); then the other confirmed causes in that order, then the
+    rest by signature score. The notes say, for the verdict against each other confirmed
+    cause, whether the held-out runs tell the two apart."""
+    wins = {
+        name: sum(1 for k in refits.contests if k.challenger == name and k.gain.decisive)
+        for name in refits.causes
+    }
     confirmed = sorted(
         (c for c in refits.causes.values() if c.confirmed),
-        key=lambda c: verdict_order(held_out_evidence(c.gain), c.score),  # type: ignore[arg-type]
+        key=lambda c: (-wins[c.name], *verdict_order(held_out_evidence(c.gain), c.score)),  # type: ignore[arg-type]
     )
     verdict = confirmed[0].name if confirmed else NONE
     notes: list[str] = []
     if confirmed:
-        first = confirmed[0]
-        notes += [
-            f"{verdict}: {n} ended at the {value['at_bound']} end of its search box "
-            f"[{value['search_box'][0]:.4g}, {value['search_box'][1]:.4g}]: the data would move "
-            "it further, so it is not an estimate, nor are the parameters that trade off with it"
-            for n, value in first.parameters.items()
-            if isinstance(value, dict) and value.get("at_bound")
-        ]
-        notes += [
-            f"the verdict {verdict} could also be {alternative}"
-            for alternative in first.alternatives
-        ]
-        if first.feature_share is not None and first.feature_share < 1.0:
-            notes.append(
-                f"{verdict} explains its residual feature in part: its refit took away "
-                f"{100.0 * first.feature_share:.0f} % of the feature's excess over the base "
-                "model on held-out runs; the rest is still unexplained"
-            )
+        notes += _verdict_notes(confirmed[0])
     if len(confirmed) > 1:
         notes.append(
-            f"{len(confirmed)} causes confirmed, strongest held-out evidence first: "
+            f"{len(confirmed)} causes confirmed, the verdict first, then by held-out evidence "
+            "over the base model: "
             + ", ".join(
                 f"{c.name} ({held_out_evidence(c.gain):.1f} SE)"  # type: ignore[arg-type]
                 for c in confirmed
             )
         )
+        notes += _contest_notes(verdict, confirmed[1:], refits.contests)
     others = [refits.causes.get(s.name, _signature_cause(s)) for s in ranking.causes]
     causes = tuple(confirmed) + tuple(c for c in others if not c.confirmed)
-    return Judgement(verdict, causes, tuple(notes))
+    return Judgement(verdict, causes, tuple(notes), refits.contests)
+
+
+def _verdict_notes(first: Cause) -> list[str]:
+    """What to read a verdict with: parameters at an end of their box, alternatives, and the
+    share of its feature it left."""
+    verdict = first.name
+    notes = [
+        f"{verdict}: {n} ended at the {value['at_bound']} end of its search box "
+        f"[{value['search_box'][0]:.4g}, {value['search_box'][1]:.4g}]: the data would move "
+        "it further, so it is not an estimate, nor are the parameters that trade off with it"
+        for n, value in first.parameters.items()
+        if isinstance(value, dict) and value.get("at_bound")
+    ]
+    notes += [
+        f"the verdict {verdict} could also be {alternative}" for alternative in first.alternatives
+    ]
+    if first.feature_share is not None and first.feature_share < 1.0:
+        notes.append(
+            f"{verdict} explains its residual feature in part: its refit took away "
+            f"{100.0 * first.feature_share:.0f} % of the feature's excess over the base "
+            "model on held-out runs; the rest is still unexplained"
+        )
+    return notes
+
+
+def _contest_notes(verdict: str, others: Sequence[Cause], contests: Sequence[Contest]) -> list[str]:
+    """For the verdict against each other confirmed cause: which of the two extended models
+    the held-out runs prefer, or that they cannot tell them apart."""
+    by_pair = {(k.challenger, k.holder): k for k in contests}
+    notes = []
+    for other in others:
+        won, lost = by_pair.get((verdict, other.name)), by_pair.get((other.name, verdict))
+        if won is None or lost is None:
+            continue
+        se = held_out_evidence(won.gain)
+        if won.gain.decisive:
+            notes.append(
+                f"{verdict} against {other.name} on the held-out runs: {verdict}'s model "
+                f"predicts them better ({se:+.1f} SE, decisive by the rule)"
+            )
+        elif lost.gain.decisive:
+            notes.append(
+                f"{verdict} against {other.name} on the held-out runs: {other.name}'s model "
+                f"predicts them better ({held_out_evidence(lost.gain):+.1f} SE), but "
+                f"{verdict} wins more of its contests with the other confirmed causes"
+            )
+        else:
+            notes.append(
+                f"the held-out runs cannot tell {verdict} from {other.name}: against each "
+                f"other {verdict}'s model gains {se:+.1f} SE, short of the rule; either may "
+                "explain what the other does, and both may be present"
+            )
+    return notes

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -14,6 +14,9 @@ from ._gain import Gain
 from ._limits import CauseLimit
 from ._rank import Catalogue, Ranking
 from ._refit import ExtensionProposal
+
+if TYPE_CHECKING:
+    from ._held_out import Contest
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,11 +149,13 @@ class Diagnosis:
     Attributes
     ----------
     verdict
-        A catalogue name: the confirmed cause with the strongest held-out evidence (gain in
-        standard errors; :func:`verdict_order`), or ``"none"``.
+        A catalogue name: the confirmed cause that wins most of its contests with the other
+        confirmed ones (their extended models judged against each other on the held-out
+        runs), the strongest held-out evidence over the base model (gain in standard errors;
+        :func:`verdict_order`) breaking ties; or ``"none"``.
     causes
-        Every candidate: all the confirmed ones, strongest evidence first, then the others
-        by signature score.
+        Every candidate: all the confirmed ones, the verdict first, then the others by
+        signature score.
     ranking
         The signature ranking (with the residual features).
     catalogue
@@ -171,6 +176,9 @@ class Diagnosis:
         Per catalogue cause that declares its size, its detection limit in these runs
         (:func:`detection_limits`): the size the rule names with 80 % probability, and the
         power curve.
+    contests
+        Every ordered pair of confirmed causes, the challenger's extended model judged
+        against the holder's on the held-out runs (``Contest``).
     """
 
     verdict: str
@@ -183,10 +191,11 @@ class Diagnosis:
     timings: Mapping[str, float] = dataclasses.field(default_factory=dict)
     fit: FitResult | None = None
     limits: Mapping[str, CauseLimit] = dataclasses.field(default_factory=dict)
+    contests: tuple[Contest, ...] = ()
 
     @property
     def confirmed(self) -> tuple[Cause, ...]:
-        """The confirmed causes, strongest held-out evidence first."""
+        """The confirmed causes, the verdict first."""
         return tuple(c for c in self.causes if c.confirmed)
 
     @property
@@ -211,9 +220,11 @@ class Diagnosis:
     def to_json(self) -> dict[str, Any]:
         """The JSON of docs/cli.md (``bayesdoor diagnose``): ``verdict`` and ``causes`` (each
         ``name``, ``evidence``, ``parameters``, ``gain``), plus the rule, the features in
-        words, notes and timings; ``confirmed`` (every confirmed cause, strongest first) and
-        ``limits`` (per cause: its size's name, unit, the size named with the stated power,
-        the power curve)."""
+        words, notes and timings; ``confirmed`` (every confirmed cause, the verdict first),
+        ``contests`` (the confirmed causes judged against each other: challenger, holder,
+        its gain over the holder's model in standard errors, decisive, and the gain's
+        figures) and ``limits`` (per cause: its size's name, unit, the size named with the
+        stated power, the power curve)."""
         return {
             "verdict": self.verdict,
             "confirmed": [c.name for c in self.confirmed],
@@ -225,6 +236,7 @@ class Diagnosis:
             "notes": list(self.notes),
             "timings": dict(self.timings),
             "limits": {name: limit.to_json() for name, limit in self.limits.items()},
+            "contests": [c.to_json() for c in self.contests],
         }
 
 

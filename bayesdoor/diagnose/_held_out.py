@@ -220,6 +220,19 @@ def _judge_refits(
     the speed (a tone at ``f = v / lambda`` of each run's operating speed) the scatter in the
     changed bins is local in the order domain, else in frequency.
     """
+    models = held_out_models(setup, proposal, folds, fits)
+    return judge_folds(setup, models, folds, tracking=tracking)
+
+
+def held_out_models(
+    setup: RefitSetup,
+    proposal: ExtensionProposal,
+    folds: Sequence[tuple[np.ndarray, np.ndarray]],
+    fits: Sequence[RefitResult],
+) -> list[Float[np.ndarray, "run channel freq"]]:
+    """Each fold's extended model spectra of every run: its training runs as fitted, its
+    held-out runs simulated exactly at the values fitted without them (every fold's in one
+    simulation, :func:`exact_spectra`)."""
     tests = np.concatenate([test for _, test in folds])
     values = {
         n: np.concatenate(
@@ -234,7 +247,7 @@ def _judge_refits(
         model[test] = held[start : start + len(test)]
         start += len(test)
         models.append(model)
-    return judge_folds(setup, models, folds, tracking=tracking)
+    return models
 
 
 def judge_folds(
@@ -243,6 +256,7 @@ def judge_folds(
     folds: Sequence[tuple[np.ndarray, np.ndarray]],
     *,
     tracking: bool,
+    reference: Sequence[np.ndarray] | None = None,
 ) -> Gain:
     """The held-out judgement of an extended model against the base model, fold by fold.
 
@@ -251,14 +265,18 @@ def judge_folds(
     by the bins where they differ (:func:`changed_bins`), local in the order domain when the
     effect is ``tracking`` the speed, else in frequency; the folds' held-out runs together
     go to :func:`compare_held_out`. Also the judge of a model that knows an effect exactly
-    (``scripts/full_size_case.py --ceiling``).
+    (``scripts/full_size_case.py --ceiling``). ``reference``: per fold, the spectra of
+    another extended model (as ``models``) to judge against instead of the base model
+    (:func:`contest`).
     """
     base = setup.base_spectra
     speeds = None
     if tracking:
         speeds = np.asarray(setup.operating if setup.speeds is None else setup.speeds, dtype=float)
     before, after = [], []
-    for model, (train, test) in zip(models, folds, strict=True):
+    for k, (model, (train, test)) in enumerate(zip(models, folds, strict=True)):
+        if reference is not None:
+            base = reference[k]
         changed = changed_bins(base, model, setup.spectra.log_variance)
         before.append(_held_out(setup.spectra, base, changed, train, test, speeds))
         after.append(_held_out(setup.spectra, model, changed, train, test, speeds))
@@ -270,6 +288,48 @@ def judge_folds(
     )
     tests = np.concatenate([test for _, test in folds])
     return dataclasses.replace(gain, runs=tuple(int(r) for r in tests))
+
+
+@dataclasses.dataclass(frozen=True)
+class Contest:
+    """Two confirmed causes' extended models judged against each other on the held-out runs.
+
+    ``gain`` is the ``challenger``'s over the ``holder``'s: the decision rule applied to the
+    per-run difference of their held-out densities in the bins where the two predictions
+    differ (:func:`judge_folds` with the holder as the reference), so it asks which of the two
+    predicts the runs neither was fitted on better, not which gains more over the base model.
+    """
+
+    challenger: str
+    holder: str
+    gain: Gain
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "challenger": self.challenger,
+            "holder": self.holder,
+            "evidence_se": held_out_evidence(self.gain),
+            "decisive": self.gain.decisive,
+            **self.gain.to_json(),
+        }
+
+
+def contest(
+    setup: RefitSetup,
+    folds: Sequence[tuple[np.ndarray, np.ndarray]],
+    challenger: tuple[str, Sequence[np.ndarray], bool],
+    holder: tuple[str, Sequence[np.ndarray], bool],
+) -> Contest:
+    """The challenger's extended model judged against the holder's on the held-out runs.
+
+    Each is ``(name, per-fold spectra as held_out_models gives them, tracking)``; the scatter
+    in the changed bins is local in the order domain only when both effects track the speed
+    (the bins where the two differ hold a fixed effect's otherwise).
+    """
+    name, models, tracks = challenger
+    other, reference, other_tracks = holder
+    gain = judge_folds(setup, models, folds, tracking=tracks and other_tracks, reference=reference)
+    return Contest(name, other, gain)
 
 
 def held_out_evidence(gain: Gain) -> float:

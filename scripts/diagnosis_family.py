@@ -110,7 +110,7 @@ def base(work: Path, seed: int) -> tuple[Any, dict[str, Any]]:
 def loop(seed: int, fit: Any, door: Any, cause: str, size: float | None) -> dict[str, Any]:
     """One campaign recorded on ``door`` (with ``cause`` hidden at ``size`` unless nothing:
     :func:`with_hidden`) and diagnosed under the door's base fit."""
-    from bayesdoor.diagnose._held_out import held_out_evidence
+    from bayesdoor.diagnose._gain import held_out_evidence
 
     t0 = time.perf_counter()
     campaign = record(door, seed * 100 + door.seed)

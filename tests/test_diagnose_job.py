@@ -36,9 +36,10 @@ from bayesdoor.diagnose._gain import (
     compare_held_out,
     estimate_discrepancy,
     feature_bins,
+    held_out_evidence,
     log_predictive,
 )
-from bayesdoor.diagnose._held_out import extension_gain, held_out_evidence, verdict_order
+from bayesdoor.diagnose._held_out import extension_gain, verdict_order
 from bayesdoor.diagnose._job import base_fit_notes
 from bayesdoor.diagnose._residual import smooth_discrepancy
 from bayesdoor.door import DOOR_CATALOGUE, WHEEL_CIRCUMFERENCE, CoupledFrameMode, ElevatorDoor

@@ -52,12 +52,12 @@ from ._features import RunMotion as RunMotion
 from ._features import find_features as find_features
 from ._gain import LOCAL_BINS as LOCAL_BINS
 from ._gain import RULE as RULE
+from ._gain import Contest as Contest
 from ._gain import Discrepancy as Discrepancy
 from ._gain import Gain as Gain
 from ._gain import capped_t as capped_t
 from ._gain import rule_passes as rule_passes
 from ._gain import rule_thresholds as rule_thresholds
-from ._held_out import Contest as Contest
 from ._job import diagnose_campaign as diagnose_campaign
 from ._limits import LIMIT_POWER as LIMIT_POWER
 from ._limits import CauseLimit as CauseLimit

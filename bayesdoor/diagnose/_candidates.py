@@ -11,13 +11,11 @@ import numpy as np
 
 from .._cluster import Pool
 from ._diagnosis import Cause, DiagnosisSettings
-from ._gain import Gain
+from ._gain import Contest, Gain, held_out_evidence
 from ._held_out import (
-    Contest,
     _Bases,
     _fold_tasks,
     contest,
-    held_out_evidence,
     held_out_folds,
     held_out_models,
     judge_folds,

@@ -4,19 +4,16 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..inference import FitResult
 from ._features import Features
-from ._gain import Gain
+from ._gain import Contest, Gain
 from ._limits import CauseLimit
 from ._rank import Catalogue, Ranking
 from ._refit import ExtensionProposal
-
-if TYPE_CHECKING:
-    from ._held_out import Contest
 
 
 @dataclasses.dataclass(frozen=True)

@@ -917,3 +917,36 @@ def compare_held_out(
         threshold=threshold,
         t_threshold=t_threshold,
     )
+
+
+def held_out_evidence(gain: Gain) -> float:
+    """A held-out gain in standard errors: ``elpd_difference / elpd_se`` (the plain
+    statistic of the rule; ``inf`` for a positive gain without spread)."""
+    if gain.elpd_se > 0:
+        return float(gain.elpd_difference / gain.elpd_se)
+    return float(np.sign(gain.elpd_difference) * np.inf) if gain.elpd_difference else 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Contest:
+    """Two confirmed causes' extended models judged against each other on the held-out runs.
+
+    ``gain`` is the ``challenger``'s over the ``holder``'s: the decision rule applied to the
+    per-run difference of their held-out densities in the bins where the two predictions
+    differ (``contest``: ``judge_folds`` with the holder as the reference), so it asks which
+    of the two
+    predicts the runs neither was fitted on better, not which gains more over the base model.
+    """
+
+    challenger: str
+    holder: str
+    gain: Gain
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "challenger": self.challenger,
+            "holder": self.holder,
+            "evidence_se": held_out_evidence(self.gain),
+            "decisive": self.gain.decisive,
+            **self.gain.to_json(),
+        }

@@ -281,11 +281,9 @@ def diagnose_campaign(
        with the base parameters at the fit's point on one half of the runs and tested on the
        other half, both ways (two folds; halves alternate in speed); a confirmed one is
        refitted on all runs, with Laplace standard deviations.
-    5. :func:`judge` (:class:`Judgement`): every confirmed cause is reported; each pair of
-       them is judged against each other on the held-out runs (:class:`Contest`), and the
-       verdict names the one that wins most of its contests, the stronger held-out evidence
-       over the base model breaking ties (:func:`verdict_order`), else ``none``
-       (:data:`~bayesdoor.diagnose.RULE`).
+    5. :func:`judge` (:class:`Judgement`): every confirmed cause is reported; the verdict
+       wins most contests with the others on held-out runs (:class:`Contest`), ties by
+       :func:`verdict_order`; else ``none`` (:data:`~bayesdoor.diagnose.RULE`).
     6. :func:`cause_limits` (:class:`Limits`): for every catalogue cause that declares its
        size (:meth:`~bayesdoor.diagnose.AbstractRefit.size`), the smallest size the rule
        would name with 80 % probability in these runs (:func:`detection_limits`).

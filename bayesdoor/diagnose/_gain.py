@@ -934,8 +934,8 @@ class Contest:
     ``gain`` is the ``challenger``'s over the ``holder``'s: the decision rule applied to the
     per-run difference of their held-out densities in the bins where the two predictions
     differ (``contest``: ``judge_folds`` with the holder as the reference), so it asks which
-    of the two
-    predicts the runs neither was fitted on better, not which gains more over the base model.
+    of the two predicts the runs neither was fitted on better, not which gains more over the
+    base model.
     """
 
     challenger: str

@@ -26,8 +26,11 @@ The public names are what a user calls:
 - what a campaign could not have shown: each cause's size (:class:`CauseSize` of
   :class:`SizeProbe` configurations, declared by its recipe's ``size``) and its
   :class:`CauseLimit` (:class:`PowerCurve` per configuration) from :func:`detection_limits`
-  at the power :data:`LIMIT_POWER`; :func:`plan_campaign` (a :class:`CampaignPlan`): the
-  campaign that would name a cause of a given size.
+  at the power :data:`LIMIT_POWER`; how a family of machines transmits a cause against the
+  model (:class:`Transmission`, read per machine by :func:`read_transmission` as a
+  :class:`TransmissionReading`), which turns a model limit into a family limit;
+  :func:`plan_campaign` (a :class:`CampaignPlan`): the campaign that would name a cause of a
+  given size.
 
 The tuning constants and the internal steps stay in their private modules.
 """
@@ -62,7 +65,9 @@ from ._job import diagnose_campaign as diagnose_campaign
 from ._limits import LIMIT_POWER as LIMIT_POWER
 from ._limits import CauseLimit as CauseLimit
 from ._limits import PowerCurve as PowerCurve
+from ._limits import TransmissionReading as TransmissionReading
 from ._limits import detection_limits as detection_limits
+from ._limits import read_transmission as read_transmission
 from ._order import OrderSpectra as OrderSpectra
 from ._plan import PlanSettings as PlanSettings
 from ._plan import plan_campaign as plan_campaign
@@ -77,6 +82,7 @@ from ._refit import CauseSize as CauseSize
 from ._refit import ExtensionProposal as ExtensionProposal
 from ._refit import SizeProbe as SizeProbe
 from ._refit import Symptom as Symptom
+from ._refit import Transmission as Transmission
 from ._residual import Region as Region
 from ._residual import ResidualMap as ResidualMap
 from ._residual import ResidualSettings as ResidualSettings

@@ -23,11 +23,16 @@ statistics and thresholds): the share named is the power at ``s``; the limit is 
 name the cause at :data:`PLAN_FACTOR` times it (:func:`~bayesdoor.diagnose._design.
 design_campaign`, as :func:`~bayesdoor.diagnose.plan_campaign` plans).
 
+A cause tested on the measured signals (``ExtensionProposal.on_measured``: a sensor's
+leak) is sized on them too: ``Delta`` is the change the cause would make to the measured runs.
+
 What it leaves out: the residual features must show the cause before it is refitted (the
 signature's gate), the base fit may absorb part of a cause, and the base model may carry the
 cause to the sensors other than the system does (the computation takes the model's
 ``Delta`` for the truth); the first two only lower the power, the third either way
-(``results/diagnosis_limits.md`` measures it on the rig).
+(``results/diagnosis_limits.md`` measures it on the rig). The third is what a cause's
+:class:`~bayesdoor.diagnose.Transmission` states, measured across a family of machines
+(:func:`read_transmission`): the family limit divides the model limit by the smallest ratio.
 """
 
 from __future__ import annotations
@@ -52,7 +57,14 @@ from ._design import (
 )
 from ._gain import changed_bins, estimate_discrepancy
 from ._rank import Catalogue
-from ._refit import SMOOTH_BINS, CauseSize, RefitSetup, SizeProbe, exact_signals
+from ._refit import (
+    SMOOTH_BINS,
+    CauseSize,
+    RefitSetup,
+    SizeProbe,
+    Transmission,
+    exact_signals,
+)
 from ._residual import smooth_discrepancy
 
 #: the probability of naming a cause that defines its detection limit
@@ -119,6 +131,9 @@ class CauseLimit:
     plan
         The campaign that would name the cause at :data:`PLAN_FACTOR` times its limit in the
         typical configuration (``None``: not planned, or no limit in the range).
+    transmission
+        How a family of machines transmits the cause against the model (the cause's
+        declared :class:`Transmission`; ``None``: not measured).
     """
 
     cause: str
@@ -129,11 +144,23 @@ class CauseLimit:
     runs: int
     curves: tuple[PowerCurve, ...]
     plan: CampaignPlan | None = None
+    transmission: Transmission | None = None
 
     @property
     def size(self) -> float | None:
-        """The typical configuration's limit (``None``: above the scanned range)."""
+        """The typical configuration's limit if the model transmits the cause as the
+        machine does (``None``: above the scanned range)."""
         return self.curves[0].limit
+
+    @property
+    def family(self) -> float | None:
+        """The typical configuration's limit on every machine of the family the cause's
+        transmission was measured on: the model limit over the smallest ratio (``None``:
+        no model limit, no transmission measured, or one the model does not reproduce)."""
+        t = self.transmission
+        if self.size is None or t is None or not t.reliable:
+            return None
+        return self.size / t.low
 
     @property
     def worst(self) -> float | None:
@@ -157,6 +184,15 @@ class CauseLimit:
         )
         if len(self.curves) > 1:
             words += "; " + ", ".join(f"{c.label}: {self.shown(c.limit)}" for c in self.curves[1:])
+        t = self.transmission
+        if t is not None and self.size is not None:
+            if self.family is not None:
+                words += (
+                    f"; across the family of machines, under {self.shown(self.family)} "
+                    f"({t.describe()})"
+                )
+            else:
+                words += f"; across the family of machines, no limit: {t.describe()}"
         return words
 
     def to_json(self) -> dict[str, Any]:
@@ -177,6 +213,13 @@ class CauseLimit:
                 }
                 for c in self.curves
             ],
+            "family_size": self.family,
+            "transmission": None
+            if self.transmission is None
+            else {
+                **dataclasses.asdict(self.transmission),
+                "reliable": self.transmission.reliable,
+            },
             "words": self.describe(),
             "plan": None if self.plan is None else self.plan.to_json(),
         }
@@ -295,13 +338,26 @@ def _limit(sizes: np.ndarray, probability: np.ndarray, power: float) -> float | 
     return float(np.exp(x0 + w * (x1 - x0)))
 
 
+def _on_measured(setup: RefitSetup, probe: SizeProbe) -> bool:
+    """Whether the probe's cause is sized on the measured signals, as it is tested
+    (``ExtensionProposal.on_measured``; a setup without them: on the model's)."""
+    return probe.proposal.on_measured and setup.measured_signals is not None
+
+
 def probe_changes(
     setup: RefitSetup, probe: SizeProbe
 ) -> tuple[Float[np.ndarray, "run channel time"], Float[np.ndarray, "run channel time"]]:
     """The probe's signals at size 0 and their change per unit size (one simulation, two
-    when the extension at size 0 is not the base model)."""
+    when the extension at size 0 is not the base model). A cause tested on the measured
+    signals acts on them here too: its signals at size 0 are the measured runs."""
     n = len(setup.operating)
     runs = np.arange(n)
+    if _on_measured(setup, probe):
+        setup = dataclasses.replace(setup, base_signals=setup.measured_signals)
+    elif probe.proposal.on_measured:
+        probe = dataclasses.replace(
+            probe, proposal=dataclasses.replace(probe.proposal, on_measured=False)
+        )
     if probe.off_at_zero:
         zero = np.asarray(setup.base_signals)
     else:
@@ -316,7 +372,11 @@ def size_spectra(
     """The probe's log10 spectra of every run as a function of its size, from one simulation
     and three Welch estimates: the signals are ``z + s c`` and a Welch PSD is quadratic in
     the signal, so ``P(s) = P(z) + u (P(z + r c) - P(z - r c)) / 2 + u^2 ((P(z + r c) +
-    P(z - r c)) / 2 - P(z))`` with ``u = s / r`` exactly (``r`` the probe's reference)."""
+    P(z - r c)) / 2 - P(z))`` with ``u = s / r`` exactly (``r`` the probe's reference).
+
+    A cause tested on the measured signals (``ExtensionProposal.on_measured``) is sized as
+    it is tested: ``z`` the measured runs, the spectra the base model's plus ``log P(s) -
+    log P(0)``, the change the cause at ``s`` would make to what was measured."""
     zero, per_unit = probe_changes(setup, probe)
     runs = np.arange(len(setup.operating))
     r = probe.reference
@@ -325,10 +385,13 @@ def size_spectra(
         for x in (zero, zero + r * per_unit, zero - r * per_unit)
     )
     linear, quadratic = (up - down) / 2.0, (up + down) / 2.0 - p0
+    offset = 0.0
+    if _on_measured(setup, probe):
+        offset = setup.base_spectra - np.log10(np.maximum(p0, _PSD_FLOOR))
 
     def at(size: float) -> np.ndarray:
         u = float(size) / r
-        return np.log10(np.maximum(p0 + u * linear + u * u * quadratic, _PSD_FLOOR))
+        return offset + np.log10(np.maximum(p0 + u * linear + u * u * quadratic, _PSD_FLOOR))
 
     return at
 
@@ -547,8 +610,86 @@ def detection_limits(
             runs=n,
             curves=curves,
             plan=plan,
+            transmission=size.transmission,
         )
     return out
+
+
+@dataclasses.dataclass(frozen=True)
+class TransmissionReading:
+    """One machine's transmission of a cause against the model (:func:`read_transmission`).
+
+    Attributes
+    ----------
+    size
+        The size the machine carries.
+    model_size
+        The model size whose change best reproduces the machine's (0: none does better than
+        no change).
+    explained
+        The share of the machine's change (weighted by the runs' Welch variance) that the
+        model's change at ``model_size`` explains.
+    bins
+        The bins (run, channel, bin) the two changes were compared in.
+    """
+
+    size: float
+    model_size: float
+    explained: float
+    bins: int
+
+    @property
+    def ratio(self) -> float:
+        """``model_size / size``: below 1 the machine shows less of the cause than the model."""
+        return self.model_size / self.size
+
+
+def _detrended(delta: np.ndarray) -> np.ndarray:
+    """A change less the running median of its run mean (the part each model's smooth
+    discrepancy takes alike, as in :func:`expected_differences`)."""
+    return delta - smooth_discrepancy(delta.mean(axis=0), SMOOTH_BINS)
+
+
+def read_transmission(
+    setup: RefitSetup,
+    probe: SizeProbe,
+    machine: Float[np.ndarray, "run channel freq"],
+    size: float,
+    *,
+    high: float,
+    grid: int = 8 * _GRID,
+) -> TransmissionReading:
+    """How one machine transmits a cause against the model: the model size whose change of
+    the log10 spectra best reproduces the machine's.
+
+    ``setup`` is a campaign of the machine without the cause (its measured spectra and the
+    base model at the fit's point); ``machine`` the log10 spectra (``setup.spectra``'s
+    analysis) of the same runs recorded again with the cause at ``size`` in the probe's
+    configuration, with the same noise, so that their difference is the cause's change. The
+    model's change is the probe's (:func:`size_spectra`) at each size of a log grid up to
+    ``high``. Both changes are taken less their broad part, and compared in the bins either
+    changes (:func:`~bayesdoor.diagnose._gain.changed_bins` at ``size``), each run weighted
+    by its Welch variance; the size with the least squared difference is the reading.
+    """
+    if not np.isfinite(size) or size <= 0 or not high > 0:
+        raise ValueError(f"size={size!r} and high={high!r} must be positive")
+    measured = np.asarray(setup.spectra.measured)
+    machine = np.asarray(machine, dtype=float)
+    if machine.shape != measured.shape:
+        raise ValueError(f"machine spectra of shape {machine.shape}: need {measured.shape}")
+    welch = np.asarray(setup.spectra.log_variance)
+    at = size_spectra(setup, probe)
+    zero = at(0.0)
+    mask = changed_bins(zero, at(float(size)), welch) | changed_bins(measured, machine, welch)
+    weight = np.where(mask, 1.0 / welch[:, None, None], 0.0)
+    target = _detrended(machine - measured)
+    sizes = np.concatenate([[0.0], np.geomspace(high * 1e-4, high, grid)])
+    sse = np.array(
+        [np.sum(weight * (target - _detrended(at(float(s)) - zero)) ** 2) for s in sizes]
+    )
+    best = int(np.argmin(sse))
+    explained = 1.0 - sse[best] / sse[0] if sse[0] > 0 else 0.0
+    return TransmissionReading(float(size), float(sizes[best]), float(explained), int(mask.sum()))
 
 
 def _chi2(p: int, draws: int, seed: int) -> np.ndarray | None:

@@ -538,6 +538,7 @@ class CrossAxisRefit(AbstractRefit):
                             extension=SensorCrossAxis(sensor=into[:-1], into=into[-1]),
                             start={},
                             free=("sensor_cross_axis.fraction",),
+                            on_measured=True,
                         ),
                         scales={"sensor_cross_axis.fraction": 1.0},
                         reference=0.05,

@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 from test_diagnosis_gain import stand_in
 
-from bayesdoor.diagnose import ExtensionProposal, verdict_extension
+from bayesdoor.diagnose import (
+    ExtensionProposal,
+    SizeProbe,
+    Transmission,
+    read_transmission,
+    verdict_extension,
+)
 from bayesdoor.diagnose._held_out import held_out_folds
+from bayesdoor.diagnose._limits import size_spectra
 from bayesdoor.diagnose._refit import RefitSetup, Spectra, box_ends, exact_spectra, refit_extension
 from bayesdoor.door import DoorParameters, ElevatorDoor, SensorCrossAxis
 
@@ -99,6 +106,53 @@ def _leak(on_measured: bool, **kwargs) -> ExtensionProposal:
         on_measured=on_measured,
         **kwargs,
     )
+
+
+def _leak_probe(on_measured: bool) -> SizeProbe:
+    name = "sensor_cross_axis.fraction"
+    return SizeProbe("A2Z reads A2X", _leak(on_measured), {name: 1.0}, reference=0.05)
+
+
+def test_a_leak_is_sized_on_the_measured_signals_as_it_is_tested():
+    # the limit's spectra of a leak tested on the measured signals: the base model's plus
+    # the change the leak would make to what was measured (A2X measured 0.4 times the model's)
+    setup = _door_setup(np.array([0.3, 0.35, 0.45, 0.5]), source_gain=0.4)
+    runs = np.arange(4)
+    leaked = np.array(setup.measured_signals)
+    leaked[:, 3] += 0.08 * leaked[:, 2]
+    change = setup.spectra.model(leaked, runs) - setup.spectra.measured
+    at = size_spectra(setup, _leak_probe(True))
+    np.testing.assert_allclose(at(0.0), setup.base_spectra, atol=1e-9)
+    np.testing.assert_allclose(at(0.08) - at(0.0), change, atol=1e-6)
+    # sized on the model's signals the same leak changes A2Z by more (its A2X is 2.5 times)
+    model = size_spectra(setup, _leak_probe(False))
+    assert np.abs(model(0.08) - model(0.0))[:, 3].mean() > 1.5 * np.abs(change[:, 3]).mean()
+    # without measured signals a leak is sized on the model's
+    bare = dataclasses.replace(setup, measured_signals=None)
+    np.testing.assert_allclose(size_spectra(bare, _leak_probe(True))(0.08), model(0.08))
+
+
+def test_the_transmission_of_a_machine_is_the_model_size_that_makes_its_change():
+    # a machine whose A2X is 0.4 times the model's, with A2Z reading 8 % of it: on the model's
+    # signals its change is the model's at 0.4 x 8 %, the same shape; on the measured ones 8 %
+    setup = _door_setup(np.array([0.3, 0.35, 0.45, 0.5]), source_gain=0.4)
+    runs = np.arange(4)
+    leaked = np.array(setup.measured_signals)
+    leaked[:, 3] += 0.08 * leaked[:, 2]
+    machine = setup.spectra.model(leaked, runs)
+    on_model = read_transmission(setup, _leak_probe(False), machine, 0.08, high=3.0)
+    assert abs(on_model.ratio - 0.4) < 0.04 and on_model.explained > 0.95, on_model
+    on_measured = read_transmission(setup, _leak_probe(True), machine, 0.08, high=3.0)
+    assert abs(on_measured.ratio - 1.0) < 0.04 and on_measured.explained > 0.99, on_measured
+    # a change the leak cannot make (a line on A1X, which the leak never touches) is not
+    # explained, and a family of such machines does not transmit the cause
+    other = np.array(setup.spectra.measured)
+    other[:, 0, 30:33] += 0.5
+    miss = read_transmission(setup, _leak_probe(True), other, 0.08, high=3.0)
+    assert miss.explained < 0.05 and miss.ratio < 0.01, miss
+    assert not Transmission(miss.ratio, on_measured.ratio, miss.explained, 2).reliable
+    with pytest.raises(ValueError, match="shape"):
+        read_transmission(setup, _leak_probe(True), machine[:2], 0.08, high=3.0)
 
 
 def test_a_leak_tested_on_the_measured_signals_is_blind_to_the_models_error_in_its_source():

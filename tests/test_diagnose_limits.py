@@ -29,9 +29,13 @@ from bayesdoor.diagnose import (
     LIMIT_POWER,
     Candidate,
     Catalogue,
+    CauseLimit,
     CauseSize,
     ExtensionProposal,
+    PlanSettings,
+    PowerCurve,
     SizeProbe,
+    Transmission,
     diagnose_campaign,
     plan_campaign,
 )
@@ -201,6 +205,48 @@ def test_a_hum_at_its_limit_is_named_as_often_as_stated(fan_fit):
     assert named[1.5] >= 0.7 and named[0.5] <= 0.3, (limit.size, named)
 
 
+#: the fan's fit (39 s measured on the shared machine, shared with the other long tests)
+#: and four plans (2 s each)
+@pytest.mark.long
+def test_a_plan_for_the_family_is_the_plan_for_what_its_least_machine_shows(fan_fit):
+    campaign, fit = fan_fit
+    fan = ToyFan()
+
+    def declaring(transmission):
+        class Recipe(_SizedHum):
+            def size(self, *, band):
+                return dataclasses.replace(super().size(band=band), transmission=transmission)
+
+        return Catalogue(
+            candidates=tuple(
+                Candidate(c.name, c.description, c.signature, Recipe()) if c.name == "hum" else c
+                for c in CATALOGUE.candidates
+            )
+        )
+
+    family = declaring(Transmission(low=0.5, high=1.2, explained=0.9, machines=4))
+    size = 0.01
+    held = plan_campaign(fan, campaign, "hum", size, fit=fit, catalogue=family)
+    weaker = plan_campaign(fan, campaign, "hum", 0.5 * size, fit=fit, catalogue=SIZED)
+    assert held.ratio == 0.5 and held.size == size and weaker.ratio is None
+    assert held.runs == weaker.runs and held.probability == pytest.approx(weaker.probability)
+    model = plan_campaign(
+        fan,
+        campaign,
+        "hum",
+        size,
+        fit=fit,
+        catalogue=family,
+        settings=PlanSettings(machines="model"),
+    )
+    assert model.ratio is None and (model.runs or 0) <= (held.runs or 10**6)
+    shape = declaring(Transmission(low=0.5, high=1.2, explained=0.2, machines=4))
+    with pytest.raises(ValueError, match="machines='model'"):
+        plan_campaign(fan, campaign, "hum", size, fit=fit, catalogue=shape)
+    with pytest.raises(ValueError, match="machines="):
+        PlanSettings(machines="rig")
+
+
 #: the fan's fit (39 s measured on the shared machine) and a plan (2 s)
 @pytest.mark.long
 def test_the_plan_names_the_hum_it_plans_for(fan_fit):
@@ -243,6 +289,15 @@ def test_the_report_shows_the_limits_and_their_power_curves():
     assert "Limits" not in bare and "Limits" in page
     assert "above the range" in page and "a rail waviness amplitude under 2 um" in page
     assert page.count("data:image/png") == bare.count("data:image/png") + 1
+    # the family's limit beside the model's, or why there is none
+    assert "limit (family)" in page and "not measured" in page
+    family = {"low": 0.25, "high": 0.5, "explained": 0.9, "machines": 4, "reliable": True}
+    with_family = {**limit, "family_size": 8e-6, "transmission": family}
+    page = diagnosis_page({"verdict": "none", "causes": [], "limits": {"r": with_family}})
+    assert "8e-06" in page and "not measured" not in page
+    shape = {**with_family, "family_size": None, "transmission": {**family, "reliable": False}}
+    page = diagnosis_page({"verdict": "none", "causes": [], "limits": {"r": shape}})
+    assert "not transmitted as the model does" in page
 
 
 PLAN = CampaignPlan(
@@ -277,6 +332,10 @@ def test_after_a_none_the_report_and_the_summary_plan_a_campaign_per_cause():
     }
     words = "9 runs at each of 2 conditions (0.3, 0.4) (18 runs of 2 s in all) name rail_waviness"
     assert words in PLAN.describe()
+    assert "if the machine transmits it as the model does" in PLAN.describe()
+    family = dataclasses.replace(PLAN, ratio=0.25).describe()
+    assert "on every machine of its family (the least of which shows it as the model" in family
+    assert "0.25 times the size" in family and PLAN.to_json()["ratio"] is None
     one = dataclasses.replace(PLAN, conditions=(0.3,))
     assert "9 runs at 0.3 (9 runs of 2 s in all)" in one.describe()
     for verdict, shown in (("none", True), ("frame_mode", False)):
@@ -337,3 +396,39 @@ def test_the_estimation_lowers_the_probability_of_naming():
         for p in (1, 6)
     ]
     assert truth > costs[0] > costs[1]
+
+
+def _limit(size, transmission):
+    sizes = np.geomspace(1e-4, 1e-1, 5)
+    curve = PowerCurve("typical", sizes, np.linspace(0, 1, 5), np.zeros(5), size)
+    return CauseLimit(
+        "hum",
+        "hum amplitude",
+        "m/s^2",
+        ("mm/s^2", 1e3),
+        0.8,
+        12,
+        (curve,),
+        transmission=transmission,
+    )
+
+
+def test_the_family_limit_is_the_model_limit_over_the_smallest_ratio():
+    family = Transmission(low=0.25, high=0.9, explained=0.8, machines=4, source="here")
+    limit = _limit(0.002, family)
+    assert limit.family == pytest.approx(0.008)
+    words = limit.describe()
+    assert "under 2 mm/s^2" in words and "across the family of machines, under 8 mm/s^2" in words
+    assert "0.25-0.9 times" in words
+    payload = limit.to_json()
+    assert payload["family_size"] == pytest.approx(0.008)
+    assert payload["transmission"]["low"] == 0.25 and payload["transmission"]["reliable"]
+    # a family whose change the model's does not make: no family limit, said with its figure
+    shape = Transmission(low=0.2, high=0.9, explained=0.3, machines=4)
+    assert not shape.reliable and _limit(0.002, shape).family is None
+    assert "at worst 30 % of a machine's change explained" in _limit(0.002, shape).describe()
+    # no transmission measured, or no model limit: none
+    assert _limit(0.002, None).family is None and _limit(None, family).family is None
+    assert "family" not in _limit(0.002, None).describe()
+    with pytest.raises(ValueError, match="low <= high"):
+        Transmission(low=0.5, high=0.2, explained=1.0, machines=2)

@@ -616,13 +616,20 @@ def plan(
         int, typer.Option(help="which of the cause's configurations (0: the typical one)")
     ] = 0,
     seed: Annotated[int, typer.Option(help="seed of the draws (and of a fit here)")] = 0,
+    machines: Annotated[
+        str,
+        typer.Option(
+            help="family: hold on every machine of the family the cause's transmission was "
+            "measured on; model: as if the machine transmits the cause as the model does"
+        ),
+    ] = "family",
     quick: _Quick = False,
     json: Annotated[bool, typer.Option("--json", help="print the result as JSON only")] = False,
 ) -> None:
     """The cheapest campaign that names a cause of this size with 80 % probability.
 
-    It states the runs per condition, the conditions and the record length, and its cost in
-    runs.
+    It states the runs per condition, the conditions and the record length, its cost in
+    runs, and the machines it holds for.
     """
     configure_jax()
     from ._plan import plan as run_plan
@@ -634,6 +641,7 @@ def plan(
         posterior=model,
         configuration=configuration,
         seed=seed,
+        machines=machines,
         quick=quick,
         json=json,
     )

@@ -22,6 +22,7 @@ def plan(
     seed: int,
     json: bool,
     quick: bool = False,
+    machines: str = "family",
 ) -> None:
     """The ``plan`` command: load the campaign and its fit (or fit here), plan, print."""
     from ..diagnose import PlanSettings, plan_campaign
@@ -29,6 +30,10 @@ def plan(
     from ._diagnose import load_fit
     from ._run import load
 
+    try:
+        settings = PlanSettings(seed=seed, machines=machines)
+    except ValueError as err:
+        raise fail(str(err)) from None
     campaign = load(path)
     system = system_named(campaign)
     if posterior is None:
@@ -46,7 +51,7 @@ def plan(
             size,
             fit=fit,
             configuration=configuration,
-            settings=PlanSettings(seed=seed),
+            settings=settings,
         )
     except ValueError as err:
         raise fail(str(err).replace("\n", " ")) from None

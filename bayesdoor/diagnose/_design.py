@@ -142,6 +142,10 @@ class CampaignPlan:
     display
         A unit to show the size in and its factor from ``unit`` (``("um", 1e6)``; ``""``:
         ``unit`` itself).
+    ratio
+        The transmission planned for: the machine shows the cause at ``size`` as the model
+        shows ``ratio`` times it (the least of a family's machines,
+        :class:`~bayesdoor.diagnose.Transmission`); ``None``: as the model does.
     """
 
     cause: str
@@ -155,6 +159,17 @@ class CampaignPlan:
     record_s: float
     current: float
     display: tuple[str, float] = ("", 1.0)
+    ratio: float | None = None
+
+    @property
+    def machines(self) -> str:
+        """Which machines the plan holds for, in words."""
+        if self.ratio is None:
+            return "if the machine transmits it as the model does"
+        return (
+            f"on every machine of its family (the least of which shows it as the model "
+            f"shows {self.ratio:.2g} times the size)"
+        )
 
     @property
     def runs(self) -> int | None:
@@ -174,7 +189,8 @@ class CampaignPlan:
             return (
                 f"no campaign of up to {MAX_RUNS_PER_CONDITION} runs per condition at these "
                 f"conditions names {self.cause} at {self.shown_size} with "
-                f"{100 * self.power:.0f} % probability (best {100 * self.probability:.0f} %)"
+                f"{100 * self.power:.0f} % probability (best {100 * self.probability:.0f} %) "
+                f"{self.machines}"
             )
         at = (
             f"at {where}"
@@ -185,7 +201,7 @@ class CampaignPlan:
             f"{self.runs_per_condition} runs {at} ({self.runs} runs of "
             f"{self.record_s:.3g} s in all) name {self.cause} at "
             f"{self.shown_size} ({self.configuration}) with "
-            f"{100 * self.probability:.0f} % probability (this campaign: "
+            f"{100 * self.probability:.0f} % probability {self.machines} (this campaign: "
             f"{100 * self.current:.0f} %)"
         )
 
@@ -202,6 +218,7 @@ class CampaignPlan:
             "probability": self.probability,
             "record_s": self.record_s,
             "current_probability": self.current,
+            "ratio": self.ratio,
             "words": self.describe(),
         }
 

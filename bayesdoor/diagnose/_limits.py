@@ -130,7 +130,8 @@ class CauseLimit:
         One power curve per configuration, the typical one first.
     plan
         The campaign that would name the cause at :data:`PLAN_FACTOR` times its limit in the
-        typical configuration (``None``: not planned, or no limit in the range).
+        typical configuration, its family limit where it has one (``None``: not planned, or
+        no limit in the range).
     transmission
         How a family of machines transmits the cause against the model (the cause's
         declared :class:`Transmission`; ``None``: not measured).
@@ -532,9 +533,13 @@ def _plan(
     scan: _Scan,
 ) -> CampaignPlan:
     """The campaign that would name the cause at size ``target`` in its typical
-    configuration."""
-    return design_campaign(
-        run_gains(setup, size.probes[0], target, noise=scan.noise, spectra=typical),
+    configuration, on every machine of its family where it declares a transmission the
+    model reproduces (designed for what the least-transmitting machine shows of it)."""
+    t = size.transmission
+    ratio = t.low if t is not None and t.reliable else None
+    designed = target * (1.0 if ratio is None else ratio)
+    plan = design_campaign(
+        run_gains(setup, size.probes[0], designed, noise=scan.noise, spectra=typical),
         np.asarray(setup.operating, dtype=float),
         fold_order(setup),
         target=PlanTarget(name, target, size.unit, size.probes[0].label, display=size.display),
@@ -543,6 +548,7 @@ def _plan(
         draws=scan.draws,
         seed=scan.seed,
     )
+    return dataclasses.replace(plan, ratio=ratio)
 
 
 def detection_limits(
@@ -579,7 +585,8 @@ def detection_limits(
         first and last bin).
     plan_factor
         Plan, beside each limit, the campaign that names the cause at this multiple of its
-        typical configuration's limit (``CauseLimit.plan``; ``None``: no plan).
+        typical configuration's limit, the family limit where the cause has one
+        (``CauseLimit.plan``; ``None``: no plan).
 
     Returns
     -------
@@ -599,6 +606,9 @@ def detection_limits(
         curves, typical = _cause_curves(setup, size, scan)
         plan = None
         limit = curves[0].limit
+        t = size.transmission
+        if t is not None and t.reliable and limit is not None:
+            limit = limit / t.low
         if plan_factor is not None and limit is not None and np.ndim(setup.operating) == 1:
             plan = _plan(setup, name, size, plan_factor * limit, typical, scan)
         out[name] = CauseLimit(

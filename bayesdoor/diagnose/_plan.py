@@ -26,6 +26,7 @@ from ._design import CampaignPlan, PlanTarget, design_campaign
 from ._limits import LIMIT_POWER, fold_order, run_gains
 from ._measured import Measured, _band, base_setup
 from ._rank import Catalogue
+from ._refit import CauseSize
 
 if TYPE_CHECKING:
     from ..systems import AbstractSystem
@@ -47,14 +48,44 @@ def _probe(catalogue: Catalogue, cause: str, band: tuple[float, float], configur
     return declared, declared.probes[configuration]
 
 
+#: the machines a plan can hold for: every machine of the family the cause's transmission
+#: was measured on, or a machine that transmits it as the model does
+MACHINES = ("family", "model")
+
+
 @dataclasses.dataclass(frozen=True)
 class PlanSettings:
     """How a campaign is planned: the probability of naming asked for (``power``), the Monte
-    Carlo draws of the per-run differences per campaign tried, and their seed."""
+    Carlo draws of the per-run differences per campaign tried, their seed, and the machines
+    it must hold for (``machines``, one of :data:`MACHINES`: ``"family"`` plans for the
+    least-transmitting machine of the family where the cause declares its
+    :class:`~bayesdoor.diagnose.Transmission`, ``"model"`` as if the machine transmits the
+    cause as the model does)."""
 
     power: float = LIMIT_POWER
     draws: int = 2000
     seed: int = 0
+    machines: str = "family"
+
+    def __post_init__(self) -> None:
+        if self.machines not in MACHINES:
+            raise ValueError(f"machines={self.machines!r}: use one of {MACHINES}")
+
+
+def family_ratio(declared: CauseSize, cause: str, configuration: int, machines: str):
+    """The transmission a plan of ``cause`` holds for (``None``: the model's): the family's
+    least ratio in the typical configuration, where the cause declares it and the settings
+    ask for the family. A family the model does not transmit the cause to is refused."""
+    t = declared.transmission
+    if machines != "family" or t is None or configuration != 0:
+        return None
+    if not t.reliable:
+        raise ValueError(
+            f"{cause}: {t.describe()}, so no campaign is planned to hold on its family; "
+            "plan for a machine that transmits it as the model does (machines='model', "
+            "--machines model)"
+        )
+    return t.low
 
 
 def plan_campaign(
@@ -88,7 +119,11 @@ def plan_campaign(
     configuration
         Which of the cause's configurations (0: the typical one).
     settings
-        The power asked for, the draws and their seed (:class:`PlanSettings`).
+        The power asked for, the draws, their seed and the machines the plan holds for
+        (:class:`PlanSettings`). For the family (the default), a cause that declares its
+        :class:`~bayesdoor.diagnose.Transmission` is planned in its typical configuration at
+        ``size`` times the family's least ratio (what the least-transmitting machine shows
+        of it); other configurations and causes without one as the model transmits them.
 
     Returns
     -------
@@ -98,7 +133,8 @@ def plan_campaign(
     ------
     ValueError
         For an unknown cause or one without a size, a size that is not positive, a power
-        outside (0, 1), or fewer than 4 calibration runs.
+        outside (0, 1), fewer than 4 calibration runs, or a plan for the family of a cause
+        whose family the model does not transmit it to.
     """
     from ..inference import calibration_runs
 
@@ -116,9 +152,10 @@ def plan_campaign(
         raise ValueError(f"{len(measured.runs)} calibration runs: need at least 4 to plan from")
     band = _band(fit)
     declared, probe = _probe(catalogue, cause, band, configuration)
+    ratio = family_ratio(declared, cause, configuration, settings.machines)
     setup = base_setup(system, measured, fit, band)
-    return design_campaign(
-        run_gains(setup, probe, float(size)),
+    plan = design_campaign(
+        run_gains(setup, probe, float(size) * (1.0 if ratio is None else ratio)),
         np.asarray(measured.operating, dtype=float),
         fold_order(setup),
         target=PlanTarget(cause, float(size), declared.unit, probe.label, display=declared.display),
@@ -127,3 +164,4 @@ def plan_campaign(
         draws=settings.draws,
         seed=settings.seed,
     )
+    return dataclasses.replace(plan, ratio=ratio)

@@ -456,6 +456,9 @@ def power_figure(limits: Mapping[str, Mapping[str, Any]]) -> bytes | None:
             x = np.asarray(curve["sizes"], dtype=float)
             ax.semilogx(x, curve["probability"], "-" if k == 0 else ":", label=curve["label"])
         ax.axhline(float(limit.get("power", 0.8)), color="0.5", lw=0.8, ls="--")
+        if limit.get("family_size") is not None:
+            ax.axvline(float(limit["family_size"]), color="0.3", lw=0.8, ls="-.")
+            ax.text(float(limit["family_size"]), 0.05, " family limit", fontsize=6, rotation=90)
         ax.set_title(name, fontsize=9)
         ax.set_xlabel(f"{limit.get('quantity', 'size')} ({limit.get('unit', '')})", fontsize=8)
         ax.legend(fontsize=6, frameon=False)
@@ -465,8 +468,10 @@ def power_figure(limits: Mapping[str, Mapping[str, Any]]) -> bytes | None:
 
 
 def limit_rows(limits: Mapping[str, Mapping[str, Any]]) -> tuple[list[str], list[list[str]]]:
-    """The limits table: per cause its size, unit, the typical configuration's limit, the
-    worst over its configurations, and the limit in words."""
+    """The limits table: per cause its size, unit, the typical configuration's limit if the
+    model transmits the cause as the machine does, the worst over its configurations, the
+    typical limit across the family of machines its transmission was measured on, and the
+    limit in words."""
     rows = [
         [
             name,
@@ -474,12 +479,26 @@ def limit_rows(limits: Mapping[str, Mapping[str, Any]]) -> tuple[list[str], list
             str(limit.get("unit", "")),
             "above the range" if limit.get("size") is None else _number(limit["size"]),
             "above the range" if limit.get("worst") is None else _number(limit["worst"]),
+            _family_cell(limit),
             str(limit.get("words", "")),
         ]
         for name, limit in limits.items()
         if isinstance(limit, Mapping)
     ]
-    return ["cause", "size", "unit", "limit (typical)", "limit (worst)", "in words"], rows
+    header = ["cause", "size", "unit", "limit (typical)", "limit (worst)", "limit (family)"]
+    return [*header, "in words"], rows
+
+
+def _family_cell(limit: Mapping[str, Any]) -> str:
+    """A limit across the family, or why there is none."""
+    t = limit.get("transmission")
+    if limit.get("family_size") is not None:
+        return _number(limit["family_size"])
+    if not isinstance(t, Mapping):
+        return "not measured"
+    if not t.get("reliable"):
+        return "not transmitted as the model does"
+    return "above the range"
 
 
 def plan_rows(limits: Mapping[str, Mapping[str, Any]]) -> tuple[list[str], list[list[str]]]:

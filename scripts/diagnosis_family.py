@@ -67,6 +67,15 @@ def with_hidden(door: Any, cause: str, size: float, seed: int) -> Any:
     return dataclasses.replace(door, rig=dataclasses.replace(door.rig, effects=effects))
 
 
+def family_scale(cause: str) -> float | None:
+    """A cause's family limit over its model limit, as the door's catalogue declares it
+    (``None``: no transmission declared, or one the model does not reproduce)."""
+    from bayesdoor.door._catalogue import FAMILY_TRANSMISSION
+
+    t = FAMILY_TRANSMISSION.get(cause)
+    return None if t is None or not t.reliable else 1.0 / t.low
+
+
 def record(door: Any, key: int):
     import jax
 
@@ -235,7 +244,14 @@ def markdown(args: Any, rows: list[dict[str, Any]], bases: dict[int, Any], wall:
         "(`diagnose_campaign`, quick). Hidden causes sit at "
         f"{', '.join(f'{f:g}' for f in args.factors)} "
         "times the model limit computed on the door's base campaign (the size named with "
-        "80 % probability if the model transmits the cause as the door does).",
+        "80 % probability if the model transmits the cause as the door does)"
+        + (
+            ", divided by the family's least transmission ratio that the door's catalogue "
+            "declares (the family limit; results/diagnosis_transmission.md); causes without "
+            "one are not hidden."
+            if args.against == "family"
+            else "."
+        ),
         "",
         "## The doors and their model limits",
         "",
@@ -265,7 +281,7 @@ def markdown(args: Any, rows: list[dict[str, Any]], bases: dict[int, Any], wall:
             "",
             f"## {title.capitalize()} ({', '.join(str(d) for d in doors)})",
             "",
-            "| hidden | factor x model limit | campaigns | confirmed (95 % CI) | verdict "
+            f"| hidden | factor x {args.against} limit | campaigns | confirmed (95 % CI) | verdict "
             "(95 % CI) | false alarms | door's own mode confirmed |",
             "|---|---|---|---|---|---|---|",
         ]
@@ -370,6 +386,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--work", type=Path, default=ROOT / "out" / "diagnosis-family")
     parser.add_argument("--results", type=Path, default=ROOT / "results" / "diagnosis_family.md")
     parser.add_argument("--tables-only", action="store_true", help="tables from saved rows only")
+    parser.add_argument(
+        "--against",
+        choices=("model", "family"),
+        default="model",
+        help="hide causes at factors of the door's model limit or of its family limit",
+    )
     args = parser.parse_args(argv)
     bad = [c for c in args.causes if c not in VALIDATED]
     if bad:
@@ -391,13 +413,20 @@ def main(argv: list[str] | None = None) -> None:
             cases = [(NOTHING, None)] + [(c, f) for c in args.causes for f in args.factors]
             for cause, factor in cases:
                 name = f"{cause}" if factor is None else f"{cause}-{factor:g}"
+                scale = 1.0
+                if args.against == "family" and factor is not None:
+                    scale = family_scale(cause)
+                    if scale is None:
+                        continue
+                    name += "-family"
                 path = args.work / f"door-{d}" / f"{name}-{seed}.json"
                 if path.is_file():
                     row = json.loads(path.read_text())
                 elif args.tables_only:
                     continue
                 else:
-                    size = None if factor is None else factor * bases[d]["limits"][cause]["size"]
+                    limit = bases[d]["limits"][cause]["size"]
+                    size = None if factor is None else factor * scale * limit
                     door = other_door(d)
                     try:
                         if size is not None:

@@ -33,7 +33,12 @@ def calls(monkeypatch):
     def plan_campaign(system, campaign, cause, size, *, fit, configuration, settings):
         seen.append(
             SimpleNamespace(
-                cause=cause, size=size, fit=fit, configuration=configuration, seed=settings.seed
+                cause=cause,
+                size=size,
+                fit=fit,
+                configuration=configuration,
+                seed=settings.seed,
+                machines=settings.machines,
             )
         )
         if cause == "nothing":
@@ -61,8 +66,19 @@ def test_the_plan_as_json(calls, posterior, tmp_path):
     payload = json.loads(result.stdout)
     assert payload["runs"] == 20 and payload["runs_per_condition"] == 10
     assert payload["conditions"] == [0.3, 0.35] and payload["unit"] == "m"
-    assert payload["file"] == str(campaign)
+    assert payload["file"] == str(campaign) and payload["ratio"] is None
     assert calls[0].size == pytest.approx(15e-6) and calls[0].fit is fit
+    assert calls[0].machines == "family"
+
+
+def test_the_machines_a_plan_holds_for(calls, posterior, tmp_path):
+    campaign = door_file(tmp_path / "door.nc", ["healthy"] * 4)
+    args = ["plan", campaign, "--cause", "wheel_eccentricity", "--size", "15e-6"]
+    result = invoke(*args, "--model", posterior[0], "--machines", "model")
+    assert result.exit_code == 0, result.output
+    assert calls[-1].machines == "model"
+    assert "if the machine transmits it as the model does" in result.stdout
+    one_line_failure(invoke(*args, "--model", posterior[0], "--machines", "rig"), "machines='rig'")
 
 
 def test_the_plan_in_words(calls, posterior, tmp_path):

@@ -632,16 +632,20 @@ def plan(
     runs, and the machines it holds for.
     """
     configure_jax()
+    from ..diagnose import PlanSettings
     from ._plan import plan as run_plan
 
+    try:
+        settings = PlanSettings(seed=seed, machines=machines)
+    except ValueError as err:
+        raise fail(str(err)) from None
     run_plan(
         path,
         cause=cause,
         size=size,
         posterior=model,
         configuration=configuration,
-        seed=seed,
-        machines=machines,
+        settings=settings,
         quick=quick,
         json=json,
     )

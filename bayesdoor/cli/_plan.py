@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.console import Console
 
 from ._common import emit_json, fail, system_named
+
+if TYPE_CHECKING:
+    from ..diagnose import PlanSettings
 
 _err = Console(stderr=True)
 
@@ -19,21 +23,17 @@ def plan(
     size: float,
     posterior: Path | None,
     configuration: int,
-    seed: int,
+    settings: PlanSettings,
     json: bool,
     quick: bool = False,
-    machines: str = "family",
 ) -> None:
     """The ``plan`` command: load the campaign and its fit (or fit here), plan, print."""
-    from ..diagnose import PlanSettings, plan_campaign
+    from ..diagnose import plan_campaign
     from ..inference import fit_campaign
     from ._diagnose import load_fit
     from ._run import load
 
-    try:
-        settings = PlanSettings(seed=seed, machines=machines)
-    except ValueError as err:
-        raise fail(str(err)) from None
+    seed = settings.seed
     campaign = load(path)
     system = system_named(campaign)
     if posterior is None:

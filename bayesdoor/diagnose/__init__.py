@@ -82,7 +82,6 @@ from ._refit import CauseSize as CauseSize
 from ._refit import ExtensionProposal as ExtensionProposal
 from ._refit import SizeProbe as SizeProbe
 from ._refit import Symptom as Symptom
-from ._refit import Transmission as Transmission
 from ._residual import Region as Region
 from ._residual import ResidualMap as ResidualMap
 from ._residual import ResidualSettings as ResidualSettings
@@ -103,4 +102,5 @@ from ._signatures import Match as Match
 from ._signatures import NoResidual as NoResidual
 from ._signatures import RestLine as RestLine
 from ._signatures import SpeedTracking as SpeedTracking
+from ._transmission import Transmission as Transmission
 from ._within import WithinRunFit as WithinRunFit

@@ -62,10 +62,10 @@ from ._refit import (
     CauseSize,
     RefitSetup,
     SizeProbe,
-    Transmission,
     exact_signals,
 )
 from ._residual import smooth_discrepancy
+from ._transmission import Transmission
 
 #: the probability of naming a cause that defines its detection limit
 LIMIT_POWER = 0.8

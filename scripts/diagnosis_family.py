@@ -425,8 +425,9 @@ def main(argv: list[str] | None = None) -> None:
                 elif args.tables_only:
                     continue
                 else:
-                    limit = bases[d]["limits"][cause]["size"]
-                    size = None if factor is None else factor * scale * limit
+                    size = None
+                    if factor is not None:
+                        size = factor * scale * bases[d]["limits"][cause]["size"]
                     door = other_door(d)
                     try:
                         if size is not None:

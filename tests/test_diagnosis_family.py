@@ -89,3 +89,14 @@ def test_a_hidden_cause_is_read_in_the_configuration_it_was_hidden_in():
     # a cause not refitted, or nothing hidden
     assert fam.transmission(_row("mains_hum", 0.01, []), door) is None
     assert fam.transmission(_row(fam.NOTHING, None, [leak]), door) is None
+
+
+def test_a_cause_is_hidden_at_its_family_limit_only_where_the_family_transmits_it():
+    from bayesdoor.door._catalogue import FAMILY_TRANSMISSION
+
+    for cause, t in FAMILY_TRANSMISSION.items():
+        scale = fam.family_scale(cause)
+        assert (scale is None) == (not t.reliable), cause
+        if scale is not None:
+            assert scale == pytest.approx(1.0 / t.low)
+    assert fam.family_scale("frame_mode") is None

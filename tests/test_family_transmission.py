@@ -62,3 +62,28 @@ def test_the_guide_quotes_the_measured_factors():
     for cause in ("rail_waviness", "wheel_eccentricity"):
         share = round(100 * MEASURED["causes"][cause]["explained"])
         assert re.search(rf"{cause}[^.]*at worst {share} %", guide), cause
+
+
+def test_the_summary_learns_on_the_development_doors_and_checks_the_held_out_ones():
+    import sys
+
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import diagnosis_transmission as script
+
+    def door(seed, ratio, explained):
+        return {"door": seed, "causes": {"mains_hum": {"ratio": ratio, "explained": explained}}}
+
+    doors = [door(0, 0.2, 0.9), door(1, 0.5, 0.6), door(12, 0.1, 0.4), door(13, 0.3, 0.8)]
+    table = script.summary(doors, [0, 1])["mains_hum"]
+    assert (table["low"], table["high"], table["explained"], table["machines"]) == (
+        0.2,
+        0.5,
+        0.6,
+        2,
+    )
+    # the held-out doors: one at or above the development doors' least ratio, one under it
+    assert (table["held_out"], table["held_out_covered"], table["held_out_explained"]) == (
+        2,
+        1,
+        0.4,
+    )

@@ -119,6 +119,7 @@ def parameter_error(effect: str, truth: Mapping[str, Any], cause: Mapping[str, A
     if effect == "rail_waviness":
         lam = float(truth["wavelength_m"])
         est = _number(_parameter(params, "wavelength_m"))
+        est = _number(params.get("period")) if est is None else est
         if est is None:
             return {**empty, "truth": lam}
         rel = est / lam - 1.0
@@ -126,7 +127,7 @@ def parameter_error(effect: str, truth: Mapping[str, Any], cause: Mapping[str, A
     if effect == "wheel_eccentricity":
         from bayesdoor.door import WHEEL_CIRCUMFERENCE
 
-        wavelength = _number(_parameter(params, "wavelength_m"))
+        wavelength = _number(_parameter(params, "period"))
         k = _number(_parameter(params, "label")) or _number(_parameter(params, "harmonic"))
         revolution = _number(_parameter(params, "revolution_m"))
         if revolution is None and wavelength is not None:

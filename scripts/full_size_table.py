@@ -131,7 +131,7 @@ def _key_parameter(name: str, seed: int, cause: Mapping[str, Any] | None) -> str
             words += f"; installed {installed:.2f} Hz"
         return words
     if name == "rail_waviness":
-        got = _mean(p.get("rail_waviness.wavelength_m", p.get("wavelength_m")))
+        got = _mean(p.get("rail_waviness.wavelength_m", p.get("period")))
         return f"{fmt(1e3 * got, '.2f')} (rig {1e3 * truth.wavelength_m:.2f}) mm"
     if name == "sensor_cross_axis":
         got = _mean(p.get("sensor_cross_axis.fraction", p.get("fraction")))

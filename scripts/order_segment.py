@@ -165,10 +165,10 @@ def simulate(campaigns: int, comb_campaigns: int, seed: int):
                 )
                 found = rail.match(with_orders)
                 assert found is not None
-                located = float(found.parameters["wavelength_m"])
+                located = float(found.parameters["period"])
                 cell.errors.append(located / lam - 1.0)
                 cell.cycles.append(abs(1.0 / located - 1.0 / lam) * g.STROKE)
-                cell.from_orders.append(found.parameters["wavelength_source"] == "order tracking")
+                cell.from_orders.append(found.parameters["period_source"] == "order tracking")
 
     for _ in range(comb_campaigns):
         peaks, v, t0, t1, noise, predictive, orders_kw = campaign()

@@ -366,12 +366,12 @@ def check_named_with_parameter(effect: str, seed: int) -> None:
         )
     elif effect == "rail_waviness":
         # 4 %: the peaks' refined frequencies scatter by ~0.1-0.2 Hz at 5.5-33 Hz
-        assert params["wavelength_m"] == pytest.approx(truth["wavelength_m"], rel=0.04)
+        assert params["period"] == pytest.approx(truth["wavelength_m"], rel=0.04)
     elif effect == "wheel_eccentricity":
         assert params["label"] in truth["harmonics"]
         assert set(params["labels_found"]) <= set(truth["harmonics"])
         expected = WHEEL_CIRCUMFERENCE / params["label"]
-        assert params["wavelength_m"] == pytest.approx(expected, rel=0.03)
+        assert params["period"] == pytest.approx(expected, rel=0.03)
     elif effect == "sensor_cross_axis":
         assert (params["receiver"], params["source"]) == (truth["receiver"], truth["source"])
         # 10 %: the median transfer change over ~100 bins of six runs
@@ -435,7 +435,7 @@ def test_within_run_speed_test_decides_when_every_run_has_one_speed(effect, seed
         )
     else:
         # a single speed gives the wavelength as v / f at cruise: 4 % as across runs
-        assert ranking.cause(effect).parameters["wavelength_m"] == pytest.approx(
+        assert ranking.cause(effect).parameters["period"] == pytest.approx(
             case["truth"]["wavelength_m"], rel=0.04
         )
 

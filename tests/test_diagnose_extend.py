@@ -278,7 +278,7 @@ def test_the_rail_reports_each_wheels_amplitude_with_its_first_order_sd():
     from bayesdoor.door._catalogue import RailRefit
 
     recipe = RailRefit(independent=True)
-    (proposal,) = recipe.propose({"wavelength_m": 0.03}, band=(4.0, 200.0))
+    (proposal,) = recipe.propose({"period": 0.03}, band=(4.0, 200.0))
     values = {
         "rail_waviness.sin_left_m": 3e-6,
         "rail_waviness.cos_left_m": 4e-6,
@@ -300,7 +300,7 @@ def test_the_rail_reports_each_wheels_amplitude_with_its_first_order_sd():
     # an amplitude under two of its own sds has none (the first order fails near zero)
     assert "rail_waviness.amplitude_right_m" not in spread
     # a rail at one phase has neither
-    (common,) = RailRefit().propose({"wavelength_m": 0.03}, band=(4.0, 200.0))
+    (common,) = RailRefit().propose({"period": 0.03}, band=(4.0, 200.0))
     assert recipe.derived_sd(common, {}, {}) == {}
 
 
@@ -311,7 +311,7 @@ def test_a_rail_at_a_wheel_harmonic_has_the_wheel_as_an_alternative():
     # three times the rig's wheel seed 1 (left wheel) is named a rail at
     # 31.28 mm, 0.4 % from the sixth harmonic's 2 pi R / 6 = 31.42 mm
     parameters = {
-        "wavelength_m": 0.03128,
+        "period": 0.03128,
         "rail_waviness.wavelength_m": {"mean": 0.03128, "sd": 1e-5},
         "rail_waviness.amplitude_left_m": {"mean": 4e-6, "sd": 0.5e-6},
         "rail_waviness.amplitude_right_m": {"mean": 0.2e-6, "sd": None},
@@ -321,15 +321,15 @@ def test_a_rail_at_a_wheel_harmonic_has_the_wheel_as_an_alternative():
     assert "harmonic 6" in words and "31.42 mm" in words and "0.4 %" in words
     assert "left 4.00 um, right 0.20 um" in words
     # the signature's estimate alone (no refit) is enough to say it, without the heights
-    (bare,) = recipe.alternatives({"wavelength_m": 0.03128})
+    (bare,) = recipe.alternatives({"period": 0.03128})
     assert "harmonic 6" in bare and "heights" not in bare
     # the rig's rail seeds 0 and 3 (34.68 and 9.74 mm) lie 8 % and more from any harmonic
-    assert recipe.alternatives({"wavelength_m": 0.03468}) == ()
-    assert recipe.alternatives({"wavelength_m": 0.00974}) == ()
+    assert recipe.alternatives({"period": 0.03468}) == ()
+    assert recipe.alternatives({"period": 0.00974}) == ()
     # 4 % is the signatures' match: 37.70 mm (fifth harmonic) x 1.039 is one, x 1.041 is not
     fifth = 2 * np.pi * 0.03 / 5
-    assert len(recipe.alternatives({"wavelength_m": fifth * 1.039})) == 1
-    assert recipe.alternatives({"wavelength_m": fifth * 1.041}) == ()
+    assert len(recipe.alternatives({"period": fifth * 1.039})) == 1
+    assert recipe.alternatives({"period": fifth * 1.041}) == ()
     assert recipe.alternatives({}) == ()
 
 

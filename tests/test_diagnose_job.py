@@ -124,7 +124,7 @@ def check_parameters(name: str, cause, recording, rig) -> None:
         # wavelength is the wheel circumference over that harmonic (the signature's 4 %)
         k = int(p["label"])
         assert 1 <= k <= len(truth["amplitudes"]), p
-        assert _mean(p, "wavelength_m") == pytest.approx(WHEEL_CIRCUMFERENCE / k, rel=0.04), p
+        assert _mean(p, "period") == pytest.approx(WHEEL_CIRCUMFERENCE / k, rel=0.04), p
     elif name == "sensor_cross_axis":
         # the extension is the rig's leak exactly (same definition): the right channel and
         # the fraction within 20 % (the reported fraction is measured from the transfer

@@ -127,7 +127,7 @@ def test_a_tracking_tone_is_located_at_the_measured_peak_not_the_excess_peak():
     within 0.5 %."""
     from types import SimpleNamespace
 
-    from bayesdoor.diagnose._signatures import MEASURED_PEAK_WINDOW, _order_wavelength
+    from bayesdoor.diagnose._signatures import MEASURED_PEAK_WINDOW, _order_period
 
     k = np.arange(0.0, 100.0, 0.5)
     kappa = 40.0
@@ -139,10 +139,10 @@ def test_a_tracking_tone_is_located_at_the_measured_peak_not_the_excess_peak():
     features = SimpleNamespace(
         orders=orders, order_excess=lambda: orders.log_psd - predictive.log_psd
     )
-    region = SimpleNamespace(speed=SimpleNamespace(wavelength_m=1.0 / 39.0))
+    region = SimpleNamespace(speed=SimpleNamespace(period=1.0 / 39.0))
     excess_peak, _ = order_peak((measured - model)[None], k, 39.0, 0.1)
     assert abs(excess_peak / kappa - 1.0) > 0.02  # the lean the measured peak corrects
-    lam, sd, from_orders = _order_wavelength(features, region)
+    lam, sd, from_orders = _order_period(features, region)
     assert from_orders and MEASURED_PEAK_WINDOW > 0 and np.isfinite(sd)
     assert 1.0 / lam == pytest.approx(kappa, rel=0.005)
 
@@ -187,6 +187,6 @@ def test_the_catalogue_segment_locates_a_rail_tone_within_a_quarter_cycle(seed, 
     )
     rail = {c.name: c for c in DOOR_CATALOGUE.candidates}["rail_waviness"].signature
     match = rail.match(features)
-    assert match is not None and match.parameters["wavelength_source"] == "order tracking"
-    located = float(match.parameters["wavelength_m"])
+    assert match is not None and match.parameters["period_source"] == "order tracking"
+    located = float(match.parameters["period"])
     assert abs(1.0 / located - 1.0 / lam) * g.STROKE < 0.25, (located, lam)

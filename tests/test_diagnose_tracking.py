@@ -181,11 +181,11 @@ def test_which_signatures_track_the_speed():
     assert tracking == {"rail_waviness", "wheel_eccentricity"}
 
 
-def test_the_excluded_check_says_how_near_the_nearest_excluded_wavelength_is():
+def test_the_excluded_check_says_how_near_the_nearest_excluded_period_is():
     from bayesdoor.diagnose._signatures import _excluded_detail
 
     wheel = tuple(2 * np.pi * 0.03 / k for k in range(1, 9))  # 2 pi R / k, R = 30 mm
-    detail = _excluded_detail(0.03128, wheel)
+    detail = _excluded_detail(0.03128, wheel, "m")
     # the 6th harmonic, 31.42 mm, is the nearest: 0.4 % away
     assert "0.03142 m" in detail and "0.4 % away" in detail, detail
-    assert _excluded_detail(float("nan"), wheel) == "nan m"
+    assert _excluded_detail(float("nan"), wheel, "rev") == "nan rev"

@@ -4,7 +4,7 @@ Each candidate has a signature (how it shows in the residual features, the gener
 :mod:`bayesdoor.diagnose`) and a refit recipe (which model extension of
 ``_extensions.py`` to fit, started from the signature's estimate). The diagnosis sees each
 run's speed as its shaft frequency in revolutions per second (:func:`shaft_rev_per_s`),
-so a shaft-synchronous line at k x 1X has the "wavelength" 1 / k revolution.
+so a shaft-synchronous line at k x 1X has the period 1 / k revolution.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ from ._extensions import (
 #: looseness a series to about 10x); above, the lines of a 1600-1900 rpm shaft reach the
 #: bearing's own fault orders' harmonics (BPFO 3.58x, BPFI 5.42x) beyond their third
 SHAFT_HARMONICS = tuple(range(1, MAX_SHAFT_HARMONICS + 1))
-#: "wavelengths" of the shaft lines in revolutions (speed in rev/s over frequency in Hz)
+#: periods of the shaft lines in revolutions (speed in rev/s over frequency in Hz)
 SHAFT_PERIODS = tuple(1.0 / k for k in SHAFT_HARMONICS)
 #: a line within this many Hz of k x 1X is that harmonic: two 1 Hz bins (1 s records; a
 #: line's peak refined between bins lies within one of its frequency, and the record's
@@ -92,7 +92,7 @@ class ShaftLines(SpeedTracking):
     Checks: at a shaft harmonic; the frequency follows the speed (as SpeedTracking's check:
     it fails where the speeds cannot decide, so a fixed line at the same frequency ties);
     in most runs. Parameters: ``label`` (k), ``labels_found`` (every k with a matching
-    region, either sign), ``deficits`` (the k found in deficit only), ``wavelength_m``
+    region, either sign), ``deficits`` (the k found in deficit only), ``period``
     (1 / k revolution).
     """
 
@@ -145,7 +145,7 @@ class ShaftLines(SpeedTracking):
                         "label": k,
                         "labels_found": tuple(found),
                         "deficits": deficits,
-                        "wavelength_m": 1.0 / k if k else float("nan"),
+                        "period": 1.0 / k if k else float("nan"),
                     },
                     strength=abs(region.z),
                 )
@@ -348,7 +348,7 @@ BEARING_CATALOGUE = Catalogue(
             name="shaft_harmonics",
             description="shaft-synchronous lines the model lacks (unbalance, misalignment, "
             "looseness): tones at k x the shaft frequency",
-            signature=ShaftLines(wavelengths=SHAFT_PERIODS, labels=SHAFT_HARMONICS),
+            signature=ShaftLines(periods=SHAFT_PERIODS, labels=SHAFT_HARMONICS, unit="rev"),
             refit=ShaftRefit(),
         ),
         Candidate(

@@ -34,7 +34,7 @@ class Catalogue(eqx.Module):
     ``speed_profile`` (optional) gives the speed (run, time) of runs at the given operating
     points at the given sample times; with it, the diagnosis computes order spectra
     (against travelled distance, segments of ``order_segment_m`` metres) and takes the
-    wavelengths of tracking features from them.
+    periods of tracking features from them.
 
     ``speed`` (optional) gives each run's speed, in the units of ``speed_profile``, from
     its operating point (``(run,)`` or ``(run, condition)``): the speed the residual map's

@@ -1,7 +1,7 @@
 """Confirming a candidate cause by fitting its model extension and testing it on held-out runs.
 
 A system's catalogue attaches to a candidate a *refit recipe* (:class:`AbstractRefit`): from
-the parameters its signature estimated (a resonance's frequency, a wavelength, a leak's
+the parameters its signature estimated (a resonance's frequency, a period, a leak's
 receiver), it proposes one or more model extensions with start values and search boxes
 (:class:`ExtensionProposal`). :func:`refit_extension` fits the extension's parameters with the
 base model's parameters held at the fit's point, on training runs, and returns the extended

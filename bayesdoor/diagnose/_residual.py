@@ -102,14 +102,16 @@ class SpeedFit:
         ``"fixed"``, ``"tracking"`` or ``"undetermined"``.
     frequency_hz
         The fixed model's frequency ``c`` (geometric mean of the peaks).
-    wavelength_m
-        The tracking model's ``1 / a``: the spatial period in metres when speeds are in m/s.
+    period
+        The tracking model's ``1 / a``: the tone's period in the tracked condition's unit
+        per cycle (metres of travel when the condition is a speed in m/s, revolutions when it
+        is a shaft speed in rev/s).
     rss_fixed, rss_tracking
         Residual sums of squares in ``ln f`` (NaN when undetermined for lack of runs).
     n_runs
         Affected runs used.
     lit_fixed, lit_tracking
-        Runs lit at ``f = c`` and at ``f = v / wavelength``, among those that can tell.
+        Runs lit at ``f = c`` and at ``f = v / period``, among those that can tell.
     contrast
         The region's combined statistic over the largest one of the other domain's map where
         the region maps to (NaN without a wavenumber map): about ``R`` for a feature of
@@ -118,7 +120,7 @@ class SpeedFit:
 
     preferred: str
     frequency_hz: float
-    wavelength_m: float
+    period: float
     rss_fixed: float
     rss_tracking: float
     n_runs: int
@@ -743,18 +745,18 @@ def _speed_fit(
         return SpeedFit(fallback, c, nan, nan, nan, n, 0, 0, contrast)
     log_v = np.log(v[use])
     log_a = float(np.mean(log_f - log_v))
-    wavelength = float(np.exp(-log_a))
+    period = float(np.exp(-log_a))
     if n < 3 or v[use].max() / v[use].min() < MIN_SPEED_SPREAD:
-        return SpeedFit(fallback, c, wavelength, nan, nan, n, 0, 0, contrast)
+        return SpeedFit(fallback, c, period, nan, nan, n, 0, 0, contrast)
     use = _drop_outliers(peaks.frequency_hz, v, use, f[1] - f[0])
     n = int(use.sum())
     log_f, log_v = np.log(peaks.frequency_hz[use]), np.log(v[use])
     c = float(np.exp(log_f.mean()))
     log_a = float(np.mean(log_f - log_v))
-    wavelength = float(np.exp(-log_a))
+    period = float(np.exp(-log_a))
     rss_fixed = float(np.sum((log_f - log_f.mean()) ** 2))
     rss_tracking = float(np.sum((log_f - log_v - log_a) ** 2))
-    at_fixed, at_tracking = np.full(v.shape, c), v / wavelength
+    at_fixed, at_tracking = np.full(v.shape, c), v / period
     telling = np.abs(at_fixed - at_tracking) > 2.0 * (f[1] - f[0])
     lit_fixed = _lit(f, signed_z, at_fixed, telling)
     lit_tracking = _lit(f, signed_z, at_tracking, telling)
@@ -773,7 +775,7 @@ def _speed_fit(
     ):
         preferred = FIXED
     return SpeedFit(
-        preferred, c, wavelength, rss_fixed, rss_tracking, n, lit_fixed, lit_tracking, contrast
+        preferred, c, period, rss_fixed, rss_tracking, n, lit_fixed, lit_tracking, contrast
     )
 
 

@@ -220,13 +220,13 @@ class FixedFrequency(AbstractSignature):
         return _best(matches)
 
 
-def _wavelength_sd(region: Region) -> float:
-    """Standard error of the tracking fit's wavelength: ``lambda`` times that of the mean of
+def _period_sd(region: Region) -> float:
+    """Standard error of the tracking fit's period: the period times that of the mean of
     ``ln(f / v)`` over the affected runs (NaN with fewer than three)."""
     fit = region.speed
     if fit.n_runs < 3 or not np.isfinite(fit.rss_tracking):
         return float("nan")
-    return float(fit.wavelength_m * np.sqrt(fit.rss_tracking / (fit.n_runs - 1) / fit.n_runs))
+    return float(fit.period * np.sqrt(fit.rss_tracking / (fit.n_runs - 1) / fit.n_runs))
 
 
 #: the order-domain peak is searched within this relative distance of the speed fit's
@@ -237,15 +237,15 @@ ORDER_WINDOW = 0.1
 MEASURED_PEAK_WINDOW = 0.04
 
 
-def _order_wavelength(features: Features, region: Region) -> tuple[float, float, bool]:
-    """A tracking region's wavelength: from the order spectra (the channels' mean excess)
+def _order_period(features: Features, region: Region) -> tuple[float, float, bool]:
+    """A tracking region's period: from the order spectra (the channels' mean excess)
     when they were computed and show a peak near the speed fit's wavenumber (sharp whatever
     the speed profile), else the speed fit's; its standard error; whether order tracking
     gave it."""
-    lam = region.speed.wavelength_m
+    lam = region.speed.period
     excess = features.order_excess()
     if excess is None or features.orders is None or not np.isfinite(lam):
-        return lam, _wavelength_sd(region), False
+        return lam, _period_sd(region), False
     # every channel sees the same spatial period: their mean excess locates it more surely
     # than the region's own channel (on the rig, one channel's peak was 2.6 % off, the mean's
     # 1.6 %)
@@ -253,7 +253,7 @@ def _order_wavelength(features: Features, region: Region) -> tuple[float, float,
         excess.mean(axis=1), features.orders.wavenumbers, 1.0 / lam, ORDER_WINDOW
     )
     if not np.isfinite(kappa) or kappa <= 0:
-        return lam, _wavelength_sd(region), False
+        return lam, _period_sd(region), False
     if MEASURED_PEAK_WINDOW:
         # the excess is a ratio to the base model: a trough of the base spectrum next to the
         # tone pulls its peak off the tone; the measured spectrum's own peak is the tone's
@@ -268,66 +268,71 @@ def _order_wavelength(features: Features, region: Region) -> tuple[float, float,
     return 1.0 / kappa, sd / kappa**2, True
 
 
-def _closest(wavelength: float, table: tuple[float, ...]) -> tuple[int, float] | None:
-    """Index of the table's wavelength nearest ``wavelength`` and its relative distance
-    ``|table[i] / wavelength - 1|``; ``None`` for an empty table or a wavelength not finite."""
-    if not table or not np.isfinite(wavelength):
+def _closest(period: float, table: tuple[float, ...]) -> tuple[int, float] | None:
+    """Index of the table's period nearest ``period`` and its relative distance
+    ``|table[i] / period - 1|``; ``None`` for an empty table or a period not finite."""
+    if not table or not np.isfinite(period):
         return None
-    errors = np.abs(np.asarray(table) / wavelength - 1.0)
+    errors = np.abs(np.asarray(table) / period - 1.0)
     i = int(np.argmin(errors))
     return i, float(errors[i])
 
 
-def _excluded_detail(wavelength: float, excluded: tuple[float, ...]) -> str:
-    """The wavelength and the nearest excluded one, with how far apart they are: a tone at
+def _excluded_detail(period: float, excluded: tuple[float, ...], unit: str) -> str:
+    """The period and the nearest excluded one, with how far apart they are: a tone at
     an excluded period (a wheel harmonic, for the rail) is the same excitation as the cause
     it belongs to, and the report should say how close it came."""
-    closest = _closest(wavelength, excluded)
+    closest = _closest(period, excluded)
     if closest is None:
-        return f"{wavelength:.4g} m"
+        return f"{period:.4g} {unit}"
     nearest = excluded[closest[0]]
     return (
-        f"{wavelength:.4g} m; the nearest excluded is {nearest:.4g} m, "
-        f"{100 * abs(wavelength / nearest - 1.0):.1f} % away"
+        f"{period:.4g} {unit}; the nearest excluded is {nearest:.4g} {unit}, "
+        f"{100 * abs(period / nearest - 1.0):.1f} % away"
     )
 
 
 class SpeedTracking(AbstractSignature):
-    """A tone whose frequency is the speed over a spatial period: ``f = v / wavelength``.
+    """A tone whose frequency is proportional to an operating condition: ``f = v / period``,
+    ``v`` the condition the catalogue tracks (a door's speed in m/s, whose tones have a
+    spatial period in metres; a shaft's speed in rev/s, whose orders ``k`` have the period
+    ``1 / k`` revolution), ``period`` in its ``unit`` per cycle.
 
-    ``wavelengths`` lists the periods this cause produces (with ``labels``, for example the
+    ``periods`` lists the periods this cause produces (with ``labels``, for example the
     harmonic numbers); ``excluded`` lists periods this cause cannot have (they belong to
     another cause); a relative tolerance ``rel_tol`` decides a match. Checks on each excess
     region of the wavenumber map, or of the frequency map unless it is known to stay put
-    (with one speed for all runs and no within-run test, a tone's wavelength is ``v / f`` and
+    (with one speed for all runs and no within-run test, a tone's period is ``v / f`` and
     the speed check fails, as the fixed signature's does: the two tie): the frequency
     follows the speed; it is in most runs; its
-    wavelength is one of ``wavelengths`` (when given) and none of ``excluded`` (when given);
-    no line at rest before the motion at its frequencies. Parameters: ``wavelength_m`` (from
+    period is one of ``periods`` (when given) and none of ``excluded`` (when given);
+    no line at rest before the motion at its frequencies. Parameters: ``period`` (from
     the order spectra's peak within ``ORDER_WINDOW`` of the speed fit's wavenumber when the
-    features hold order spectra, else the speed fit's) and ``wavelength_sd_m`` (its standard
-    error over the runs' peaks), ``wavelength_source``, and with
-    ``wavelengths`` the matched ``label`` and every label found among the tracking regions
+    features hold order spectra, else the speed fit's) and ``period_sd`` (its standard
+    error over the runs' peaks), ``period_source``, and with
+    ``periods`` the matched ``label``, its ``listed_period`` and every label found among the
+    tracking regions
     (``labels_found``).
     """
 
-    wavelengths: tuple[float, ...] = eqx.field(static=True, default=())
+    periods: tuple[float, ...] = eqx.field(static=True, default=())
     excluded: tuple[float, ...] = eqx.field(static=True, default=())
     labels: tuple[int | str, ...] = eqx.field(static=True, default=())
     rel_tol: float = eqx.field(static=True, default=0.04)
+    unit: str = eqx.field(static=True, default="m")
 
     def __check_init__(self):
-        if any(w <= 0 for w in self.wavelengths + self.excluded):
-            raise ValueError("wavelengths and excluded must be positive lengths")
-        if self.labels and len(self.labels) != len(self.wavelengths):
+        if any(w <= 0 for w in self.periods + self.excluded):
+            raise ValueError("periods and excluded must be positive")
+        if self.labels and len(self.labels) != len(self.periods):
             raise ValueError(
-                f"labels names {len(self.labels)} wavelengths, there are {len(self.wavelengths)}"
+                f"labels names {len(self.labels)} periods, there are {len(self.periods)}"
             )
         if not 0 < self.rel_tol < 0.5:
             raise ValueError(f"rel_tol must lie in (0, 0.5), got {self.rel_tol}")
 
-    def _nearest(self, wavelength: float, table: tuple[float, ...]) -> int | None:
-        closest = _closest(wavelength, table)
+    def _nearest(self, period: float, table: tuple[float, ...]) -> int | None:
+        closest = _closest(period, table)
         return closest[0] if closest is not None and closest[1] <= self.rel_tol else None
 
     def match(self, features: Features) -> Match | None:
@@ -337,46 +342,46 @@ class SpeedTracking(AbstractSignature):
             for r in res.regions
             if r.sign > 0
             and (r.domain == WAVENUMBER or not _speed_check(features, r, FIXED).passed)
-            and np.isfinite(r.speed.wavelength_m)
+            and np.isfinite(r.speed.period)
         ]
-        labels = self.labels or tuple(range(1, len(self.wavelengths) + 1))
+        labels = self.labels or tuple(range(1, len(self.periods) + 1))
         found = sorted(
             {
                 labels[i]
                 for r in regions
                 if _speed_check(features, r, TRACKING).passed
-                and (i := self._nearest(r.speed.wavelength_m, self.wavelengths)) is not None
+                and (i := self._nearest(r.speed.period, self.periods)) is not None
             },
             key=str,
         )
         matches = []
         for region in regions:
-            lam, lam_sd, tracked = _order_wavelength(features, region)
+            lam, lam_sd, tracked = _order_period(features, region)
             checks = [
                 _speed_check(features, region, TRACKING),
                 _in_most_runs(region, features.n_runs),
             ]
             params: dict[str, float | str | tuple] = {
-                "wavelength_m": lam,
-                "wavelength_sd_m": lam_sd,
-                "wavelength_source": "order tracking" if tracked else "speed fit",
+                "period": lam,
+                "period_sd": lam_sd,
+                "period_source": "order tracking" if tracked else "speed fit",
             }
-            if self.wavelengths:
-                i = self._nearest(lam, self.wavelengths)
+            if self.periods:
+                i = self._nearest(lam, self.periods)
                 checks.append(
-                    Check("wavelength among the listed ones", i is not None, f"{lam:.4g} m")
+                    Check("period among the listed ones", i is not None, f"{lam:.4g} {self.unit}")
                 )
                 if i is not None:
                     params["label"] = labels[i]
-                    params["listed_wavelength_m"] = self.wavelengths[i]
+                    params["listed_period"] = self.periods[i]
                 params["labels_found"] = tuple(found)
             if self.excluded:
                 j = self._nearest(lam, self.excluded)
                 checks.append(
                     Check(
-                        "wavelength not an excluded one",
+                        "period not an excluded one",
                         j is None,
-                        _excluded_detail(lam, self.excluded),
+                        _excluded_detail(lam, self.excluded, self.unit),
                     )
                 )
             checks.append(_absent_before_motion(features, region.runs.frequency_hz))
@@ -399,7 +404,7 @@ class HarmonicComb(AbstractSignature):
     family-wise level ``alpha``, at least ``min_harmonics`` harmonics present (one line alone
     may be a rail tone that lies near a harmonic). One check, the comb; no match without order
     spectra. Parameters: ``labels_found`` (the present harmonics), ``label`` (the strongest),
-    ``wavelength_m`` (``period_m / label``) and ``comb_z`` (each harmonic's ``z``).
+    ``period`` (``period_m / label``) and ``comb_z`` (each harmonic's ``z``).
     """
 
     period_m: float = eqx.field(static=True)
@@ -438,8 +443,8 @@ class HarmonicComb(AbstractSignature):
             parameters={
                 "labels_found": comb.found,
                 "label": label,
-                "wavelength_m": self.period_m / label,
-                "wavelength_source": "harmonic comb",
+                "period": self.period_m / label,
+                "period_source": "harmonic comb",
                 "comb_z": tuple(float(z) for z in comb.z),
             },
             strength=float(np.max(comb.z)),
@@ -624,7 +629,7 @@ class ListedFrequency(AbstractSignature):
     ``fundamentals`` (m = 1..``harmonics``). Checks: its peak lies within ``tolerance_hz`` of
     one; the frequency does not move with the speed (as :class:`FixedFrequency`'s check:
     it fails where the speeds cannot decide, so the two tie); it is in most runs; and, with
-    ``excluded`` wavelengths (spatial periods of another cause, in the units of the runs'
+    ``excluded`` periods (spatial periods of another cause, in the units of the runs'
     speeds over Hz), no affected run's speed puts one of them within ``tolerance_hz`` of
     the peak (n/a without the runs' speeds): a line that lies on another cause's tone at
     every run's speed cannot be told from it. Parameters: ``frequency_hz`` (the matched
@@ -643,7 +648,7 @@ class ListedFrequency(AbstractSignature):
         if self.harmonics < 1:
             raise ValueError(f"harmonics must be at least 1, got {self.harmonics}")
         if not self.tolerance_hz > 0 or any(w <= 0 for w in self.excluded):
-            raise ValueError("tolerance_hz and the excluded wavelengths must be positive")
+            raise ValueError("tolerance_hz and the excluded periods must be positive")
 
     def _nearest(self, f: float) -> tuple[float, float, int]:
         return min(

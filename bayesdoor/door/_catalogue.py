@@ -392,8 +392,8 @@ class RailRefit(AbstractRefit):
     def propose(
         self, parameters: Mapping[str, Any], *, band: tuple[float, float]
     ) -> tuple[ExtensionProposal, ...]:
-        lam = float(parameters["wavelength_m"])
-        sd = float(parameters.get("wavelength_sd_m", float("nan")))
+        lam = float(parameters["period"])
+        sd = float(parameters.get("period_sd", float("nan")))
         if self.independent:
             parts = {f"rail_waviness.sin_{w}_m": 3e-6 for w in WHEELS}
             parts.update({f"rail_waviness.cos_{w}_m": 1e-6 for w in WHEELS})
@@ -483,7 +483,7 @@ class RailRefit(AbstractRefit):
         extension holds a tone under one wheel alone (without this alternative the rig's
         wheel seed 1 is named a rail at 31.28 mm, 0.4 % from the sixth harmonic). The
         fitted heights under the two wheels are given: a rail lies under both."""
-        lam = _mean(parameters.get("rail_waviness.wavelength_m", parameters.get("wavelength_m")))
+        lam = _mean(parameters.get("rail_waviness.wavelength_m", parameters.get("period")))
         if not np.isfinite(lam) or lam <= 0:
             return ()
         k = int(np.argmin([abs(lam / w - 1.0) for w in _WHEEL_WAVELENGTHS]))
@@ -677,7 +677,7 @@ DOOR_CATALOGUE = Catalogue(
                 (
                     HarmonicComb(period_m=WHEEL_CIRCUMFERENCE, harmonics=WHEEL_HARMONICS),
                     SpeedTracking(
-                        wavelengths=_WHEEL_WAVELENGTHS, labels=WHEEL_HARMONICS, rel_tol=_WHEEL_MATCH
+                        periods=_WHEEL_WAVELENGTHS, labels=WHEEL_HARMONICS, rel_tol=_WHEEL_MATCH
                     ),
                 )
             ),

@@ -180,12 +180,12 @@ def speed_figure(region: Region, speeds: Float[np.ndarray, " run"] | Sequence[fl
         ax.plot(v[other], peaks[other], "o", mfc="none", color="tab:blue", label="other runs")
     grid = np.linspace(0.0, 1.1 * float(np.nanmax(v)), 50)
     fit = region.speed
-    if np.isfinite(fit.wavelength_m) and fit.wavelength_m > 0:
+    if np.isfinite(fit.period) and fit.period > 0:
         ax.plot(
             grid,
-            grid / fit.wavelength_m,
+            grid / fit.period,
             color="tab:orange",
-            label=f"f = v / {1000 * fit.wavelength_m:.1f} mm",
+            label=f"f = v / {fit.period:.4g}",
         )
     if np.isfinite(fit.frequency_hz):
         ax.axhline(

@@ -353,7 +353,7 @@ def probe_changes(
     signals acts on them here too: its signals at size 0 are the measured runs."""
     n = len(setup.operating)
     runs = np.arange(n)
-    if _on_measured(setup, probe):
+    if setup.measured_signals is not None and probe.proposal.on_measured:
         setup = dataclasses.replace(setup, base_signals=setup.measured_signals)
     elif probe.proposal.on_measured:
         probe = dataclasses.replace(
@@ -386,7 +386,7 @@ def size_spectra(
         for x in (zero, zero + r * per_unit, zero - r * per_unit)
     )
     linear, quadratic = (up - down) / 2.0, (up + down) / 2.0 - p0
-    offset = 0.0
+    offset: float | np.ndarray = 0.0
     if _on_measured(setup, probe):
         offset = setup.base_spectra - np.log10(np.maximum(p0, _PSD_FLOOR))
 

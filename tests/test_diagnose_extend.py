@@ -404,3 +404,23 @@ def test_two_extended_models_are_judged_against_each_other_on_the_held_out_runs(
     assert won.gain.decisive and won.gain.elpd_difference > 0
     assert not lost.gain.decisive and lost.gain.elpd_difference < 0
     assert won.to_json()["evidence_se"] > 0
+
+
+def test_a_limit_is_scanned_only_as_far_as_the_refit_reaches():
+    # the leak's fraction is bounded at 0.3, the hum's amplitudes at 0.1 m/s^2: a cause
+    # larger than that cannot be refitted at its size, so no limit lies beyond it
+    from types import SimpleNamespace
+
+    from bayesdoor.diagnose._limits import reachable
+    from bayesdoor.door import DOOR_CATALOGUE
+
+    door = SimpleNamespace(system=ElevatorDoor())
+    sizes = {
+        c.name: c.refit.size(band=(4.0, 96.0))
+        for c in DOOR_CATALOGUE.candidates
+        if c.name in ("sensor_cross_axis", "mains_hum")
+    }
+    assert reachable(door, _leak_probe(True)) == pytest.approx(0.3)
+    assert reachable(door, sizes["sensor_cross_axis"].probes[0]) == pytest.approx(0.3)
+    assert reachable(door, sizes["mains_hum"].probes[0]) == pytest.approx(0.1)
+    assert sizes["sensor_cross_axis"].high > 0.3  # the declared range is cut, not trusted

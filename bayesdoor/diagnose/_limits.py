@@ -62,6 +62,7 @@ from ._refit import (
     CauseSize,
     RefitSetup,
     SizeProbe,
+    _boxes,
     exact_signals,
 )
 from ._residual import smooth_discrepancy
@@ -460,6 +461,21 @@ def power_curve(
     )
 
 
+def reachable(setup: RefitSetup, probe: SizeProbe) -> float:
+    """The largest size whose free parameters (``probe.scales`` times the size) lie inside
+    the extension's parameter bounds and the proposal's boxes: the largest size the refit
+    can reach."""
+    _, free, lower, upper, _ = _boxes(setup.system, probe.proposal)
+    out = np.inf
+    for name, lo, hi in zip(free, lower, upper, strict=True):
+        scale = float(probe.scales.get(name, 0.0))
+        if scale > 0:
+            out = min(out, hi / scale)
+        elif scale < 0:
+            out = min(out, lo / scale)
+    return float(out)
+
+
 def cause_sizes(catalogue: Catalogue, band: tuple[float, float]) -> dict[str, CauseSize]:
     """Every catalogue cause that declares its size (its recipe's
     :meth:`~bayesdoor.diagnose.AbstractRefit.size`), by name."""
@@ -502,10 +518,13 @@ def _cause_curves(
     setup: RefitSetup, size: CauseSize, scan: _Scan
 ) -> tuple[tuple[PowerCurve, ...], Callable[[float], np.ndarray] | None]:
     """A cause's power curve in each configuration, and its typical configuration's spectra
-    as a function of size."""
-    sizes = np.geomspace(size.low, size.high, _GRID)
+    as a function of size. Each configuration is scanned up to the largest size its refit
+    can reach (:func:`reachable`): a cause larger than the extension's parameters allow
+    cannot be refitted at its size, so no limit is stated beyond it."""
     curves, typical = [], None
     for probe in size.probes:
+        high = min(size.high, reachable(setup, probe))
+        sizes = np.geomspace(size.low, max(high, 1.01 * size.low), _GRID)
         spectra = size_spectra(setup, probe)
         typical = spectra if typical is None else typical
         p = len(probe.proposal.free)

@@ -76,6 +76,19 @@ def family_scale(cause: str) -> float | None:
     return None if t is None or not t.reliable else 1.0 / t.low
 
 
+def refit_reach(cause: str) -> float:
+    """The largest size of ``cause`` its refit can reach in the typical configuration (the
+    extension's parameter bounds; ``bayesdoor.diagnose._limits.reachable``)."""
+    from types import SimpleNamespace
+
+    from bayesdoor.diagnose._limits import reachable
+    from bayesdoor.door import DOOR_CATALOGUE, ElevatorDoor
+
+    (candidate,) = [c for c in DOOR_CATALOGUE.candidates if c.name == cause]
+    probe = candidate.refit.size(band=(4.0, 96.0)).probes[0]
+    return reachable(SimpleNamespace(system=ElevatorDoor()), probe)
+
+
 def record(door: Any, key: int):
     import jax
 
@@ -428,6 +441,10 @@ def main(argv: list[str] | None = None) -> None:
                     size = None
                     if factor is not None:
                         size = factor * scale * bases[d]["limits"][cause]["size"]
+                    if size is not None and size > refit_reach(cause):
+                        print("door", d, cause, factor, "skipped: beyond the refit's reach",
+                              flush=True)  # fmt: skip
+                        continue
                     door = other_door(d)
                     try:
                         if size is not None:

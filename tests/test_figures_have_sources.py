@@ -348,7 +348,8 @@ def _diagnosis_limits() -> dict[str, list[str]]:
             f"wheel run-out (limit {limit('wheel_eccentricity')}) named {w05} and {w15} of {n}",
             f"mains hum ({limit('mains_hum')}) {h05} and {h15} of {n}",
             f"rail waviness ({limit('rail_waviness')}) {r05} and {r15} of {n}",
-            f"cross-axis leak ({limit('sensor_cross_axis')}) {s05} and {s15} of {n}",
+            f"cross-axis leak, sized on the measured signals ({limit('sensor_cross_axis')}), "
+            f"{s05} and {s15} of {n}",
         ],
     }
 

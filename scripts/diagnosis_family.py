@@ -76,6 +76,15 @@ def family_scale(cause: str) -> float | None:
     return None if t is None or not t.reliable else 1.0 / t.low
 
 
+def shown_as(cause: str) -> float:
+    """How large the model size a door of the family shows a cause as can be, per unit of
+    the size hidden: the family's largest ratio (1 without a declared transmission)."""
+    from bayesdoor.door._catalogue import FAMILY_TRANSMISSION
+
+    t = FAMILY_TRANSMISSION.get(cause)
+    return 1.0 if t is None else t.high
+
+
 def refit_reach(cause: str) -> float:
     """The largest size of ``cause`` its refit can reach in the typical configuration (the
     extension's parameter bounds; ``bayesdoor.diagnose._limits.reachable``)."""
@@ -441,8 +450,8 @@ def main(argv: list[str] | None = None) -> None:
                     size = None
                     if factor is not None:
                         size = factor * scale * bases[d]["limits"][cause]["size"]
-                    if size is not None and size > refit_reach(cause):
-                        print("door", d, cause, factor, "skipped: beyond the refit's reach",
+                    if size is not None and size * shown_as(cause) > refit_reach(cause):
+                        print("door", d, cause, factor, "skipped: shown beyond the refit's reach",
                               flush=True)  # fmt: skip
                         continue
                     door = other_door(d)

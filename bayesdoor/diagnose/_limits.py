@@ -158,13 +158,13 @@ class CauseLimit:
     def family(self) -> float | None:
         """The typical configuration's limit on every machine of the family the cause's
         transmission was measured on: the model limit over the smallest ratio (``None``:
-        no model limit, no transmission measured, one the model does not reproduce, or a
-        family limit beyond the sizes scanned)."""
+        no model limit, no transmission measured, or one the model does not reproduce). The
+        least-transmitting machine shows a cause at the family limit as the model shows one
+        at the model limit, so the refit reaches it wherever it reaches the model limit."""
         t = self.transmission
         if self.size is None or t is None or not t.reliable:
             return None
-        limit = self.size / t.low
-        return limit if limit <= self.curves[0].sizes[-1] else None
+        return self.size / t.low
 
     @property
     def worst(self) -> float | None:
@@ -190,10 +190,8 @@ class CauseLimit:
             words += "; " + ", ".join(f"{c.label}: {self.shown(c.limit)}" for c in self.curves[1:])
         t = self.transmission
         if t is not None and self.size is not None:
-            if not t.reliable:
+            if self.family is None:
                 words += f"; across the family of machines, no limit: {t.describe()}"
-            elif self.family is None:
-                words += f"; across the family of machines, {self.shown(None)} ({t.describe()})"
             else:
                 words += (
                     f"; across the family of machines, under {self.shown(self.family)} "

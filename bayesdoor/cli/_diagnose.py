@@ -116,7 +116,8 @@ def summary_lines(payload: dict[str, Any]) -> list[str]:
             lines.append(f"  - {limit.get('words', name)}")
             plan = limit.get("plan")
             if verdict == "none" and isinstance(plan, dict) and plan.get("words"):
-                lines.append(f"    planned at half the limit: {plan['words']}")
+                half = "half the limit (the family's where the cause has one)"
+                lines.append(f"    planned at {half}: {plan['words']}")
     lines.append(f"report: {payload['report']}")
     return lines
 

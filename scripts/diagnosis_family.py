@@ -73,7 +73,8 @@ def family_scale(cause: str) -> float | None:
     from bayesdoor.door._catalogue import FAMILY_TRANSMISSION
 
     t = FAMILY_TRANSMISSION.get(cause)
-    return None if t is None or not t.reliable else 1.0 / t.low
+    ratio = None if t is None else t.ratio
+    return None if ratio is None else 1.0 / ratio
 
 
 def shown_as(cause: str) -> float:

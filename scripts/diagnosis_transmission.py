@@ -45,26 +45,21 @@ from diagnosis_limits import VALIDATED
 
 def machine_setup(door: Any, fit: Any):
     """The base setup of a door's nothing-hidden campaign under its base fit."""
-    from bayesdoor.diagnose._measured import Measured, _band, _simulate_rows
+    from bayesdoor.diagnose._measured import _band, base_setup, measure
     from bayesdoor.door import ElevatorDoor
-    from bayesdoor.inference import calibration_runs
 
     model = ElevatorDoor()
-    campaign = record(door, BASE_KEY + door.seed)
-    measured = Measured.of(model, campaign, calibration_runs(campaign))
-    sims, _, times = _simulate_rows(model, measured, [dict(fit.point)])
-    return measured.setup(model, fit.point, sims[0], times, _band(fit), None)
+    measured = measure(model, record(door, BASE_KEY + door.seed))
+    return base_setup(model, measured, fit, _band(fit))
 
 
 def machine_spectra(setup: Any, door: Any) -> np.ndarray:
     """The log10 spectra of ``door``'s base campaign recorded again (same key), analysed as
     ``setup``'s measured runs."""
-    from bayesdoor.diagnose._measured import Measured
+    from bayesdoor.diagnose._measured import measure
     from bayesdoor.door import ElevatorDoor
-    from bayesdoor.inference import calibration_runs
 
-    campaign = record(door, BASE_KEY + door.seed)
-    measured = Measured.of(ElevatorDoor(), campaign, calibration_runs(campaign))
+    measured = measure(ElevatorDoor(), record(door, BASE_KEY + door.seed))
     return setup.spectra.model(measured.signals, np.arange(len(setup.operating)))
 
 

@@ -161,10 +161,10 @@ class CauseLimit:
         no model limit, no transmission measured, or one the model does not reproduce). The
         least-transmitting machine shows a cause at the family limit as the model shows one
         at the model limit, so the refit reaches it wherever it reaches the model limit."""
-        t = self.transmission
-        if self.size is None or t is None or not t.reliable:
+        ratio = None if self.transmission is None else self.transmission.ratio
+        if self.size is None or ratio is None:
             return None
-        return self.size / t.low
+        return self.size / ratio
 
     @property
     def worst(self) -> float | None:
@@ -287,7 +287,7 @@ def expected_differences(
     running median of its run mean (``None``: the whole change)."""
     delta = np.asarray(extended) - np.asarray(base)
     if smooth_bins is not None:
-        delta = delta - smooth_discrepancy(delta.mean(axis=0), smooth_bins)
+        delta = _detrended(delta, smooth_bins)
     changed = changed_bins(base, extended, welch)
     d2 = np.where(changed, delta**2, 0.0)
     count = np.maximum(changed.sum(axis=(0, 2), keepdims=True), 1)
@@ -315,9 +315,15 @@ def information(
     up, down = spectra(float(size) + step), spectra(float(size) - step)
     slope = (up - down) / (2.0 * step)
     if smooth_bins is not None:
-        slope = slope - smooth_discrepancy(slope.mean(axis=0), smooth_bins)
+        slope = _detrended(slope, smooth_bins)
     changed = changed_bins(base, spectra(float(size)), welch)
     return np.where(changed, slope**2 / variance, 0.0).sum(axis=(1, 2))
+
+
+def _detrended(delta: np.ndarray, smooth_bins: int = SMOOTH_BINS) -> np.ndarray:
+    """A change (run, channel, bin) less the running median over ``2 smooth_bins + 1`` bins
+    of its run mean: the part each model's smooth discrepancy takes alike."""
+    return delta - smooth_discrepancy(delta.mean(axis=0), smooth_bins)
 
 
 def _evidence(mean: np.ndarray, variance: np.ndarray) -> np.ndarray:
@@ -556,8 +562,7 @@ def _plan(
     """The campaign that would name the cause at size ``target`` in its typical
     configuration, on every machine of its family where it declares a transmission the
     model reproduces (designed for what the least-transmitting machine shows of it)."""
-    t = size.transmission
-    ratio = t.low if t is not None and t.reliable else None
+    ratio = None if size.transmission is None else size.transmission.ratio
     designed = target * (1.0 if ratio is None else ratio)
     plan = design_campaign(
         run_gains(setup, size.probes[0], designed, noise=scan.noise, spectra=typical),
@@ -625,14 +630,7 @@ def detection_limits(
     out = {}
     for name, size in declared.items():
         curves, typical = _cause_curves(setup, size, scan)
-        plan = None
-        limit = curves[0].limit
-        t = size.transmission
-        if t is not None and t.reliable and limit is not None:
-            limit = limit / t.low
-        if plan_factor is not None and limit is not None and np.ndim(setup.operating) == 1:
-            plan = _plan(setup, name, size, plan_factor * limit, typical, scan)
-        out[name] = CauseLimit(
+        limit = CauseLimit(
             cause=name,
             quantity=size.quantity,
             unit=size.unit,
@@ -640,9 +638,13 @@ def detection_limits(
             power=power,
             runs=n,
             curves=curves,
-            plan=plan,
             transmission=size.transmission,
         )
+        target = limit.size if limit.family is None else limit.family
+        if plan_factor is not None and target is not None and np.ndim(setup.operating) == 1:
+            plan = _plan(setup, name, size, plan_factor * target, typical, scan)
+            limit = dataclasses.replace(limit, plan=plan)
+        out[name] = limit
     return out
 
 
@@ -673,12 +675,6 @@ class TransmissionReading:
     def ratio(self) -> float:
         """``model_size / size``: below 1 the machine shows less of the cause than the model."""
         return self.model_size / self.size
-
-
-def _detrended(delta: np.ndarray) -> np.ndarray:
-    """A change less the running median of its run mean (the part each model's smooth
-    discrepancy takes alike, as in :func:`expected_differences`)."""
-    return delta - smooth_discrepancy(delta.mean(axis=0), SMOOTH_BINS)
 
 
 def read_transmission(

@@ -79,13 +79,13 @@ def family_ratio(declared: CauseSize, cause: str, configuration: int, machines: 
     t = declared.transmission
     if machines != "family" or t is None or configuration != 0:
         return None
-    if not t.reliable:
+    if t.ratio is None:
         raise ValueError(
             f"{cause}: {t.describe()}, so no campaign is planned to hold on its family; "
             "plan for a machine that transmits it as the model does (machines='model', "
             "--machines model)"
         )
-    return t.low
+    return t.ratio
 
 
 def plan_campaign(

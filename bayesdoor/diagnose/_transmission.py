@@ -54,6 +54,13 @@ class Transmission:
         least :data:`RELIABLE_SHARE` of its change explained on each."""
         return self.low > 0.0 and self.explained >= RELIABLE_SHARE
 
+    @property
+    def ratio(self) -> float | None:
+        """The ratio a limit or a plan holds on every machine with: the smallest, where the
+        transmission is reliable (``None``: no scaling of the model's says what a machine
+        shows)."""
+        return self.low if self.reliable else None
+
     def describe(self) -> str:
         """The family's transmission in words."""
         if not self.reliable:
